@@ -1,0 +1,49 @@
+# hsmap: two commands on a fresh machine with python3 (3.11+) and make.
+#   make reproduce   the whole study into reports/
+#   make test        the test suite
+# Both run `setup` first; `setup` is idempotent and cheap when nothing changed.
+
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.hsmap-installed
+UV_VERSION := 0.13.9
+export RERUN_ANALYTICS := 0
+export MPLBACKEND := Agg
+export PYTHONHASHSEED := 0
+
+.PHONY: setup system-libs reproduce test bench lint clean lock
+
+setup: system-libs $(STAMP)
+
+# open3d links against libusb-1.0, which a fresh Debian/Ubuntu machine lacks.
+system-libs:
+	@.ci/ensure-system-libs
+
+$(STAMP): requirements.lock pyproject.toml
+	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	@$(BIN)/python -m pip install --quiet --disable-pip-version-check uv==$(UV_VERSION)
+	$(BIN)/uv pip sync --quiet --python $(BIN)/python requirements.lock
+	$(BIN)/uv pip install --quiet --python $(BIN)/python --no-deps -e .
+	@$(BIN)/python -c "import open3d, rerun, hsmap; print('hsmap', hsmap.__version__, 'ready in $(VENV)')"
+	@touch $@
+
+reproduce: setup
+	$(BIN)/hsmap reproduce
+
+test: setup
+	$(BIN)/python -m pytest -n 2 $(PYTEST_ARGS)
+
+bench: setup
+	$(BIN)/python benchmarks/registration.py
+
+lint: setup
+	$(BIN)/ruff check hsmap tests benchmarks
+
+# Re-resolve the pinned versions (needs the registry); commit requirements.lock afterwards.
+lock:
+	@test -x $(BIN)/uv || (test -x $(BIN)/python || $(PYTHON) -m venv $(VENV); $(BIN)/python -m pip install --quiet uv==$(UV_VERSION))
+	$(BIN)/uv pip compile pyproject.toml --extra dev --python-version 3.11 --universal -o requirements.lock
+
+clean:
+	rm -rf $(VENV) reports/* .pytest_cache

@@ -1,0 +1,27 @@
+"""Evaluate results against ground truth; prints one JSON object of metrics on stdout."""
+
+from __future__ import annotations
+
+import argparse
+
+NAME = "evaluate"
+HELP = "score a trajectory or a segmentation against ground truth (JSON on stdout)"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    sub = parser.add_subparsers(dest="what", metavar="WHAT", required=True)
+    p = sub.add_parser("relations", help="Freiburg relations metric (Kümmerle et al. 2009)")
+    p.add_argument("trajectory", help="estimated trajectory, TUM format")
+    p.add_argument("relations", help="ground-truth .relations file")
+    p = sub.add_parser("trajectory", help="per-DOF errors, ATE and RPE against a ground-truth trajectory")
+    p.add_argument("estimate", help="estimated trajectory, TUM format")
+    p.add_argument("groundtruth", help="ground-truth trajectory, TUM format")
+    p = sub.add_parser("segmentation", help="Bormann et al. 2016 precision and recall of a room segmentation")
+    p.add_argument("rooms", help="room label image (PNG, 0 = no room)")
+    p.add_argument("groundtruth", help="ground-truth segmentation image (rooms are regions of pixels > 250)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..errors import HsmapError
+
+    raise HsmapError(f"'hsmap evaluate {args.what}' is not implemented yet")

@@ -1,0 +1,18 @@
+"""hsmap segment (not implemented yet)."""
+
+from __future__ import annotations
+
+import argparse
+
+NAME = "segment"
+HELP = "(not implemented yet)"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    pass
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..errors import HsmapError
+
+    raise HsmapError("'hsmap segment' is not implemented yet")

@@ -1,0 +1,67 @@
+"""The common currency of every reader: one :class:`Frame` per scan."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["LaserScan2D", "Frame"]
+
+
+@dataclass
+class LaserScan2D:
+    """A planar laser scan in the sensor frame.
+
+    Attributes
+    ----------
+    ranges : ndarray of shape (M,)
+        Metres; NaN where there is no return (readings at or beyond ``range_max`` are masked by readers).
+    angles : ndarray of shape (M,)
+        Beam angles in radians, counter-clockwise from the sensor's x axis.
+    range_min, range_max : float
+        Valid range interval of the sensor.
+    """
+
+    ranges: NDArray[np.float64]
+    angles: NDArray[np.float64]
+    range_min: float = 0.0
+    range_max: float = np.inf
+
+    def points(self) -> NDArray[np.float64]:
+        """Valid returns as (K, 2) points in the sensor frame."""
+        r = np.asarray(self.ranges, dtype=float)
+        ok = np.isfinite(r) & (r >= self.range_min) & (r < self.range_max)
+        return np.column_stack([r[ok] * np.cos(self.angles[ok]), r[ok] * np.sin(self.angles[ok])])
+
+
+@dataclass
+class Frame:
+    """One time step of robot data.
+
+    Attributes
+    ----------
+    stamp : float
+        Seconds; the scan's own timestamp (this is what trajectories are written with).
+    scan2d : LaserScan2D or None
+        Floor-level 2D scan, in the 2D sensor frame.
+    cloud3d : ndarray of shape (N, 3) or None
+        3D LiDAR points, in the 3D sensor frame.
+    odometry : ndarray of shape (3,) or None
+        Wheel-odometry pose (x, y, yaw) of the robot base in the odometry frame, at ``stamp``.
+    index : int
+        Position of the frame in its sequence.
+    extrinsic2d : ndarray of shape (3,)
+        Pose (x, y, yaw) of the 2D sensor in the robot base frame.
+    extrinsic3d : ndarray of shape (6,)
+        Pose (x, y, z, roll, pitch, yaw) of the 3D sensor in the robot base frame.
+    """
+
+    stamp: float
+    scan2d: LaserScan2D | None = None
+    cloud3d: NDArray[np.float64] | None = None
+    odometry: NDArray[np.float64] | None = None
+    index: int = 0
+    extrinsic2d: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
+    extrinsic3d: NDArray[np.float64] = field(default_factory=lambda: np.zeros(6))

@@ -1,0 +1,51 @@
+"""The hsmap exception family.
+
+Every error raised on purpose by hsmap derives from :class:`HsmapError`, so that callers (and the
+``hsmap`` command, which turns them into a one-line message and a non-zero exit) can catch them apart
+from programming errors. Messages name the argument, file, key or field at fault and what was expected.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "HsmapError",
+    "InputError",
+    "ShapeError",
+    "EmptyInputError",
+    "ConfigError",
+    "DataFormatError",
+    "DatasetError",
+    "ScenarioError",
+]
+
+
+class HsmapError(Exception):
+    """Base class of every error hsmap raises on purpose."""
+
+
+class InputError(HsmapError, ValueError):
+    """An argument has a value hsmap cannot work with (wrong range, NaN, inverted bounds, ...)."""
+
+
+class ShapeError(InputError):
+    """An array argument has the wrong shape or dimensionality."""
+
+
+class EmptyInputError(InputError):
+    """An input that must hold data is empty (or nothing is left after dropping invalid values)."""
+
+
+class ConfigError(HsmapError, ValueError):
+    """A configuration value or file is invalid (unknown key, out of range, wrong type)."""
+
+
+class DataFormatError(HsmapError, ValueError):
+    """A file does not have the expected format; the message names the file and, where known, the line."""
+
+
+class DatasetError(HsmapError):
+    """A dataset cannot be found or read (missing file, missing topic, ...)."""
+
+
+class ScenarioError(ConfigError):
+    """A simulator scenario file is malformed; the message names the file, the key and the problem."""

@@ -1,0 +1,203 @@
+"""Rigid transforms in 2D (SE(2)) and 3D (SE(3)): pose vectors <-> homogeneous matrices, batched.
+
+Conventions (used everywhere in hsmap):
+
+- A 2D pose vector is ``(x, y, yaw)`` in metres and radians.
+- A 3D pose vector is ``(x, y, z, roll, pitch, yaw)``; the rotation is ``Rz(yaw) @ Ry(pitch) @ Rx(roll)``
+  (extrinsic x-y-z, the ROS/URDF convention).
+- A pose maps points from the body (source) frame into the reference (target) frame:
+  ``p_ref = R @ p_body + t``.
+- All functions accept a single pose ``(dof,)`` or a batch ``(..., dof)`` and return matching shapes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .errors import ShapeError
+
+__all__ = [
+    "wrap_angle",
+    "rot2",
+    "euler_to_matrix",
+    "matrix_to_euler",
+    "pose_to_matrix",
+    "matrix_to_pose",
+    "transform_points",
+    "transform_points_batch",
+    "compose",
+    "invert",
+    "invert_matrix",
+    "relative",
+    "quaternion_to_matrix",
+    "matrix_to_quaternion",
+    "dof_of_dim",
+    "rotation_angle",
+]
+
+
+def wrap_angle(a: ArrayLike) -> NDArray[np.float64]:
+    """Wrap angles to [-pi, pi)."""
+    a = np.asarray(a, dtype=float)
+    return (a + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def dof_of_dim(dim: int) -> int:
+    """Degrees of freedom of a rigid transform in ``dim`` dimensions (2 -> 3, 3 -> 6)."""
+    if dim == 2:
+        return 3
+    if dim == 3:
+        return 6
+    raise ShapeError(f"points must be 2D or 3D, got dimension {dim}")
+
+
+def rot2(yaw: ArrayLike) -> NDArray[np.float64]:
+    """Rotation matrices of shape (..., 2, 2) for angles of shape (...)."""
+    yaw = np.asarray(yaw, dtype=float)
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
+
+
+def euler_to_matrix(roll: ArrayLike, pitch: ArrayLike, yaw: ArrayLike) -> NDArray[np.float64]:
+    """Rotation matrices (..., 3, 3) = Rz(yaw) @ Ry(pitch) @ Rx(roll)."""
+    r, p, y = (np.asarray(v, dtype=float) for v in (roll, pitch, yaw))
+    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
+    row0 = np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], -1)
+    row1 = np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], -1)
+    row2 = np.stack([-sp, cp * sr, cp * cr], -1)
+    return np.stack([row0, row1, row2], -2)
+
+
+def matrix_to_euler(R: ArrayLike) -> NDArray[np.float64]:
+    """(roll, pitch, yaw) of shape (..., 3) from rotation matrices (..., 3, 3); inverse of euler_to_matrix."""
+    R = np.asarray(R, dtype=float)
+    pitch = np.arcsin(np.clip(-R[..., 2, 0], -1.0, 1.0))
+    roll = np.arctan2(R[..., 2, 1], R[..., 2, 2])
+    yaw = np.arctan2(R[..., 1, 0], R[..., 0, 0])
+    return np.stack([roll, pitch, yaw], -1)
+
+
+def pose_to_matrix(pose: ArrayLike) -> NDArray[np.float64]:
+    """Homogeneous matrices from pose vectors: (..., 3) -> (..., 3, 3); (..., 6) -> (..., 4, 4)."""
+    pose = np.asarray(pose, dtype=float)
+    dof = pose.shape[-1] if pose.ndim else 0
+    if dof == 3:
+        T = np.zeros(pose.shape[:-1] + (3, 3))
+        T[..., :2, :2] = rot2(pose[..., 2])
+        T[..., :2, 2] = pose[..., :2]
+        T[..., 2, 2] = 1.0
+        return T
+    if dof == 6:
+        T = np.zeros(pose.shape[:-1] + (4, 4))
+        T[..., :3, :3] = euler_to_matrix(pose[..., 3], pose[..., 4], pose[..., 5])
+        T[..., :3, 3] = pose[..., :3]
+        T[..., 3, 3] = 1.0
+        return T
+    raise ShapeError(f"pose must have 3 (x, y, yaw) or 6 (x, y, z, roll, pitch, yaw) values, got shape {pose.shape}")
+
+
+def matrix_to_pose(T: ArrayLike) -> NDArray[np.float64]:
+    """Pose vectors from homogeneous matrices: (..., 3, 3) -> (..., 3); (..., 4, 4) -> (..., 6)."""
+    T = np.asarray(T, dtype=float)
+    if T.shape[-2:] == (3, 3):
+        return np.concatenate([T[..., :2, 2], np.arctan2(T[..., 1, 0], T[..., 0, 0])[..., None]], -1)
+    if T.shape[-2:] == (4, 4):
+        return np.concatenate([T[..., :3, 3], matrix_to_euler(T[..., :3, :3])], -1)
+    raise ShapeError(f"transformation must be 3x3 or 4x4 homogeneous, got shape {T.shape}")
+
+
+def transform_points(T: ArrayLike, points: ArrayLike) -> NDArray[np.float64]:
+    """Apply one homogeneous transform (d+1, d+1) or pose vector to points (N, d)."""
+    T = np.asarray(T, dtype=float)
+    if T.ndim == 1:
+        T = pose_to_matrix(T)
+    points = np.asarray(points, dtype=float)
+    d = T.shape[-1] - 1
+    if points.ndim != 2 or points.shape[1] != d:
+        raise ShapeError(f"points must have shape (N, {d}) for a {d + 1}x{d + 1} transform, got {points.shape}")
+    return points @ T[:d, :d].T + T[:d, d]
+
+
+def transform_points_batch(T: ArrayLike, points: ArrayLike) -> NDArray[np.float64]:
+    """Apply a batch of transforms (B, d+1, d+1) to one point set (N, d): returns (B, N, d)."""
+    T = np.asarray(T, dtype=float)
+    points = np.asarray(points, dtype=float)
+    d = T.shape[-1] - 1
+    return np.einsum("bij,nj->bni", T[:, :d, :d], points) + T[:, None, :d, d]
+
+
+def compose(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
+    """Composition a ⊕ b of pose vectors (..., 3|6): b expressed in a's frame, mapped to a's parent."""
+    return matrix_to_pose(pose_to_matrix(a) @ pose_to_matrix(b))
+
+
+def invert_matrix(T: ArrayLike) -> NDArray[np.float64]:
+    """Inverse of rigid homogeneous transforms (..., d+1, d+1), using R^T rather than a general inverse."""
+    M = np.asarray(T, dtype=float)
+    d = M.shape[-1] - 1
+    R = np.swapaxes(M[..., :d, :d], -1, -2)
+    Minv = np.zeros_like(M)
+    Minv[..., :d, :d] = R
+    Minv[..., :d, d] = -np.einsum("...ij,...j->...i", R, M[..., :d, d])
+    Minv[..., d, d] = 1.0
+    return Minv
+
+
+def invert(pose: ArrayLike) -> NDArray[np.float64]:
+    """Inverse of pose vectors (..., 3|6)."""
+    return matrix_to_pose(invert_matrix(pose_to_matrix(pose)))
+
+
+def relative(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
+    """Relative pose a⁻¹ ⊕ b of pose vectors: b expressed in the frame of a."""
+    return matrix_to_pose(invert_matrix(pose_to_matrix(a)) @ pose_to_matrix(b))
+
+
+def rotation_angle(R: ArrayLike) -> NDArray[np.float64]:
+    """Angle (radians) of rotation matrices (..., 2, 2) or (..., 3, 3)."""
+    R = np.asarray(R, dtype=float)
+    if R.shape[-1] == 2:
+        return np.abs(np.arctan2(R[..., 1, 0], R[..., 0, 0]))
+    c = (np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0
+    return np.arccos(np.clip(c, -1.0, 1.0))
+
+
+def quaternion_to_matrix(q: ArrayLike) -> NDArray[np.float64]:
+    """Rotation matrices (..., 3, 3) from unit quaternions (..., 4) in (qx, qy, qz, qw) order (TUM, ROS)."""
+    q = np.asarray(q, dtype=float)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+            np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+            np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        -2,
+    )
+
+
+def matrix_to_quaternion(R: ArrayLike) -> NDArray[np.float64]:
+    """Unit quaternions (..., 4) in (qx, qy, qz, qw) order, qw >= 0, from rotation matrices (..., 3, 3)."""
+    R = np.asarray(R, dtype=float)
+    m = R.reshape(-1, 3, 3)
+    out = np.empty((m.shape[0], 4))
+    tr = np.trace(m, axis1=1, axis2=2)
+    for i in range(m.shape[0]):  # Shepperd's method: pick the numerically largest component
+        M = m[i]
+        if tr[i] > 0:
+            s = 2.0 * np.sqrt(tr[i] + 1.0)
+            out[i] = [(M[2, 1] - M[1, 2]) / s, (M[0, 2] - M[2, 0]) / s, (M[1, 0] - M[0, 1]) / s, 0.25 * s]
+        elif M[0, 0] > M[1, 1] and M[0, 0] > M[2, 2]:
+            s = 2.0 * np.sqrt(1.0 + M[0, 0] - M[1, 1] - M[2, 2])
+            out[i] = [0.25 * s, (M[0, 1] + M[1, 0]) / s, (M[0, 2] + M[2, 0]) / s, (M[2, 1] - M[1, 2]) / s]
+        elif M[1, 1] > M[2, 2]:
+            s = 2.0 * np.sqrt(1.0 + M[1, 1] - M[0, 0] - M[2, 2])
+            out[i] = [(M[0, 1] + M[1, 0]) / s, 0.25 * s, (M[1, 2] + M[2, 1]) / s, (M[0, 2] - M[2, 0]) / s]
+        else:
+            s = 2.0 * np.sqrt(1.0 + M[2, 2] - M[0, 0] - M[1, 1])
+            out[i] = [(M[0, 2] + M[2, 0]) / s, (M[1, 2] + M[2, 1]) / s, 0.25 * s, (M[1, 0] - M[0, 1]) / s]
+    out *= np.where(out[:, 3:4] < 0, -1.0, 1.0)
+    out /= np.linalg.norm(out, axis=1, keepdims=True)
+    return out.reshape(R.shape[:-2] + (4,))

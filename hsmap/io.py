@@ -1,0 +1,182 @@
+"""File I/O shared by every stage: atomic writes and TUM trajectories.
+
+Outputs are written atomically: to a temporary file in the same folder, then renamed over the target,
+so an interrupted run never leaves a half-written file that looks complete.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import tempfile
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .errors import DataFormatError, DatasetError, ShapeError
+from .geometry import euler_to_matrix, matrix_to_euler, matrix_to_quaternion, quaternion_to_matrix
+
+__all__ = [
+    "atomic_path",
+    "atomic_open",
+    "write_json",
+    "write_text",
+    "Trajectory",
+    "read_tum",
+    "write_tum",
+]
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; on success rename it over ``path``, on error delete it.
+
+    Use for writers that want a file name (open3d, PIL, rerun): ``with atomic_path(p) as tmp: write(tmp)``.
+    The temporary file keeps ``path``'s suffix (or ``suffix``) so that format-sniffing writers work.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix if suffix is not None else path.suffix,
+                               dir=path.parent)
+    os.close(fd)
+    tmp_path = Path(tmp)
+    try:
+        yield tmp_path
+        os.replace(tmp_path, path)
+    except BaseException:
+        tmp_path.unlink(missing_ok=True)
+        raise
+
+
+@contextlib.contextmanager
+def atomic_open(path: str | os.PathLike, mode: str = "w", **kwargs: Any) -> Iterator[IO[Any]]:
+    """Open ``path`` for writing atomically (see :func:`atomic_path`)."""
+    with atomic_path(path) as tmp, open(tmp, mode, **kwargs) as fh:
+        yield fh
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"cannot serialise {type(o).__name__} to JSON")
+
+
+def write_json(path: str | os.PathLike, obj: Any) -> None:
+    """Write ``obj`` as indented JSON, atomically (numpy scalars and arrays allowed)."""
+    with atomic_open(path, "w", encoding="utf-8") as fh:
+        json.dump(obj, fh, indent=2, default=_json_default)
+        fh.write("\n")
+
+
+def write_text(path: str | os.PathLike, text: str) -> None:
+    """Write text atomically."""
+    with atomic_open(path, "w", encoding="utf-8") as fh:
+        fh.write(text)
+
+
+@dataclass
+class Trajectory:
+    """Timestamped poses.
+
+    Attributes
+    ----------
+    stamps : ndarray of shape (N,)
+        Seconds.
+    poses : ndarray of shape (N, 3) or (N, 6)
+        (x, y, yaw) or (x, y, z, roll, pitch, yaw), see :mod:`hsmap.geometry`.
+    """
+
+    stamps: NDArray[np.float64]
+    poses: NDArray[np.float64]
+
+    def __post_init__(self) -> None:
+        self.stamps = np.asarray(self.stamps, dtype=float).reshape(-1)
+        self.poses = np.asarray(self.poses, dtype=float)
+        if self.poses.ndim != 2 or self.poses.shape[1] not in (3, 6):
+            raise ShapeError(f"Trajectory.poses must have shape (N, 3) or (N, 6), got {self.poses.shape}")
+        if len(self.stamps) != len(self.poses):
+            raise ShapeError(f"Trajectory has {len(self.stamps)} stamps but {len(self.poses)} poses")
+
+    def __len__(self) -> int:
+        return len(self.stamps)
+
+    @property
+    def dof(self) -> int:
+        return self.poses.shape[1]
+
+    def as_6dof(self) -> Trajectory:
+        """The same trajectory as (x, y, z, roll, pitch, yaw), z = roll = pitch = 0 for 2D input."""
+        if self.dof == 6:
+            return self
+        p = np.zeros((len(self), 6))
+        p[:, :2] = self.poses[:, :2]
+        p[:, 5] = self.poses[:, 2]
+        return Trajectory(self.stamps.copy(), p)
+
+    def as_3dof(self) -> Trajectory:
+        """The planar part (x, y, yaw)."""
+        if self.dof == 3:
+            return self
+        return Trajectory(self.stamps.copy(), self.poses[:, [0, 1, 5]].copy())
+
+    def path_length(self) -> float:
+        """Length of the path through the positions, in metres."""
+        d = self.poses.shape[1] // 2
+        return float(np.linalg.norm(np.diff(self.poses[:, :d], axis=0), axis=1).sum())
+
+
+def write_tum(path: str | os.PathLike, traj: Trajectory) -> None:
+    """Write a TUM trajectory (``t x y z qx qy qz qw``, readable by evo), atomically."""
+    p = traj.as_6dof().poses
+    q = matrix_to_quaternion(euler_to_matrix(p[:, 3], p[:, 4], p[:, 5]))
+    rows = np.column_stack([traj.stamps, p[:, :3], q])
+    with atomic_open(path, "w", encoding="utf-8") as fh:
+        fh.write("# timestamp x y z qx qy qz qw\n")
+        np.savetxt(fh, rows, fmt=["%.9f"] + ["%.9g"] * 7)
+
+
+def read_tum(path: str | os.PathLike, dof: int = 6) -> Trajectory:
+    """Read a TUM trajectory file; ``dof=3`` returns (x, y, yaw)."""
+    path = Path(path)
+    if not path.is_file():
+        raise DatasetError(f"{path}: no such trajectory file")
+    stamps, poses = [], []
+    with open(path, encoding="utf-8") as fh:
+        for lineno, line in enumerate(fh, 1):
+            line = line.strip()
+            if not line or line.startswith("#"):
+                continue
+            parts = line.replace(",", " ").split()
+            if len(parts) != 8:
+                raise DataFormatError(f"{path}:{lineno}: expected 8 values 't x y z qx qy qz qw', got {len(parts)}")
+            try:
+                vals = [float(v) for v in parts]
+            except ValueError:
+                raise DataFormatError(f"{path}:{lineno}: not a number in {line!r}") from None
+            if not np.all(np.isfinite(vals)):
+                raise DataFormatError(f"{path}:{lineno}: NaN or inf in {line!r}")
+            stamps.append(vals[0])
+            poses.append(vals[1:])
+    if not stamps:
+        raise DataFormatError(f"{path}: no poses in TUM file")
+    arr = np.asarray(poses)
+    rpy = matrix_to_euler(quaternion_to_matrix(arr[:, 3:]))
+    traj = Trajectory(np.asarray(stamps), np.column_stack([arr[:, :3], rpy]))
+    return traj.as_3dof() if dof == 3 else traj
+
+
+def as_float_array(x: ArrayLike, name: str) -> NDArray[np.float64]:
+    """``np.asarray(x, float)`` with an error naming the argument when it is not numeric."""
+    try:
+        return np.asarray(x, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ShapeError(f"{name} must be a numeric array, got {type(x).__name__}: {exc}") from None

@@ -1,0 +1,52 @@
+import numpy as np
+import pytest
+
+from hsmap import geometry as g
+from hsmap.errors import ShapeError
+
+
+def test_se2_roundtrip_and_compose(rng):
+    poses = np.column_stack([rng.uniform(-5, 5, (50, 2)), rng.uniform(-np.pi, np.pi, 50)])
+    np.testing.assert_allclose(g.matrix_to_pose(g.pose_to_matrix(poses)), poses, atol=1e-12)
+    a, b = poses[0], poses[1]
+    ab = g.compose(a, b)
+    np.testing.assert_allclose(g.relative(a, ab), b, atol=1e-12)
+    np.testing.assert_allclose(g.compose(a, g.invert(a)), np.zeros(3), atol=1e-12)
+
+
+def test_se3_roundtrip_and_convention(rng):
+    poses = np.column_stack([rng.uniform(-5, 5, (50, 3)), rng.uniform(-1.2, 1.2, (50, 2)),
+                             rng.uniform(-np.pi, np.pi, 50)])
+    poses = poses[:, [0, 1, 2, 3, 4, 5]]
+    np.testing.assert_allclose(g.matrix_to_pose(g.pose_to_matrix(poses)), poses, atol=1e-10)
+    # yaw of 90 deg maps x onto y
+    T = g.pose_to_matrix([1, 2, 3, 0, 0, np.pi / 2])
+    np.testing.assert_allclose(g.transform_points(T, np.array([[1.0, 0, 0]])), [[1, 3, 3]], atol=1e-12)
+
+
+def test_quaternion_roundtrip(rng):
+    rpy = rng.uniform(-1, 1, (100, 3))
+    R = g.euler_to_matrix(rpy[:, 0], rpy[:, 1], rpy[:, 2])
+    q = g.matrix_to_quaternion(R)
+    np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0)
+    np.testing.assert_allclose(g.quaternion_to_matrix(q), R, atol=1e-12)
+
+
+def test_batch_transform_matches_single(rng):
+    pts = rng.normal(size=(20, 2))
+    poses = rng.normal(size=(4, 3))
+    T = g.pose_to_matrix(poses)
+    batch = g.transform_points_batch(T, pts)
+    for i in range(4):
+        np.testing.assert_allclose(batch[i], g.transform_points(T[i], pts), atol=1e-12)
+
+
+def test_wrap_angle():
+    np.testing.assert_allclose(g.wrap_angle([np.pi + 0.1, -np.pi - 0.1, 0.5]), [-np.pi + 0.1, np.pi - 0.1, 0.5])
+
+
+def test_bad_shapes():
+    with pytest.raises(ShapeError, match="pose must have 3"):
+        g.pose_to_matrix([1, 2])
+    with pytest.raises(ShapeError, match=r"points must have shape \(N, 2\)"):
+        g.transform_points(np.eye(3), np.zeros((4, 3)))

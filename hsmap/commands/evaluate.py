@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import json
+import sys
 
 NAME = "evaluate"
 HELP = "score a trajectory or a segmentation against ground truth (JSON on stdout)"
@@ -13,15 +15,37 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p = sub.add_parser("relations", help="Freiburg relations metric (Kümmerle et al. 2009)")
     p.add_argument("trajectory", help="estimated trajectory, TUM format")
     p.add_argument("relations", help="ground-truth .relations file")
+    p.set_defaults(_evaluate=_relations)
     p = sub.add_parser("trajectory", help="per-DOF errors, ATE and RPE against a ground-truth trajectory")
     p.add_argument("estimate", help="estimated trajectory, TUM format")
     p.add_argument("groundtruth", help="ground-truth trajectory, TUM format")
+    p.set_defaults(_evaluate=_trajectory)
     p = sub.add_parser("segmentation", help="Bormann et al. 2016 precision and recall of a room segmentation")
     p.add_argument("rooms", help="room label image (PNG, 0 = no room)")
     p.add_argument("groundtruth", help="ground-truth segmentation image (rooms are regions of pixels > 250)")
+    p.set_defaults(_evaluate=_segmentation)
 
 
 def run(args: argparse.Namespace) -> int:
+    metrics = args._evaluate(args)
+    json.dump(metrics, sys.stdout, indent=2)
+    sys.stdout.write("\n")
+    return 0
+
+
+def _relations(args: argparse.Namespace) -> dict:
     from ..errors import HsmapError
 
-    raise HsmapError(f"'hsmap evaluate {args.what}' is not implemented yet")
+    raise HsmapError("'hsmap evaluate relations' is not implemented yet")
+
+
+def _trajectory(args: argparse.Namespace) -> dict:
+    from ..errors import HsmapError
+
+    raise HsmapError("'hsmap evaluate trajectory' is not implemented yet")
+
+
+def _segmentation(args: argparse.Namespace) -> dict:
+    from ..errors import HsmapError
+
+    raise HsmapError("'hsmap evaluate segmentation' is not implemented yet")

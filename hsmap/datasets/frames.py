@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["LaserScan2D", "Frame"]
+__all__ = ["LaserScan2D", "Frame", "Dataset"]
 
 
 @dataclass
@@ -65,3 +65,31 @@ class Frame:
     index: int = 0
     extrinsic2d: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
     extrinsic3d: NDArray[np.float64] = field(default_factory=lambda: np.zeros(6))
+
+
+class Dataset:
+    """What every reader returns: a sequence of :class:`Frame` plus what the source knows about itself.
+
+    Attributes
+    ----------
+    name : str
+        Short name for reports (file or folder stem).
+    path : str
+        Where it was read from.
+    odometry : Trajectory or None
+        Wheel odometry of the robot base at the scan stamps, when the source has it.
+    groundtruth : Trajectory or None
+        Ground-truth poses of the robot base at the scan stamps (simulator only).
+    """
+
+    name: str = ""
+    path: str = ""
+    odometry = None
+    groundtruth = None
+
+    def __len__(self) -> int:
+        raise NotImplementedError
+
+    def frames(self):  # -> Iterator[Frame]
+        """Yield the frames in recording order."""
+        raise NotImplementedError

@@ -16,7 +16,7 @@ def test_row_flip_and_origin():
     # lower-left pixel centre
     np.testing.assert_allclose(g.pixel_to_world([9, 0]), [1.25, -1.75])
     # top-right pixel centre
-    np.testing.assert_allclose(g.pixel_to_world([0, 19]), [1.0 + 19.75, -2.0 + 4.75])
+    np.testing.assert_allclose(g.pixel_to_world([0, 19]), [1.0 + 9.75, -2.0 + 4.75])
     np.testing.assert_array_equal(g.world_to_index([[1.01, -1.99], [10.9, 2.9]]), [[9, 0], [0, 19]])
 
 

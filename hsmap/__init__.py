@@ -1,2 +1,29 @@
-"""hsmap: multi-LiDAR indoor mapping with Harmony Search."""
+"""hsmap: multi-LiDAR indoor mapping with Harmony Search.
+
+The public API: :func:`harmony_icp` (scan registration), the error family in :mod:`hsmap.errors`, and the
+modules ``geometry``, ``harmony``, ``fitness``, ``registration``, ``grid``, ``io``, ``datasets``, ``evaluation``.
+"""
+
+import os as _os
+
+_os.environ.setdefault("RERUN_ANALYTICS", "0")  # rerun's analytics off in everything we run
+
 __version__ = "0.1.0"
+
+from . import errors, geometry  # noqa: E402
+from .errors import HsmapError  # noqa: E402
+from .harmony import HarmonyConfig, harmony_search  # noqa: E402
+from .registration import RegistrationConfig, RegistrationResult, RegistrationTarget, harmony_icp  # noqa: E402
+
+__all__ = [
+    "__version__",
+    "errors",
+    "geometry",
+    "HsmapError",
+    "HarmonyConfig",
+    "harmony_search",
+    "RegistrationConfig",
+    "RegistrationResult",
+    "RegistrationTarget",
+    "harmony_icp",
+]

@@ -1,0 +1,312 @@
+"""Harmony Search (Geem et al. 2001), batched and seeded, with the IHS and global-best variants.
+
+The optimiser minimises ``objective(X) -> f`` where ``X`` is an array of shape (B, D) of candidate solutions
+("harmonies") and ``f`` has shape (B,): every call evaluates a whole batch, so the objective can be vectorised.
+
+One *iteration* improvises ``batch_size`` new harmonies. Each variable of a new harmony is, independently:
+
+- with probability HMCR, taken from a random harmony of the memory (memory consideration), and then, with
+  probability PAR, moved by ``U(-1, 1) * BW * (upper - lower)`` (pitch adjustment);
+- otherwise drawn uniformly inside the bounds (random selection).
+
+The memory then keeps the best ``memory_size`` of the old memory and the new batch (for ``batch_size=1`` this is
+the classic rule: the new harmony replaces the worst one if it is better). Variants:
+
+- ``classic``: fixed PAR and BW (Geem et al. 2001).
+- ``ihs``: improved HS (Mahdavi et al. 2007): PAR grows linearly from ``par_min`` to ``par_max`` and BW shrinks
+  exponentially from ``bw_max`` to ``bw_min`` over the iterations.
+- ``global-best``: global-best HS (Omran & Mahdavi 2008): pitch adjustment copies the variable from the best
+  harmony instead of moving it. (The original copies a random dimension of the best harmony; since our variables
+  carry different units, e.g. metres and radians, we copy the same dimension, as most later work does.)
+
+Stopping rules (the first that holds ends the search): ``max_iterations``; the best and the worst harmony in
+memory have objective values within ``convergence_tol`` (the paper's rule); no improvement of the best value by
+more than ``min_improvement`` for ``patience`` iterations.
+
+Paper defaults: HMS 30, HMCR 0.7, PAR 0.3, BW 0.05 (of each variable's range), 500 iterations.
+"""
+
+from __future__ import annotations
+
+import enum
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .errors import ConfigError, InputError, ShapeError
+
+__all__ = ["Variant", "StopReason", "HarmonyConfig", "HarmonyResult", "harmony_search", "as_rng"]
+
+
+class Variant(enum.StrEnum):
+    """Harmony Search flavour."""
+
+    CLASSIC = "classic"
+    IHS = "ihs"
+    GLOBAL_BEST = "global-best"
+
+
+class StopReason(enum.StrEnum):
+    """Why the search ended."""
+
+    MAX_ITERATIONS = "max-iterations"
+    CONVERGED = "converged"  # best and worst harmony equal within convergence_tol
+    NO_IMPROVEMENT = "no-improvement"  # best did not improve for `patience` iterations
+
+
+def as_rng(rng: int | np.random.Generator | None) -> np.random.Generator:
+    """A numpy Generator from a seed, a Generator (returned as is) or None (seed 0: hsmap is deterministic)."""
+    if isinstance(rng, np.random.Generator):
+        return rng
+    if rng is None:
+        return np.random.default_rng(0)
+    if isinstance(rng, (int, np.integer)) and not isinstance(rng, bool):
+        return np.random.default_rng(int(rng))
+    raise InputError(f"rng must be an int seed, a numpy Generator or None, got {type(rng).__name__}")
+
+
+@dataclass
+class HarmonyConfig:
+    """Harmony Search parameters (defaults: the paper's, plus batching and a no-improvement rule).
+
+    Attributes
+    ----------
+    memory_size : int
+        HMS, harmonies kept in memory.
+    hmcr : float
+        Harmony memory considering rate, in [0, 1].
+    par : float
+        Pitch adjusting rate, in [0, 1] (``classic`` and ``global-best``).
+    bandwidth : float
+        BW as a fraction of each variable's range (``classic``).
+    max_iterations : int
+        Improvisation rounds; each round improvises ``batch_size`` harmonies.
+    batch_size : int
+        Harmonies improvised and evaluated together per round (1 = the one-at-a-time classic).
+    variant : str
+        ``"classic"``, ``"ihs"`` or ``"global-best"``.
+    par_min, par_max : float
+        IHS: PAR at the first and the last iteration.
+    bw_min, bw_max : float
+        IHS: BW (fraction of range) at the first (max) and the last (min) iteration.
+    convergence_tol : float
+        Stop when best and worst objective values in memory differ by at most this (<0 disables).
+    patience : int or None
+        Stop after this many rounds without an improvement of the best value (None disables).
+    min_improvement : float
+        Smallest decrease of the best value that counts as an improvement.
+    init : str
+        How the memory rows not given as initial guesses are drawn: ``"uniform"`` (the classic) or ``"lhs"``
+        (Latin hypercube: each variable's range split into HMS strata, one sample per stratum, for an even
+        coverage of the box).
+    """
+
+    memory_size: int = 30
+    hmcr: float = 0.7
+    par: float = 0.3
+    bandwidth: float = 0.05
+    max_iterations: int = 500
+    batch_size: int = 1
+    variant: str = Variant.CLASSIC.value
+    par_min: float = 0.01
+    par_max: float = 0.99
+    bw_min: float = 0.001
+    bw_max: float = 0.05
+    convergence_tol: float = 1e-9
+    patience: int | None = None
+    min_improvement: float = 1e-12
+    init: str = "uniform"
+
+    def __post_init__(self) -> None:
+        try:
+            self.variant = Variant(self.variant).value
+        except ValueError:
+            raise ConfigError(
+                f"harmony.variant must be one of {[v.value for v in Variant]}, got {self.variant!r}"
+            ) from None
+        for name in ("memory_size", "max_iterations", "batch_size"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, np.integer)) or v < 1:
+                raise ConfigError(f"harmony.{name} must be an integer >= 1, got {v!r}")
+        for name in ("hmcr", "par", "par_min", "par_max"):
+            v = getattr(self, name)
+            if not 0.0 <= float(v) <= 1.0:
+                raise ConfigError(f"harmony.{name} must be in [0, 1], got {v!r}")
+        for name in ("bandwidth", "bw_min", "bw_max"):
+            v = getattr(self, name)
+            if not float(v) > 0.0:
+                raise ConfigError(f"harmony.{name} must be > 0 (a fraction of each variable's range), got {v!r}")
+        if self.init not in ("uniform", "lhs"):
+            raise ConfigError(f"harmony.init must be 'uniform' or 'lhs', got {self.init!r}")
+        if self.patience is not None and self.patience < 1:
+            raise ConfigError(f"harmony.patience must be None or >= 1, got {self.patience!r}")
+
+
+@dataclass
+class HarmonyResult:
+    """Outcome of :func:`harmony_search`.
+
+    Attributes
+    ----------
+    x : ndarray of shape (D,)
+        Best harmony.
+    fun : float
+        Its objective value.
+    iterations : int
+        Improvisation rounds run.
+    evaluations : int
+        Objective evaluations (harmonies scored), the initial memory included.
+    stop_reason : StopReason
+    memory : ndarray of shape (HMS, D)
+        Final harmony memory, best first.
+    memory_fun : ndarray of shape (HMS,)
+        Objective values of ``memory``.
+    history : ndarray of shape (iterations + 1,)
+        Best value after the initial memory and after each round.
+    """
+
+    x: NDArray[np.float64]
+    fun: float
+    iterations: int
+    evaluations: int
+    stop_reason: StopReason
+    memory: NDArray[np.float64]
+    memory_fun: NDArray[np.float64]
+    history: NDArray[np.float64] = field(repr=False)
+
+
+def _check_bounds(bounds: ArrayLike, name: str = "bounds") -> NDArray[np.float64]:
+    try:
+        b = np.asarray(bounds, dtype=float)
+    except (TypeError, ValueError):
+        raise ShapeError(f"{name} must be a numeric array of shape (D, 2) [lower, upper]") from None
+    if b.ndim != 2 or b.shape[1] != 2 or b.shape[0] < 1:
+        raise ShapeError(f"{name} must have shape (D, 2) of [lower, upper] per variable, got {b.shape}")
+    if not np.all(np.isfinite(b)):
+        raise InputError(f"{name} must be finite, got {b.tolist()}")
+    bad = np.flatnonzero(b[:, 1] < b[:, 0])
+    if bad.size:
+        i = int(bad[0])
+        raise InputError(f"{name}[{i}] is inverted: lower {b[i, 0]} > upper {b[i, 1]}")
+    return b
+
+
+def harmony_search(
+    objective: Callable[[NDArray[np.float64]], ArrayLike],
+    bounds: ArrayLike,
+    *,
+    initial: ArrayLike | None = None,
+    config: HarmonyConfig | None = None,
+    rng: int | np.random.Generator | None = None,
+) -> HarmonyResult:
+    """Minimise ``objective`` over a box with Harmony Search.
+
+    Parameters
+    ----------
+    objective : callable
+        ``objective(X)`` with ``X`` of shape (B, D) returns B objective values (lower is better). Non-finite values
+        are treated as +inf.
+    bounds : array_like of shape (D, 2)
+        [lower, upper] of each variable. A variable with lower == upper is held fixed.
+    initial : array_like of shape (K, D) or (D,), optional
+        Initial guesses seeded into the memory (clipped to the bounds); the rest of the memory is drawn uniformly
+        inside the bounds. At most ``memory_size`` guesses are used.
+    config : HarmonyConfig, optional
+        Parameters; defaults to the paper's.
+    rng : int or numpy.random.Generator, optional
+        Source of every random choice (default: seed 0).
+
+    Returns
+    -------
+    HarmonyResult
+    """
+    cfg = config or HarmonyConfig()
+    gen = as_rng(rng)
+    b = _check_bounds(bounds)
+    lo, hi = b[:, 0], b[:, 1]
+    span = hi - lo
+    dim = b.shape[0]
+    hms = cfg.memory_size
+
+    def evaluate(X: NDArray[np.float64]) -> NDArray[np.float64]:
+        f = np.asarray(objective(X), dtype=float).reshape(-1)
+        if f.shape[0] != X.shape[0]:
+            raise ShapeError(f"objective returned {f.shape[0]} values for a batch of {X.shape[0]} harmonies")
+        return np.where(np.isfinite(f), f, np.inf)
+
+    if cfg.init == "lhs":
+        strata = np.argsort(gen.random((hms, dim)), axis=0)
+        memory = lo + (strata + gen.random((hms, dim))) / hms * span
+    else:
+        memory = lo + gen.random((hms, dim)) * span
+    if initial is not None:
+        init = np.atleast_2d(np.asarray(initial, dtype=float))
+        if init.ndim != 2 or init.shape[1] != dim:
+            raise ShapeError(f"initial guesses must have shape (K, {dim}), got {np.asarray(initial).shape}")
+        init = init[np.all(np.isfinite(init), axis=1)][:hms]
+        memory[: len(init)] = np.clip(init, lo, hi)
+    fun = evaluate(memory)
+    order = np.argsort(fun, kind="stable")
+    memory, fun = memory[order], fun[order]
+    evaluations = hms
+    history = [fun[0]]
+    variant = Variant(cfg.variant)
+    batch = cfg.batch_size
+    stale = 0
+    stop = StopReason.MAX_ITERATIONS
+    it = 0
+    log_bw_ratio = np.log(cfg.bw_min / cfg.bw_max)
+    chunk = 0
+    for it in range(1, cfg.max_iterations + 1):
+        if variant is Variant.IHS:
+            frac = (it - 1) / max(cfg.max_iterations - 1, 1)
+            par = cfg.par_min + (cfg.par_max - cfg.par_min) * frac
+            bw = cfg.bw_max * np.exp(log_bw_ratio * frac)
+        else:
+            par, bw = cfg.par, cfg.bandwidth
+        if chunk == 0:  # draw the random numbers of several rounds at once (fewer small numpy calls)
+            chunk = min(32, cfg.max_iterations - it + 1)
+            r_pick = gen.integers(0, hms, size=(chunk, batch, dim))
+            r_consider = gen.random((chunk, batch, dim)) < cfg.hmcr
+            r_adjust = gen.random((chunk, batch, dim))
+            r_step = gen.uniform(-1.0, 1.0, (chunk, batch, dim))
+            r_rand = lo + gen.random((chunk, batch, dim)) * span
+        k = chunk = chunk - 1
+        # Improvise a batch: memory consideration, pitch adjustment, random selection, per variable.
+        consider = r_consider[k]
+        new = memory[r_pick[k], np.arange(dim)]
+        adjust = consider & (r_adjust[k] < par)
+        if variant is Variant.GLOBAL_BEST:
+            new = np.where(adjust, memory[0], new)
+        else:
+            new += adjust * r_step[k] * (bw * span)
+        new = np.where(consider, new, r_rand[k])
+        np.clip(new, lo, hi, out=new)
+        f_new = evaluate(new)
+        evaluations += batch
+        # Keep the best HMS of memory + batch (stable: ties keep the older harmony).
+        all_x = np.concatenate([memory, new])
+        all_f = np.concatenate([fun, f_new])
+        keep = np.argsort(all_f, kind="stable")[:hms]
+        memory, fun = all_x[keep], all_f[keep]
+        improved = history[-1] - fun[0] > cfg.min_improvement
+        history.append(fun[0])
+        stale = 0 if improved else stale + 1
+        if cfg.convergence_tol >= 0 and np.isfinite(fun[-1]) and fun[-1] - fun[0] <= cfg.convergence_tol:
+            stop = StopReason.CONVERGED
+            break
+        if cfg.patience is not None and stale >= cfg.patience:
+            stop = StopReason.NO_IMPROVEMENT
+            break
+    return HarmonyResult(
+        x=memory[0].copy(),
+        fun=float(fun[0]),
+        iterations=it,
+        evaluations=evaluations,
+        stop_reason=stop,
+        memory=memory,
+        memory_fun=fun,
+        history=np.asarray(history),
+    )

@@ -1,0 +1,535 @@
+"""Harmony-ICP: scan registration by Harmony Search (the paper's Algorithm 1), in 2D (3-DOF) and 3D (6-DOF).
+
+:func:`harmony_icp` searches the pose vector (x, y, yaw) for (N, 2) clouds or (x, y, z, roll, pitch, yaw) for
+(N, 3) clouds that minimises the two-term fitness of :mod:`hsmap.fitness`, with the harmony memory seeded by
+optional initial guesses and the rest drawn inside the bounds. No initial guess is needed: with none, the search
+is centred on the identity. An optional local refinement (point-to-plane or point-to-point ICP, trimmed at the
+fitness threshold) polishes the best harmony.
+
+The global search truncates distances at ``search_threshold`` (0.5 m: a broad basin that finds the right
+alignment from far away); an optional second Harmony Search stage narrows the box around the best harmony and
+uses ``fine_threshold``. The refinement trims correspondences at ``threshold``, the inlier distance of the
+reported fitness and inlier ratio.
+"""
+
+from __future__ import annotations
+
+import enum
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial import cKDTree
+
+from .errors import ConfigError, EmptyInputError, InputError, ShapeError
+from .fitness import DistanceField, KDTreeLookup, score
+from .geometry import dof_of_dim, matrix_to_pose, pose_to_matrix, wrap_angle
+from .harmony import HarmonyConfig, HarmonyResult, as_rng, harmony_search
+
+__all__ = [
+    "Backend",
+    "Refinement",
+    "RegistrationConfig",
+    "RegistrationResult",
+    "RegistrationTarget",
+    "harmony_icp",
+    "refine_icp",
+    "voxel_downsample",
+]
+
+
+class Backend(enum.StrEnum):
+    """How nearest-neighbour distances are looked up."""
+
+    FIELD = "field"  # precomputed distance field (fast)
+    KDTREE = "kdtree"  # scipy cKDTree (exact)
+
+
+class Refinement(enum.StrEnum):
+    """Local refinement after the global search."""
+
+    NONE = "none"
+    POINT_TO_POINT = "point-to-point"
+    POINT_TO_PLANE = "point-to-plane"  # point-to-line in 2D
+
+
+def _default_harmony() -> HarmonyConfig:
+    return HarmonyConfig(batch_size=16, max_iterations=500, patience=20, convergence_tol=1e-6, init="lhs")
+
+
+@dataclass
+class RegistrationConfig:
+    """Parameters of :func:`harmony_icp`.
+
+    Attributes
+    ----------
+    harmony : HarmonyConfig
+        Optimiser parameters (paper defaults HMS 30, HMCR 0.7, PAR 0.3, BW 0.05, 500 iterations; here improvised
+        16 at a time with a no-improvement rule of 20 rounds, the memory drawn by Latin hypercube sampling).
+    threshold : float
+        Metres. Inlier distance: of the reported fitness and inlier ratio, and the refinement's trimming.
+    search_threshold : float
+        Metres. Truncation (and inlier distance) of the fitness in the global search.
+    fine_threshold : float or None
+        Metres. If set, a second Harmony Search stage around the best harmony uses this truncation.
+    inlier_weight : float
+        Weight ``w`` of the inlier-count term (see :mod:`hsmap.fitness`).
+    backend : str
+        ``"field"`` (distance field, fast) or ``"kdtree"`` (exact).
+    field_resolution : float or None
+        Cell size of the distance fields in metres; None picks a tenth of the truncation (at least 0.02 m) in 2D
+        and a quarter of it in 3D.
+    max_points : int
+        Source points used by the global search (a random subset, drawn from ``rng``, after voxel downsampling).
+    voxel_size : float or None
+        Voxel size for downsampling the source before sampling ``max_points``; None picks 0.05 m in 2D and
+        0.1 m in 3D.
+    translation_range, z_range : float
+        Metres. Half-width of the default search box around the initial guesses (or the identity) in x, y and z.
+    yaw_range, roll_pitch_range : float
+        Radians. Half-width of the default search box in yaw and in roll/pitch.
+    fine_range_factor : float
+        The fine stage searches +/- this many search thresholds (translation) around the first stage's best, and
+        the matching angle at the source's radius of gyration.
+    refinement : str
+        ``"point-to-plane"`` (point-to-line in 2D), ``"point-to-point"`` or ``"none"``.
+    refine_iterations : int
+        Maximum refinement iterations.
+    refine_points : int
+        Source points used by the refinement.
+    """
+
+    harmony: HarmonyConfig = field(default_factory=_default_harmony)
+    threshold: float = 0.10
+    search_threshold: float = 0.5
+    fine_threshold: float | None = None
+    inlier_weight: float = 1.0
+    backend: str = Backend.FIELD.value
+    field_resolution: float | None = None
+    max_points: int = 150
+    voxel_size: float | None = None
+    translation_range: float = 1.5
+    z_range: float = 0.3
+    yaw_range: float = np.deg2rad(60.0)
+    roll_pitch_range: float = np.deg2rad(8.0)
+    fine_range_factor: float = 1.0
+    refinement: str = Refinement.POINT_TO_PLANE.value
+    refine_iterations: int = 30
+    refine_points: int = 2000
+
+    def __post_init__(self) -> None:
+        for name in ("threshold", "search_threshold", "inlier_weight", "translation_range", "z_range", "yaw_range",
+                     "roll_pitch_range", "fine_range_factor"):
+            v = getattr(self, name)
+            positive = name in ("threshold", "search_threshold")
+            if not (np.isfinite(v) and (v > 0 if positive else v >= 0)):
+                need = "> 0" if positive else ">= 0"
+                raise ConfigError(f"registration.{name} must be a finite number {need}, got {v!r}")
+        for name in ("field_resolution", "voxel_size", "fine_threshold"):
+            v = getattr(self, name)
+            if v is not None and not (np.isfinite(v) and v > 0):
+                raise ConfigError(f"registration.{name} must be None or > 0, got {v!r}")
+        for name in ("max_points", "refine_iterations", "refine_points"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, np.integer)) or v < (0 if name == "refine_iterations" else 1):
+                raise ConfigError(f"registration.{name} must be a positive integer, got {v!r}")
+        try:
+            self.backend = Backend(self.backend).value
+        except ValueError:
+            raise ConfigError(f"registration.backend must be one of {[b.value for b in Backend]}, "
+                              f"got {self.backend!r}") from None
+        try:
+            self.refinement = Refinement(self.refinement).value
+        except ValueError:
+            raise ConfigError(f"registration.refinement must be one of {[r.value for r in Refinement]}, "
+                              f"got {self.refinement!r}") from None
+        if isinstance(self.harmony, dict):
+            from .config import from_dict
+
+            self.harmony = from_dict(HarmonyConfig, self.harmony, "registration.harmony")
+
+
+@dataclass
+class RegistrationResult:
+    """Outcome of :func:`harmony_icp`.
+
+    Attributes
+    ----------
+    transformation : ndarray of shape (3, 3) or (4, 4)
+        Homogeneous transform mapping ``source`` into the frame of ``target``.
+    pose : ndarray of shape (3,) or (6,)
+        The same as a pose vector (x, y, yaw) or (x, y, z, roll, pitch, yaw).
+    fitness : float
+        Two-term fitness at ``pose`` over all valid source points, with the fine threshold (lower is better).
+    inlier_ratio : float
+        Fraction of valid source points within ``threshold`` of the target at ``pose``.
+    rmse : float
+        Root mean square distance of the inliers (metres).
+    evaluations : int
+        Poses scored by the global search.
+    iterations : int
+        Harmony Search rounds (both stages).
+    dropped : int
+        Source and target points dropped because they were NaN or infinite.
+    global_pose : ndarray
+        Best pose of the global search, before refinement.
+    refined : bool
+        Whether the refinement was applied (it is kept only if it does not worsen the fitness).
+    stop_reason : str
+        Why the (last) Harmony Search stage stopped.
+    seconds : float
+        Wall time of the call.
+    """
+
+    transformation: NDArray[np.float64]
+    pose: NDArray[np.float64]
+    fitness: float
+    inlier_ratio: float
+    rmse: float
+    evaluations: int
+    iterations: int
+    dropped: int
+    global_pose: NDArray[np.float64]
+    refined: bool
+    stop_reason: str
+    seconds: float
+
+
+def voxel_downsample(points: NDArray[np.floating], voxel: float) -> NDArray[np.float64]:
+    """Centroid of the points in each occupied voxel (cube or square of side ``voxel``)."""
+    if voxel <= 0 or len(points) == 0:
+        return np.asarray(points, dtype=float)
+    keys = np.floor(points / voxel).astype(np.int64)
+    _, inv, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.reshape(-1)
+    out = np.zeros((len(counts), points.shape[1]))
+    np.add.at(out, inv, points)
+    return out / counts[:, None]
+
+
+def _clean_cloud(points: ArrayLike, name: str, dim: int | None = None) -> tuple[NDArray[np.float64], int]:
+    try:
+        arr = np.asarray(points, dtype=float)
+    except (TypeError, ValueError):
+        raise ShapeError(f"{name} must be a numeric array of shape (N, 2) or (N, 3)") from None
+    if arr.ndim != 2 or arr.shape[1] not in (2, 3):
+        raise ShapeError(f"{name} must have shape (N, 2) or (N, 3), got {arr.shape}")
+    if dim is not None and arr.shape[1] != dim:
+        raise ShapeError(f"{name} has {arr.shape[1]} columns but the other cloud has {dim}: "
+                         f"both must be 2D (N, 2) or both 3D (N, 3)")
+    if arr.shape[0] == 0:
+        raise EmptyInputError(f"{name} is empty: expected at least one point")
+    ok = np.all(np.isfinite(arr), axis=1)
+    dropped = int((~ok).sum())
+    if dropped:
+        arr = arr[ok]
+        if arr.shape[0] == 0:
+            raise EmptyInputError(f"{name} has no finite points: all {dropped} contain NaN or inf")
+    return arr, dropped
+
+
+class RegistrationTarget:
+    """A target cloud prepared for repeated registrations (distance fields, KD-tree, normals built once).
+
+    Parameters
+    ----------
+    points : array_like of shape (M, 2) or (M, 3)
+    config : RegistrationConfig, optional
+    """
+
+    def __init__(self, points: ArrayLike, config: RegistrationConfig | None = None) -> None:
+        self.config = config or RegistrationConfig()
+        self.points, self.dropped = _clean_cloud(points, "target")
+        self.dim = self.points.shape[1]
+        self._lookups: dict[float, DistanceField | KDTreeLookup] = {}
+        self._tree: cKDTree | None = None
+        self._normals: NDArray[np.float64] | None = None
+        self._o3d = None
+
+    def lookup(self, truncation: float) -> DistanceField | KDTreeLookup:
+        """The distance look-up for a truncation distance (built on first use, then cached)."""
+        lk = self._lookups.get(truncation)
+        if lk is None:
+            if self.config.backend == Backend.FIELD.value:
+                res = self.config.field_resolution
+                if res is None:
+                    res = max(0.02, truncation / 10.0) if self.dim == 2 else truncation / 4.0
+                lk = DistanceField(self.points, res, truncation)
+            else:
+                lk = KDTreeLookup(self.points, truncation)
+            self._lookups[truncation] = lk
+        return lk
+
+    def exact(self, truncation: float) -> KDTreeLookup:
+        """Exact (KD-tree) truncated distances, sharing this target's tree."""
+        lk = KDTreeLookup.__new__(KDTreeLookup)
+        lk.points, lk.tree, lk.truncation, lk.workers = self.points, self.tree, float(truncation), 1
+        return lk
+
+    @property
+    def tree(self) -> cKDTree:
+        if self._tree is None:
+            self._tree = cKDTree(self.points)
+        return self._tree
+
+    @property
+    def normals(self) -> NDArray[np.float64]:
+        """Unit normals of the target points from PCA of their neighbourhoods (lines in 2D, planes in 3D)."""
+        if self._normals is None:
+            if self.dim == 2:
+                k = min(8, len(self.points))
+                _, idx = self.tree.query(self.points, k=k)
+                nb = self.points[idx.reshape(len(self.points), -1)]
+                nb = nb - nb.mean(axis=1, keepdims=True)
+                cxx = (nb[..., 0] ** 2).sum(1)
+                cyy = (nb[..., 1] ** 2).sum(1)
+                cxy = (nb[..., 0] * nb[..., 1]).sum(1)
+                # the principal axis of a 2x2 covariance is at 0.5*atan2(2cxy, cxx-cyy); the normal is across it
+                a = 0.5 * np.arctan2(2 * cxy, cxx - cyy) + np.pi / 2
+                self._normals = np.column_stack([np.cos(a), np.sin(a)])
+            else:
+                self._normals = np.asarray(self.o3d_cloud.normals)
+        return self._normals
+
+    @property
+    def o3d_cloud(self):  # -> open3d.geometry.PointCloud with normals (3D targets)
+        if self._o3d is None:
+            import open3d as o3d
+
+            pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(self.points))
+            pc.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(12))
+            self._o3d = pc
+        return self._o3d
+
+
+def _default_bounds(centres: NDArray[np.float64], cfg: RegistrationConfig) -> NDArray[np.float64]:
+    dof = centres.shape[1]
+    if dof == 3:
+        half = np.array([cfg.translation_range, cfg.translation_range, cfg.yaw_range])
+    else:
+        half = np.array([cfg.translation_range, cfg.translation_range, cfg.z_range,
+                         cfg.roll_pitch_range, cfg.roll_pitch_range, cfg.yaw_range])
+    return np.column_stack([centres.min(axis=0) - half, centres.max(axis=0) + half])
+
+
+def _check_bounds(bounds: ArrayLike, dof: int) -> NDArray[np.float64]:
+    try:
+        b = np.asarray(bounds, dtype=float)
+    except (TypeError, ValueError):
+        raise ShapeError(f"bounds must be a numeric array of shape ({dof}, 2)") from None
+    if b.shape != (dof, 2):
+        raise ShapeError(f"bounds must have shape ({dof}, 2) [lower, upper] for a {dof}-DOF pose, got {b.shape}")
+    if not np.all(np.isfinite(b)):
+        raise InputError(f"bounds must be finite, got {b.tolist()}")
+    bad = np.flatnonzero(b[:, 1] < b[:, 0])
+    if bad.size:
+        i = int(bad[0])
+        raise InputError(f"bounds[{i}] is inverted: lower {b[i, 0]} > upper {b[i, 1]}")
+    return b
+
+
+def _subsample(points: NDArray[np.float64], voxel: float, n: int, gen: np.random.Generator) -> NDArray[np.float64]:
+    pts = voxel_downsample(points, voxel)
+    if len(pts) > n:
+        pts = pts[np.sort(gen.choice(len(pts), n, replace=False))]
+    return pts
+
+
+def _trim_schedule(start: float, end: float) -> list[float]:
+    """Correspondence distances halving from ``start`` down to ``end`` (multi-scale ICP)."""
+    out = [end]
+    while out[-1] * 2 < start:
+        out.append(out[-1] * 2)
+    return out[::-1]
+
+
+def refine_icp(
+    source: NDArray[np.float64],
+    target: RegistrationTarget,
+    pose: NDArray[np.float64],
+    *,
+    max_distance: float,
+    start_distance: float | None = None,
+    iterations: int = 30,
+    method: str = Refinement.POINT_TO_PLANE.value,
+    tolerance: float = 1e-5,
+) -> NDArray[np.float64]:
+    """Local ICP refinement of ``pose`` (a pose vector).
+
+    Correspondences farther apart than the current trimming distance are ignored; the trimming distance halves
+    from ``start_distance`` (default ``max_distance``) down to ``max_distance``, ``iterations`` at most in all.
+    2D: point-to-line (Gauss-Newton on the target normals) or point-to-point (closed-form SVD step), in numpy.
+    3D: Open3D's point-to-plane or point-to-point ICP.
+    """
+    dim = source.shape[1]
+    schedule = _trim_schedule(start_distance or max_distance, max_distance)
+    per_stage = max(1, iterations // len(schedule))
+    T = pose_to_matrix(pose)
+    if dim == 3:
+        import open3d as o3d
+
+        reg = o3d.pipelines.registration
+        est = (reg.TransformationEstimationPointToPlane() if method == Refinement.POINT_TO_PLANE.value
+               else reg.TransformationEstimationPointToPoint())
+        src = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(source))
+        for dist in schedule:
+            crit = reg.ICPConvergenceCriteria(relative_fitness=1e-7, relative_rmse=1e-7, max_iteration=per_stage)
+            T = np.asarray(reg.registration_icp(src, target.o3d_cloud, dist, T, est, crit).transformation)
+        return matrix_to_pose(T)
+    normals = target.normals if method == Refinement.POINT_TO_PLANE.value else None
+    for dist in schedule:
+        for _ in range(per_stage):
+            moved = source @ T[:2, :2].T + T[:2, 2]
+            d, idx = target.tree.query(moved, k=1, distance_upper_bound=dist)
+            ok = np.isfinite(d)
+            if ok.sum() < 3:
+                break
+            p, q = moved[ok], target.points[idx[ok]]
+            if normals is None:
+                mp, mq = p.mean(0), q.mean(0)
+                U, _, Vt = np.linalg.svd((p - mp).T @ (q - mq))
+                S = np.diag([1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+                R = Vt.T @ S @ U.T
+                delta = np.array([*(mq - R @ mp), np.arctan2(R[1, 0], R[0, 0])])
+                dT = np.eye(3)
+                dT[:2, :2], dT[:2, 2] = R, delta[:2]
+            else:
+                n = normals[idx[ok]]
+                r = np.einsum("ij,ij->i", n, p - q)
+                J = np.column_stack([n, n[:, 1] * p[:, 0] - n[:, 0] * p[:, 1]])
+                delta = -np.linalg.solve(J.T @ J + 1e-9 * np.eye(3), J.T @ r)
+                c, s_ = np.cos(delta[2]), np.sin(delta[2])
+                dT = np.array([[c, -s_, delta[0]], [s_, c, delta[1]], [0.0, 0.0, 1.0]])
+            T = dT @ T
+            if np.abs(delta).max() < tolerance:
+                break
+    return matrix_to_pose(T)
+
+
+def harmony_icp(
+    source: ArrayLike,
+    target: ArrayLike | RegistrationTarget,
+    *,
+    bounds: ArrayLike | None = None,
+    initial_guesses: ArrayLike | None = None,
+    config: RegistrationConfig | None = None,
+    rng: int | np.random.Generator | None = None,
+) -> RegistrationResult:
+    """Register ``source`` to ``target`` with Harmony Search (Harmony-ICP).
+
+    Parameters
+    ----------
+    source : array_like of shape (N, 2) or (N, 3)
+        Points to move. NaN/inf rows are dropped (counted in ``result.dropped``).
+    target : array_like of shape (M, 2) or (M, 3), or RegistrationTarget
+        Reference points (same dimension as ``source``), or a target prepared once for many registrations.
+    bounds : array_like of shape (dof, 2), optional
+        Absolute [lower, upper] limits of the pose vector (x, y, yaw) or (x, y, z, roll, pitch, yaw). Default: a
+        box of the configured ranges around the initial guesses, or around the identity.
+    initial_guesses : array_like of shape (K, dof) or (dof,), optional
+        Pose vectors seeded into the harmony memory (odometry, previous pose, ...). None needed.
+    config : RegistrationConfig, optional
+    rng : int or numpy.random.Generator, optional
+        Seed or generator for every random choice (default seed 0).
+
+    Returns
+    -------
+    RegistrationResult
+        ``.transformation`` maps ``source`` into the frame of ``target``.
+    """
+    t0 = time.perf_counter()
+    cfg = config or (target.config if isinstance(target, RegistrationTarget) else RegistrationConfig())
+    if not isinstance(cfg, RegistrationConfig):
+        raise ConfigError(f"config must be a RegistrationConfig, got {type(cfg).__name__}")
+    gen = as_rng(rng)
+    if isinstance(target, RegistrationTarget):
+        tgt = target
+        src, dropped = _clean_cloud(source, "source", tgt.dim)
+    else:
+        src, dropped = _clean_cloud(source, "source")
+        _clean_cloud(target, "target", src.shape[1])  # shape check with names before building anything
+        tgt = RegistrationTarget(target, cfg)
+    dropped += tgt.dropped
+    dim = src.shape[1]
+    dof = dof_of_dim(dim)
+
+    guesses = None
+    if initial_guesses is not None:
+        try:
+            guesses = np.atleast_2d(np.asarray(initial_guesses, dtype=float))
+        except (TypeError, ValueError):
+            raise ShapeError(f"initial_guesses must be numeric pose vectors of shape (K, {dof})") from None
+        if guesses.ndim != 2 or guesses.shape[1] != dof:
+            raise ShapeError(f"initial_guesses must have shape (K, {dof}) for {dim}D clouds, "
+                             f"got {np.asarray(initial_guesses).shape}")
+        if not np.all(np.isfinite(guesses)):
+            raise InputError("initial_guesses must be finite (no NaN or inf)")
+    if bounds is None:
+        centres = guesses if guesses is not None else np.zeros((1, dof))
+        b = _default_bounds(centres, cfg)
+    else:
+        b = _check_bounds(bounds, dof)
+
+    voxel = cfg.voxel_size or (0.05 if dim == 2 else 0.1)
+    sample = _subsample(src, voxel, cfg.max_points, gen)
+    radius = float(np.sqrt(((sample - sample.mean(0)) ** 2).sum(1).mean())) + 1e-9
+    iterations = evaluations = 0
+    hs: HarmonyResult | None = None
+    seeds = guesses
+
+    stages = [cfg.search_threshold] + ([cfg.fine_threshold] if cfg.fine_threshold else [])
+    for k, tau in enumerate(stages):
+        box = b
+        if k > 0 and hs is not None:
+            # narrow the box around the first stage's best: +/- a few search thresholds in translation, and the
+            # angle that moves the source's typical point by as much
+            half_t = cfg.fine_range_factor * cfg.search_threshold
+            half = np.full(dof, min(half_t / radius, np.pi))
+            half[:dim] = half_t
+            box = np.column_stack([np.maximum(hs.x - half, b[:, 0]), np.minimum(hs.x + half, b[:, 1])])
+            seeds = hs.memory[: max(1, cfg.harmony.memory_size // 3)]
+        lookup = tgt.lookup(tau)
+
+        def objective(X: NDArray[np.float64], lookup=lookup) -> NDArray[np.float64]:
+            return score(X, sample, lookup, cfg.inlier_weight).value
+
+        hs = harmony_search(objective, box, initial=seeds, config=cfg.harmony, rng=gen)
+        iterations += hs.iterations
+        evaluations += hs.evaluations
+    assert hs is not None
+    global_pose = hs.x.copy()
+    pose = global_pose.copy()
+
+    full = src if len(src) <= cfg.refine_points else src[np.sort(gen.choice(len(src), cfg.refine_points,
+                                                                            replace=False))]
+    exact = tgt.exact(cfg.threshold)
+    before = score(pose, full, exact, cfg.inlier_weight)
+    refined = False
+    if cfg.refinement != Refinement.NONE.value and cfg.refine_iterations > 0:
+        cand = refine_icp(full, tgt, pose, max_distance=cfg.threshold, start_distance=cfg.search_threshold / 2,
+                          iterations=cfg.refine_iterations, method=cfg.refinement)
+        after = score(cand, full, exact, cfg.inlier_weight)
+        if after.value[0] <= before.value[0]:
+            pose, refined = cand, True
+    pose = pose.copy()
+    pose[dim:] = wrap_angle(pose[dim:])
+    d = exact(src @ pose_to_matrix(pose)[:dim, :dim].T + pose[:dim])
+    inl = d < cfg.threshold * (1 - 1e-6)
+    inlier_ratio = float(inl.mean())
+    fitness = float(d.mean() / cfg.threshold + cfg.inlier_weight * (1.0 - inlier_ratio))
+    rmse = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else float("nan")
+    return RegistrationResult(
+        transformation=pose_to_matrix(pose),
+        pose=pose,
+        fitness=fitness,
+        inlier_ratio=inlier_ratio,
+        rmse=rmse,
+        evaluations=evaluations,
+        iterations=iterations,
+        dropped=dropped,
+        global_pose=global_pose,
+        refined=refined,
+        stop_reason=hs.stop_reason.value,
+        seconds=time.perf_counter() - t0,
+    )

@@ -1,0 +1,146 @@
+"""Small analytic scenes for tests and benchmarks of registration (no simulator needed).
+
+- :func:`room_segments` and :func:`raycast_2d`: a furnished room as wall segments and an exact 2D LiDAR
+  (Hokuyo-like: 270 deg, 0.25 deg steps, 1081 beams, 10 m) ray-cast against them.
+- :func:`room_cloud_3d`: points sampled on the surfaces of a furnished room (walls, floor, boxes) seen from a
+  viewpoint, the kind of cloud a 3D LiDAR gives in a room.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .geometry import pose_to_matrix, transform_points
+from .harmony import as_rng
+
+__all__ = ["room_segments", "raycast_2d", "scan_points_2d", "room_boxes_3d", "room_cloud_3d"]
+
+
+def _box_segments(cx: float, cy: float, w: float, h: float, yaw: float = 0.0) -> NDArray[np.float64]:
+    c, s = np.cos(yaw), np.sin(yaw)
+    corners = np.array([[-w, -h], [w, -h], [w, h], [-w, h]]) / 2 @ np.array([[c, s], [-s, c]]) + [cx, cy]
+    return np.stack([corners, np.roll(corners, -1, axis=0)], 1)
+
+
+def room_segments() -> NDArray[np.float64]:
+    """Segments (K, 2, 2) of an 8 m x 6 m room with a doorway, an alcove and furniture (irregular on purpose)."""
+    walls = np.array([
+        [[0, 0], [8, 0]], [[8, 0], [8, 2.5]], [[8, 2.5], [9.5, 2.5]], [[9.5, 2.5], [9.5, 4]], [[9.5, 4], [8, 4]],
+        [[8, 4], [8, 6]], [[8, 6], [3.9, 6]], [[3.0, 6], [0, 6]], [[0, 6], [0, 0]],
+        [[3.0, 6], [3.0, 7.5]], [[3.9, 6], [3.9, 7.5]],  # door to a corridor stub
+    ], dtype=float)
+    furniture = [
+        _box_segments(1.2, 1.0, 1.6, 0.8),  # desk
+        _box_segments(6.5, 1.0, 1.2, 0.6, 0.3),  # cabinet, rotated
+        _box_segments(1.9, 2.4, 0.5, 0.5),  # chair
+        _box_segments(1.0, 4.8, 0.4, 1.8),  # shelf
+        _box_segments(6.8, 5.2, 1.0, 0.8, -0.2),  # table
+    ]
+    return np.concatenate([walls, *furniture])
+
+
+def raycast_2d(
+    segments: NDArray[np.float64],
+    pose: NDArray[np.float64],
+    *,
+    fov: float = np.deg2rad(270.0),
+    beams: int = 1081,
+    max_range: float = 10.0,
+    noise: float = 0.0,
+    rng: int | np.random.Generator | None = None,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Exact ranges (beams,) and angles of a 2D LiDAR at ``pose`` (x, y, yaw); NaN where nothing is hit."""
+    angles = np.linspace(-fov / 2, fov / 2, beams)
+    o = np.asarray(pose[:2], dtype=float)
+    d = np.column_stack([np.cos(angles + pose[2]), np.sin(angles + pose[2])])  # (B, 2)
+    a, b = segments[:, 0], segments[:, 1]  # (K, 2)
+    e = b - a
+    denom = d[:, None, 0] * e[None, :, 1] - d[:, None, 1] * e[None, :, 0]  # (B, K)
+    ao = a[None] - o  # (1, K, 2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (ao[..., 0] * e[None, :, 1] - ao[..., 1] * e[None, :, 0]) / denom
+        u = (ao[..., 0] * d[:, None, 1] - ao[..., 1] * d[:, None, 0]) / denom
+    hit = (np.abs(denom) > 1e-12) & (t > 1e-9) & (u >= 0) & (u <= 1)
+    r = np.where(hit, t, np.inf).min(axis=1)
+    r[r > max_range] = np.nan
+    if noise > 0:
+        r = r + as_rng(rng).normal(0, noise, r.shape)
+    return r, angles
+
+
+def scan_points_2d(ranges: NDArray[np.float64], angles: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Valid returns as (K, 2) points in the sensor frame."""
+    ok = np.isfinite(ranges)
+    return np.column_stack([ranges[ok] * np.cos(angles[ok]), ranges[ok] * np.sin(angles[ok])])
+
+
+def room_boxes_3d() -> list[tuple[NDArray[np.float64], NDArray[np.float64]]]:
+    """Axis-aligned boxes (min corner, max corner) of a furnished 8 m x 6 m x 2.8 m room."""
+    return [
+        (np.array([1.0, 0.5, 0.0]), np.array([2.6, 1.3, 0.75])),  # desk
+        (np.array([6.0, 0.5, 0.0]), np.array([7.4, 1.1, 1.9])),  # cabinet
+        (np.array([3.7, 2.9, 0.0]), np.array([4.2, 3.4, 0.9])),  # chair
+        (np.array([0.2, 3.9, 0.0]), np.array([0.6, 5.7, 2.0])),  # shelf
+        (np.array([6.2, 4.6, 0.0]), np.array([7.6, 5.6, 0.75])),  # table
+        (np.array([3.0, 5.6, 0.0]), np.array([4.4, 6.0, 1.2])),  # sideboard
+    ]
+
+
+def room_cloud_3d(
+    n: int = 5000,
+    *,
+    viewpoint: NDArray[np.float64] | None = None,
+    noise: float = 0.0,
+    rng: int | np.random.Generator | None = None,
+) -> NDArray[np.float64]:
+    """About ``n`` points on the walls, floor and furniture of the room of :func:`room_boxes_3d`.
+
+    Points are sampled uniformly on every surface, then thinned with a density that falls off with the
+    distance from ``viewpoint`` (default: room centre at 1.6 m), as a spinning LiDAR's points do.
+    """
+    gen = as_rng(rng)
+    size = np.array([8.0, 6.0, 2.8])
+    quads = []  # (origin, edge u, edge v)
+    for axis in range(3):
+        for side in (0.0, 1.0):
+            if axis == 2 and side == 1.0:
+                continue  # no ceiling: keeps the problem honest in z
+            o = np.zeros(3)
+            o[axis] = side * size[axis]
+            u_ax, v_ax = [k for k in range(3) if k != axis]
+            u = np.zeros(3)
+            v = np.zeros(3)
+            u[u_ax], v[v_ax] = size[u_ax], size[v_ax]
+            quads.append((o, u, v))
+    for lo, hi in room_boxes_3d():
+        ext = hi - lo
+        for axis in range(3):
+            for side in (0.0, 1.0):
+                if axis == 2 and side == 0.0:
+                    continue
+                o = lo.copy()
+                o[axis] += side * ext[axis]
+                u_ax, v_ax = [k for k in range(3) if k != axis]
+                u = np.zeros(3)
+                v = np.zeros(3)
+                u[u_ax], v[v_ax] = ext[u_ax], ext[v_ax]
+                quads.append((o, u, v))
+    areas = np.array([np.linalg.norm(np.cross(u, v)) for _, u, v in quads])
+    m = 4 * n
+    counts = gen.multinomial(m, areas / areas.sum())
+    pts = np.concatenate([o + gen.random((c, 1)) * u + gen.random((c, 1)) * v for (o, u, v), c in zip(quads, counts, strict=True)])
+    vp = np.array([4.0, 3.0, 1.6]) if viewpoint is None else np.asarray(viewpoint, dtype=float)
+    dist = np.linalg.norm(pts - vp, axis=1)
+    keep_p = 1.0 / np.maximum(dist, 0.5) ** 2
+    keep_p *= n / keep_p.sum()
+    pts = pts[gen.random(len(pts)) < np.minimum(keep_p, 1.0)]
+    if noise > 0:
+        pts = pts + gen.normal(0, noise, pts.shape)
+    return pts
+
+
+def sensor_cloud(world_points: NDArray[np.float64], sensor_pose: NDArray[np.float64]) -> NDArray[np.float64]:
+    """World points expressed in the frame of a sensor at ``sensor_pose``."""
+    T = np.linalg.inv(pose_to_matrix(sensor_pose))
+    return transform_points(T, world_points)

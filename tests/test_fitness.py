@@ -1,0 +1,63 @@
+import numpy as np
+import pytest
+
+from hsmap.errors import InputError
+from hsmap.fitness import DistanceField, KDTreeLookup, score, transform_batch
+from hsmap.geometry import pose_to_matrix, transform_points
+
+
+@pytest.mark.parametrize("dim, res, tau", [(2, 0.02, 0.1), (2, 0.05, 0.5), (3, 0.1, 0.4)])
+def test_field_matches_exact_distances(rng, dim, res, tau):
+    pts = rng.uniform(0, 5, (800, dim))
+    field = DistanceField(pts, res, tau)
+    exact = KDTreeLookup(pts, tau)
+    q = rng.uniform(-1, 6, (5000, dim))
+    err = np.abs(field(q) - exact(q))
+    # nodes hold exact distances; multilinear interpolation between them is off by at most about a cell
+    assert err.mean() < 0.1 * res
+    assert err.max() < 1.0 * res
+    # far from everything, the field reads the truncation
+    assert field(np.full((1, dim), 100.0))[0] == pytest.approx(tau)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_batched_kernel_matches_numpy(rng, dim):
+    pts = rng.uniform(0, 4, (500, dim))
+    field = DistanceField(pts, 0.05, 0.3)
+    src = rng.uniform(0, 4, (200, dim))
+    poses = rng.normal(0, 0.2, (7, 3 if dim == 2 else 6))
+    mean, inl = field.score_batch(poses, src)
+    d = field(transform_batch(poses, src))
+    np.testing.assert_allclose(mean, d.mean(1), atol=1e-6)
+    np.testing.assert_allclose(inl, (d < 0.3 * (1 - 1e-6)).mean(1))
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_transform_batch_matches_matrices(rng, dim):
+    pts = rng.normal(size=(10, dim))
+    poses = rng.normal(size=(3, 3 if dim == 2 else 6))
+    out = transform_batch(poses, pts)
+    for i in range(3):
+        np.testing.assert_allclose(out[i], transform_points(pose_to_matrix(poses[i]), pts), atol=1e-12)
+
+
+def test_fitness_terms(rng):
+    tgt = rng.uniform(0, 5, (1000, 2))
+    lk = KDTreeLookup(tgt, 0.2)
+    perfect = score(np.zeros(3), tgt, lk, inlier_weight=1.0)
+    assert perfect.value[0] == pytest.approx(0.0) and perfect.inlier_ratio[0] == 1.0
+    far = score(np.array([100.0, 0, 0]), tgt, lk, inlier_weight=0.5)
+    assert far.value[0] == pytest.approx(1.5) and far.inlier_ratio[0] == 0.0
+    # the field back end gives the same scores
+    fl = DistanceField(tgt, 0.02, 0.2)
+    poses = np.array([[0.05, -0.02, 0.01], [0.3, 0.1, 0.2]])
+    np.testing.assert_allclose(score(poses, tgt, fl).value, score(poses, tgt, lk).value, atol=0.05)
+
+
+def test_bad_field_parameters(rng):
+    with pytest.raises(InputError, match="threshold must be > 0"):
+        DistanceField(rng.normal(size=(5, 2)), 0.05, 0.0)
+    with pytest.raises(InputError, match="resolution must be > 0"):
+        DistanceField(rng.normal(size=(5, 2)), -1.0, 0.2)
+    with pytest.raises(InputError, match="threshold must be > 0"):
+        KDTreeLookup(rng.normal(size=(5, 2)), -0.1)

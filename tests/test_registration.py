@@ -1,0 +1,218 @@
+"""Harmony-ICP: known-transform recovery in 2D and 3D with no initial guess, determinism, bad input."""
+
+import numpy as np
+import pytest
+
+import hsmap
+from hsmap.errors import ConfigError, EmptyInputError, InputError, ShapeError
+from hsmap.geometry import relative, transform_points, wrap_angle
+from hsmap.registration import RegistrationConfig, RegistrationTarget, harmony_icp
+from hsmap.testing import raycast_2d, room_cloud_3d, room_segments, scan_points_2d, sensor_cloud
+
+SEGMENTS = room_segments()
+
+
+def scan_pair_2d(p0, p1, seed):
+    """Two 1081-beam scans of the furnished room, taken from p0 (target) and p1 (source), with 1 cm noise."""
+    tgt = scan_points_2d(*raycast_2d(SEGMENTS, p0, noise=0.01, rng=seed))
+    src = scan_points_2d(*raycast_2d(SEGMENTS, p1, noise=0.01, rng=seed + 1))
+    return src, tgt, relative(p0, p1)
+
+
+def errors(pose, truth):
+    d = np.asarray(pose) - truth
+    k = len(truth) // 2
+    return np.linalg.norm(d[:k]), np.rad2deg(np.abs(wrap_angle(d[k:])).max())
+
+
+# offsets up to 1 m and 45 deg, in all directions, seen from different places in the room
+OFFSETS_2D = [
+    ((4.0, 3.0, 0.3), (1.0, 0.0, np.deg2rad(45))),
+    ((3.6, 2.8, 2.0), (-0.6, 0.75, np.deg2rad(-45))),
+    ((4.4, 3.4, -1.2), (0.0, -1.0, np.deg2rad(30))),
+    ((4.2, 2.6, 3.0), (-0.7, -0.7, np.deg2rad(-20))),
+    ((3.8, 3.2, -2.6), (0.3, 0.2, np.deg2rad(10))),
+]
+
+
+@pytest.mark.parametrize("start, offset", OFFSETS_2D)
+def test_recovers_2d_transform_without_guess(start, offset):
+    p0 = np.array(start)
+    src, tgt, truth = scan_pair_2d(p0, p0 + np.array(offset), seed=int(10 * start[2]) % 97)
+    res = hsmap.harmony_icp(src, tgt, rng=0)
+    t_err, r_err = errors(res.pose, truth)
+    assert t_err < 0.02 and r_err < 0.5, (t_err, r_err)
+    assert res.transformation.shape == (3, 3)
+    # the transformation maps source into the target frame: moved source points lie on the target's walls
+    moved = transform_points(res.transformation, src)
+    d = np.min(np.linalg.norm(moved[::20, None] - tgt[None], axis=2), axis=1)
+    assert np.median(d) < 0.02
+    assert res.inlier_ratio > 0.8
+    assert res.evaluations > 0 and res.dropped == 0
+
+
+OFFSETS_3D = [
+    (0.5, 0.0, 0.02, 2.0, -2.0, 30.0),
+    (-0.3, 0.4, -0.03, -3.0, 1.0, -30.0),
+    (0.0, -0.5, 0.0, 1.5, 3.0, 15.0),
+]
+
+
+@pytest.mark.parametrize("offset", OFFSETS_3D)
+def test_recovers_3d_transform_without_guess(offset):
+    p0 = np.array([4.0, 3.0, 1.6, 0.0, 0.0, 0.7])
+    off = np.array(offset, dtype=float)
+    off[3:] = np.deg2rad(off[3:])
+    p1 = p0 + off
+    tgt = sensor_cloud(room_cloud_3d(5000, viewpoint=p0[:3], noise=0.01, rng=1), p0)
+    src = sensor_cloud(room_cloud_3d(5000, viewpoint=p1[:3], noise=0.01, rng=2), p1)
+    truth = relative(p0, p1)
+    res = hsmap.harmony_icp(src, tgt, rng=0)
+    t_err, r_err = errors(res.pose, truth)
+    assert t_err < 0.02 and r_err < 0.5, (t_err, r_err)
+    assert res.transformation.shape == (4, 4)
+    np.testing.assert_allclose(res.transformation[:3, :3] @ res.transformation[:3, :3].T, np.eye(3), atol=1e-9)
+
+
+def test_exact_copy_is_recovered_exactly(rng):
+    tgt = scan_points_2d(*raycast_2d(SEGMENTS, np.array([4.0, 3.0, 0.0])))
+    truth = np.array([0.4, -0.3, 0.2])
+    src = transform_points(np.linalg.inv(hsmap.geometry.pose_to_matrix(truth)), tgt)
+    res = hsmap.harmony_icp(src, tgt, rng=1)
+    np.testing.assert_allclose(res.pose, truth, atol=1e-4)
+    assert res.inlier_ratio == 1.0 and res.rmse < 1e-4
+
+
+def test_kdtree_backend_and_no_refinement():
+    p0 = np.array([4.0, 3.0, 0.5])
+    src, tgt, truth = scan_pair_2d(p0, p0 + [0.5, -0.4, 0.3], seed=5)
+    res = harmony_icp(src, tgt, config=RegistrationConfig(backend="kdtree"), rng=0)
+    assert max(errors(res.pose, truth)[0] / 0.02, errors(res.pose, truth)[1] / 0.5) < 1
+    raw = harmony_icp(src, tgt, config=RegistrationConfig(refinement="none", fine_threshold=0.1), rng=0)
+    assert not raw.refined
+    t_err, r_err = errors(raw.pose, truth)  # Harmony Search alone, with a fine stage: within a few cm
+    assert t_err < 0.06 and r_err < 1.5
+
+
+def test_refinement_improves_precision():
+    errs = {}
+    for refine in ("none", "point-to-plane", "point-to-point"):
+        e = []
+        for k, (start, offset) in enumerate(OFFSETS_2D[:3]):
+            p0 = np.array(start)
+            src, tgt, truth = scan_pair_2d(p0, p0 + np.array(offset), seed=20 + k)
+            e.append(errors(harmony_icp(src, tgt, config=RegistrationConfig(refinement=refine), rng=0).pose,
+                            truth)[0])
+        errs[refine] = np.mean(e)
+    assert errs["point-to-plane"] < errs["none"] / 2
+    assert errs["point-to-point"] < errs["none"]
+
+
+def test_initial_guess_far_outside_default_range():
+    p0 = np.array([4.0, 3.0, 0.0])
+    src, tgt, truth = scan_pair_2d(p0, p0 + [2.5, 1.0, np.deg2rad(100)], seed=3)
+    guess = truth + [0.3, -0.3, np.deg2rad(15)]  # e.g. drifting odometry
+    res = harmony_icp(src, tgt, initial_guesses=[guess], rng=0)
+    t_err, r_err = errors(res.pose, truth)
+    assert t_err < 0.02 and r_err < 0.5
+
+
+def test_explicit_bounds_are_respected():
+    p0 = np.array([4.0, 3.0, 0.0])
+    src, tgt, truth = scan_pair_2d(p0, p0 + [0.5, 0.0, 0.0], seed=4)
+    bounds = [[-0.1, 0.1], [-0.1, 0.1], [-0.1, 0.1]]  # excludes the truth on purpose
+    res = harmony_icp(src, tgt, bounds=bounds, config=RegistrationConfig(refinement="none"), rng=0)
+    assert np.all(res.pose >= -0.1 - 1e-12) and np.all(res.pose <= 0.1 + 1e-12)
+
+
+def test_prepared_target_reused():
+    p0 = np.array([4.0, 3.0, 0.0])
+    target = None
+    for k, off in enumerate([[0.3, 0.1, 0.1], [-0.2, 0.4, -0.3]]):
+        src, tgt, truth = scan_pair_2d(p0, p0 + off, seed=40 + 2 * k)
+        if target is None:
+            target = RegistrationTarget(tgt)
+        res = harmony_icp(src, target, rng=0)
+        # the second scan pair uses the first target scan: same p0, different noise, still recovered
+        t_err, r_err = errors(res.pose, truth)
+        assert t_err < 0.02 and r_err < 0.5
+
+
+def test_deterministic():
+    p0 = np.array([4.0, 3.0, 0.0])
+    src, tgt, _ = scan_pair_2d(p0, p0 + [0.6, -0.2, 0.4], seed=6)
+    a = harmony_icp(src, tgt, rng=11)
+    b = harmony_icp(src, tgt, rng=np.random.default_rng(11))
+    np.testing.assert_array_equal(a.pose, b.pose)
+    np.testing.assert_array_equal(a.global_pose, b.global_pose)
+    assert a.evaluations == b.evaluations
+
+
+def test_nan_points_dropped_and_counted():
+    p0 = np.array([4.0, 3.0, 0.0])
+    src, tgt, truth = scan_pair_2d(p0, p0 + [0.2, 0.1, 0.1], seed=7)
+    src = np.vstack([src, [[np.nan, 1.0], [np.inf, 0.0]]])
+    tgt = np.vstack([tgt, [[0.0, -np.inf]]])
+    res = harmony_icp(src, tgt, rng=0)
+    assert res.dropped == 3
+    assert errors(res.pose, truth)[0] < 0.02
+
+
+@pytest.mark.parametrize(
+    "source, target, exc, match",
+    [
+        (np.zeros((0, 2)), np.ones((5, 2)), EmptyInputError, "source is empty"),
+        (np.ones((5, 2)), np.zeros((0, 2)), EmptyInputError, "target is empty"),
+        (np.full((4, 2), np.nan), np.ones((5, 2)), EmptyInputError, "source has no finite points"),
+        (np.ones((5, 4)), np.ones((5, 4)), ShapeError, r"source must have shape \(N, 2\) or \(N, 3\)"),
+        (np.ones(5), np.ones((5, 2)), ShapeError, "source must have shape"),
+        (np.ones((5, 2)), np.ones((5, 3)), ShapeError, "target has 3 columns but the other cloud has 2"),
+        ("abc", np.ones((5, 2)), ShapeError, "source must be a numeric array"),
+    ],
+)
+def test_bad_clouds(source, target, exc, match):
+    with pytest.raises(exc, match=match):
+        harmony_icp(source, target)
+
+
+@pytest.mark.parametrize(
+    "kwargs, exc, match",
+    [
+        (dict(bounds=np.zeros((6, 2))), ShapeError, r"bounds must have shape \(3, 2\)"),
+        (dict(bounds=[[1, -1], [0, 1], [0, 1]]), InputError, r"bounds\[0\] is inverted"),
+        (dict(bounds=[[0, np.nan], [0, 1], [0, 1]]), InputError, "bounds must be finite"),
+        (dict(initial_guesses=np.zeros((2, 6))), ShapeError, r"initial_guesses must have shape \(K, 3\)"),
+        (dict(initial_guesses=[[np.nan, 0, 0]]), InputError, "initial_guesses must be finite"),
+    ],
+)
+def test_bad_bounds_and_guesses(kwargs, exc, match):
+    pts = np.random.default_rng(0).uniform(0, 1, (50, 2))
+    with pytest.raises(exc, match=match):
+        harmony_icp(pts, pts, **kwargs)
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(threshold=0.0), r"registration.threshold must be a finite number > 0"),
+        (dict(threshold=-0.1), r"registration.threshold must be a finite number > 0"),
+        (dict(search_threshold=0.0), r"registration.search_threshold must be a finite number > 0"),
+        (dict(fine_threshold=-1.0), "registration.fine_threshold must be None or > 0"),
+        (dict(field_resolution=0.0), "registration.field_resolution must be None or > 0"),
+        (dict(backend="octree"), "registration.backend must be one of"),
+        (dict(refinement="gicp"), "registration.refinement must be one of"),
+        (dict(max_points=0), "registration.max_points must be a positive integer"),
+    ],
+)
+def test_bad_config(kwargs, match):
+    with pytest.raises(ConfigError, match=match):
+        RegistrationConfig(**kwargs)
+
+
+def test_config_from_yaml_dict():
+    from hsmap.config import from_dict
+
+    cfg = from_dict(RegistrationConfig, {"threshold": 0.05, "harmony": {"memory_size": 20, "variant": "ihs"}})
+    assert cfg.threshold == 0.05 and cfg.harmony.memory_size == 20 and cfg.harmony.variant == "ihs"
+    with pytest.raises(ConfigError, match=r"registration.harmony: unknown key\(s\) \['hms'\]"):
+        from_dict(RegistrationConfig, {"harmony": {"hms": 20}}, "registration")

@@ -1,0 +1,87 @@
+"""Point-cloud maps: a voxel-hashed point map (2D or 3D) that keeps one point per voxel.
+
+Like KISS-ICP's voxel map, the map stores raw points (not voxel centres), at most one per voxel, so the map
+keeps the sensor's precision while its size is bounded by the explored volume. The local map used for
+registration is a crop around the robot.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .errors import InputError, ShapeError
+
+__all__ = ["VoxelMap", "voxel_keys"]
+
+_BIAS = 1 << 20  # voxel indices in [-2^20, 2^20) per axis fit in 21 bits; 3 axes fit in an int64
+
+
+def voxel_keys(points: NDArray[np.floating], voxel: float) -> NDArray[np.int64]:
+    """One int64 key per point naming its voxel (square in 2D, cube in 3D) of side ``voxel``."""
+    idx = np.floor(points / voxel).astype(np.int64) + _BIAS
+    if np.any(idx < 0) or np.any(idx >= 2 * _BIAS):
+        raise InputError(f"points beyond +/-{_BIAS * voxel:.0f} m cannot be stored at voxel size {voxel} m")
+    key = idx[:, 0]
+    for k in range(1, points.shape[1]):
+        key = (key << 21) | idx[:, k]
+    return key
+
+
+class VoxelMap:
+    """A point map with at most one point per voxel.
+
+    Parameters
+    ----------
+    dim : int
+        2 or 3.
+    voxel : float
+        Voxel size in metres.
+    """
+
+    def __init__(self, dim: int, voxel: float) -> None:
+        if dim not in (2, 3):
+            raise ShapeError(f"map dimension must be 2 or 3, got {dim}")
+        if not voxel > 0:
+            raise InputError(f"map voxel size must be > 0 m, got {voxel}")
+        self.dim = dim
+        self.voxel = float(voxel)
+        self._keys = np.empty(0, dtype=np.int64)  # sorted
+        self._points = np.empty((0, dim))  # in the order of _keys
+
+    def __len__(self) -> int:
+        return len(self._keys)
+
+    @property
+    def points(self) -> NDArray[np.float64]:
+        """All map points, (N, dim)."""
+        return self._points
+
+    def add(self, points: ArrayLike) -> int:
+        """Insert world points; a point whose voxel already holds one is dropped. Returns how many were added."""
+        pts = np.asarray(points, dtype=float)
+        if pts.ndim != 2 or pts.shape[1] != self.dim:
+            raise ShapeError(f"points must have shape (N, {self.dim}), got {pts.shape}")
+        pts = pts[np.all(np.isfinite(pts), axis=1)]
+        if len(pts) == 0:
+            return 0
+        keys = voxel_keys(pts, self.voxel)
+        keys, first = np.unique(keys, return_index=True)
+        pts = pts[first]
+        pos = np.searchsorted(self._keys, keys)
+        hit = pos < len(self._keys)
+        hit[hit] = self._keys[pos[hit]] == keys[hit]
+        new = ~hit
+        if not new.any():
+            return 0
+        all_keys = np.concatenate([self._keys, keys[new]])
+        all_pts = np.concatenate([self._points, pts[new]])
+        order = np.argsort(all_keys, kind="stable")
+        self._keys, self._points = all_keys[order], all_pts[order]
+        return int(new.sum())
+
+    def crop(self, centre: ArrayLike, radius: float) -> NDArray[np.float64]:
+        """Map points within ``radius`` metres of ``centre`` (horizontal distance in 3D)."""
+        c = np.asarray(centre, dtype=float)[:2]
+        d2 = ((self._points[:, :2] - c) ** 2).sum(1)
+        return self._points[d2 <= radius * radius]

@@ -375,9 +375,11 @@ class RosbagDataset(Dataset):
         if scan_topic is None and cloud_topic is None:
             self.scan_topic = self._pick(reader, None, SCAN_TYPE, "2D scans", "scan_topic")
             self.cloud_topic = self._pick(reader, None, CLOUD_TYPE, "3D clouds", "cloud_topic")
-        else:
-            self.scan_topic = self._pick(reader, scan_topic, SCAN_TYPE, "2D scans", "scan_topic")
-            self.cloud_topic = self._pick(reader, cloud_topic, CLOUD_TYPE, "3D clouds", "cloud_topic")
+        else:  # named sensors only
+            self.scan_topic = self._pick(reader, scan_topic, SCAN_TYPE, "2D scans", "scan_topic") if scan_topic else None
+            self.cloud_topic = (
+                self._pick(reader, cloud_topic, CLOUD_TYPE, "3D clouds", "cloud_topic") if cloud_topic else None
+            )
         if self.scan_topic is None and self.cloud_topic is None:
             raise DatasetError(
                 f"{self.path}: no {SCAN_TYPE} or {CLOUD_TYPE} topic to read; the bag has: {_topics_listing(reader)}"

@@ -39,7 +39,7 @@ from numpy.typing import NDArray
 
 from ..datasets.relations import Relations
 from ..errors import EmptyInputError, InputError
-from ..geometry import invert_matrix, matrix_to_pose, pose_to_matrix, rotation_angle, wrap_angle
+from ..geometry import invert_matrix, matrix_to_pose, pose_to_matrix, wrap_angle
 from ..io import Trajectory
 
 __all__ = [
@@ -246,6 +246,15 @@ class RelationsResult:
 
 
 # -- helpers -------------------------------------------------------------------------------------------
+def _angle(R: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Rotation angle (rad) of (..., 3, 3) matrices, accurate near 0 (atan2 of sine and cosine parts)."""
+    s = 0.5 * np.linalg.norm(
+        np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1), axis=-1
+    )
+    c = 0.5 * (np.trace(R, axis1=-2, axis2=-1) - 1.0)
+    return np.arctan2(s, c)
+
+
 def _matrices(traj: Trajectory) -> NDArray[np.float64]:
     return pose_to_matrix(traj.as_6dof().poses)
 
@@ -371,7 +380,7 @@ def align(est: Trajectory, ref: Trajectory, alignment: Alignment) -> tuple[NDArr
 def _error_of(E: NDArray[np.float64], relation: PoseRelation) -> tuple[NDArray[np.float64], str]:
     if relation is PoseRelation.TRANSLATION:
         return np.linalg.norm(E[:, :3, 3], axis=1), "m"
-    return np.degrees(rotation_angle(E[:, :3, :3])), "deg"
+    return np.degrees(_angle(E[:, :3, :3])), "deg"
 
 
 # -- metrics ---------------------------------------------------------------------------------------------
@@ -399,7 +408,7 @@ def pose_errors(est: Trajectory, ref: Trajectory, *, max_dt: float = DEFAULT_MAX
         max_abs=np.abs(err).max(axis=0),
         final=np.abs(err[-1]),
         final_translation=float(np.linalg.norm(Pr[-1, :3, 3] - Qr[-1, :3, 3])),
-        final_rotation=float(rotation_angle(Ef[:3, :3])),
+        final_rotation=float(_angle(Ef[:3, :3])),
     )
 
 
@@ -485,7 +494,7 @@ def rpe(
     ij = _pairs(Q, delta, unit, all_pairs, rel_delta_tol * delta)
     if len(ij) == 0:
         raise EmptyInputError(
-            f"no pose pairs {delta} {unit.value} apart in a reference of {len(Q)} poses "
+            f"no pose pairs {delta:g} {unit.value} apart in a reference of {len(Q)} poses "
             f"({float(np.linalg.norm(np.diff(Q[:, :3, 3], axis=0), axis=1).sum()):.3f} m of path)"
         )
     i, j = ij[:, 0], ij[:, 1]
@@ -581,7 +590,7 @@ def relations_error(
     E = invert_matrix(Pi[used]) @ Pj[used] @ invert_matrix(R)
     return RelationsResult(
         translation=np.linalg.norm(E[:, :3, 3], axis=1),
-        rotation=rotation_angle(E[:, :3, :3]),
+        rotation=_angle(E[:, :3, :3]),
         used=used,
         n_interpolated=int(int_i[used].sum() + int_j[used].sum()),
     )

@@ -155,8 +155,8 @@ def test_rpe_per_metre_pairs_like_evo():
     n = 17
     gt = Trajectory(np.arange(n), np.column_stack([0.25 * np.arange(n), np.zeros(n), np.zeros(n)]))
     r = rpe(gt, gt, delta=1.0, unit=DeltaUnit.METERS)
-    # evo marks the poses where 1 m of path has accumulated (4, 8, 12, 16) and pairs consecutive marks
-    np.testing.assert_array_equal(r.stamps, [4, 8, 12])
+    # evo marks the first pose and those where 1 m of path has accumulated (4, 8, 12, 16), pairs consecutive marks
+    np.testing.assert_array_equal(r.stamps, [0, 4, 8, 12])
     assert r.statistics.max == 0
     assert rpe(gt, gt, delta=1.0, unit="meters", all_pairs=True).statistics.n == 13  # (i, i + 4), i = 0..12
     with pytest.raises(EmptyInputError, match="no pose pairs 10 meters apart"):
@@ -275,3 +275,39 @@ def test_cli_evaluate_relations_and_trajectory(tmp_path, capsys):
     assert err.startswith("hsmap: error: 1 of 1 relations could not be matched")
     assert main(["evaluate", "trajectory", str(tmp_path / "est.tum"), str(tmp_path / "missing.tum")]) == 2
     assert "no such trajectory file" in capsys.readouterr().err
+
+
+# statistics evo 1.38 printed for the trajectory pair below (evo's APE/RPE on the same TUM files)
+EVO_REFERENCE = {
+    ("ate", Alignment.NONE, PoseRelation.TRANSLATION): (1.1380077129108894, 1.1376804178414024, 1.1889304118739494),
+    ("ate", Alignment.NONE, PoseRelation.ROTATION_ANGLE): (1.208611590283272, 1.1064523126691366, 2.305576962900579),
+    ("ate", Alignment.SE3, PoseRelation.TRANSLATION): (0.03632990018733299, 0.03351047390788237, 0.07086763581436412),
+    ("ate", Alignment.SE3, PoseRelation.ROTATION_ANGLE): (1.259827409975911, 1.163292444097608, 2.268872956525662),
+    ("rpe", (1, DeltaUnit.FRAMES, False), PoseRelation.TRANSLATION): (0.0041600622304714015, 0.003803489708362372, 0.009789210273472597),
+    ("rpe", (5, DeltaUnit.FRAMES, True), PoseRelation.ROTATION_ANGLE): (0.24589663719548974, 0.21441445706087248, 0.7625500776477452),
+    ("rpe", (1.0, DeltaUnit.METERS, False), PoseRelation.TRANSLATION): (0.03435306323231619, 0.03103632885591152, 0.04731421567517824),
+    ("rpe", (1.0, DeltaUnit.METERS, True), PoseRelation.ROTATION_ANGLE): (0.559952879162515, 0.5176439141630719, 1.1985310796085733),
+}
+
+
+def test_ate_rpe_match_evo(tmp_path):
+    from hsmap.io import read_tum
+
+    rng = np.random.default_rng(3)
+    n = 300
+    t = np.arange(n) * 0.1
+    yaw = np.cumsum(rng.normal(0, 0.05, n))
+    x, y = np.cumsum(0.03 * np.cos(yaw)), np.cumsum(0.03 * np.sin(yaw))
+    gt = np.column_stack([x, y, 0.01 * np.sin(t), 0.005 * np.sin(t / 2), 0.003 * np.cos(t / 3), yaw])
+    est = gt + np.cumsum(rng.normal(0, [0.003, 0.003, 0.001, 0.0005, 0.0005, 0.002], (n, 6)), axis=0)
+    est[:, :3] += [1.0, -0.5, 0.1]
+    write_tum(tmp_path / "gt.tum", Trajectory(t, gt))
+    write_tum(tmp_path / "est.tum", Trajectory(t, est))
+    ref, est_t = read_tum(tmp_path / "gt.tum"), read_tum(tmp_path / "est.tum")
+    for (kind, how, rel), expected in EVO_REFERENCE.items():
+        if kind == "ate":
+            s = ate(est_t, ref, alignment=how, relation=rel).statistics
+        else:
+            delta, unit, all_pairs = how
+            s = rpe(est_t, ref, delta=delta, unit=unit, all_pairs=all_pairs, relation=rel).statistics
+        np.testing.assert_allclose((s.rmse, s.mean, s.max), expected, rtol=1e-9, err_msg=f"{kind} {how} {rel}")

@@ -178,8 +178,13 @@ class CarmenDataset(Dataset):
 
         if kind == "ODOM":
             need(1 + 6 + _TAIL, "x y theta tv rv accel ipc_timestamp host logger_timestamp")
-            v = _finite(self._floats(parts[1:8], p, lineno, kind), p, lineno, kind)
-            return float(v[6]), v[:3]
+            try:
+                v = [float(x) for x in parts[1:8]]
+            except ValueError:
+                self._floats(parts[1:8], p, lineno, kind)  # raises, naming the bad field
+            if not all(math.isfinite(x) for x in v):
+                raise DataFormatError(f"{p}:{lineno}: {kind}: NaN or inf in a pose, geometry or stamp field")
+            return v[6], v[:3]
         if kind in ("FLASER", "RLASER"):
             n = _count(parts, 1, p, lineno, kind)
             need(2 + n + 6 + _TAIL, f"n={n} ranges, x y theta odom_x odom_y odom_theta, ipc_timestamp host logger_timestamp")

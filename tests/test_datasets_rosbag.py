@@ -14,7 +14,7 @@ import hsmap.datasets.rosbag as rosbag_mod
 from hsmap.datasets.open import open_dataset
 from hsmap.datasets.rosbag import FrameOrder, RosbagDataset, pointcloud2_xyz
 from hsmap.errors import DataFormatError, DatasetError
-from hsmap.geometry import euler_to_matrix, matrix_to_quaternion
+from hsmap.geometry import euler_to_matrix, matrix_to_quaternion, transform_points
 
 # The synthetic recording: the robot moves with constant velocity, so linear interpolation of odometry is exact.
 V = np.array([0.5, 0.2, 0.3])  # x, y (m/s), yaw (rad/s)
@@ -129,6 +129,7 @@ def write_bag(
     static_tf: bool = True,
     extra_scan_topic: bool = False,
     mcap: bool = False,
+    laser_roll: float = 0.0,
 ) -> Path:
     """A small bag: /scan (LaserScan), /odom (Odometry at its own rate), /tf_static, /tf, /points (PointCloud2).
 
@@ -143,7 +144,10 @@ def write_bag(
     for k, t in enumerate(odom_t):
         records.append((t, "/odom", "nav_msgs/msg/Odometry", m.odom(t, k)))
         records.append((t, "/tf", "tf2_msgs/msg/TFMessage", m.tf(t, [("odom", "base_link", (*pose_at(t)[:2], 0, 0, 0, pose_at(t)[2]))])))
-    edges = [("base_link", "laser", (LASER_EXT[0], LASER_EXT[1], 0.3, 0, 0, LASER_EXT[2])), ("base_link", "velodyne", CLOUD_EXT)]
+    edges = [
+        ("base_link", "laser", (LASER_EXT[0], LASER_EXT[1], 0.3, laser_roll, 0, LASER_EXT[2])),
+        ("base_link", "velodyne", CLOUD_EXT),
+    ]
     if static_tf:
         records.append((T0 - 1.0, "/tf_static", "tf2_msgs/msg/TFMessage", m.tf(T0 - 1.0, edges)))
     else:  # extrinsics only on /tf, published once
@@ -261,6 +265,17 @@ def test_extrinsics_from_dynamic_tf_when_no_static(tmp_path):
     np.testing.assert_allclose(ds.extrinsic2d, LASER_EXT, atol=1e-9)
     np.testing.assert_allclose(ds.extrinsic3d, CLOUD_EXT, atol=1e-9)
     assert all(ds.extrinsic_found.values())
+
+
+def test_upside_down_laser(tmp_path):
+    ds = RosbagDataset(write_bag(tmp_path / "a.bag", clouds=False, laser_roll=math.pi))
+    f = next(ds.frames())
+    # beam end points through the full 3D mount, projected on the floor, equal the 2D frame's
+    R = euler_to_matrix(math.pi, 0, LASER_EXT[2])
+    a = ANGLE_MIN + ANGLE_INC * np.arange(7)
+    sensor = np.column_stack([RANGES * np.cos(a), RANGES * np.sin(a), np.zeros(7)])[VALID]
+    expected = (sensor @ R.T)[:, :2] + LASER_EXT[:2]
+    np.testing.assert_allclose(transform_points(f.extrinsic2d, f.scan2d.points()), expected, atol=1e-6)
 
 
 def test_topic_selection(tmp_path):

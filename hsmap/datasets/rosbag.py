@@ -477,7 +477,7 @@ class RosbagDataset(Dataset):
         base = _frame_id(base_frame) if base_frame else None
         found = {name: base is None or f == base or tf.lookup(base, f) is not None for name, f in sensors.items()}
         if base is not None and not all(found.values()):
-            self._read_dynamic_tf(reader, tf, base)
+            self._read_dynamic_tf(reader, tf, base, list(sensors.values()))
             found = {name: f == base or tf.lookup(base, f) is not None for name, f in sensors.items()}
         self.base_frame = base
         self.extrinsic_found = {sensors[k]: v for k, v in found.items()}
@@ -494,16 +494,21 @@ class RosbagDataset(Dataset):
         if "cloud" in sensors and base is not None and found["cloud"]:
             self.extrinsic3d = matrix_to_pose(tf.lookup(base, sensors["cloud"]))
 
-    def _read_dynamic_tf(self, reader, tf: _TfTree, base: str) -> None:
-        """Add the first /tf transform of every edge that does not move the base (odom -> base is skipped)."""
+    def _read_dynamic_tf(self, reader, tf: _TfTree, base: str, sensors: list[str]) -> None:
+        """Add the first /tf transform of every edge that does not move the base (odom -> base is skipped),
+        until every sensor frame is connected to the base."""
         conns = [c for c in reader.connections if c.msgtype == TF_TYPE and not c.topic.endswith("tf_static")]
         if not conns:
             return
         for c, _, raw in reader.messages(connections=conns):
+            added = False
             for t in reader.deserialize(raw, c.msgtype).transforms:
                 child = _frame_id(t.child_frame_id)
                 if child != base and child not in tf.parent:
                     tf.add(t.header.frame_id, child, _transform_matrix(t.transform))
+                    added = True
+            if added and all(f == base or tf.lookup(base, f) is not None for f in sensors):
+                return
 
     # -- frames -------------------------------------------------------------------------------------
     def _order_of(self, stamps: NDArray[np.float64], seqs: Sequence) -> tuple[NDArray[np.intp], FrameOrder]:

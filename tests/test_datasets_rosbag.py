@@ -12,7 +12,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 import hsmap.datasets.rosbag as rosbag_mod
 from hsmap.datasets.open import open_dataset
-from hsmap.datasets.rosbag import FrameOrder, RosbagDataset, pointcloud2_xyz
+from hsmap.datasets.rosbag import FrameOrder, RosbagDataset, adopt_odometry, pointcloud2_xyz
 from hsmap.errors import DataFormatError, DatasetError
 from hsmap.geometry import euler_to_matrix, matrix_to_quaternion, transform_points
 
@@ -80,9 +80,9 @@ class _Msgs:
             intensities=np.zeros(0, dtype=np.float32),
         )
 
-    def odom(self, t, seq):
+    def odom(self, t, seq, offset=0.0):
         T = self.ts.types
-        x, y, yaw = pose_at(t)
+        x, y, yaw = pose_at(t) + offset
         pose = T["geometry_msgs/msg/Pose"](position=self.vec(x, y, 0, "geometry_msgs/msg/Point"), orientation=self.quat(0, 0, yaw))
         twist = T["geometry_msgs/msg/Twist"](linear=self.vec(*V[:2], 0), angular=self.vec(0, 0, V[2]))
         return T["nav_msgs/msg/Odometry"](
@@ -123,6 +123,7 @@ class _Msgs:
 def write_bag(
     path: Path,
     *,
+    odom_offset: float = 0.0,
     ros2: bool = False,
     scan_stamps=None,
     clouds: bool = True,
@@ -142,7 +143,7 @@ def write_bag(
     records = []  # (bag time, topic, msgtype, message)
     odom_t = np.arange(T0 - 0.2, T0 + SCAN_DT * N_SCANS + 0.2, ODOM_DT)
     for k, t in enumerate(odom_t):
-        records.append((t, "/odom", "nav_msgs/msg/Odometry", m.odom(t, k)))
+        records.append((t, "/odom", "nav_msgs/msg/Odometry", m.odom(t, k, odom_offset)))
         records.append((t, "/tf", "tf2_msgs/msg/TFMessage", m.tf(t, [("odom", "base_link", (*pose_at(t)[:2], 0, 0, 0, pose_at(t)[2]))])))
     edges = [
         ("base_link", "laser", (LASER_EXT[0], LASER_EXT[1], 0.3, laser_roll, 0, LASER_EXT[2])),
@@ -267,6 +268,31 @@ def test_extrinsics_from_dynamic_tf_when_no_static(tmp_path):
     assert all(ds.extrinsic_found.values())
 
 
+def test_adopt_odometry_of_the_same_scans(tmp_path):
+    stamps = T0 + SCAN_DT * np.arange(N_SCANS)
+    stamps[3] += 0.15
+    orig = RosbagDataset(write_bag(tmp_path / "orig.bag", scan_stamps=stamps, clouds=False))
+    other = RosbagDataset(write_bag(tmp_path / "other.bag", clouds=False, odom_offset=np.array([5.0, -2.0, 0.5])))  # other stamps
+    adopt_odometry(orig, other)
+    np.testing.assert_allclose(orig.stamps, stamps, atol=1e-9)  # own stamps kept
+    np.testing.assert_allclose(orig.odometry.poses, [pose_at(t) + [5.0, -2.0, 0.5] for t in T0 + SCAN_DT * np.arange(N_SCANS)], atol=1e-9)
+    np.testing.assert_allclose(list(orig.frames())[3].odometry, other.odometry.poses[3])
+    fewer = RosbagDataset(write_bag(tmp_path / "fewer.bag", scan_stamps=stamps[:-1], clouds=False))
+    with pytest.raises(DatasetError, match="not the same scans"):
+        adopt_odometry(orig, fewer)
+    ts = _typestore(False)
+    m = _Msgs(ts, False)
+    from rosbags.rosbag1 import Writer
+
+    path = tmp_path / "different.bag"
+    with Writer(path) as w:
+        c = w.add_connection("/scan", "sensor_msgs/msg/LaserScan", typestore=ts)
+        for k, t in enumerate(stamps):
+            w.write(c, int(t * 1e9), ts.serialize_ros1(m.scan(t, k, ranges=RANGES + (k == 7)), "sensor_msgs/msg/LaserScan"))
+    with pytest.raises(DatasetError, match="frame 7 .* have different scans"):
+        adopt_odometry(orig, RosbagDataset(path))
+
+
 def test_upside_down_laser(tmp_path):
     ds = RosbagDataset(write_bag(tmp_path / "a.bag", clouds=False, laser_roll=math.pi))
     f = next(ds.frames())
@@ -379,6 +405,23 @@ def test_freiburg_odometry_baseline(datasets_dir, name, bag, n_scans, expected):
     np.testing.assert_allclose(got, expected, rtol=0.006)
     assert res["n_relations"] == len(read_relations(root / name / f"{name}.relations"))
     print(f"{name}: read {n_scans} scans in {elapsed:.2f} s; odometry {got}")
+
+
+@pytest.mark.datasets
+@pytest.mark.slow
+def test_intel_scan_odometry_from_clf2bag_reproduces_the_readme(datasets_dir):
+    """The README's odometry figures come from the odometry stored with each scan (clf2bag), joined by seq."""
+    from hsmap.datasets.relations import read_relations
+    from hsmap.evaluation import relations_error
+
+    root = datasets_dir / "slam2d" / "intel"
+    ds = adopt_odometry(open_dataset(root / "intel.orig.bag"), open_dataset(root / "intel.clf2bag.bag"))
+    res = relations_error(ds.odometry, read_relations(root / "intel.relations")).as_dict()
+    got = (res["translation_m"]["mean"], res["translation_m"]["std"], res["rotation_deg"]["mean"], res["rotation_deg"]["std"])
+    np.testing.assert_allclose(got[:2], (7.37, 14.46), atol=0.005)  # the README's rounding
+    np.testing.assert_allclose(got[2:], (39.2, 53.8), atol=0.05)
+    steps = np.linalg.norm(np.diff(ds.odometry.poses[:, :2], axis=0), axis=1)
+    assert steps.max() < 0.3  # no jumps from jittered stamps
 
 
 @pytest.mark.datasets

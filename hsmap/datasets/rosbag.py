@@ -33,7 +33,8 @@ Odometry
 stamp, with the odometry messages sorted by their stamps; frames more than ``odom_tolerance`` seconds
 outside the odometry's time span get ``None``. With jittered stamps (intel, see above) the interpolated
 pose inherits the jitter: 37 of intel's 13,630 frame-to-frame odometry steps exceed 0.3 m, against none for
-the odometry CARMEN stored with each scan (which ``intel.clf2bag.bag`` carries, one message per scan).
+the odometry CARMEN stored with each scan (which ``intel.clf2bag.bag`` carries, one message per scan):
+:func:`adopt_odometry` gives the ``orig.bag`` frames that odometry after checking the scans are identical.
 
 No-return readings
 ------------------
@@ -73,6 +74,7 @@ __all__ = [
     "DEFAULT_NO_RETURN",
     "pointcloud2_xyz",
     "no_return_threshold",
+    "adopt_odometry",
 ]
 
 SCAN_TYPE = "sensor_msgs/msg/LaserScan"
@@ -636,3 +638,41 @@ class RosbagDataset(Dataset):
                 extrinsic3d=self.extrinsic3d.copy(),
             )
 
+
+
+def adopt_odometry(dataset: RosbagDataset, source: RosbagDataset) -> RosbagDataset:
+    """Give ``dataset`` the per-frame odometry of ``source``, a recording of the same scans.
+
+    For the Freiburg logs: ``intel.orig.bag`` has the true (IPC) stamps, which join to the relations, but its
+    /odom runs at its own rate with jittered stamps; ``intel.clf2bag.bag`` has made-up stamps but carries, one
+    message per scan, the odometry CARMEN stored with each scan. Frame *i* of one (in seq order) is frame *i*
+    of the other; this checks that their 2D scans are identical before pairing them.
+
+    Returns
+    -------
+    RosbagDataset
+        ``dataset`` itself, its frames and ``odometry`` now carrying ``source``'s odometry.
+
+    Raises
+    ------
+    DatasetError
+        The two have different frame counts, different scans, or ``source`` has no odometry for every frame.
+    """
+    if len(dataset) != len(source):
+        raise DatasetError(
+            f"{source.path} has {len(source)} frames, {dataset.path} has {len(dataset)}: not the same scans"
+        )
+    if dataset._scan_index is None or source._scan_index is None:
+        raise DatasetError("adopt_odometry pairs 2D scans: both datasets need a scan topic")
+    for i in range(len(dataset)):
+        a = dataset._scans["ranges"][int(dataset._scan_index[i])]
+        b = source._scans["ranges"][int(source._scan_index[i])]
+        if a.shape != b.shape or not np.array_equal(a, b, equal_nan=True):
+            raise DatasetError(
+                f"frame {i} of {dataset.path} and of {source.path} have different scans: not the same recording"
+            )
+    if np.isnan(source._odometry[:, 0]).any():
+        raise DatasetError(f"{source.path} lacks odometry for {int(np.isnan(source._odometry[:, 0]).sum())} frames")
+    dataset._odometry = source._odometry.copy()
+    dataset.odometry = Trajectory(dataset.stamps.copy(), dataset._odometry.copy())
+    return dataset

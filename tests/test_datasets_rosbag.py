@@ -357,6 +357,25 @@ def test_corrupted_and_missing_bags(tmp_path):
         RosbagDataset(truncated)
 
 
+def test_damaged_bags_raise_hsmap_errors_only(tmp_path, rng):
+    """Random byte damage anywhere in a bag: either it still reads, or a DatasetError/DataFormatError."""
+    data = write_bag(tmp_path / "good.bag", clouds=False).read_bytes()
+    outcomes = set()
+    for k in range(16):
+        b = bytearray(data)
+        off, n = int(rng.integers(0, len(b) - 64)), int(rng.integers(1, 64))
+        b[off : off + n] = rng.integers(0, 256, size=n, dtype=np.uint8).tobytes()
+        p = tmp_path / f"damaged{k}.bag"
+        p.write_bytes(bytes(b))
+        try:
+            for _ in RosbagDataset(p).frames():
+                pass
+            outcomes.add("read")
+        except (DatasetError, DataFormatError) as exc:
+            outcomes.add(type(exc).__name__)
+    assert {"DatasetError", "DataFormatError"} <= outcomes  # both kinds of damage were exercised
+
+
 def test_pointcloud2_with_row_padding_and_big_endian():
     ts = _typestore(True)
     T = ts.types

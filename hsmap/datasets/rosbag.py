@@ -11,6 +11,9 @@ Topics are chosen by message type when there is one candidate; with several, nam
 ``cloud_topic=``, ``odom_topic=``). When neither ``scan_topic`` nor ``cloud_topic`` is given, every
 sensor type with exactly one topic is used (a 2D scan topic and a 3D cloud topic give multi-LiDAR frames).
 A topic that is named but absent raises :class:`~hsmap.errors.DatasetError` listing the topics of the bag.
+ROS1 LaserScan and Odometry messages with the standard definitions (checked by md5sum) are decoded straight
+from their bytes, about twice as fast as rosbags' generic deserializer (the tests check both agree); all
+other messages, and every ROS2 message, go through rosbags.
 
 Frames and order
 ----------------
@@ -388,6 +391,24 @@ class RosbagDataset(Dataset):
             )
         self.odom_topic = self._pick(reader, odom_topic, ODOM_TYPE, "odometry", "odom_topic")
 
+    def _messages(self, reader, conns) -> Iterator:
+        """``reader.messages`` with rosbags' errors on damaged data turned into DataFormatError."""
+        it = reader.messages(connections=conns)
+        while True:
+            try:
+                item = next(it)
+            except StopIteration:
+                return
+            except Exception as exc:  # ReaderError, struct.error, OSError, ... from a damaged bag
+                raise DataFormatError(f"{self.path}: damaged bag data ({type(exc).__name__}: {exc})") from None
+            yield item
+
+    def _deserialize(self, reader, raw, c):
+        try:
+            return reader.deserialize(raw, c.msgtype)
+        except Exception as exc:  # rosbags' SerdeError and friends
+            raise DataFormatError(f"{self.path}: cannot decode a {c.msgtype} message on {c.topic}: {exc}") from None
+
     def _conns(self, reader, topic: str | None):
         return [c for c in reader.connections if c.topic == topic] if topic else []
 
@@ -396,8 +417,8 @@ class RosbagDataset(Dataset):
         tf = _TfTree()
         conns = [c for c in reader.connections if c.msgtype == TF_TYPE and c.topic.endswith("tf_static")]
         if conns:
-            for c, _, raw in reader.messages(connections=conns):
-                for t in reader.deserialize(raw, c.msgtype).transforms:
+            for c, _, raw in self._messages(reader, conns):
+                for t in self._deserialize(reader, raw, c).transforms:
                     tf.add(t.header.frame_id, t.child_frame_id, _transform_matrix(t.transform))
         return tf
 
@@ -412,7 +433,7 @@ class RosbagDataset(Dataset):
         odom: list[tuple[float, float, float, float]] = []
         self._odom_child = None
         fast = {id(c) for c in scan_c + odom_c if c.digest in (_ROS1_SCAN_MD5, _ROS1_ODOM_MD5)}
-        for c, _, raw in reader.messages(connections=scan_c + cloud_c + odom_c):
+        for c, _, raw in self._messages(reader, scan_c + cloud_c + odom_c):
             is_scan = id(c) in scan_ids
             if id(c) in fast:
                 try:
@@ -425,12 +446,7 @@ class RosbagDataset(Dataset):
                         f"{self.path}: cannot decode a {c.msgtype} message on {c.topic}: {exc}"
                     ) from None
             else:
-                try:
-                    msg = reader.deserialize(raw, c.msgtype)
-                except Exception as exc:  # rosbags' SerdeError and friends
-                    raise DataFormatError(
-                        f"{self.path}: cannot decode a {c.msgtype} message on {c.topic}: {exc}"
-                    ) from None
+                msg = self._deserialize(reader, raw, c)
                 h = msg.header
                 seq, stamp = getattr(h, "seq", None), _stamp(h)
                 frame = h.frame_id
@@ -502,9 +518,9 @@ class RosbagDataset(Dataset):
         conns = [c for c in reader.connections if c.msgtype == TF_TYPE and not c.topic.endswith("tf_static")]
         if not conns:
             return
-        for c, _, raw in reader.messages(connections=conns):
+        for c, _, raw in self._messages(reader, conns):
             added = False
-            for t in reader.deserialize(raw, c.msgtype).transforms:
+            for t in self._deserialize(reader, raw, c).transforms:
                 child = _frame_id(t.child_frame_id)
                 if child != base and child not in tf.parent:
                     tf.add(t.header.frame_id, child, _transform_matrix(t.transform))
@@ -603,7 +619,7 @@ class RosbagDataset(Dataset):
             return
         pending: dict[int, NDArray[np.float64]] = {}
         with self._open() as reader:
-            stream = reader.messages(connections=self._conns(reader, self.cloud_topic))
+            stream = self._messages(reader, self._conns(reader, self.cloud_topic))
             pos = -1
             for k in wanted:
                 k = int(k)
@@ -614,7 +630,7 @@ class RosbagDataset(Dataset):
                     c, _, raw = next(stream)
                     pos += 1
                     if pos in need:
-                        msg = reader.deserialize(raw, c.msgtype)
+                        msg = self._deserialize(reader, raw, c)
                         pending[pos] = pointcloud2_xyz(msg, source=f"{self.path} {self.cloud_topic} message {pos}")
                 cloud = pending[k]
                 need[k] -= 1

@@ -117,6 +117,8 @@ def test_robotlaser1_extrinsic_is_laser_in_robot_frame(tmp_path):
         (f"ODOM 0.0 nan 0.0 0 0 0 100.4 {TAIL}", r"small\.log:11: ODOM: NaN or inf"),
         ("ROBOTLASER1 0 -1.5 3.0 1.0 81.9 0.01 0 40 1.0", r"small\.log:11: ROBOTLASER1 line is truncated"),
         ("PARAM lonely", r"small\.log:11: PARAM line needs"),
+        ("FL@SER 3 1 2 3 0 0 0 0 0 0 100.5 host 0.5", r"small\.log:11: corrupted line: 'FL@SER'"),
+        ("\x00\x17\x9c garbage", r"small\.log:11: corrupted line"),
     ],
 )
 def test_bad_lines_name_file_and_line(tmp_path, bad_line, match):

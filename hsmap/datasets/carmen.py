@@ -23,7 +23,7 @@ Messages read (every message line ends with ``ipc_timestamp ipc_hostname logger_
   their own odometry, which the frames use).
 - ``PARAM name value ...``: kept in :attr:`CarmenDataset.params` (laser offset, maximum range, fov).
 - Comments (``#``), blank lines and other messages (``NEFF``, ``SYNC``, ``TRUEPOS``, ``RAWLASER*``, ...)
-  are skipped.
+  are skipped; a line whose first word is not a message name at all is a corrupted line.
 
 A line of a read message type that is truncated or holds a non-number raises
 :class:`~hsmap.errors.DataFormatError` naming the file and the line number; so does a truncated gzip stream.
@@ -39,6 +39,7 @@ from __future__ import annotations
 import gzip
 import math
 import os
+import re
 import zlib
 from collections.abc import Iterator
 from pathlib import Path
@@ -57,6 +58,7 @@ __all__ = ["CarmenDataset", "LASER_MESSAGES"]
 #: Laser message types this reader understands, and which laser each one is.
 LASER_MESSAGES = {"FLASER": "front", "RLASER": "rear", "ROBOTLASER1": "front", "ROBOTLASER2": "rear"}
 _TAIL = 3  # ipc_timestamp ipc_hostname logger_timestamp
+_MESSAGE_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")  # other well-formed names (NEFF, SYNC, ...) are skipped
 
 
 def _open_text(path: Path):
@@ -157,6 +159,10 @@ class CarmenDataset(Dataset):
                         self.params[parts[1]] = parts[2]
                     elif kind in lines:
                         lines[kind].append(self._parse_line(kind, parts, p, lineno))
+                    elif not _MESSAGE_NAME.fullmatch(kind):
+                        raise DataFormatError(
+                            f"{p}:{lineno}: corrupted line: {kind[:40]!r} is not a CARMEN message name"
+                        )
         except (EOFError, OSError, zlib.error, gzip.BadGzipFile) as exc:
             raise DataFormatError(f"{p}:{lineno + 1}: the log is truncated or corrupted ({exc})") from None
         return lines

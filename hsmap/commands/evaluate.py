@@ -34,15 +34,25 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _relations(args: argparse.Namespace) -> dict:
-    from ..errors import HsmapError
+    """Freiburg relations metric of a TUM trajectory against a ``.relations`` file."""
+    from ..datasets.relations import read_relations
+    from ..evaluation.trajectory import relations_error
+    from ..io import read_tum
 
-    raise HsmapError("'hsmap evaluate relations' is not implemented yet")
+    traj = read_tum(args.trajectory)
+    relations = read_relations(args.relations)
+    result = relations_error(traj, relations).as_dict()
+    return {"trajectory": str(args.trajectory), "relations": str(args.relations), **result}
 
 
 def _trajectory(args: argparse.Namespace) -> dict:
-    from ..errors import HsmapError
+    """Per-DOF errors (relative to the first pose), ATE and RPE of a TUM estimate against a TUM ground truth."""
+    from ..evaluation.trajectory import evaluate_trajectory
+    from ..io import read_tum
 
-    raise HsmapError("'hsmap evaluate trajectory' is not implemented yet")
+    est = read_tum(args.estimate)
+    ref = read_tum(args.groundtruth)
+    return {"estimate": str(args.estimate), "groundtruth": str(args.groundtruth), **evaluate_trajectory(est, ref)}
 
 
 def _segmentation(args: argparse.Namespace) -> dict:

@@ -2,3 +2,41 @@
 
 Pure functions on arrays and small dataclasses; file reading lives in :mod:`hsmap.io` and the readers.
 """
+
+from .trajectory import (
+    DEFAULT_MAX_DT,
+    Alignment,
+    DeltaUnit,
+    ErrorResult,
+    PoseErrors,
+    PoseRelation,
+    RelationsResult,
+    Statistics,
+    align,
+    associate,
+    ate,
+    evaluate_trajectory,
+    pose_errors,
+    relations_error,
+    rpe,
+    umeyama,
+)
+
+__all__ = [
+    "DEFAULT_MAX_DT",
+    "Alignment",
+    "DeltaUnit",
+    "ErrorResult",
+    "PoseErrors",
+    "PoseRelation",
+    "RelationsResult",
+    "Statistics",
+    "align",
+    "associate",
+    "ate",
+    "evaluate_trajectory",
+    "pose_errors",
+    "relations_error",
+    "rpe",
+    "umeyama",
+]

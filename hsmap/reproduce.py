@@ -284,6 +284,9 @@ _HTML_TEMPLATE = r"""
   details.hsmap-code[open] > summary { margin-bottom: 0.3em; }
 </style>
 {% endblock extra_css %}
+{#- no widgets or diagrams in our reports: do not fetch require.js and mermaid from a CDN -#}
+{%- block html_head_js_requirejs -%}{%- endblock html_head_js_requirejs -%}
+{%- block html_head_js_mermaidjs -%}{%- endblock html_head_js_mermaidjs -%}
 {% block body_header %}
 {{ super() }}
 {%- set h = resources.hsmap -%}

@@ -77,7 +77,8 @@ def _xy(poses: Any, name: str) -> NDArray[np.float64]:
 
 
 def _world_axes(ax: Axes, title: str | None) -> None:
-    ax.set_aspect("equal", adjustable="datalim")
+    # an image fixes the data limits to its extent: shrink the box; plain curves: widen the limits
+    ax.set_aspect("equal", adjustable="box" if ax.images else "datalim")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     if title:
@@ -101,7 +102,7 @@ def plot_trajectories(
     trajectories : mapping of name to Trajectory or array (N, 2)/(N, 3)/(N, 6)
         E.g. ``{"odometry": odo, "HS-SLAM": est}``. Colours follow ``SERIES_COLORS`` by name.
     groundtruth : Trajectory or array, optional
-        Drawn first, dashed black.
+        Drawn first, as a wide grey band under the paths.
     markers : bool
         Mark the start (circle) and end (square) of each path.
     """
@@ -110,7 +111,8 @@ def plot_trajectories(
     palette = ["slam", "odometry", "other"]
     if groundtruth is not None:
         g = _xy(groundtruth, "groundtruth")
-        ax.plot(g[:, 0], g[:, 1], "--", color=_rgb(SERIES_COLORS["groundtruth"]), lw=linewidth,
+        # a wide grey band underneath, so that the paths drawn over it stay readable and it stays visible
+        ax.plot(g[:, 0], g[:, 1], "-", color="0.6", lw=linewidth * 3.0, alpha=0.55, solid_capstyle="round",
                 label="ground truth", zorder=3)
         if markers:
             ax.plot(*g[0], "o", color="k", ms=6, zorder=5)
@@ -183,14 +185,15 @@ def plot_points2d(
     *,
     ax: Axes | None = None,
     color: Any = (30, 30, 30),
-    size: float = 0.3,
+    size: float | None = None,
     title: str | None = None,
     max_points: int | None = 400_000,
     label: str | None = None,
 ) -> Axes:
     """A 2D point map (N, 2) (or the x, y of (N, 3)) from above, equal axes in metres.
 
-    ``max_points`` thins very large maps with a fixed stride (deterministic) to keep figures light.
+    ``max_points`` thins very large maps with a fixed stride (deterministic) to keep figures light; ``size``
+    is the marker area in points^2 (default: larger for sparser maps).
     """
     p = np.asarray(points, dtype=float)
     if p.ndim != 2 or p.shape[1] not in (2, 3):
@@ -198,7 +201,9 @@ def plot_points2d(
     if max_points is not None and len(p) > max_points:
         p = p[:: int(np.ceil(len(p) / max_points))]
     ax = _ax(ax)
-    ax.scatter(p[:, 0], p[:, 1], s=size, color=_rgb(color), marker=".", linewidths=0, label=label,
+    if size is None:
+        size = float(np.clip(30_000 / max(len(p), 1), 0.2, 6.0))
+    ax.scatter(p[:, 0], p[:, 1], s=size, color=_rgb(color), marker="o", linewidths=0, label=label,
                rasterized=True)
     _world_axes(ax, title)
     return ax
@@ -230,7 +235,6 @@ def plot_image(
     if colorbar:
         ax.figure.colorbar(im, ax=ax, shrink=0.8)
     _world_axes(ax, title)
-    ax.set_aspect("equal")
     return ax
 
 
@@ -284,7 +288,6 @@ def plot_labels(
                     bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": _rgb(label_color(int(k))),
                           "alpha": 0.8})
     _world_axes(ax, title)
-    ax.set_aspect("equal")
     return ax
 
 
@@ -346,14 +349,14 @@ def plot_graph(
             lab = d.get("label", n if isinstance(n, (int, np.integer)) else i + 1)
             c = label_color(int(lab)) if isinstance(lab, (int, np.integer)) else SERIES_COLORS["slam"]
             ax.plot(x, y, "o", ms=13, mfc=_rgb(c), mec="k", zorder=8)
-            text = str(d.get("name") or f"R{n}")
+            text = str(d.get("name") or (f"R{n}" if isinstance(n, (int, np.integer)) else n))
             if d.get("area") is not None:
                 text += f"\n{float(d['area']):.1f} m²"
             ax.annotate(text, (x, y), textcoords="offset points", xytext=(9, 9), fontsize=8, zorder=10,
                         bbox={"boxstyle": "round,pad=0.2", "fc": "white", "alpha": 0.8, "lw": 0})
         else:
             ax.plot(x, y, "s", ms=7, mfc="white", mec="k", mew=1.5, zorder=8)
-            ax.annotate(str(d.get("name") or f"D{n}"), (x, y), textcoords="offset points", xytext=(6, -11),
+            ax.annotate(str(d.get("name") or (f"D{n}" if isinstance(n, (int, np.integer)) else n)), (x, y), textcoords="offset points", xytext=(6, -11),
                         fontsize=7, zorder=10)
     _world_axes(ax, title)
     return ax
@@ -365,13 +368,14 @@ def plot_cloud_views(
     views: Sequence[str] = ("top", "side"),
     z_range: tuple[float, float] | None = None,
     max_points: int = 300_000,
-    size: float = 0.2,
+    size: float | None = None,
     title: str | None = None,
     figsize: tuple[float, float] | None = None,
 ) -> Figure:
     """Views of a 3D point map (N, 3) coloured by height: ``top`` (x-y), ``side`` (x-z), ``front`` (y-z).
 
-    Large maps are thinned with a fixed stride to ``max_points``.
+    Large maps are thinned with a fixed stride to ``max_points``; ``size`` (points^2, default: larger for
+    sparser maps) is the marker area.
     """
     p = np.asarray(points, dtype=float)
     if p.ndim != 2 or p.shape[1] != 3:
@@ -381,6 +385,8 @@ def plot_cloud_views(
         raise InputError("the point map is empty")
     if len(p) > max_points:
         p = p[:: int(np.ceil(len(p) / max_points))]
+    if size is None:
+        size = float(np.clip(60_000 / len(p), 0.3, 6.0))
     axes_of = {"top": (0, 1, "x [m]", "y [m]"), "side": (0, 2, "x [m]", "z [m]"), "front": (1, 2, "y [m]", "z [m]")}
     bad = [v for v in views if v not in axes_of]
     if bad or not views:
@@ -396,7 +402,7 @@ def plot_cloud_views(
     sc = None
     for ax, v in zip(axs, views, strict=True):
         i, j, xl, yl = axes_of[v]
-        sc = ax.scatter(p[:, i], p[:, j], c=p[:, 2], s=size, cmap="turbo", vmin=lo, vmax=hi, marker=".",
+        sc = ax.scatter(p[:, i], p[:, j], c=p[:, 2], s=size, cmap="turbo", vmin=lo, vmax=hi, marker="o",
                         linewidths=0, rasterized=True)
         ax.set_aspect("equal")
         ax.set_xlabel(xl)

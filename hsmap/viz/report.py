@@ -227,8 +227,11 @@ class Study:
         return out
 
     # --- figures -----------------------------------------------------------------------------------
-    def savefig(self, fig: Any, name: str, *, dpi: int = 120, show: bool = True, close: bool = True) -> Path:
+    def savefig(self, fig: Any, name: str, *, dpi: int = 120, show: bool = True, close: bool = True) -> None:
         """Save a matplotlib figure as ``NAME/name.png`` (atomically) and show it inline.
+
+        Returns nothing (so that a cell ending with it shows only the figure); the path is
+        ``study.dir / f"{name}.png"``, also listed in :attr:`figures`.
 
         Parameters
         ----------
@@ -258,7 +261,6 @@ class Study:
             from IPython.display import Image, display
 
             display(Image(filename=str(path)))
-        return path
 
     # --- metrics -----------------------------------------------------------------------------------
     def metrics(

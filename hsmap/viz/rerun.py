@@ -80,6 +80,7 @@ __all__ = [
     "log_room_graph",
     "rerun_binary",
     "verify_rrd",
+    "recording_contents",
 ]
 
 RERUN_VERSION = rr.__version__
@@ -838,3 +839,27 @@ def verify_rrd(path: str | os.PathLike, *, timeout: float = 300.0) -> str:
 
 
 _ANSI = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
+
+
+_CHUNK_LINE = re.compile(r"with (\d+) rows .* - (/\S*) - data columns: \[(.*)\]")
+
+
+def recording_contents(path: str | os.PathLike, *, timeout: float = 300.0) -> dict[str, dict[str, Any]]:
+    """What a recording holds, per entity, from ``rerun rrd print``: ``{"/world/robot": {"columns":
+    {"Transform3D:translation", ...}, "rows": 177}, ...}`` (blueprint entities included)."""
+    exe = rerun_binary()
+    if exe is None:
+        raise HsmapError("the 'rerun' command-line tool is not installed (it comes with rerun-sdk)")
+    env = dict(os.environ, RERUN_ANALYTICS="0", NO_COLOR="1", RUST_LOG_STYLE="never")
+    r = subprocess.run([str(exe), "rrd", "print", str(path)], capture_output=True, text=True, timeout=timeout,
+                       env=env)
+    if r.returncode != 0:
+        raise DataFormatError(f"{path}: 'rerun rrd print' failed: {_ANSI.sub('', r.stderr).strip()[-500:]}")
+    out: dict[str, dict[str, Any]] = {}
+    for line in r.stdout.splitlines():
+        m = _CHUNK_LINE.search(line)
+        if m:
+            e = out.setdefault(m.group(2), {"columns": set(), "rows": 0})
+            e["rows"] += int(m.group(1))
+            e["columns"].update(m.group(3).split())
+    return out

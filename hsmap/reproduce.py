@@ -303,8 +303,9 @@ _HTML_TEMPLATE = r"""
   <p><a href="index.html">&larr; all notebooks</a></p>
 </div>
 {% endblock body_header %}
-{% block input_group %}
-<details class="hsmap-code"><summary>code</summary>
+{% block input_group scoped %}
+{#- the cell that failed shows its code -#}
+<details class="hsmap-code"{% if cell.outputs | selectattr('output_type', 'equalto', 'error') | list %} open{% endif %}><summary>code</summary>
 {{ super() }}
 </details>
 {% endblock input_group %}
@@ -405,68 +406,72 @@ def execute_notebook(
     fd, tmp = tempfile.mkstemp(prefix=f".{spec.name}.", suffix=".running.ipynb", dir=out_dir)
     os.close(fd)
     tmp_ipynb = Path(tmp)
-    t0 = time.perf_counter()
     try:
-        papermill.execute_notebook(
-            str(spec.path), str(tmp_ipynb), parameters=dict(parameters), kernel_name=kernel_name,
-            cwd=str(spec.path.parent), progress_bar=False, log_output=False, execution_timeout=timeout,
-        )
-        run.status = "ok"
-    except Exception as exc:  # the notebook failed (or its kernel died): record it, carry on
-        run.status = "failed"
-        run.error, run.error_cell = _error_text(exc)
-    run.duration_s = round(time.perf_counter() - t0, 3)
-
-    left = _sweep_temporaries(folder)
-    if left:
-        run.warnings.append(f"temporary files left behind and removed (an output not closed?): {left}")
-    if folder.is_dir():
-        run.figures = sorted(str(p.relative_to(out_dir)) for p in folder.rglob("*.png"))
-        run.recordings = sorted(str(p.relative_to(out_dir)) for p in folder.rglob("*.rrd"))
-    run.metrics = read_metrics(folder / "metrics.json")
-    if run.ok and run.metrics is None:
-        run.warnings.append("the notebook wrote no metrics.json (study.metrics(...))")
-    if run.recordings and verify_recordings:
-        from .viz.rerun import rerun_binary, verify_rrd
-
-        if rerun_binary() is None:
-            run.warnings.append("rerun binary not found: recordings not verified")
-        else:
-            for rel in run.recordings:
-                try:
-                    verify_rrd(out_dir / rel)
-                except Exception as exc:
-                    if run.ok:
-                        msg = str(exc).replace(f"{out_dir / rel}: ", "")
-                        run.status, run.error = "failed", f"recording {rel} does not verify: {msg}"
-
-    # the executed notebook and its HTML, marked with the run's status
-    nb = None
-    if tmp_ipynb.exists() and tmp_ipynb.stat().st_size > 0:
+        t0 = time.perf_counter()
         try:
-            nb = nbformat.read(str(tmp_ipynb), as_version=4)
-        except Exception as exc:  # papermill died before writing a whole notebook
-            run.warnings.append(f"executed notebook unreadable: {exc}")
-    if nb is None:
-        nb = nbformat.read(str(spec.path), as_version=4)
-    nb.metadata["hsmap"] = {k: v for k, v in run.to_dict().items() if k != "metrics"}
-    try:
-        html = notebook_to_html(nb, run, versions)
-    except Exception as exc:
-        if run.ok:
+            papermill.execute_notebook(
+                str(spec.path), str(tmp_ipynb), parameters=dict(parameters), kernel_name=kernel_name,
+                cwd=str(spec.path.parent), progress_bar=False, log_output=False, execution_timeout=timeout,
+            )
+            run.status = "ok"
+        except Exception as exc:  # the notebook failed (or its kernel died): record it, carry on
             run.status = "failed"
-            run.error = f"HTML conversion failed: {type(exc).__name__}: {exc}"
-        html = (f"<html><body><h1>{run.name}: FAILED</h1><pre>{_escape(run.error or '')}</pre>"
-                f"<p>HTML conversion failed too: {_escape(str(exc))}</p></body></html>")
-    nb.metadata["hsmap"]["status"] = run.status
-    nb.metadata["hsmap"]["error"] = run.error
-    nbformat.write(nb, str(tmp_ipynb))
-    os.chmod(tmp_ipynb, 0o644)
-    os.replace(tmp_ipynb, out_dir / f"{spec.name}.ipynb")
-    write_text(out_dir / f"{spec.name}.html", html)
-    run.ipynb, run.html = f"{spec.name}.ipynb", f"{spec.name}.html"
-    write_json(folder / "run.json", run.to_dict())
-    return run
+            run.error, run.error_cell = _error_text(exc)
+        run.duration_s = round(time.perf_counter() - t0, 3)
+
+        left = _sweep_temporaries(folder)
+        if left:
+            run.warnings.append(f"temporary files left behind and removed (an output not closed?): {left}")
+        if folder.is_dir():
+            run.figures = sorted(str(p.relative_to(out_dir)) for p in folder.rglob("*.png"))
+            run.recordings = sorted(str(p.relative_to(out_dir)) for p in folder.rglob("*.rrd"))
+        run.metrics = read_metrics(folder / "metrics.json")
+        if run.ok and run.metrics is None:
+            run.warnings.append("the notebook wrote no metrics.json (study.metrics(...))")
+        if run.recordings and verify_recordings:
+            from .viz.rerun import rerun_binary, verify_rrd
+
+            if rerun_binary() is None:
+                run.warnings.append("rerun binary not found: recordings not verified")
+            else:
+                for rel in run.recordings:
+                    try:
+                        verify_rrd(out_dir / rel)
+                    except Exception as exc:
+                        if run.ok:
+                            msg = str(exc).replace(f"{out_dir / rel}: ", "")
+                            run.status, run.error = "failed", f"recording {rel} does not verify: {msg}"
+
+        # the executed notebook and its HTML, marked with the run's status
+        nb = None
+        if tmp_ipynb.exists() and tmp_ipynb.stat().st_size > 0:
+            try:
+                nb = nbformat.read(str(tmp_ipynb), as_version=4)
+            except Exception as exc:  # papermill died before writing a whole notebook
+                run.warnings.append(f"executed notebook unreadable: {exc}")
+        if nb is None:
+            nb = nbformat.read(str(spec.path), as_version=4)
+        nb.metadata["hsmap"] = {k: v for k, v in run.to_dict().items() if k != "metrics"}
+        try:
+            html = notebook_to_html(nb, run, versions)
+        except Exception as exc:
+            if run.ok:
+                run.status = "failed"
+                run.error = f"HTML conversion failed: {type(exc).__name__}: {exc}"
+            html = (f"<html><body><h1>{run.name}: FAILED</h1><pre>{_escape(run.error or '')}</pre>"
+                    f"<p>HTML conversion failed too: {_escape(str(exc))}</p></body></html>")
+        nb.metadata["hsmap"]["status"] = run.status
+        nb.metadata["hsmap"]["error"] = run.error
+        nbformat.write(nb, str(tmp_ipynb))
+        os.chmod(tmp_ipynb, 0o644)
+        os.replace(tmp_ipynb, out_dir / f"{spec.name}.ipynb")
+        write_text(out_dir / f"{spec.name}.html", html)
+        run.ipynb, run.html = f"{spec.name}.ipynb", f"{spec.name}.html"
+        write_json(folder / "run.json", run.to_dict())
+        return run
+    except BaseException:  # interrupted (Ctrl-C) or the machinery failed: leave no temporary behind
+        tmp_ipynb.unlink(missing_ok=True)
+        raise
 
 
 def _escape(s: str) -> str:
@@ -676,6 +681,34 @@ def run_study(
                 msg += f"\n    warning: {w}"
             log(msg)
 
+    for stale in out.glob(".*.running.ipynb"):  # left by a run that was killed
+        stale.unlink(missing_ok=True)
+    try:
+        _run_all(order, out, common, per_nb, quick, jobs, timeout, verify_recordings, versions, entries,
+                 started, finished, write_index)
+    except KeyboardInterrupt:
+        for s in chosen:
+            if s.name not in runs:
+                entries[s.name] = NotebookRun(name=s.name, notebook=str(s.path), title=s.title(),
+                                              status="interrupted", error="the run was interrupted")
+                runs[s.name] = entries[s.name]
+        write_index(final=True)
+        raise
+
+    write_index(final=True)
+    return StudyResult(
+        runs=[runs[s.name] for s in chosen],
+        entries=[entries[s.name] for s in specs],
+        started=started,
+        duration_s=time.perf_counter() - t0,
+        quick=quick,
+        versions=versions,
+        index=index_path,
+    )
+
+
+def _run_all(order, out, common, per_nb, quick, jobs, timeout, verify_recordings, versions, entries, started,
+             finished, write_index) -> None:
     with tempfile.TemporaryDirectory(prefix="hsmap-kernel-") as kdir:
         write_kernelspec(kdir)
         jupyter_path = os.pathsep.join([kdir] + [p for p in [os.environ.get("JUPYTER_PATH")] if p])
@@ -688,6 +721,7 @@ def run_study(
         if jobs == 1:
             for t in tasks:
                 entries[t[0].name].status = "running"
+                write_index(final=False)
                 finished(NotebookRun.from_dict(_worker(*t)))
         else:
             ctx = multiprocessing.get_context("spawn")
@@ -702,14 +736,3 @@ def run_study(
                                           error=f"worker process failed: {type(exc).__name__}: {exc}",
                                           started=started, parameters=params)
                     finished(run)
-
-    write_index(final=True)
-    return StudyResult(
-        runs=[runs[s.name] for s in chosen],
-        entries=[entries[s.name] for s in specs],
-        started=started,
-        duration_s=time.perf_counter() - t0,
-        quick=quick,
-        versions=versions,
-        index=index_path,
-    )

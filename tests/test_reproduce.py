@@ -101,6 +101,7 @@ def test_batch_runs_every_notebook_and_marks_the_failures(tmp_path):
     html = (out / "02-fails.html").read_text()
     assert "hsmap-banner failed" in html and "FAILED" in html and "deliberate failure" in html
     assert "looked complete" not in html
+    assert html.count('<details class="hsmap-code" open') == 1  # the failing cell's code is shown
     assert read_nb(out / "02-fails.ipynb")["metadata"]["hsmap"]["status"] == "failed"
     assert json.loads((out / "02-fails" / "metrics.json").read_text())["metrics"] == {"before_failure": 1}
     assert not (out / "02-fails" / "old-figure.png").exists()
@@ -243,3 +244,43 @@ def test_study_notebooks_are_committed_clean_with_one_parameters_cell(path):
     first = nb["cells"][0]
     assert first["cell_type"] == "markdown" and "".join(first["source"]).startswith("# "), (
         f"{path.name}: the first cell must be a Markdown title '# NN: ...'")
+
+
+def test_an_interrupted_run_leaves_no_temporaries_and_says_so(tmp_path, monkeypatch):
+    import papermill
+
+    import hsmap.reproduce as rp
+
+    nbdir = tmp_path / "notebooks"
+    nbdir.mkdir()
+    for name in ("02-fails.ipynb", "03-second.ipynb"):
+        shutil.copy(DATA / name, nbdir / name)
+    out = tmp_path / "reports"
+    out.mkdir()
+    (out / ".03-second.abc.running.ipynb").write_text("{}")  # left by a killed run
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(papermill, "execute_notebook", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        run_study(nbdir, out, log=None)
+    index = json.loads((out / "index.json").read_text())
+    assert index["final"] is True
+    assert [e["status"] for e in index["notebooks"]] == ["interrupted", "interrupted"]
+    assert "FAILED: 2 of 2 notebooks failed" in (out / "index.html").read_text()
+    assert every_file(out) == ["index.html", "index.json"]
+
+    calls = []
+
+    def fake_worker(spec, *args):
+        calls.append(spec.name)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return rp.NotebookRun(name=spec.name, notebook=str(spec.path), status="ok", duration_s=1.0).to_dict()
+
+    monkeypatch.setattr(rp, "_worker", fake_worker)
+    with pytest.raises(KeyboardInterrupt):
+        run_study(nbdir, out, log=None)
+    index = json.loads((out / "index.json").read_text())
+    assert [e["status"] for e in index["notebooks"]] == ["ok", "interrupted"]

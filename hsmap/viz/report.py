@@ -366,7 +366,7 @@ table.notebooks { border-collapse: collapse; width: 100%; }
 table.notebooks > thead > tr > th { text-align: left; border-bottom: 2px solid #999; padding: 0.4em; }
 table.notebooks > tbody > tr > td { vertical-align: top; border-bottom: 1px solid #ddd; padding: 0.5em 0.4em; }
 .status { font-weight: bold; white-space: nowrap; }
-.status.ok { color: #2e7d32; } .status.failed { color: #c62828; }
+.status.ok { color: #2e7d32; } .status.failed, .status.interrupted { color: #c62828; }
 .status.pending, .status.running, .status.notrun { color: #888; }
 pre.error { white-space: pre-wrap; color: #c62828; font-size: 12px; max-width: 30em; margin: 0.3em 0; }
 .warn { color: #a66b00; font-size: 12px; }
@@ -425,9 +425,10 @@ def render_index(entries: Sequence[Mapping[str, Any]], meta: Mapping[str, Any]) 
     esc = html.escape
     ran = set(meta.get("ran") or [])
     this_run = [e for e in entries if e.get("name") in ran]
-    n_ok = sum(e.get("status") == "ok" for e in this_run)
-    n_failed = sum(e.get("status") == "failed" for e in this_run)
     final = bool(meta.get("final"))
+    n_ok = sum(e.get("status") == "ok" for e in this_run)
+    done = ("failed", "interrupted") if not final else None
+    n_failed = sum((e.get("status") in done) if done else (e.get("status") != "ok") for e in this_run)
     mode = "quick" if meta.get("quick") else "full"
     if not final:
         cls, state = "running", f"in progress: {n_ok + n_failed} of {len(this_run)} notebooks done"
@@ -448,7 +449,7 @@ def render_index(entries: Sequence[Mapping[str, Any]], meta: Mapping[str, Any]) 
         link = (f"<a href='{esc(str(e['html']))}'>{title}</a>" if e.get("html") else title)
         st_cls = status.replace(" ", "")
         st = f"<span class='status {st_cls}'>{esc('FAILED' if status == 'failed' else status)}</span>"
-        if status == "failed" and e.get("error"):
+        if status in ("failed", "interrupted") and e.get("error"):
             err = str(e["error"])
             err = err if len(err) <= 1500 else err[:1500] + " ..."
             cell = f" at cell [{e['error_cell']}]" if e.get("error_cell") else ""

@@ -293,7 +293,8 @@ _HTML_TEMPLATE = r"""
 <div class="hsmap-banner {{ h.status }}">
   <h2>{{ h.title | e }} &mdash; {% if h.status == 'ok' %}ok{% else %}FAILED{% endif %}</h2>
   {% if h.status != 'ok' %}<pre>{{ h.error | e }}</pre>
-  <p>This report is incomplete: the notebook stopped{% if h.error_cell %} at cell [{{ h.error_cell }}]{% endif %}.</p>{% endif %}
+  <p>{% if h.error_cell %}The notebook stopped at cell [{{ h.error_cell }}]: this report is incomplete.
+  {%- else %}Its results are not to be trusted.{% endif %}</p>{% endif %}
   <table>
     <tr><td>notebook</td><td>{{ h.name | e }}</td></tr>
     <tr><td>run</td><td>{{ h.started | e }}, {{ '%.1f' % h.duration_s }} s</td></tr>
@@ -323,7 +324,6 @@ def notebook_to_html(nb: Any, run: NotebookRun, versions: Mapping[str, str] | No
         extra_loaders=[jinja2.DictLoader({"hsmap_report.html.j2": _HTML_TEMPLATE})],
         template_file="hsmap_report.html.j2",
     )
-    shown = {k: v for k, v in run.parameters.items()}
     resources = {
         "hsmap": {
             "title": run.title or run.name,
@@ -333,7 +333,7 @@ def notebook_to_html(nb: Any, run: NotebookRun, versions: Mapping[str, str] | No
             "error_cell": run.error_cell,
             "started": run.started or "",
             "duration_s": float(run.duration_s or 0.0),
-            "parameters_text": ", ".join(f"{k}={v!r}" for k, v in shown.items()),
+            "parameters_text": ", ".join(f"{k}={v!r}" for k, v in run.parameters.items()),
             "versions_text": ", ".join(f"{k} {v}" for k, v in (versions or {}).items()),
         },
         "metadata": {"name": run.title or run.name},
@@ -411,6 +411,7 @@ def execute_notebook(
         try:
             papermill.execute_notebook(
                 str(spec.path), str(tmp_ipynb), parameters=dict(parameters), kernel_name=kernel_name,
+                language="python",
                 cwd=str(spec.path.parent), progress_bar=False, log_output=False, execution_timeout=timeout,
             )
             run.status = "ok"

@@ -28,8 +28,11 @@ $(STAMP): requirements.lock pyproject.toml
 	@$(BIN)/python -c "import open3d, rerun, hsmap; print('hsmap', hsmap.__version__, 'ready in $(VENV)')"
 	@touch $@
 
+# the whole study into reports/ (two notebooks at a time on the 2-core target machine);
+# e.g. make reproduce REPRODUCE_ARGS="--quick --jobs 2" for the smoke run, "--only 03" for one notebook
+REPRODUCE_ARGS ?= --jobs 2
 reproduce: setup
-	$(BIN)/hsmap reproduce
+	$(BIN)/hsmap reproduce $(REPRODUCE_ARGS)
 
 test: setup
 	$(BIN)/python -m pytest -n 2 $(PYTEST_ARGS)

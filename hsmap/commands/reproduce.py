@@ -1,18 +1,100 @@
-"""hsmap reproduce (not implemented yet)."""
+"""Run the study: every notebooks/NN-name.ipynb executed by papermill into reports/ (executed notebook,
+HTML report, figures, metrics.json, rerun recordings) and reports/index.html listing them all with their
+headline numbers beside the paper's. A failing notebook does not stop the others; the command exits 1 when
+any notebook failed."""
 
 from __future__ import annotations
 
 import argparse
+import sys
 
 NAME = "reproduce"
-HELP = "(not implemented yet)"
+HELP = "run the study notebooks with papermill into reports/ (index.html, HTML reports, metrics, .rrd)"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    pass
+    parser.add_argument("--quick", action="store_true",
+                        help="small inputs for a smoke run (passes quick=True to every notebook)")
+    parser.add_argument("--only", nargs="+", action="extend", metavar="NAME",
+                        help="run only these notebooks (full name '03-slam-6dof', short name 'slam-6dof' or "
+                             "number '3'); the index keeps the others' last results")
+    parser.add_argument("--jobs", "-j", type=int, default=1, metavar="N",
+                        help="notebooks run at once, each in its own process (default 1)")
+    parser.add_argument("--out", default="reports", metavar="DIR", help="reports folder (default reports/)")
+    parser.add_argument("--notebooks", default=None, metavar="DIR",
+                        help="folder of the study notebooks (default notebooks/ here, else the checkout's)")
+    parser.add_argument("-p", "--parameter", nargs=2, action="append", default=[], metavar=("KEY", "VALUE"),
+                        help="extra parameter for every notebook, VALUE read as YAML (repeatable)")
+    parser.add_argument("--parameters-file", metavar="YAML",
+                        help="YAML with 'parameters:' (every notebook) and 'notebooks: {NAME: {...}}'")
+    parser.add_argument("--timeout", type=float, default=None, metavar="S",
+                        help="time limit per notebook cell in seconds (default: none)")
+    parser.add_argument("--no-verify", action="store_true",
+                        help="do not check the recordings with 'rerun rrd verify'")
+    parser.add_argument("--list", action="store_true",
+                        help="list the notebooks and their parameters, run nothing")
+
+
+def _notebooks_dir(arg: str | None):
+    from pathlib import Path
+
+    import hsmap
+
+    if arg is not None:
+        return Path(arg)
+    here = Path("notebooks")
+    if here.is_dir():
+        return here
+    checkout = Path(hsmap.__file__).resolve().parents[1] / "notebooks"
+    return checkout if checkout.is_dir() else here
+
+
+def _list(notebooks_dir, only) -> int:
+    from ..reproduce import discover, inspect_parameters, select
+
+    specs = select(discover(notebooks_dir), only)
+    if not specs:
+        print(f"no study notebooks (NN-name.ipynb) in {notebooks_dir}")
+        return 0
+    for s in specs:
+        print(f"{s.name}  ({s.title()})")
+        params = inspect_parameters(s)
+        if not params:
+            print("    (no parameters cell)")
+        for p in params.values():
+            typ = p.get("inferred_type_name") or "None"
+            line = f"    {p['name']}: {typ} = {p['default']}"
+            if p.get("help"):
+                line += f"    # {p['help']}"
+            print(line)
+    return 0
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..errors import HsmapError
+    from ..reproduce import load_parameters_file, parse_value, run_study
 
-    raise HsmapError("'hsmap reproduce' is not implemented yet")
+    notebooks_dir = _notebooks_dir(args.notebooks)
+    if args.list:
+        return _list(notebooks_dir, args.only)
+    common, per = ({}, {})
+    if args.parameters_file:
+        common, per = load_parameters_file(args.parameters_file)
+    for key, value in args.parameter:
+        common[key] = parse_value(value)
+
+    def log(line: str) -> None:
+        print(line, flush=True)
+
+    result = run_study(
+        notebooks_dir, args.out, only=args.only, quick=args.quick, jobs=args.jobs, parameters=common,
+        notebook_parameters=per, timeout=args.timeout, verify_recordings=not args.no_verify, log=log,
+    )
+    from ..viz.report import format_duration
+
+    n = len(result.runs)
+    print(f"{n - len(result.failed)} of {n} notebooks ok in {format_duration(result.duration_s)}; "
+          f"index: {result.index}")
+    if result.failed:
+        print("failed: " + ", ".join(r.name for r in result.failed), file=sys.stderr)
+        return 1
+    return 0

@@ -1,0 +1,739 @@
+"""The study batch: every notebook in ``notebooks/`` executed by papermill into ``reports/``.
+
+For each ``notebooks/NN-name.ipynb`` (NAME = its file stem) a run writes:
+
+- ``reports/NAME.ipynb``: the executed notebook (papermill marks a failure in it);
+- ``reports/NAME.html``: the same as HTML, code cells folded, figures inline, a banner with the run's status;
+- ``reports/NAME/``: what the notebook writes itself through :class:`hsmap.viz.report.Study` (figures as
+  PNG, ``metrics.json``, rerun recordings ``*.rrd``), plus ``run.json`` (status, error, duration, parameters);
+- ``reports/index.html`` and ``index.json``: every notebook with its status, headline numbers beside the
+  paper's, duration and date, the versions, the total duration.
+
+Each notebook gets the parameters ``quick`` (bool) and ``out_dir`` (the reports folder, absolute) plus any
+overrides, runs in a fresh kernel of the current interpreter (with ``RERUN_ANALYTICS=0`` and
+``$HSMAP_NOTEBOOK`` = NAME) with the notebook's folder as working directory. A notebook that fails does not
+stop the others; :func:`run_study` reports it and the command exits non-zero at the end. Every file is
+written atomically, and a notebook's previous outputs are removed before it runs, so nothing stale or
+half-written can pass for a result. Recordings are checked with ``rerun rrd verify``.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import contextlib
+import datetime as dt
+import json
+import multiprocessing
+import os
+import platform
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from . import __version__
+from .errors import ConfigError, InputError
+from .io import write_json, write_text
+from .viz.report import NOTEBOOK_ENV, Study, read_metrics
+
+__all__ = [
+    "Study",
+    "NotebookSpec",
+    "NotebookRun",
+    "StudyResult",
+    "discover",
+    "select",
+    "inspect_parameters",
+    "load_parameters_file",
+    "run_study",
+    "execute_notebook",
+    "notebook_to_html",
+    "environment_info",
+    "KERNEL_NAME",
+]
+
+NOTEBOOK_RE = re.compile(r"^(\d{2})-([a-z0-9][a-z0-9_-]*)\.ipynb$")
+KERNEL_NAME = "hsmap-python"
+#: Parameters every notebook receives.
+STANDARD_PARAMETERS = ("quick", "out_dir")
+_THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def _lighten_jupyter_imports() -> None:
+    """Skip jsonschema's optional RFC 3987 checker (``rfc3987_syntax`` compiles ~40 grammars on import,
+    seconds of CPU in every process that imports nbformat); notebooks never use IRI formats."""
+    if "jsonschema" not in sys.modules:
+        sys.modules.setdefault("rfc3987_syntax", None)  # type: ignore[arg-type]
+
+
+# --- discovery -----------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class NotebookSpec:
+    """A study notebook ``NN-name.ipynb``.
+
+    Attributes
+    ----------
+    path : pathlib.Path
+    name : str
+        File stem, ``"NN-name"``: the report's name.
+    number : int
+    short : str
+        ``"name"`` without the number.
+    """
+
+    path: Path
+    name: str
+    number: int
+    short: str
+
+    def matches(self, selector: str) -> bool:
+        s = selector.strip()
+        s = s[:-6] if s.endswith(".ipynb") else s
+        return s in (self.name, self.short, f"{self.number:02d}", str(self.number))
+
+    def title(self) -> str:
+        """The first Markdown heading of the notebook (its name when it has none)."""
+        try:
+            nb = json.loads(self.path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return self.name
+        for cell in nb.get("cells", []):
+            if cell.get("cell_type") != "markdown":
+                continue
+            src = cell.get("source", "")
+            src = "".join(src) if isinstance(src, list) else src
+            for line in src.splitlines():
+                if line.startswith("#"):
+                    return line.lstrip("#").strip() or self.name
+        return self.name
+
+
+def discover(notebooks_dir: str | os.PathLike) -> list[NotebookSpec]:
+    """The study notebooks ``NN-name.ipynb`` in ``notebooks_dir``, in number order.
+
+    Files that do not follow the pattern (scratch notebooks, checkpoints) are not study notebooks.
+    """
+    d = Path(notebooks_dir)
+    if not d.is_dir():
+        raise InputError(f"notebooks folder {d} does not exist")
+    specs = []
+    for p in sorted(d.iterdir()):
+        m = NOTEBOOK_RE.match(p.name)
+        if m and p.is_file():
+            specs.append(NotebookSpec(p.resolve(), p.stem, int(m.group(1)), m.group(2)))
+    return sorted(specs, key=lambda s: (s.number, s.name))
+
+
+def select(specs: Sequence[NotebookSpec], only: Sequence[str] | None) -> list[NotebookSpec]:
+    """The notebooks named in ``only`` (full name, name without number, or number); all when empty."""
+    if not only:
+        return list(specs)
+    chosen, unknown = [], []
+    for sel in only:
+        hits = [s for s in specs if s.matches(sel)]
+        if not hits:
+            unknown.append(sel)
+        for h in hits:
+            if h not in chosen:
+                chosen.append(h)
+    if unknown:
+        have = ", ".join(s.name for s in specs) or "none"
+        raise InputError(f"no notebook matches {', '.join(map(repr, unknown))}; the notebooks are: {have}")
+    return sorted(chosen, key=lambda s: (s.number, s.name))
+
+
+def inspect_parameters(spec: NotebookSpec | str | os.PathLike) -> dict[str, dict[str, Any]]:
+    """The notebook's ``parameters`` cell as papermill reads it: name -> {inferred_type_name, default, help}."""
+    _lighten_jupyter_imports()
+    import papermill
+
+    path = spec.path if isinstance(spec, NotebookSpec) else Path(spec)
+    return {k: dict(v) for k, v in papermill.inspect_notebook(str(path)).items()}
+
+
+def parse_value(text: str) -> Any:
+    """A ``-p KEY VALUE`` value read as YAML (``true``, ``3``, ``0.5``, ``[1, 2]``; otherwise the string)."""
+    import yaml
+
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError:
+        return text
+
+
+def load_parameters_file(path: str | os.PathLike) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
+    """Read a parameters YAML::
+
+        parameters:            # every notebook
+          seed: 1
+        notebooks:             # one notebook (full name, short name or number)
+          03-slam-6dof: {n_scans: 60}
+
+    Returns (common parameters, per-notebook parameters keyed by selector).
+    """
+    import yaml
+
+    path = Path(path)
+    try:
+        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read parameters file: {exc.strerror}") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML: {exc}") from None
+    if doc is None:
+        return {}, {}
+    if not isinstance(doc, dict):
+        raise ConfigError(f"{path}: expected a mapping with 'parameters' and/or 'notebooks'")
+    unknown = sorted(set(doc) - {"parameters", "notebooks"})
+    if unknown:
+        raise ConfigError(f"{path}: unknown key(s) {unknown}; expected 'parameters' and/or 'notebooks'")
+    common = doc.get("parameters") or {}
+    per = doc.get("notebooks") or {}
+    if not isinstance(common, dict):
+        raise ConfigError(f"{path}: 'parameters' must be a mapping of name to value")
+    if not isinstance(per, dict) or not all(isinstance(v, dict) for v in per.values()):
+        raise ConfigError(f"{path}: 'notebooks' must map a notebook name to a mapping of parameters")
+    return dict(common), {str(k): dict(v) for k, v in per.items()}
+
+
+# --- one notebook ----------------------------------------------------------------------------------------
+
+
+@dataclass
+class NotebookRun:
+    """What became of one notebook (also written as ``reports/NAME/run.json``)."""
+
+    name: str
+    notebook: str
+    title: str = ""
+    status: str = "not run"  # "ok", "failed", "running", "pending", "not run"
+    error: str | None = None
+    error_cell: int | None = None
+    started: str | None = None
+    duration_s: float | None = None
+    parameters: dict[str, Any] = field(default_factory=dict)
+    html: str | None = None
+    ipynb: str | None = None
+    figures: list[str] = field(default_factory=list)
+    recordings: list[str] = field(default_factory=list)
+    metrics: dict[str, Any] | None = None
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> NotebookRun:
+        known = {f for f in cls.__dataclass_fields__}
+        return cls(**{k: v for k, v in d.items() if k in known})
+
+
+def _now() -> str:
+    return dt.datetime.now().astimezone().isoformat(timespec="seconds")
+
+
+def _clear_previous(out_dir: Path, name: str) -> None:
+    """Remove a notebook's outputs of an earlier run, so that none of them can pass for this run's."""
+    folder = out_dir / name
+    if folder.is_symlink() or folder.is_file():
+        folder.unlink()
+    elif folder.is_dir():
+        shutil.rmtree(folder)
+    for suffix in (".html", ".ipynb"):
+        (out_dir / f"{name}{suffix}").unlink(missing_ok=True)
+
+
+def _error_text(exc: BaseException) -> tuple[str, int | None]:
+    from papermill.exceptions import PapermillExecutionError
+
+    if isinstance(exc, PapermillExecutionError):
+        evalue = str(exc.evalue).strip()
+        return (f"{exc.ename}: {evalue}" if evalue else exc.ename), exc.exec_count
+    text = str(exc).strip()
+    # nbclient's timeout and dead-kernel messages are long; keep their first lines
+    lines = [line for line in text.splitlines() if line.strip()]
+    text = " ".join(lines[:3])
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__, None
+
+
+_HTML_TEMPLATE = r"""
+{%- extends 'lab/index.html.j2' -%}
+{% block extra_css %}
+{{ super() }}
+<style>
+  .hsmap-banner { margin: 0 0 1.2em 0; padding: 0.7em 1em; border-radius: 4px; font-family: sans-serif;
+                  font-size: 14px; background: #e8f4ea; border-left: 6px solid #2e7d32; }
+  .hsmap-banner.failed { background: #fdecea; border-left-color: #c62828; }
+  .hsmap-banner h2 { margin: 0 0 0.3em 0; font-size: 18px; }
+  .hsmap-banner pre { white-space: pre-wrap; margin: 0.4em 0; }
+  .hsmap-banner table td { padding: 0 1em 0 0; }
+  details.hsmap-code > summary { cursor: pointer; color: #777; font-family: monospace; font-size: 12px;
+                                 margin-left: 64px; }
+  details.hsmap-code[open] > summary { margin-bottom: 0.3em; }
+</style>
+{% endblock extra_css %}
+{#- no widgets or diagrams in our reports: do not fetch require.js and mermaid from a CDN -#}
+{%- block html_head_js_requirejs -%}{%- endblock html_head_js_requirejs -%}
+{%- block html_head_js_mermaidjs -%}{%- endblock html_head_js_mermaidjs -%}
+{% block body_header %}
+{{ super() }}
+{%- set h = resources.hsmap -%}
+<div class="hsmap-banner {{ h.status }}">
+  <h2>{{ h.title | e }} &mdash; {% if h.status == 'ok' %}ok{% else %}FAILED{% endif %}</h2>
+  {% if h.status != 'ok' %}<pre>{{ h.error | e }}</pre>
+  <p>{% if h.error_cell %}The notebook stopped at cell [{{ h.error_cell }}]: this report is incomplete.
+  {%- else %}Its results are not to be trusted.{% endif %}</p>{% endif %}
+  <table>
+    <tr><td>notebook</td><td>{{ h.name | e }}</td></tr>
+    <tr><td>run</td><td>{{ h.started | e }}, {{ '%.1f' % h.duration_s }} s</td></tr>
+    <tr><td>parameters</td><td><code>{{ h.parameters_text | e }}</code></td></tr>
+    <tr><td>versions</td><td>{{ h.versions_text | e }}</td></tr>
+  </table>
+  <p><a href="index.html">&larr; all notebooks</a></p>
+</div>
+{% endblock body_header %}
+{% block input_group scoped %}
+{#- the cell that failed shows its code -#}
+<details class="hsmap-code"{% if cell.outputs | selectattr('output_type', 'equalto', 'error') | list %} open{% endif %}><summary>code</summary>
+{{ super() }}
+</details>
+{% endblock input_group %}
+"""
+
+
+def notebook_to_html(nb: Any, run: NotebookRun, versions: Mapping[str, str] | None = None) -> str:
+    """HTML of an executed notebook: code folded under "code", outputs and figures inline, a status banner."""
+    _lighten_jupyter_imports()
+    import jinja2
+    from nbconvert import HTMLExporter
+
+    exporter = HTMLExporter(
+        template_name="lab",
+        extra_loaders=[jinja2.DictLoader({"hsmap_report.html.j2": _HTML_TEMPLATE})],
+        template_file="hsmap_report.html.j2",
+    )
+    resources = {
+        "hsmap": {
+            "title": run.title or run.name,
+            "name": run.name,
+            "status": run.status,
+            "error": run.error or "",
+            "error_cell": run.error_cell,
+            "started": run.started or "",
+            "duration_s": float(run.duration_s or 0.0),
+            "parameters_text": ", ".join(f"{k}={v!r}" for k, v in run.parameters.items()),
+            "versions_text": ", ".join(f"{k} {v}" for k, v in (versions or {}).items()),
+        },
+        "metadata": {"name": run.title or run.name},
+    }
+    body, _ = exporter.from_notebook_node(nb, resources=resources)
+    return body
+
+
+def _kernel_env(name: str, jobs: int) -> dict[str, str]:
+    env = {NOTEBOOK_ENV: name, "RERUN_ANALYTICS": "0", "PYTHONHASHSEED": os.environ.get("PYTHONHASHSEED", "0")}
+    if jobs > 1:  # parallel kernels share the cores: one native thread pool each
+        per = str(max(1, (os.cpu_count() or 1) // jobs))
+        for var in _THREAD_VARS:
+            if var not in os.environ:
+                env[var] = per
+    return env
+
+
+@contextlib.contextmanager
+def _environ(updates: Mapping[str, str]) -> Iterator[None]:
+    old = {k: os.environ.get(k) for k in updates}
+    os.environ.update(updates)
+    try:
+        yield
+    finally:
+        for k, v in old.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def _sweep_temporaries(folder: Path) -> list[str]:
+    """Delete temporary files (``.name.XXXX...``) left in a notebook's folder; returns their names."""
+    left = []
+    if folder.is_dir():
+        for p in sorted(folder.rglob(".*")):
+            if p.is_file():
+                left.append(str(p.relative_to(folder)))
+                p.unlink()
+    return left
+
+
+def execute_notebook(
+    spec: NotebookSpec,
+    out_dir: str | os.PathLike,
+    parameters: Mapping[str, Any],
+    *,
+    kernel_name: str = KERNEL_NAME,
+    timeout: float | None = None,
+    verify_recordings: bool = True,
+    versions: Mapping[str, str] | None = None,
+) -> NotebookRun:
+    """Execute one notebook with papermill into ``out_dir`` and collect its outputs (see module docstring).
+
+    The caller provides the kernel (``kernel_name`` must be findable by jupyter) and the environment
+    (``$HSMAP_NOTEBOOK``); :func:`run_study` does both. Never raises for a failing notebook: the returned
+    run says ``failed`` with the error.
+    """
+    _lighten_jupyter_imports()
+    import nbformat
+    import papermill
+
+    out_dir = Path(out_dir).resolve()
+    out_dir.mkdir(parents=True, exist_ok=True)
+    run = NotebookRun(name=spec.name, notebook=str(spec.path), title=spec.title(), status="running",
+                      started=_now(), parameters=dict(parameters))
+    _clear_previous(out_dir, spec.name)
+    folder = out_dir / spec.name
+    fd, tmp = tempfile.mkstemp(prefix=f".{spec.name}.", suffix=".running.ipynb", dir=out_dir)
+    os.close(fd)
+    tmp_ipynb = Path(tmp)
+    try:
+        t0 = time.perf_counter()
+        try:
+            papermill.execute_notebook(
+                str(spec.path), str(tmp_ipynb), parameters=dict(parameters), kernel_name=kernel_name,
+                language="python",
+                cwd=str(spec.path.parent), progress_bar=False, log_output=False, execution_timeout=timeout,
+            )
+            run.status = "ok"
+        except Exception as exc:  # the notebook failed (or its kernel died): record it, carry on
+            run.status = "failed"
+            run.error, run.error_cell = _error_text(exc)
+        run.duration_s = round(time.perf_counter() - t0, 3)
+
+        left = _sweep_temporaries(folder)
+        if left:
+            run.warnings.append(f"temporary files left behind and removed (an output not closed?): {left}")
+        if folder.is_dir():
+            run.figures = sorted(str(p.relative_to(out_dir)) for p in folder.rglob("*.png"))
+            run.recordings = sorted(str(p.relative_to(out_dir)) for p in folder.rglob("*.rrd"))
+        run.metrics = read_metrics(folder / "metrics.json")
+        if run.ok and run.metrics is None:
+            run.warnings.append("the notebook wrote no metrics.json (study.metrics(...))")
+        if run.recordings and verify_recordings:
+            from .viz.rerun import rerun_binary, verify_rrd
+
+            if rerun_binary() is None:
+                run.warnings.append("rerun binary not found: recordings not verified")
+            else:
+                for rel in run.recordings:
+                    try:
+                        verify_rrd(out_dir / rel)
+                    except Exception as exc:
+                        if run.ok:
+                            msg = str(exc).replace(f"{out_dir / rel}: ", "")
+                            run.status, run.error = "failed", f"recording {rel} does not verify: {msg}"
+
+        # the executed notebook and its HTML, marked with the run's status
+        nb = None
+        if tmp_ipynb.exists() and tmp_ipynb.stat().st_size > 0:
+            try:
+                nb = nbformat.read(str(tmp_ipynb), as_version=4)
+            except Exception as exc:  # papermill died before writing a whole notebook
+                run.warnings.append(f"executed notebook unreadable: {exc}")
+        if nb is None:
+            nb = nbformat.read(str(spec.path), as_version=4)
+        nb.metadata["hsmap"] = {k: v for k, v in run.to_dict().items() if k != "metrics"}
+        try:
+            html = notebook_to_html(nb, run, versions)
+        except Exception as exc:
+            if run.ok:
+                run.status = "failed"
+                run.error = f"HTML conversion failed: {type(exc).__name__}: {exc}"
+            html = (f"<html><body><h1>{run.name}: FAILED</h1><pre>{_escape(run.error or '')}</pre>"
+                    f"<p>HTML conversion failed too: {_escape(str(exc))}</p></body></html>")
+        nb.metadata["hsmap"]["status"] = run.status
+        nb.metadata["hsmap"]["error"] = run.error
+        nbformat.write(nb, str(tmp_ipynb))
+        os.chmod(tmp_ipynb, 0o644)
+        os.replace(tmp_ipynb, out_dir / f"{spec.name}.ipynb")
+        write_text(out_dir / f"{spec.name}.html", html)
+        run.ipynb, run.html = f"{spec.name}.ipynb", f"{spec.name}.html"
+        write_json(folder / "run.json", run.to_dict())
+        return run
+    except BaseException:  # interrupted (Ctrl-C) or the machinery failed: leave no temporary behind
+        tmp_ipynb.unlink(missing_ok=True)
+        raise
+
+
+def _escape(s: str) -> str:
+    import html
+
+    return html.escape(s)
+
+
+def _worker(spec: NotebookSpec, out_dir: str, parameters: dict[str, Any], env: dict[str, str],
+            timeout: float | None, verify: bool, versions: dict[str, str]) -> dict[str, Any]:
+    """Process-pool entry point: one notebook in this worker's environment."""
+    with _environ(env):
+        try:
+            run = execute_notebook(spec, out_dir, parameters, timeout=timeout, verify_recordings=verify,
+                                   versions=versions)
+        except Exception as exc:  # the machinery itself failed (disk full, ...): still a result
+            run = NotebookRun(name=spec.name, notebook=str(spec.path), title=spec.title(), status="failed",
+                              error=f"hsmap reproduce: {type(exc).__name__}: {exc}", started=_now(),
+                              parameters=parameters)
+    return run.to_dict()
+
+
+# --- the batch -------------------------------------------------------------------------------------------
+
+
+def write_kernelspec(root: str | os.PathLike) -> Path:
+    """A jupyter kernelspec ``hsmap-python`` for the current interpreter under ``root/kernels/``.
+
+    Its kernels run with analytics off, the inline matplotlib backend (the Makefile's ``MPLBACKEND=Agg``
+    would hide inline figures) and no IPython history database (parallel kernels would contend for it).
+    """
+    d = Path(root) / "kernels" / KERNEL_NAME
+    d.mkdir(parents=True, exist_ok=True)
+    spec = {
+        "argv": [sys.executable, "-m", "ipykernel_launcher", "-f", "{connection_file}",
+                 "--HistoryManager.enabled=False", "--IPKernelApp.log_level=ERROR"],
+        "display_name": f"hsmap (Python {platform.python_version()})",
+        "language": "python",
+        "env": {"RERUN_ANALYTICS": "0", "MPLBACKEND": "module://matplotlib_inline.backend_inline"},
+        "metadata": {"debugger": False},
+    }
+    (d / "kernel.json").write_text(json.dumps(spec, indent=1), encoding="utf-8")
+    return d
+
+
+def _package_version(dist: str) -> str:
+    from importlib import metadata
+
+    try:
+        return metadata.version(dist)
+    except metadata.PackageNotFoundError:
+        return "not installed"
+
+
+def environment_info(repo_dir: str | os.PathLike | None = None) -> dict[str, str]:
+    """Versions of hsmap, Python and the libraries the results depend on; the git commit when known."""
+    info = {"hsmap": __version__, "python": platform.python_version()}
+    for dist in ("numpy", "scipy", "open3d", "rerun-sdk", "matplotlib", "networkx", "scikit-image",
+                 "papermill"):
+        info[dist] = _package_version(dist)
+    info["platform"] = f"{platform.system()} {platform.machine()}, {os.cpu_count()} cpus"
+    if repo_dir is not None:
+        try:
+            head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=repo_dir, capture_output=True,
+                                  text=True, timeout=10)
+            if head.returncode == 0:
+                dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=repo_dir,
+                                       capture_output=True, text=True, timeout=30)
+                info["git"] = head.stdout.strip() + ("+changes" if dirty.stdout.strip() else "")
+        except (OSError, subprocess.SubprocessError):
+            pass
+    return info
+
+
+@dataclass
+class StudyResult:
+    """A batch run: the notebooks run now (``runs``) and every notebook's latest state (``entries``)."""
+
+    runs: list[NotebookRun]
+    entries: list[NotebookRun]
+    started: str
+    duration_s: float
+    quick: bool
+    versions: dict[str, str]
+    index: Path
+
+    @property
+    def ok(self) -> bool:
+        return all(r.ok for r in self.runs)
+
+    @property
+    def failed(self) -> list[NotebookRun]:
+        return [r for r in self.runs if not r.ok]
+
+
+def _previous_run(out_dir: Path, spec: NotebookSpec) -> NotebookRun | None:
+    p = out_dir / spec.name / "run.json"
+    try:
+        return NotebookRun.from_dict(json.loads(p.read_text(encoding="utf-8")))
+    except (OSError, ValueError, TypeError):
+        return None
+
+
+def run_study(
+    notebooks_dir: str | os.PathLike = "notebooks",
+    out_dir: str | os.PathLike = "reports",
+    *,
+    only: Sequence[str] | None = None,
+    quick: bool = False,
+    jobs: int = 1,
+    parameters: Mapping[str, Any] | None = None,
+    notebook_parameters: Mapping[str, Mapping[str, Any]] | None = None,
+    timeout: float | None = None,
+    verify_recordings: bool = True,
+    log: Callable[[str], None] | None = print,
+) -> StudyResult:
+    """Execute the study notebooks and write ``out_dir/index.html`` (see module docstring).
+
+    Parameters
+    ----------
+    notebooks_dir, out_dir : path-like
+    only : sequence of str, optional
+        Notebooks to run (full name, short name or number); the index still lists the others with their
+        last run.
+    quick : bool
+        Passed to every notebook: small inputs for a smoke run.
+    jobs : int
+        Notebooks run at once, each in its own process and kernel.
+    parameters : mapping, optional
+        Extra parameters for every notebook (``quick`` and ``out_dir`` cannot be overridden here).
+    notebook_parameters : mapping of selector to mapping, optional
+        Extra parameters for single notebooks (selector as in ``only``).
+    timeout : float, optional
+        Per-cell time limit in seconds.
+    log : callable, optional
+        Receives one line per finished notebook.
+
+    Returns
+    -------
+    StudyResult
+        ``.ok`` is False when any notebook run now failed.
+    """
+    if int(jobs) < 1:
+        raise InputError(f"jobs must be >= 1, got {jobs}")
+    jobs = int(jobs)
+    if timeout is not None and not timeout > 0:
+        raise InputError(f"timeout must be > 0 seconds, got {timeout}")
+    specs = discover(notebooks_dir)
+    if not specs:
+        raise InputError(f"no study notebooks (NN-name.ipynb) in {notebooks_dir}")
+    chosen = select(specs, only)
+    common = dict(parameters or {})
+    clash = sorted(set(common) & set(STANDARD_PARAMETERS))
+    if clash:
+        raise ConfigError(f"parameters {clash} are set by 'hsmap reproduce' itself (use --quick / --out)")
+    per_nb: dict[str, dict[str, Any]] = {s.name: {} for s in chosen}
+    for sel, params in (notebook_parameters or {}).items():
+        hits = [s for s in specs if s.matches(sel)]
+        if not hits:
+            raise InputError(f"parameters given for {sel!r}, which matches no notebook")
+        bad = sorted(set(params) & set(STANDARD_PARAMETERS))
+        if bad:
+            raise ConfigError(f"parameters {bad} for {sel!r} are set by 'hsmap reproduce' itself")
+        for h in hits:
+            if h.name in per_nb:
+                per_nb[h.name].update(params)
+
+    out = Path(out_dir).resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    versions = environment_info(Path(notebooks_dir).resolve())
+    started = _now()
+    t0 = time.perf_counter()
+
+    entries: dict[str, NotebookRun] = {}
+    for s in specs:
+        prev = _previous_run(out, s) if s not in chosen else None
+        entries[s.name] = prev or NotebookRun(name=s.name, notebook=str(s.path), title=s.title(),
+                                              status="pending" if s in chosen else "not run")
+    index_path = out / "index.html"
+
+    def write_index(final: bool) -> None:
+        from .viz.report import render_index
+
+        meta = {"started": started, "duration_s": time.perf_counter() - t0, "quick": quick, "jobs": jobs,
+                "final": final, "versions": versions, "ran": [s.name for s in chosen]}
+        ordered = [entries[s.name] for s in specs]
+        write_text(index_path, render_index([e.to_dict() for e in ordered], meta))
+        write_json(out / "index.json", {**meta, "notebooks": [e.to_dict() for e in ordered]})
+
+    # longest first (by the previous run's duration) keeps the parallel batch short
+    def previous_duration(s: NotebookSpec) -> float:
+        prev = _previous_run(out, s)
+        return -(prev.duration_s or 0.0) if prev else 0.0
+
+    order = sorted(chosen, key=previous_duration) if jobs > 1 else list(chosen)
+    runs: dict[str, NotebookRun] = {}
+    write_index(final=False)
+
+    def finished(run: NotebookRun) -> None:
+        runs[run.name] = entries[run.name] = run
+        write_index(final=False)
+        if log is not None:
+            msg = f"[{len(runs)}/{len(chosen)}] {run.name}: {run.status} in {run.duration_s or 0:.1f} s"
+            if not run.ok:
+                msg += f": {run.error}"
+            for w in run.warnings:
+                msg += f"\n    warning: {w}"
+            log(msg)
+
+    for stale in out.glob(".*.running.ipynb"):  # left by a run that was killed
+        stale.unlink(missing_ok=True)
+    try:
+        _run_all(order, out, common, per_nb, quick, jobs, timeout, verify_recordings, versions, entries,
+                 started, finished, write_index)
+    except KeyboardInterrupt:
+        for s in chosen:
+            if s.name not in runs:
+                entries[s.name] = NotebookRun(name=s.name, notebook=str(s.path), title=s.title(),
+                                              status="interrupted", error="the run was interrupted")
+                runs[s.name] = entries[s.name]
+        write_index(final=True)
+        raise
+
+    write_index(final=True)
+    return StudyResult(
+        runs=[runs[s.name] for s in chosen],
+        entries=[entries[s.name] for s in specs],
+        started=started,
+        duration_s=time.perf_counter() - t0,
+        quick=quick,
+        versions=versions,
+        index=index_path,
+    )
+
+
+def _run_all(order, out, common, per_nb, quick, jobs, timeout, verify_recordings, versions, entries, started,
+             finished, write_index) -> None:
+    with tempfile.TemporaryDirectory(prefix="hsmap-kernel-") as kdir:
+        write_kernelspec(kdir)
+        jupyter_path = os.pathsep.join([kdir] + [p for p in [os.environ.get("JUPYTER_PATH")] if p])
+        base_env = {"JUPYTER_PATH": jupyter_path, "JUPYTER_PLATFORM_DIRS": "1"}
+        tasks = []
+        for s in order:
+            params = {**common, **per_nb[s.name], "quick": bool(quick), "out_dir": str(out)}
+            env = {**base_env, **_kernel_env(s.name, jobs)}
+            tasks.append((s, str(out), params, env, timeout, verify_recordings, versions))
+        if jobs == 1:
+            for t in tasks:
+                entries[t[0].name].status = "running"
+                write_index(final=False)
+                finished(NotebookRun.from_dict(_worker(*t)))
+        else:
+            ctx = multiprocessing.get_context("spawn")
+            with cf.ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=ctx) as pool:
+                futures = {pool.submit(_worker, *t): t for t in tasks}
+                for fut in cf.as_completed(futures):
+                    s, params = futures[fut][0], futures[fut][2]
+                    try:
+                        run = NotebookRun.from_dict(fut.result())
+                    except Exception as exc:  # the worker process died
+                        run = NotebookRun(name=s.name, notebook=str(s.path), title=s.title(), status="failed",
+                                          error=f"worker process failed: {type(exc).__name__}: {exc}",
+                                          started=started, parameters=params)
+                    finished(run)

@@ -1,0 +1,83 @@
+"""Colours shared by the rerun recordings and the matplotlib figures, so a room has one colour everywhere."""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = ["ROOM_PALETTE", "label_colors", "label_color", "SERIES_COLORS", "height_colors"]
+
+# matplotlib's tab20, dark shades first then light ones, so that consecutive labels contrast.
+_TAB20 = [
+    (31, 119, 180), (174, 199, 232), (255, 127, 14), (255, 187, 120), (44, 160, 44), (152, 223, 138),
+    (214, 39, 40), (255, 152, 150), (148, 103, 189), (197, 176, 213), (140, 86, 75), (196, 156, 148),
+    (227, 119, 194), (247, 182, 210), (127, 127, 127), (199, 199, 199), (188, 189, 34), (219, 219, 141),
+    (23, 190, 207), (158, 218, 229),
+]
+#: (20, 3) uint8 colours for labels 1, 2, ... (cycled); label 0 ("no room") has no colour.
+ROOM_PALETTE: NDArray[np.uint8] = np.array(_TAB20[0::2] + _TAB20[1::2], dtype=np.uint8)
+
+#: Colours for the usual curves: ground truth, estimate (ours), odometry, and a spare one.
+SERIES_COLORS = {
+    "groundtruth": (40, 40, 40),
+    "estimate": (31, 119, 180),
+    "slam": (31, 119, 180),
+    "odometry": (214, 39, 40),
+    "other": (44, 160, 44),
+}
+
+
+def label_color(label: int) -> tuple[int, int, int]:
+    """RGB colour of one positive label."""
+    c = ROOM_PALETTE[(int(label) - 1) % len(ROOM_PALETTE)]
+    return int(c[0]), int(c[1]), int(c[2])
+
+
+def label_colors(labels: ArrayLike, alpha_background: bool = True) -> NDArray[np.uint8]:
+    """RGBA colours of a label image.
+
+    Parameters
+    ----------
+    labels : ndarray of int, shape (...)
+        0 = background (no room), k > 0 a room.
+    alpha_background : bool
+        Background transparent (alpha 0) when True, else black and opaque.
+
+    Returns
+    -------
+    ndarray of uint8, shape (..., 4)
+    """
+    lab = np.asarray(labels)
+    if not np.issubdtype(lab.dtype, np.integer):
+        if not np.all(np.isfinite(lab)) or not np.all(lab == np.round(lab)):
+            from ..errors import InputError
+
+            raise InputError("labels must be integers (0 = no room)")
+        lab = lab.astype(np.int64)
+    out = np.zeros(lab.shape + (4,), dtype=np.uint8)
+    fg = lab > 0
+    out[fg, :3] = ROOM_PALETTE[(lab[fg] - 1) % len(ROOM_PALETTE)]
+    out[fg, 3] = 255
+    if not alpha_background:
+        out[~fg, 3] = 255
+    return out
+
+
+def height_colors(z: ArrayLike, z_range: tuple[float, float] | None = None) -> NDArray[np.uint8]:
+    """RGB colours (N, 3) uint8 for heights z (N,), on a fixed blue-green-yellow-red ramp over ``z_range``.
+
+    A fixed ``z_range`` keeps colours consistent across calls (a growing map logged in blocks).
+    """
+    z = np.asarray(z, dtype=float).reshape(-1)
+    if z.size == 0:
+        return np.zeros((0, 3), np.uint8)
+    lo, hi = z_range if z_range is not None else (float(np.nanmin(z)), float(np.nanmax(z)))
+    t = np.clip((z - lo) / max(hi - lo, 1e-9), 0.0, 1.0)
+    t = np.nan_to_num(t)
+    # a compact "turbo"-like ramp: (t, r, g, b) stops
+    stops = np.array([
+        [0.00, 48, 18, 59], [0.15, 70, 107, 227], [0.35, 27, 208, 213], [0.50, 97, 252, 108],
+        [0.65, 210, 233, 53], [0.80, 254, 155, 45], [1.00, 122, 4, 3],
+    ])
+    rgb = np.stack([np.interp(t, stops[:, 0], stops[:, i]) for i in (1, 2, 3)], -1)
+    return np.round(rgb).astype(np.uint8)

@@ -1,0 +1,502 @@
+"""What a study notebook writes, and the HTML index of a batch run.
+
+A notebook (see ``notebooks/README.md``) makes one :class:`Study` and writes everything through it, into its
+own folder ``out_dir/NAME/``::
+
+    study = Study(out_dir, "01-odometry-vs-slam")
+    study.savefig(fig, "maps")                       # NAME/maps.png (and shown inline)
+    study.metrics({"ate_m": 0.021}, paper={"ate_m": 0.03})   # NAME/metrics.json
+    with study.recording("slam") as rec:             # NAME/slam.rrd (a rerun recording)
+        ...
+
+``hsmap reproduce`` (:mod:`hsmap.reproduce`) sets ``$HSMAP_NOTEBOOK`` to the notebook's name, so the name
+can be left out there; when both are given they must agree. Every file is written atomically.
+
+``metrics.json`` holds one JSON object::
+
+    {"notebook": NAME, "metrics": {key: value}, "paper": {key: value}, "headline": [key, ...],
+     "units": {key: unit}, "notes": "..."}
+
+``headline`` lists the keys the index shows, ours beside the paper's; by default the keys the paper has.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import math
+import os
+import re
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from ..errors import ConfigError, InputError
+from ..io import atomic_path, write_json
+
+__all__ = [
+    "Study",
+    "MetricsTable",
+    "NOTEBOOK_ENV",
+    "format_value",
+    "headline_rows",
+    "read_metrics",
+    "render_index",
+    "format_duration",
+]
+
+#: Environment variable through which ``hsmap reproduce`` tells a notebook its name.
+NOTEBOOK_ENV = "HSMAP_NOTEBOOK"
+
+_NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+
+
+def _check_name(name: str, what: str) -> str:
+    if not isinstance(name, str) or not _NAME_RE.match(name) or name.endswith((".png", ".rrd", ".json")):
+        raise InputError(
+            f"{what} must be a plain file stem (letters, digits, '-', '_', '.'; no folder, no extension), "
+            f"got {name!r}"
+        )
+    return name
+
+
+def _in_ipython() -> bool:
+    try:
+        from IPython import get_ipython
+    except ImportError:  # pragma: no cover - IPython is a dependency through ipykernel
+        return False
+    ip = get_ipython()
+    return ip is not None and getattr(ip, "kernel", None) is not None
+
+
+def _notebook_file_stem() -> str | None:
+    """The running notebook's file stem where the front end tells it (Jupyter server, VS Code)."""
+    session = os.environ.get("JPY_SESSION_NAME", "")
+    if session.endswith(".ipynb"):
+        return Path(session).stem
+    try:
+        from IPython import get_ipython
+    except ImportError:  # pragma: no cover
+        return None
+    ip = get_ipython()
+    vsc = getattr(ip, "user_ns", {}).get("__vsc_ipynb_file__") if ip is not None else None
+    return Path(vsc).stem if isinstance(vsc, str) and vsc.endswith(".ipynb") else None
+
+
+def format_value(v: Any) -> str:
+    """A short human reading of a metric value: 4 significant digits for floats, ``-`` for missing."""
+    if v is None:
+        return "-"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if not math.isfinite(v):
+            return str(v)
+        if v != 0 and (abs(v) >= 1e5 or abs(v) < 1e-3):
+            return f"{v:.3e}"
+        return f"{v:.4g}"
+    if hasattr(v, "item") and getattr(v, "ndim", 1) == 0:  # numpy scalar
+        return format_value(v.item())
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(format_value(x) for x in v) + "]"
+    return str(v)
+
+
+def _plain(v: Any) -> Any:
+    """numpy scalars/arrays -> Python values (so metrics compare and print plainly)."""
+    if isinstance(v, Mapping):
+        return {str(k): _plain(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_plain(x) for x in v]
+    if hasattr(v, "tolist"):
+        return v.tolist()
+    return v
+
+
+def headline_rows(doc: Mapping[str, Any], limit: int = 8) -> list[tuple[str, Any, Any, str]]:
+    """(key, ours, paper, unit) for the keys a metrics document puts forward (see module docstring).
+
+    Keys named in ``headline`` come first; without one, the keys the paper has, then (when the paper has
+    none) the first scalar metrics, up to ``limit`` rows.
+    """
+    metrics = doc.get("metrics") or {}
+    paper = doc.get("paper") or {}
+    units = doc.get("units") or {}
+    keys = list(doc.get("headline") or [])
+    if not keys:
+        keys = [k for k in paper]
+        if not keys:
+            keys = [k for k, v in metrics.items() if not isinstance(v, (Mapping, list))]
+    return [(k, metrics.get(k), paper.get(k), units.get(k, "")) for k in keys[:limit]]
+
+
+def read_metrics(path: str | os.PathLike) -> dict[str, Any] | None:
+    """The metrics document at ``path``, or None when there is none (or it is not a JSON object)."""
+    try:
+        doc = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return doc if isinstance(doc, dict) else None
+
+
+class MetricsTable:
+    """Our numbers beside the paper's; shows as a table in a notebook (``_repr_html_``) and as text."""
+
+    def __init__(self, doc: Mapping[str, Any]):
+        self.doc = dict(doc)
+
+    def rows(self) -> list[tuple[str, Any, Any, str]]:
+        metrics = self.doc.get("metrics") or {}
+        paper = self.doc.get("paper") or {}
+        units = self.doc.get("units") or {}
+        keys = list(metrics) + [k for k in paper if k not in metrics]
+        return [(k, metrics.get(k), paper.get(k), units.get(k, "")) for k in keys]
+
+    def __repr__(self) -> str:
+        rows = [("metric", "ours", "paper", "unit")] + [
+            (k, format_value(o), format_value(p), u) for k, o, p, u in self.rows()
+        ]
+        w = [max(len(str(r[i])) for r in rows) for i in range(4)]
+        return "\n".join("  ".join(str(c).ljust(w[i]) for i, c in enumerate(r)).rstrip() for r in rows)
+
+    def _repr_html_(self) -> str:
+        head = "<tr><th>metric</th><th>ours</th><th>paper</th><th>unit</th></tr>"
+        body = "".join(
+            f"<tr><td>{html.escape(k)}</td><td>{html.escape(format_value(o))}</td>"
+            f"<td>{html.escape(format_value(p))}</td><td>{html.escape(u)}</td></tr>"
+            for k, o, p, u in self.rows()
+        )
+        return f"<table class='hsmap-metrics'>{head}{body}</table>"
+
+
+class Study:
+    """Where one study notebook writes its figures, metrics and recordings: ``out_dir/NAME/``.
+
+    Parameters
+    ----------
+    out_dir : str or path-like
+        The reports folder (the notebook's ``out_dir`` parameter).
+    name : str, optional
+        The notebook's name, its file stem (``"01-odometry-vs-slam"``). By default it comes from
+        ``$HSMAP_NOTEBOOK`` (set by ``hsmap reproduce``) or from the front end (Jupyter, VS Code). When
+        given while ``$HSMAP_NOTEBOOK`` is set, the two must agree (a renamed notebook that kept its old
+        name would otherwise write where nobody looks).
+
+    Attributes
+    ----------
+    name : str
+    dir : pathlib.Path
+        ``out_dir/name``, created.
+    """
+
+    def __init__(self, out_dir: str | os.PathLike, name: str | None = None):
+        env = os.environ.get(NOTEBOOK_ENV) or None
+        if name is None:
+            name = env or _notebook_file_stem()
+            if name is None:
+                raise ConfigError(
+                    "Study cannot tell the notebook's name here: pass it, Study(out_dir, 'NN-name'), or run "
+                    f"the notebook with 'hsmap reproduce', which sets ${NOTEBOOK_ENV}"
+                )
+        _check_name(name, "Study name")
+        if env is not None and env != name:
+            raise ConfigError(
+                f"this notebook calls itself {name!r} but 'hsmap reproduce' runs it as {env!r}: "
+                "make the name in Study(...) match the file name"
+            )
+        self.name = name
+        self.out_dir = Path(out_dir)
+        self.dir = self.out_dir / name
+        self.dir.mkdir(parents=True, exist_ok=True)
+        self._doc: dict[str, Any] = {"notebook": name, "metrics": {}, "paper": {}, "headline": [], "units": {}}
+        self._recordings: list[Any] = []
+        self.figures: list[Path] = []
+
+    def __repr__(self) -> str:
+        return f"Study({self.name!r}, dir={str(self.dir)!r})"
+
+    def path(self, filename: str) -> Path:
+        """A path inside the notebook's folder (for files the notebook writes itself, atomically)."""
+        p = Path(filename)
+        if p.is_absolute() or ".." in p.parts:
+            raise InputError(f"filename must be relative to the notebook's folder, got {filename!r}")
+        out = self.dir / p
+        out.parent.mkdir(parents=True, exist_ok=True)
+        return out
+
+    # --- figures -----------------------------------------------------------------------------------
+    def savefig(self, fig: Any, name: str, *, dpi: int = 120, show: bool = True, close: bool = True) -> None:
+        """Save a matplotlib figure as ``NAME/name.png`` (atomically) and show it inline.
+
+        Returns nothing (so that a cell ending with it shows only the figure); the path is
+        ``study.dir / f"{name}.png"``, also listed in :attr:`figures`.
+
+        Parameters
+        ----------
+        fig : matplotlib.figure.Figure
+        name : str
+            File stem of the PNG.
+        dpi : int
+        show : bool
+            Display the saved PNG in the notebook (the exact file, so the report shows what was saved).
+        close : bool
+            Close the figure in pyplot, so that the inline backend does not show it a second time.
+        """
+        _check_name(name, "figure name")
+        if not hasattr(fig, "savefig"):
+            raise InputError(f"savefig expects a matplotlib Figure, got {type(fig).__name__}")
+        path = self.dir / f"{name}.png"
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, format="png", dpi=dpi, bbox_inches="tight")
+        if path not in self.figures:
+            self.figures.append(path)
+        if close:
+            import sys
+
+            if "matplotlib.pyplot" in sys.modules:
+                sys.modules["matplotlib.pyplot"].close(fig)
+        if show and _in_ipython():
+            from IPython.display import Image, display
+
+            display(Image(filename=str(path)))
+
+    # --- metrics -----------------------------------------------------------------------------------
+    def metrics(
+        self,
+        values: Mapping[str, Any] | None = None,
+        paper: Mapping[str, Any] | None = None,
+        *,
+        headline: Sequence[str] | None = None,
+        units: Mapping[str, str] | None = None,
+        notes: str | None = None,
+    ) -> MetricsTable:
+        """Record metrics (ours, and the paper's for the same keys) into ``NAME/metrics.json``.
+
+        Calls accumulate: later values update earlier ones key by key, and the file is rewritten each time.
+
+        Parameters
+        ----------
+        values : mapping of str to JSON-able value
+            Our numbers. Scalars are shown in the index; nested values (per-map tables) are kept in the file.
+        paper : mapping of str to value, optional
+            The paper's number for the same key, where the paper gives one.
+        headline : sequence of str, optional
+            Keys the index shows (default: the keys the paper has).
+        units : mapping of str to str, optional
+        notes : str, optional
+            One line for the reader (e.g. "quick run: 40 scans").
+
+        Returns
+        -------
+        MetricsTable
+            Displays as ours-beside-paper table when it is a cell's last expression.
+        """
+        for what, m in (("values", values), ("paper", paper), ("units", units)):
+            if m is not None and not isinstance(m, Mapping):
+                raise InputError(f"metrics {what} must be a mapping of name to value, got {type(m).__name__}")
+        self._doc["metrics"].update(_plain(dict(values or {})))
+        self._doc["paper"].update(_plain(dict(paper or {})))
+        self._doc["units"].update({str(k): str(v) for k, v in (units or {}).items()})
+        if headline is not None:
+            if isinstance(headline, str):
+                headline = [headline]
+            missing = [k for k in headline if k not in self._doc["metrics"] and k not in self._doc["paper"]]
+            if missing:
+                raise InputError(f"headline key(s) {missing} are neither among the metrics nor the paper's")
+            self._doc["headline"] = list(headline)
+        if notes is not None:
+            self._doc["notes"] = str(notes)
+        try:
+            json.dumps(self._doc, allow_nan=True)
+        except TypeError as exc:
+            raise InputError(f"metrics must be JSON-serialisable (numbers, strings, lists, dicts): {exc}") from None
+        write_json(self.dir / "metrics.json", self._doc)
+        return MetricsTable(self._doc)
+
+    @property
+    def metrics_doc(self) -> dict[str, Any]:
+        """The metrics document as written so far."""
+        return json.loads(json.dumps(self._doc))
+
+    # --- rerun -------------------------------------------------------------------------------------
+    def recording(self, name: str, *, blueprint: Any = None, application_id: str | None = None) -> Any:
+        """A rerun recording saved to ``NAME/name.rrd`` (file sink only: no viewer, no network).
+
+        Use it as a context manager, or call ``.close()``: the .rrd appears (renamed from a temporary
+        file) when the recording is closed; :meth:`close` closes every recording still open.
+
+        Returns
+        -------
+        hsmap.viz.rerun.Recording
+        """
+        from .rerun import Recording, default_blueprint
+
+        _check_name(name, "recording name")
+        rec = Recording(
+            self.dir / f"{name}.rrd",
+            application_id=application_id or f"hsmap_{self.name}",
+            blueprint=default_blueprint() if blueprint is None else blueprint,
+        )
+        self._recordings.append(rec)
+        return rec
+
+    def close(self) -> list[Path]:
+        """Close the recordings still open; returns the paths of every recording this study made."""
+        for rec in self._recordings:
+            rec.close()
+        return [r.path for r in self._recordings]
+
+
+# --- the index of a batch run --------------------------------------------------------------------------
+
+PAPER = ("Multi-LiDAR Mapping for Scene Segmentation in Indoor Environments for Mobile Robots "
+         "(Sensors 2022)")
+
+_INDEX_CSS = """
+body { font-family: -apple-system, 'Segoe UI', Helvetica, Arial, sans-serif; margin: 2em auto; max-width: 1400px;
+       color: #222; padding: 0 1em; }
+h1 { margin-bottom: 0.2em; } .paper { color: #555; margin-top: 0; }
+.summary { padding: 0.6em 1em; border-radius: 4px; margin: 1em 0; border-left: 6px solid #2e7d32;
+           background: #e8f4ea; }
+.summary.failed { border-left-color: #c62828; background: #fdecea; }
+.summary.running { border-left-color: #f9a825; background: #fff8e1; }
+table.notebooks { border-collapse: collapse; width: 100%; }
+table.notebooks > thead > tr > th { text-align: left; border-bottom: 2px solid #999; padding: 0.4em; }
+table.notebooks > tbody > tr > td { vertical-align: top; border-bottom: 1px solid #ddd; padding: 0.5em 0.4em; }
+.status { font-weight: bold; white-space: nowrap; }
+.status.ok { color: #2e7d32; } .status.failed, .status.interrupted { color: #c62828; }
+.status.pending, .status.running, .status.notrun { color: #888; }
+pre.error { white-space: pre-wrap; color: #c62828; font-size: 12px; max-width: 30em; margin: 0.3em 0; }
+.warn { color: #a66b00; font-size: 12px; }
+.earlier { color: #888; font-size: 12px; }
+table.headline { border-collapse: collapse; font-size: 13px; }
+table.headline th { font-weight: normal; color: #666; text-align: left; padding: 0 0.8em 0 0; }
+table.headline td { padding: 0 0.8em 0 0; font-variant-numeric: tabular-nums; }
+table.headline td.key { font-family: monospace; }
+.thumbs img { height: 64px; border: 1px solid #ccc; margin: 2px; }
+.small { font-size: 12px; color: #666; }
+table.env td { padding: 0 1.5em 0 0; font-size: 13px; }
+"""
+
+
+def format_duration(seconds: float | None) -> str:
+    """``8.2 s``, ``3 min 05 s``, ``1 h 02 min``."""
+    if seconds is None:
+        return "-"
+    s = float(seconds)
+    if s < 60:
+        return f"{s:.1f} s"
+    if s < 3600:
+        return f"{int(s // 60)} min {int(s % 60):02d} s"
+    return f"{int(s // 3600)} h {int(s % 3600 // 60):02d} min"
+
+
+def _headline_html(metrics: Mapping[str, Any] | None, notes: str | None = None) -> str:
+    if not metrics:
+        return "<span class='small'>no metrics</span>"
+    rows = headline_rows(metrics)
+    if not rows:
+        return "<span class='small'>no headline numbers</span>"
+    has_paper = any(p is not None for _, _, p, _ in rows)
+    head = "<tr><th></th><th>ours</th>" + ("<th>paper</th>" if has_paper else "") + "</tr>"
+    body = ""
+    for k, o, p, u in rows:
+        unit = f" {html.escape(u)}" if u else ""
+        body += (f"<tr><td class='key'>{html.escape(k)}</td><td>{html.escape(format_value(o))}{unit}</td>"
+                 + (f"<td>{html.escape(format_value(p))}{unit if p is not None else ''}</td>" if has_paper else "")
+                 + "</tr>")
+    note = f"<div class='small'>{html.escape(notes)}</div>" if notes else ""
+    return f"<table class='headline'>{head}{body}</table>{note}"
+
+
+def render_index(entries: Sequence[Mapping[str, Any]], meta: Mapping[str, Any]) -> str:
+    """The HTML index of a batch run.
+
+    Parameters
+    ----------
+    entries : sequence of mappings
+        One per notebook, the fields of :class:`hsmap.reproduce.NotebookRun`.
+    meta : mapping
+        ``started`` (ISO date), ``duration_s``, ``quick``, ``jobs``, ``final`` (False while running),
+        ``versions`` (name -> version), ``ran`` (names run now).
+    """
+    esc = html.escape
+    ran = set(meta.get("ran") or [])
+    this_run = [e for e in entries if e.get("name") in ran]
+    final = bool(meta.get("final"))
+    n_ok = sum(e.get("status") == "ok" for e in this_run)
+    done = ("failed", "interrupted") if not final else None
+    n_failed = sum((e.get("status") in done) if done else (e.get("status") != "ok") for e in this_run)
+    mode = "quick" if meta.get("quick") else "full"
+    if not final:
+        cls, state = "running", f"in progress: {n_ok + n_failed} of {len(this_run)} notebooks done"
+    elif n_failed:
+        cls, state = "failed", f"FAILED: {n_failed} of {len(this_run)} notebooks failed, {n_ok} ok"
+    else:
+        cls, state = "ok", f"complete: all {len(this_run)} notebooks ok"
+    summary = (f"<div class='summary {cls}'><b>{esc(state)}</b><br>"
+               f"run started {esc(str(meta.get('started', '-')))}; "
+               f"{'total duration' if final else 'elapsed'} {esc(format_duration(meta.get('duration_s')))}; "
+               f"{mode} run; {int(meta.get('jobs', 1))} job(s) at a time</div>")
+
+    rows = []
+    for e in entries:
+        name = str(e.get("name", ""))
+        status = str(e.get("status", "not run"))
+        title = esc(str(e.get("title") or name))
+        link = (f"<a href='{esc(str(e['html']))}'>{title}</a>" if e.get("html") else title)
+        st_cls = status.replace(" ", "")
+        st = f"<span class='status {st_cls}'>{esc('FAILED' if status == 'failed' else status)}</span>"
+        if status in ("failed", "interrupted") and e.get("error"):
+            err = str(e["error"])
+            err = err if len(err) <= 1500 else err[:1500] + " ..."
+            cell = f" at cell [{e['error_cell']}]" if e.get("error_cell") else ""
+            st += f"<pre class='error'>{esc(err)}{esc(cell)}</pre>"
+        for w in e.get("warnings") or []:
+            st += f"<div class='warn'>warning: {esc(str(w))}</div>"
+        if name not in ran and status not in ("not run",):
+            st += "<div class='earlier'>(from an earlier run)</div>"
+        metrics = e.get("metrics")
+        headline = _headline_html(metrics, (metrics or {}).get("notes")) if status != "not run" else ""
+        outs = []
+        if e.get("ipynb"):
+            outs.append(f"<a href='{esc(str(e['ipynb']))}'>notebook</a>")
+        if metrics is not None:
+            outs.append(f"<a href='{esc(name)}/metrics.json'>metrics.json</a>")
+        recs = e.get("recordings") or []
+        if recs:
+            outs.append("recordings: " + ", ".join(f"<a href='{esc(r)}'>{esc(Path(r).name)}</a>" for r in recs))
+        figs = e.get("figures") or []
+        thumbs = "".join(f"<a href='{esc(f)}' title='{esc(Path(f).stem)}'><img src='{esc(f)}' alt='{esc(Path(f).stem)}'></a>"
+                         for f in figs)
+        outputs = " | ".join(outs) + (f"<div class='thumbs'>{thumbs}</div>" if thumbs else "")
+        started = str(e.get("started") or "-")
+        rows.append(
+            f"<tr id='{esc(name)}'><td>{link}<div class='small'>{esc(name)}</div></td><td>{st}</td>"
+            f"<td>{headline}</td><td>{esc(format_duration(e.get('duration_s')))}</td>"
+            f"<td class='small'>{esc(started.replace('T', ' '))}</td><td>{outputs}</td></tr>"
+        )
+    versions = meta.get("versions") or {}
+    env_rows = "".join(f"<tr><td>{esc(str(k))}</td><td>{esc(str(v))}</td></tr>" for k, v in versions.items())
+    refresh = "" if final else "<meta http-equiv='refresh' content='10'>"
+    return f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8">{refresh}<title>hsmap study</title>
+<style>{_INDEX_CSS}</style></head>
+<body>
+<h1>hsmap study</h1>
+<p class="paper">Each notebook reproduces a figure or table of <i>{esc(PAPER)}</i> with hsmap;
+our numbers stand beside the paper's.</p>
+{summary}
+<table class="notebooks">
+<thead><tr><th>notebook</th><th>status</th><th>headline numbers</th><th>duration</th><th>run</th><th>outputs</th></tr></thead>
+<tbody>
+{chr(10).join(rows)}
+</tbody></table>
+<h2>Environment</h2>
+<table class="env">{env_rows}</table>
+<p class="small">Recordings (.rrd) open in the rerun viewer: <code>.venv/bin/rerun reports/NAME/FILE.rrd</code>.
+Reports are regenerated by <code>make reproduce</code> (or <code>hsmap reproduce [--quick] [--only NAME]</code>).</p>
+</body></html>
+"""

@@ -1,0 +1,865 @@
+"""rerun recordings of hsmap runs (rerun-sdk 0.41, pinned: its API moves between releases).
+
+One recording per run, written to one ``.rrd`` file through a file sink (no viewer, no network; analytics
+off). Open one with ``.venv/bin/rerun FILE.rrd``. Entity layout::
+
+    world/                      ViewCoordinates RIGHT_HAND_Z_UP (x forward/east, y left/north, z up), metres
+      robot                     Transform3D: the robot base pose, on the timelines
+        lidar2d                 static Transform3D: the 2D LiDAR's extrinsic in the robot frame
+          scan                  Points3D, the current 2D scan in the sensor frame (z = 0)
+        lidar3d                 static Transform3D: the 3D LiDAR's extrinsic
+          cloud                 Points3D, the current 3D cloud in the sensor frame
+      trajectory/NAME           LineStrips3D, a whole path (static)
+      map/points/NNNN           Points3D, the growing point map in blocks of scans (PointMapLogger)
+      map/occupancy             GridMap (RViz "map" colours), placed by the grid's GridGeometry
+      map/rooms                 GridMap RGBA of the room labels, just above the occupancy grid
+      map/graph                 Points3D + LineStrips3D: the room/door graph at its world positions
+    map/                        the 2D map view, in the grid's pixel frame (x = column, y = row, as images)
+      occupancy                 Image (map_server grey levels)
+      rooms                     SegmentationImage + AnnotationContext (one colour and name per room)
+      graph, paths/NAME         Points2D / LineStrips2D converted from world (x, y) by GridGeometry
+    graph                       GraphNodes + GraphEdges (GraphView), node positions = world (x, -y) * scale
+
+Timelines: ``scan`` (sequence: the frame index) and ``time`` (seconds: a duration, or a timestamp when the
+stamps are Unix times).
+
+Every ``log_*`` function takes a :class:`Recording` (or a plain ``rerun.RecordingStream``) first and logs
+with ``strict=True``, so bad data raises instead of being dropped with a warning.
+"""
+
+from __future__ import annotations
+
+import atexit
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+os.environ["RERUN_ANALYTICS"] = "0"  # before rerun is imported: never phone home from our runs
+
+import numpy as np  # noqa: E402
+import rerun as rr  # noqa: E402
+import rerun.blueprint as rrb  # noqa: E402
+from numpy.typing import ArrayLike, NDArray  # noqa: E402
+
+from ..errors import DataFormatError, HsmapError, InputError, ShapeError  # noqa: E402
+from ..geometry import euler_to_matrix, matrix_to_quaternion  # noqa: E402
+from ..grid import GridGeometry  # noqa: E402
+from .colors import ROOM_PALETTE, SERIES_COLORS, height_colors, label_color, label_colors  # noqa: E402
+from .occupancy import _ros_to_image, occupancy_to_image, occupancy_to_ros  # noqa: E402
+
+__all__ = [
+    "RERUN_VERSION",
+    "Recording",
+    "open_recording",
+    "default_blueprint",
+    "set_frame_time",
+    "pose_transform",
+    "log_robot_pose",
+    "log_sensor_rig",
+    "log_scan2d",
+    "log_cloud",
+    "log_frame",
+    "log_points",
+    "log_path",
+    "log_trajectory",
+    "PointMapLogger",
+    "occupancy_to_ros",
+    "occupancy_to_image",
+    "log_occupancy_grid",
+    "room_annotation_context",
+    "log_room_labels",
+    "world_to_map2d",
+    "log_map2d_path",
+    "log_map2d_points",
+    "log_room_graph",
+    "rerun_binary",
+    "verify_rrd",
+    "recording_contents",
+]
+
+RERUN_VERSION = rr.__version__
+
+WORLD = "world"
+ROBOT = "world/robot"
+LIDAR2D = "world/robot/lidar2d"
+LIDAR3D = "world/robot/lidar3d"
+WORLD_MAP = "world/map"
+MAP2D = "map"
+GRAPH = "graph"
+
+_UNIX_TIME_THRESHOLD = 1e8  # seconds: stamps above this (after 1973) are taken as Unix times
+
+
+def _default_file_mode() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
+_FILE_MODE = _default_file_mode()
+
+
+def _stream(rec: Any) -> rr.RecordingStream:
+    if isinstance(rec, Recording):
+        if rec.closed:
+            raise HsmapError(f"the recording {rec.path} is closed")
+        return rec.stream
+    if isinstance(rec, rr.RecordingStream):
+        return rec
+    raise InputError(f"expected an hsmap Recording or a rerun.RecordingStream, got {type(rec).__name__}")
+
+
+class Recording:
+    """A rerun recording written to one ``.rrd`` file, atomically.
+
+    The data goes to a temporary file beside ``path`` and is renamed to ``path`` by :meth:`close` (or on
+    leaving a ``with`` block without an error; with an error, the temporary file is deleted). A recording
+    still open when the interpreter exits is closed then.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The ``.rrd`` to write.
+    application_id : str
+        rerun's application id (recordings of one application share blueprints in the viewer).
+    recording_id : str, optional
+        rerun's recording id (random by default).
+    blueprint : rerun.blueprint.Blueprint, optional
+        The layout the viewer opens with (see :func:`default_blueprint`).
+
+    Attributes
+    ----------
+    path : pathlib.Path
+    stream : rerun.RecordingStream
+        Use it for anything the ``log_*`` helpers do not cover; the recording also forwards attribute
+        access to it (``rec.log(...)``, ``rec.set_time(...)``).
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        *,
+        application_id: str = "hsmap",
+        recording_id: str | None = None,
+        blueprint: Any = None,
+    ):
+        self.path = Path(path)
+        if self.path.suffix != ".rrd":
+            raise InputError(f"a rerun recording file must end in .rrd, got {self.path}")
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp.rrd", dir=self.path.parent)
+        os.close(fd)
+        self._tmp = Path(tmp)
+        self.closed = False
+        self.rig_logged = False
+        # rerun wants application ids that are entry names: letters, digits, '-' and '_'
+        self.application_id = re.sub(r"[^A-Za-z0-9_-]+", "_", application_id).strip("_") or "hsmap"
+        self.stream = rr.RecordingStream(self.application_id, recording_id=recording_id)
+        self.stream.set_log_time_enabled(False)  # only our timelines: scan and time
+        self.stream.set_log_tick_enabled(False)
+        self.stream.set_sinks(rr.FileSink(str(self._tmp)), default_blueprint=blueprint)
+        self.stream.log(WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True, strict=True)
+        atexit.register(self.close)
+
+    def __getattr__(self, item: str) -> Any:
+        if item in ("stream", "__setstate__") or item.startswith("__"):
+            raise AttributeError(item)
+        return getattr(self.stream, item)
+
+    def __repr__(self) -> str:
+        return f"Recording({str(self.path)!r}{', closed' if self.closed else ''})"
+
+    def __enter__(self) -> Recording:
+        return self
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+    def close(self) -> Path:
+        """Flush, close the file and move it to :attr:`path`; returns the path. Idempotent."""
+        if not self.closed:
+            self.closed = True
+            atexit.unregister(self.close)
+            self.stream.flush()
+            self.stream.disconnect()
+            os.chmod(self._tmp, _FILE_MODE)  # mkstemp makes it private; a report is for reading
+            os.replace(self._tmp, self.path)
+        return self.path
+
+    def abort(self) -> None:
+        """Close without publishing: the temporary file is deleted, :attr:`path` is left as it was."""
+        if not self.closed:
+            self.closed = True
+            atexit.unregister(self.close)
+            try:
+                self.stream.disconnect()
+            finally:
+                self._tmp.unlink(missing_ok=True)
+
+
+def open_recording(path: str | os.PathLike, **kwargs: Any) -> Recording:
+    """A :class:`Recording` on ``path`` with :func:`default_blueprint` unless ``blueprint=`` is given."""
+    kwargs.setdefault("blueprint", default_blueprint())
+    return Recording(path, **kwargs)
+
+
+def default_blueprint(*, view3d: bool = True, map2d: bool = True, graph: bool = True) -> rrb.Blueprint:
+    """The layout a recording opens on: the 3D world on the left; the 2D map and the room graph on the right.
+
+    Views whose data a recording lacks can be left out (``map2d=False`` for a SLAM run without a grid).
+    """
+    right: list[Any] = []
+    if map2d:
+        right.append(rrb.Spatial2DView(name="2D map", origin=MAP2D))
+    if graph:
+        right.append(
+            rrb.GraphView(
+                name="Room graph",
+                origin=GRAPH,
+                # positions are given (world x, -y): keep them, do not let the force layout move the nodes
+                force_link=rrb.archetypes.ForceLink(enabled=False),
+                force_many_body=rrb.archetypes.ForceManyBody(enabled=False),
+                force_center=rrb.archetypes.ForceCenter(enabled=False),
+            )
+        )
+    left = [rrb.Spatial3DView(name="3D world", origin=WORLD)] if view3d else []
+    if not left and not right:
+        raise InputError("default_blueprint needs at least one view")
+    if left and right:
+        root: Any = rrb.Horizontal(
+            left[0], right[0] if len(right) == 1 else rrb.Vertical(*right), column_shares=[3, 2]
+        )
+    else:
+        views = left + right
+        root = views[0] if len(views) == 1 else rrb.Vertical(*views)
+    return rrb.Blueprint(root, collapse_panels=False)
+
+
+# --- time and poses ------------------------------------------------------------------------------------
+
+
+def set_frame_time(rec: Any, index: int, stamp: float | None = None) -> None:
+    """Set the ``scan`` timeline to ``index`` and, when given, ``time`` to ``stamp`` seconds.
+
+    Stamps above 1e8 s are taken as Unix times (a timestamp timeline), smaller ones as durations.
+    """
+    s = _stream(rec)
+    s.set_time("scan", sequence=int(index))
+    if stamp is not None:
+        stamp = float(stamp)
+        if not np.isfinite(stamp):
+            raise InputError(f"frame stamp must be finite seconds, got {stamp}")
+        if stamp > _UNIX_TIME_THRESHOLD:
+            s.set_time("time", timestamp=stamp)
+        else:
+            s.set_time("time", duration=stamp)
+
+
+def _pose6(pose: ArrayLike, name: str = "pose") -> NDArray[np.float64]:
+    p = np.asarray(pose, dtype=float)
+    if p.shape[-1:] == (3,):
+        q = np.zeros(p.shape[:-1] + (6,))
+        q[..., :2] = p[..., :2]
+        q[..., 5] = p[..., 2]
+        p = q
+    if p.shape[-1:] != (6,):
+        raise ShapeError(f"{name} must be (x, y, yaw) or (x, y, z, roll, pitch, yaw), got shape {p.shape}")
+    if not np.all(np.isfinite(p)):
+        raise InputError(f"{name} has NaN or inf values")
+    return p
+
+
+def _translation_quaternion(pose: ArrayLike, name: str = "pose") -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    p = _pose6(pose, name)
+    q = matrix_to_quaternion(euler_to_matrix(p[..., 3], p[..., 4], p[..., 5]))
+    return p[..., :3], q
+
+
+def pose_transform(pose: ArrayLike) -> rr.Transform3D:
+    """``rr.Transform3D`` of a pose (x, y, yaw) or (x, y, z, roll, pitch, yaw) (child -> parent)."""
+    t, q = _translation_quaternion(pose)
+    return rr.Transform3D(translation=t, quaternion=rr.Quaternion(xyzw=q))
+
+
+def log_robot_pose(rec: Any, pose: ArrayLike, *, entity: str = ROBOT) -> None:
+    """Log the robot base pose (3- or 6-DOF) at the current time."""
+    _stream(rec).log(entity, pose_transform(pose), strict=True)
+
+
+def log_sensor_rig(
+    rec: Any,
+    *,
+    extrinsic2d: ArrayLike | None = None,
+    extrinsic3d: ArrayLike | None = None,
+    lidar2d_height: float = 0.0,
+    robot: str = ROBOT,
+    axis_length: float = 0.3,
+) -> None:
+    """Log the fixed sensor extrinsics beneath the robot (static) and axes on the robot.
+
+    Parameters
+    ----------
+    extrinsic2d : array of shape (3,), optional
+        (x, y, yaw) of the 2D LiDAR in the robot frame; it sits ``lidar2d_height`` metres above the base.
+    extrinsic3d : array of shape (6,), optional
+        (x, y, z, roll, pitch, yaw) of the 3D LiDAR in the robot frame.
+    """
+    s = _stream(rec)
+    s.log(robot, rr.TransformAxes3D(axis_length), static=True, strict=True)
+    if extrinsic2d is not None:
+        e = np.asarray(extrinsic2d, dtype=float)
+        if e.shape != (3,):
+            raise ShapeError(f"extrinsic2d must be (x, y, yaw), got shape {e.shape}")
+        s.log(f"{robot}/lidar2d", pose_transform([e[0], e[1], lidar2d_height, 0.0, 0.0, e[2]]),
+              rr.TransformAxes3D(axis_length / 2), static=True, strict=True)
+    if extrinsic3d is not None:
+        e = np.asarray(extrinsic3d, dtype=float)
+        if e.shape != (6,):
+            raise ShapeError(f"extrinsic3d must be (x, y, z, roll, pitch, yaw), got shape {e.shape}")
+        s.log(f"{robot}/lidar3d", pose_transform(e), rr.TransformAxes3D(axis_length / 2), static=True, strict=True)
+
+
+# --- points --------------------------------------------------------------------------------------------
+
+
+def _points(points: ArrayLike, dims: tuple[int, ...], name: str) -> NDArray[np.float64]:
+    p = np.asarray(points, dtype=float)
+    if p.ndim != 2 or p.shape[1] not in dims:
+        raise ShapeError(f"{name} must have shape (N, {' or '.join(map(str, dims))}), got {p.shape}")
+    return p[np.all(np.isfinite(p), axis=1)]
+
+
+def voxel_downsample(points: NDArray[np.float64], voxel: float) -> NDArray[np.float64]:
+    """One point (the first) per cubic voxel of side ``voxel`` metres, in input order (deterministic)."""
+    if voxel <= 0:
+        raise InputError(f"voxel must be > 0 metres, got {voxel}")
+    if len(points) == 0:
+        return points
+    keys = np.floor(points / voxel).astype(np.int64)
+    _, first = np.unique(keys, axis=0, return_index=True)
+    return points[np.sort(first)]
+
+
+def log_points(
+    rec: Any,
+    entity: str,
+    points: ArrayLike,
+    *,
+    colors: ArrayLike | None = None,
+    color_by_height: bool = False,
+    z_range: tuple[float, float] | None = None,
+    radius: float = 0.02,
+    voxel: float | None = None,
+    static: bool = False,
+) -> int:
+    """Log (N, 2) or (N, 3) points as ``Points3D`` (z = 0 for 2D points); returns the number logged.
+
+    Parameters
+    ----------
+    colors : array of shape (3,) or (N, 3), optional
+        RGB 0-255 (ignored when ``voxel`` drops points and colours are per point).
+    color_by_height : bool
+        Colour by z over ``z_range`` (see :func:`hsmap.viz.colors.height_colors`).
+    radius : float
+        Point radius in metres.
+    voxel : float, optional
+        Keep one point per voxel of this side (metres) before logging.
+    """
+    p = _points(points, (2, 3), "points")
+    if p.shape[1] == 2:
+        p = np.column_stack([p, np.zeros(len(p))])
+    if voxel is not None:
+        p = voxel_downsample(p, voxel)
+        if colors is not None and np.ndim(colors) == 2:
+            colors = None
+    if color_by_height:
+        colors = height_colors(p[:, 2], z_range)
+    _stream(rec).log(entity, rr.Points3D(p, colors=colors, radii=radius), static=static, strict=True)
+    return len(p)
+
+
+def log_scan2d(
+    rec: Any, points: ArrayLike, *, entity: str = f"{LIDAR2D}/scan", color: ArrayLike = (230, 90, 30),
+    radius: float = 0.025,
+) -> None:
+    """Log a 2D scan's (K, 2) points, in the 2D LiDAR frame, at the current time."""
+    log_points(rec, entity, points, colors=color, radius=radius)
+
+
+def log_cloud(
+    rec: Any, points: ArrayLike, *, entity: str = f"{LIDAR3D}/cloud", voxel: float | None = 0.1,
+    z_range: tuple[float, float] | None = (-2.0, 2.0), radius: float = 0.02,
+) -> int:
+    """Log a 3D cloud (N, 3), in the 3D LiDAR frame, coloured by height, voxel-downsampled (``voxel`` m)."""
+    return log_points(rec, entity, points, color_by_height=True, z_range=z_range, radius=radius, voxel=voxel)
+
+
+def log_frame(
+    rec: Any,
+    frame: Any,
+    pose: ArrayLike,
+    *,
+    index: int | None = None,
+    lidar2d_height: float = 0.0,
+    cloud_voxel: float | None = 0.1,
+) -> None:
+    """Log one :class:`hsmap.datasets.Frame` with the robot's estimated pose: time, pose, 2D scan, 3D cloud.
+
+    The sensor extrinsics (from the frame) are logged once per :class:`Recording`.
+    """
+    index = frame.index if index is None else index
+    set_frame_time(rec, index, frame.stamp)
+    if not getattr(rec, "rig_logged", False):
+        log_sensor_rig(rec, extrinsic2d=frame.extrinsic2d if frame.scan2d is not None else None,
+                       extrinsic3d=frame.extrinsic3d if frame.cloud3d is not None else None,
+                       lidar2d_height=lidar2d_height)
+        if isinstance(rec, Recording):
+            rec.rig_logged = True
+    log_robot_pose(rec, pose)
+    if frame.scan2d is not None:
+        log_scan2d(rec, frame.scan2d.points())
+    if frame.cloud3d is not None:
+        log_cloud(rec, frame.cloud3d, voxel=cloud_voxel)
+
+
+class PointMapLogger:
+    """A growing point map on the timelines: world-frame points added scan by scan, logged in blocks.
+
+    Each block of ``block`` scans becomes one entity ``entity/NNNN`` logged at the time of its last scan, so
+    the viewer shows the map as it was built (latest-at every block) without re-sending old points; the
+    current scan itself is what :func:`log_frame` shows. Call :meth:`flush` after the last scan.
+
+    Parameters
+    ----------
+    rec : Recording
+    entity : str
+    block : int
+        Scans per block.
+    voxel : float, optional
+        Voxel side (metres) to thin each block.
+    z_range : (float, float)
+        Height range of the colour ramp (fixed, so blocks are coloured alike); None for one colour.
+    color : (3,) RGB, optional
+        Used when ``z_range`` is None.
+    """
+
+    def __init__(
+        self,
+        rec: Any,
+        *,
+        entity: str = f"{WORLD_MAP}/points",
+        block: int = 10,
+        voxel: float | None = 0.05,
+        z_range: tuple[float, float] | None = (-0.2, 3.0),
+        color: ArrayLike = (90, 90, 90),
+        radius: float = 0.02,
+    ):
+        if int(block) < 1:
+            raise InputError(f"block must be >= 1 scans, got {block}")
+        self.rec, self.entity, self.block = rec, entity, int(block)
+        self.voxel, self.z_range, self.color, self.radius = voxel, z_range, color, radius
+        self._pending: list[NDArray[np.float64]] = []
+        self._scans = 0
+        self.blocks = 0
+        self.points_logged = 0
+
+    def add(self, points_world: ArrayLike) -> None:
+        """Add one scan's points (N, 2) or (N, 3), already in the world frame."""
+        p = _points(points_world, (2, 3), "points_world")
+        if p.shape[1] == 2:
+            p = np.column_stack([p, np.zeros(len(p))])
+        self._pending.append(p)
+        self._scans += 1
+        if self._scans >= self.block:
+            self.flush()
+
+    def flush(self) -> None:
+        """Log the pending scans as one block (at the current time)."""
+        if not self._pending:
+            return
+        p = np.concatenate(self._pending)
+        self._pending, self._scans = [], 0
+        self.points_logged += log_points(
+            self.rec, f"{self.entity}/{self.blocks:04d}", p,
+            colors=None if self.z_range is not None else self.color,
+            color_by_height=self.z_range is not None, z_range=self.z_range, radius=self.radius, voxel=self.voxel,
+        )
+        self.blocks += 1
+
+
+def _path_positions(poses: Any, z: float | None) -> NDArray[np.float64]:
+    poses = getattr(poses, "poses", poses)  # a Trajectory
+    p = np.asarray(poses, dtype=float)
+    if p.ndim != 2 or p.shape[1] not in (2, 3, 6):
+        raise ShapeError(f"poses must be (N, 2) positions or (N, 3)/(N, 6) poses, got shape {p.shape}")
+    if p.shape[1] == 6:
+        xyz = p[:, :3].copy()
+    else:
+        xyz = np.column_stack([p[:, :2], np.zeros(len(p))])
+    if z is not None:
+        xyz[:, 2] = z
+    return xyz
+
+
+def log_path(
+    rec: Any,
+    name: str,
+    poses: Any,
+    *,
+    color: ArrayLike | None = None,
+    radius: float = 0.03,
+    z: float | None = None,
+    entity: str | None = None,
+    static: bool = True,
+) -> None:
+    """Log a whole path as one line strip at ``world/trajectory/NAME`` (static by default).
+
+    Parameters
+    ----------
+    name : str
+        "groundtruth", "odometry", "estimate", ... (sets the default colour, see ``SERIES_COLORS``).
+    poses : Trajectory or array of shape (N, 2), (N, 3) or (N, 6)
+    z : float, optional
+        Height of the line for planar paths (default 0; 6-DOF paths keep their own z).
+    """
+    xyz = _path_positions(poses, z)
+    color = SERIES_COLORS.get(name, SERIES_COLORS["other"]) if color is None else color
+    _stream(rec).log(entity or f"{WORLD}/trajectory/{name}",
+                     rr.LineStrips3D([xyz], colors=color, radii=radius, labels=[name]),
+                     static=static, strict=True)
+
+
+def log_trajectory(
+    rec: Any,
+    trajectory: Any,
+    *,
+    name: str = "estimate",
+    robot_entity: str | None = ROBOT,
+    indices: ArrayLike | None = None,
+    color: ArrayLike | None = None,
+) -> None:
+    """A trajectory at once: its path (static line) and, on the timelines, the robot pose at every stamp.
+
+    Parameters
+    ----------
+    trajectory : hsmap.io.Trajectory
+        Stamps and (N, 3) or (N, 6) poses.
+    robot_entity : str or None
+        Where the moving pose goes (``world/robot``); None logs the path only.
+    indices : array of int, optional
+        ``scan`` values for the poses (default 0..N-1).
+    """
+    stamps = np.asarray(trajectory.stamps, dtype=float)
+    poses = np.asarray(trajectory.poses, dtype=float)
+    log_path(rec, name, poses, color=color)
+    if robot_entity is None:
+        return
+    n = len(poses)
+    idx = np.arange(n) if indices is None else np.asarray(indices, dtype=np.int64)
+    if idx.shape != (n,):
+        raise ShapeError(f"indices must have shape ({n},), got {idx.shape}")
+    t, q = _translation_quaternion(poses, "trajectory.poses")
+    time_col = (rr.TimeColumn("time", timestamp=stamps) if n and stamps.max() > _UNIX_TIME_THRESHOLD
+                else rr.TimeColumn("time", duration=stamps))
+    _stream(rec).send_columns(
+        robot_entity,
+        indexes=[rr.TimeColumn("scan", sequence=idx), time_col],
+        columns=rr.Transform3D.columns(translation=t, quaternion=q),
+        strict=True,
+    )
+
+
+# --- grids and labels ----------------------------------------------------------------------------------
+
+
+def _check_geometry(geometry: GridGeometry, shape: tuple[int, ...], what: str) -> None:
+    if not isinstance(geometry, GridGeometry):
+        raise InputError(f"geometry must be an hsmap.grid.GridGeometry, got {type(geometry).__name__}")
+    if tuple(shape[:2]) != geometry.shape:
+        raise ShapeError(f"{what} has shape {tuple(shape[:2])} but its GridGeometry says {geometry.shape}")
+
+
+def log_occupancy_grid(
+    rec: Any,
+    grid: ArrayLike,
+    geometry: GridGeometry,
+    *,
+    convention: str = "auto",
+    entity: str = f"{WORLD_MAP}/occupancy",
+    map_entity: str | None = f"{MAP2D}/occupancy",
+    z: float = 0.0,
+    opacity: float | None = None,
+    static: bool = True,
+) -> None:
+    """Log an occupancy grid: a ``GridMap`` in the 3D world where ``geometry`` places it, and an ``Image``
+    in the 2D map view (``map_entity``; None to skip). See :func:`occupancy_to_ros` for ``convention``."""
+    ros = occupancy_to_ros(grid, convention)
+    _check_geometry(geometry, ros.shape, "occupancy grid")
+    h, w = ros.shape
+    s = _stream(rec)
+    s.log(
+        entity,
+        rr.GridMap(
+            data=np.ascontiguousarray(ros).tobytes(),
+            format=rr.components.ImageFormat(width=w, height=h, color_model="L", channel_datatype="U8"),
+            cell_size=geometry.resolution,
+            translation=[geometry.origin[0], geometry.origin[1], z],
+            colormap=rr.components.Colormap.RvizMap,
+            opacity=opacity,
+        ),
+        static=static,
+        strict=True,
+    )
+    if map_entity is not None:
+        img = _ros_to_image(ros)
+        s.log(map_entity, rr.Image(img, color_model="L", draw_order=-10.0), static=static, strict=True)
+
+
+def room_annotation_context(
+    ids: Iterable[int], names: Mapping[int, str] | None = None, *, background: str = "no room"
+) -> rr.AnnotationContext:
+    """One class per room id (its palette colour and name; "room k" by default); 0 is transparent."""
+    infos = [rr.AnnotationInfo(0, background, (0, 0, 0, 0))]
+    for k in sorted({int(i) for i in ids if int(i) > 0}):
+        name = (names or {}).get(k, f"room {k}")
+        infos.append(rr.AnnotationInfo(k, str(name), label_color(k)))
+    return rr.AnnotationContext(infos)
+
+
+def log_room_labels(
+    rec: Any,
+    labels: ArrayLike,
+    geometry: GridGeometry,
+    *,
+    names: Mapping[int, str] | None = None,
+    entity: str = f"{WORLD_MAP}/rooms",
+    map_entity: str | None = f"{MAP2D}/rooms",
+    z: float = 0.02,
+    opacity: float = 0.6,
+    static: bool = True,
+) -> None:
+    """Log a room label image (H, W) (0 = no room): in the 2D map view as ``SegmentationImage`` with an
+    ``AnnotationContext`` (room names and colours), and in the 3D world as an RGBA ``GridMap`` placed by
+    ``geometry`` just above the occupancy grid."""
+    lab = np.asarray(labels)
+    if lab.ndim != 2:
+        raise ShapeError(f"labels must be an (H, W) image, got shape {lab.shape}")
+    _check_geometry(geometry, lab.shape, "label image")
+    if lab.size and (lab.min() < 0 or lab.max() > np.iinfo(np.uint16).max):
+        raise InputError("labels must lie in 0..65535 (0 = no room)")
+    lab16 = lab.astype(np.uint16)
+    ids = np.unique(lab16)
+    s = _stream(rec)
+    rgba = label_colors(lab16)
+    h, w = lab16.shape
+    s.log(
+        entity,
+        rr.GridMap(
+            data=np.ascontiguousarray(rgba).tobytes(),
+            format=rr.components.ImageFormat(width=w, height=h, color_model="RGBA", channel_datatype="U8"),
+            cell_size=geometry.resolution,
+            translation=[geometry.origin[0], geometry.origin[1], z],
+            opacity=opacity,
+        ),
+        static=static,
+        strict=True,
+    )
+    if map_entity is not None:
+        s.log(map_entity, room_annotation_context(ids, names), static=True, strict=True)
+        s.log(map_entity, rr.SegmentationImage(lab16, opacity=opacity, draw_order=0.0), static=static,
+              strict=True)
+
+
+def world_to_map2d(geometry: GridGeometry, xy: ArrayLike) -> NDArray[np.float64]:
+    """World (x, y) (N, 2) -> positions in the 2D map view (x = column, y = row, pixel corners at integers)."""
+    rc = geometry.world_to_pixel(np.asarray(xy, dtype=float)[..., :2])
+    return np.stack([rc[..., 1] + 0.5, rc[..., 0] + 0.5], -1)
+
+
+def log_map2d_path(
+    rec: Any, name: str, poses: Any, geometry: GridGeometry, *, color: ArrayLike | None = None,
+    radius: float = 1.0, static: bool = True,
+) -> None:
+    """A path drawn over the 2D map view at ``map/paths/NAME`` (radius in pixels)."""
+    xy = _path_positions(poses, None)[:, :2]
+    color = SERIES_COLORS.get(name, SERIES_COLORS["other"]) if color is None else color
+    _stream(rec).log(f"{MAP2D}/paths/{name}",
+                     rr.LineStrips2D([world_to_map2d(geometry, xy)], colors=color, radii=radius,
+                                     draw_order=10.0), static=static, strict=True)
+
+
+def log_map2d_points(
+    rec: Any, entity: str, xy: ArrayLike, geometry: GridGeometry, *, colors: ArrayLike | None = None,
+    labels: Sequence[str] | None = None, radius: float = 2.0, static: bool = True,
+) -> None:
+    """World points (N, 2) drawn over the 2D map view at ``map/ENTITY`` (radius in pixels)."""
+    p = _points(xy, (2, 3), "xy")[:, :2]
+    _stream(rec).log(f"{MAP2D}/{entity}",
+                     rr.Points2D(world_to_map2d(geometry, p), colors=colors, radii=radius, labels=labels,
+                                 draw_order=20.0), static=static, strict=True)
+
+
+# --- room graph ----------------------------------------------------------------------------------------
+
+
+def _node_kind(data: Mapping[str, Any]) -> str:
+    kind = data.get("kind", data.get("type"))
+    if kind is not None:
+        return str(kind)
+    return "room" if "area" in data else "door"
+
+
+def _centroid(node: Any, data: Mapping[str, Any]) -> NDArray[np.float64]:
+    c = data.get("centroid")
+    if c is None:
+        raise InputError(f"graph node {node!r} has no 'centroid' (x, y) attribute")
+    c = np.asarray(c, dtype=float).reshape(-1)
+    if c.shape[0] < 2 or not np.all(np.isfinite(c[:2])):
+        raise InputError(f"graph node {node!r}: centroid must be finite (x, y), got {data.get('centroid')!r}")
+    return c[:2]
+
+
+def log_room_graph(
+    rec: Any,
+    graph: Any,
+    *,
+    entity: str = GRAPH,
+    world_entity: str | None = f"{WORLD_MAP}/graph",
+    geometry: GridGeometry | None = None,
+    z: float = 0.3,
+    scale: float = 50.0,
+    static: bool = True,
+) -> None:
+    """Log a room/door graph (networkx): rooms have ``centroid`` (x, y) and ``area`` (m^2), doors a
+    ``centroid``; edges may carry ``distance`` (m). A node's ``kind`` ("room"/"door") wins over the guess
+    from ``area``; a room's ``label`` attribute (its id in the label image) picks its colour.
+
+    Logs ``GraphNodes``/``GraphEdges`` at ``entity`` (positions world (x, -y) * ``scale``, so the graph view
+    looks like the map from above), the same graph in the 3D world at height ``z`` (``world_entity``), and,
+    with ``geometry``, over the 2D map view (``map/graph``).
+    """
+    if not hasattr(graph, "nodes") or not hasattr(graph, "edges"):
+        raise InputError(f"expected a networkx graph, got {type(graph).__name__}")
+    ids, pos, labels, colors, radii, kinds = [], [], [], [], [], []
+    for i, (n, data) in enumerate(graph.nodes(data=True)):
+        kind = _node_kind(data)
+        c = _centroid(n, data)
+        ids.append(str(n))
+        pos.append(c)
+        kinds.append(kind)
+        if kind == "room":
+            area = data.get("area")
+            name = data.get("name") or f"room {n}"
+            labels.append(f"{name} ({float(area):.1f} m²)" if area is not None else str(name))
+            lab = data.get("label", n if isinstance(n, (int, np.integer)) else i + 1)
+            colors.append(label_color(int(lab)) if isinstance(lab, (int, np.integer)) else tuple(ROOM_PALETTE[0]))
+            radii.append(1.0)
+        else:
+            labels.append(str(data.get("name") or f"door {n}"))
+            colors.append((60, 60, 60))
+            radii.append(0.5)
+    if not ids:
+        raise InputError("the room graph has no nodes")
+    pos_a = np.array(pos)
+    index = {str(n): k for k, n in enumerate(graph.nodes)}
+    edges, edge_lines, edge_labels = [], [], []
+    for u, v, data in graph.edges(data=True):
+        edges.append((str(u), str(v)))
+        edge_lines.append([pos_a[index[str(u)]], pos_a[index[str(v)]]])
+        d = data.get("distance")
+        edge_labels.append(f"{float(d):.2f} m" if d is not None else "")
+    s = _stream(rec)
+    gpos = np.column_stack([pos_a[:, 0], -pos_a[:, 1]]) * scale
+    s.log(entity, rr.GraphNodes(ids, positions=gpos, labels=labels, colors=colors,
+                                radii=np.array(radii) * 0.25 * scale, show_labels=True),
+          static=static, strict=True)
+    s.log(entity, rr.GraphEdges(edges, graph_type="undirected"), static=static, strict=True)
+    if world_entity is not None:
+        p3 = np.column_stack([pos_a, np.full(len(pos_a), z)])
+        s.log(f"{world_entity}/nodes", rr.Points3D(p3, colors=colors, radii=np.array(radii) * 0.15,
+                                                   labels=labels, show_labels=True), static=static, strict=True)
+        if edges:
+            lines = [np.column_stack([np.array(e), np.full(2, z)]) for e in edge_lines]
+            s.log(f"{world_entity}/edges", rr.LineStrips3D(lines, colors=(40, 40, 40), radii=0.03,
+                                                           labels=edge_labels), static=static, strict=True)
+    if geometry is not None:
+        s.log(f"{MAP2D}/graph/nodes", rr.Points2D(world_to_map2d(geometry, pos_a), colors=colors,
+                                                 radii=np.array(radii) * 4.0, labels=labels, draw_order=30.0),
+              static=static, strict=True)
+        if edges:
+            s.log(f"{MAP2D}/graph/edges",
+                  rr.LineStrips2D([world_to_map2d(geometry, np.array(e)) for e in edge_lines],
+                                  colors=(40, 40, 40), radii=1.0, draw_order=25.0), static=static, strict=True)
+
+
+# --- verification --------------------------------------------------------------------------------------
+
+
+def rerun_binary() -> Path | None:
+    """The ``rerun`` command-line tool of this environment (beside the interpreter), or on PATH."""
+    beside = Path(sys.executable).with_name("rerun")
+    if beside.is_file() and os.access(beside, os.X_OK):
+        return beside
+    found = shutil.which("rerun")
+    return Path(found) if found else None
+
+
+def verify_rrd(path: str | os.PathLike, *, timeout: float = 300.0) -> str:
+    """Run ``rerun rrd verify PATH``; returns its report, raises :class:`DataFormatError` when it fails.
+
+    Raises :class:`HsmapError` when no ``rerun`` binary is installed.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise DataFormatError(f"{path}: no such recording")
+    exe = rerun_binary()
+    if exe is None:
+        raise HsmapError("the 'rerun' command-line tool is not installed (it comes with rerun-sdk)")
+    env = dict(os.environ, RERUN_ANALYTICS="0", NO_COLOR="1", RUST_LOG_STYLE="never")
+    try:
+        r = subprocess.run([str(exe), "rrd", "verify", str(path)], capture_output=True, text=True,
+                           timeout=timeout, env=env)
+    except subprocess.TimeoutExpired:
+        raise DataFormatError(f"{path}: 'rerun rrd verify' did not finish in {timeout:.0f} s") from None
+    out = _ANSI.sub("", (r.stdout + r.stderr)).strip()
+    if r.returncode != 0:
+        lines = [line.strip() for line in out.splitlines() if line.strip()]
+        errors = [line for line in lines if line.startswith("Error")] or lines[-3:]
+        raise DataFormatError(f"{path}: 'rerun rrd verify' failed (exit {r.returncode}): {' | '.join(errors)}")
+    return out
+
+
+_ANSI = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
+
+
+_CHUNK_LINE = re.compile(r"with (\d+) rows .* - (/\S*) - data columns: \[(.*)\]")
+
+
+def recording_contents(path: str | os.PathLike, *, timeout: float = 300.0) -> dict[str, dict[str, Any]]:
+    """What a recording holds, per entity, from ``rerun rrd print``: ``{"/world/robot": {"columns":
+    {"Transform3D:translation", ...}, "rows": 177}, ...}`` (blueprint entities included)."""
+    exe = rerun_binary()
+    if exe is None:
+        raise HsmapError("the 'rerun' command-line tool is not installed (it comes with rerun-sdk)")
+    env = dict(os.environ, RERUN_ANALYTICS="0", NO_COLOR="1", RUST_LOG_STYLE="never")
+    r = subprocess.run([str(exe), "rrd", "print", str(path)], capture_output=True, text=True, timeout=timeout,
+                       env=env)
+    if r.returncode != 0:
+        raise DataFormatError(f"{path}: 'rerun rrd print' failed: {_ANSI.sub('', r.stderr).strip()[-500:]}")
+    out: dict[str, dict[str, Any]] = {}
+    for line in r.stdout.splitlines():
+        m = _CHUNK_LINE.search(line)
+        if m:
+            e = out.setdefault(m.group(2), {"columns": set(), "rows": 0})
+            e["rows"] += int(m.group(1))
+            e["columns"].update(m.group(3).split())
+    return out

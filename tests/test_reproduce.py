@@ -1,0 +1,286 @@
+"""hsmap reproduce: a batch of small notebooks (tests/data/notebooks: two good, one that raises, one whose
+recording is broken, plus the notebook template) run through the real machinery (papermill, kernels,
+nbconvert, rerun rrd verify) into a temporary reports folder; and the conventions of notebooks/."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from hsmap.cli import main
+from hsmap.errors import ConfigError, InputError
+from hsmap.reproduce import discover, load_parameters_file, parse_value, run_study, select
+from hsmap.viz.report import format_duration, format_value, headline_rows, render_index
+
+HERE = Path(__file__).parent
+DATA = HERE / "data" / "notebooks"
+REPO = HERE.parent
+STUDY_NOTEBOOKS = sorted((REPO / "notebooks").glob("*.ipynb"))
+
+
+def hsmap(*args, timeout=600):
+    env = dict(os.environ, RERUN_ANALYTICS="0")
+    return subprocess.run([sys.executable, "-m", "hsmap.cli", *map(str, args)], capture_output=True,
+                          text=True, env=env, timeout=timeout)
+
+
+def read_nb(path):
+    return json.loads(Path(path).read_text(encoding="utf-8"))
+
+
+def every_file(folder):
+    return sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file())
+
+
+# --- the batch -------------------------------------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_batch_runs_every_notebook_and_marks_the_failures(tmp_path):
+    nbdir = tmp_path / "notebooks"
+    shutil.copytree(DATA, nbdir)
+    shutil.copy(REPO / "notebooks" / "template.ipynb", nbdir / "05-template.ipynb")
+    shutil.copy(DATA / "03-second.ipynb", nbdir / "scratch.ipynb")  # not NN-name: not part of the study
+    out = tmp_path / "reports"
+    # outputs of an earlier run that must not survive: a failing notebook must never look complete
+    (out / "02-fails").mkdir(parents=True)
+    (out / "02-fails" / "metrics.json").write_text('{"metrics": {"stale": 1}}')
+    (out / "02-fails" / "old-figure.png").write_bytes(b"old")
+    (out / "02-fails.html").write_text("<html>an old report that looked complete</html>")
+    params = tmp_path / "params.yaml"
+    params.write_text("notebooks:\n  good: {repeat: 3}\n")
+
+    r = hsmap("reproduce", "--notebooks", nbdir, "--out", out, "--jobs", "2", "-p", "label", "from-cli",
+              "--parameters-file", params)
+
+    # a failing notebook does not stop the others; the command fails at the end and names the failures
+    assert r.returncode == 1, r.stdout + r.stderr
+    assert "failed: 02-fails, 04-bad-recording" in r.stderr
+    index = json.loads((out / "index.json").read_text())
+    status = {e["name"]: e["status"] for e in index["notebooks"]}
+    assert status == {"01-good": "ok", "02-fails": "failed", "03-second": "ok", "04-bad-recording": "failed",
+                      "05-template": "ok"}
+    assert index["final"] is True and index["jobs"] == 2 and index["quick"] is False
+    entries = {e["name"]: e for e in index["notebooks"]}
+
+    # the good ones: executed notebook, HTML with the figure inline, metrics.json, figures, verified recordings
+    for name in ("01-good", "03-second", "05-template"):
+        html = (out / f"{name}.html").read_text()
+        assert "hsmap-banner ok" in html and "FAILED" not in html
+        assert "<details class=\"hsmap-code\">" in html  # code folded
+        assert (out / name / "metrics.json").is_file()
+        nb = read_nb(out / f"{name}.ipynb")
+        assert nb["metadata"]["hsmap"]["status"] == "ok"
+        assert entries[name]["duration_s"] > 0 and entries[name]["started"]
+    # the template's figure (inline in its HTML, as a PNG beside it) and its recording (verified)
+    assert "data:image/png;base64" in (out / "05-template.html").read_text()
+    assert entries["05-template"]["figures"] == ["05-template/paths.png"]
+    assert (out / "05-template" / "paths.png").read_bytes()[:4] == b"\x89PNG"
+    assert entries["05-template"]["recordings"] == ["05-template/paths.rrd"]
+    assert not entries["05-template"]["warnings"]
+
+    # parameters: quick and out_dir for all, -p for all, the parameters file for one notebook
+    good = json.loads((out / "01-good" / "metrics.json").read_text())["metrics"]
+    assert good == {"quick": False, "label": "from-cli", "repeat": 3, "error_m": pytest.approx(0.0375)}
+    assert json.loads((out / "03-second" / "metrics.json").read_text())["metrics"]["quick"] is False
+    injected = [c for c in read_nb(out / "01-good.ipynb")["cells"]
+                if "injected-parameters" in c["metadata"].get("tags", [])]
+    assert len(injected) == 1 and f'out_dir = "{out.resolve()}"' in "".join(injected[0]["source"])
+    assert entries["01-good"]["parameters"] == {"label": "from-cli", "repeat": 3, "quick": False,
+                                                "out_dir": str(out.resolve())}
+
+    # the failing notebook: marked failed everywhere, with its error; nothing stale left
+    e = entries["02-fails"]
+    assert "RuntimeError: deliberate failure in the test notebook" in e["error"]
+    html = (out / "02-fails.html").read_text()
+    assert "hsmap-banner failed" in html and "FAILED" in html and "deliberate failure" in html
+    assert "looked complete" not in html
+    assert html.count('<details class="hsmap-code" open') == 1  # the failing cell's code is shown
+    assert read_nb(out / "02-fails.ipynb")["metadata"]["hsmap"]["status"] == "failed"
+    assert json.loads((out / "02-fails" / "metrics.json").read_text())["metrics"] == {"before_failure": 1}
+    assert not (out / "02-fails" / "old-figure.png").exists()
+    assert "does not verify" in entries["04-bad-recording"]["error"]
+
+    # the index: every notebook, status, error, numbers beside the paper's, durations, versions
+    index_html = (out / "index.html").read_text()
+    for name in status:
+        assert f"id='{name}'" in index_html
+    assert "scratch" not in index_html
+    assert "deliberate failure in the test notebook" in index_html
+    assert "0.0375 m</td><td>0.03 m" in index_html  # ours beside the paper's
+    assert "FAILED: 2 of 5 notebooks failed" in index_html
+    for key in ("hsmap", "python", "numpy", "open3d", "rerun-sdk"):
+        assert index["versions"][key] and key in index_html
+    assert index["duration_s"] > 0
+
+    # nothing half-written: no temporaries anywhere
+    files = every_file(out)
+    assert not [f for f in files if Path(f).name.startswith(".")], files
+    assert sorted(f for f in files if "/" not in f) == sorted(
+        ["index.html", "index.json"] + [f"{n}.{s}" for n in status for s in ("html", "ipynb")])
+
+
+@pytest.mark.slow
+def test_only_runs_the_chosen_and_keeps_the_others_last_results(tmp_path):
+    nbdir = tmp_path / "notebooks"
+    nbdir.mkdir()
+    for name in ("02-fails.ipynb", "03-second.ipynb"):
+        shutil.copy(DATA / name, nbdir / name)
+    out = tmp_path / "reports"
+    lines = []
+    first = run_study(nbdir, out, only=["fails"], quick=True, log=lines.append)
+    assert not first.ok and [r.name for r in first.failed] == ["02-fails"]
+    second = run_study(nbdir, out, only=["03-second"], log=lines.append)
+    assert second.ok  # only what ran now decides the outcome
+    assert lines[-1].startswith("[1/1] 03-second: ok")
+    index = json.loads((out / "index.json").read_text())
+    assert index["ran"] == ["03-second"] and index["quick"] is False
+    entries = {e["name"]: e for e in index["notebooks"]}
+    assert entries["02-fails"]["status"] == "failed"  # from the first run, still shown
+    assert entries["02-fails"]["parameters"]["quick"] is True
+    assert json.loads((out / "03-second" / "metrics.json").read_text())["metrics"]["quick"] is False
+    page = (out / "index.html").read_text()
+    assert "(from an earlier run)" in page and "complete: all 1 notebooks ok" in page
+
+
+def test_list_prints_parameters(capsys):
+    assert main(["reproduce", "--notebooks", str(DATA), "--list"]) == 0
+    out = capsys.readouterr().out
+    assert "01-good  (A good test notebook)" in out
+    assert "    quick: bool = False" in out
+    assert "    repeat: int = 1" in out
+
+
+def test_bad_invocations_fail_with_one_line(tmp_path, capsys):
+    def fails(*args):
+        assert main(["reproduce", "--out", str(tmp_path / "r"), *map(str, args)]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("hsmap: error:") and err.count("\n") == 1
+        return err
+
+    assert "does not exist" in fails("--notebooks", tmp_path / "missing")
+    assert "01-good" in fails("--notebooks", DATA, "--only", "99-nothing")  # lists the notebooks there are
+    assert "--quick" in fails("--notebooks", DATA, "-p", "quick", "true")
+    assert "jobs" in fails("--notebooks", DATA, "--jobs", "0")
+    assert "matches no notebook" in fails("--notebooks", DATA, "--parameters-file",
+                                          _write(tmp_path / "p.yaml", "notebooks: {nothing: {a: 1}}\n"))
+    assert not (tmp_path / "r").exists() or not any((tmp_path / "r").iterdir())
+
+
+def _write(path, text):
+    path.write_text(text)
+    return path
+
+
+# --- pieces ----------------------------------------------------------------------------------------------
+
+
+def test_discover_and_select(tmp_path):
+    for name in ("02-b.ipynb", "01-a.ipynb", "10-c-d.ipynb", "scratch.ipynb", "1-x.ipynb", "03-B.ipynb"):
+        (tmp_path / name).write_text("{}")
+    specs = discover(tmp_path)
+    assert [s.name for s in specs] == ["01-a", "02-b", "10-c-d"]
+    assert [s.name for s in select(specs, ["c-d", "1", "02-b.ipynb"])] == ["01-a", "02-b", "10-c-d"]
+    assert select(specs, None) == specs
+    with pytest.raises(InputError, match="01-a, 02-b, 10-c-d"):
+        select(specs, ["zz"])
+
+
+def test_parameters_file(tmp_path):
+    p = tmp_path / "p.yaml"
+    p.write_text("parameters: {seed: 2}\nnotebooks:\n  03-slam: {n_scans: 60}\n")
+    assert load_parameters_file(p) == ({"seed": 2}, {"03-slam": {"n_scans": 60}})
+    p.write_text("seed: 2\n")
+    with pytest.raises(ConfigError, match="seed"):
+        load_parameters_file(p)
+    p.write_text("notebooks: {a: 3}\n")
+    with pytest.raises(ConfigError, match="notebooks"):
+        load_parameters_file(p)
+    with pytest.raises(ConfigError, match="cannot read"):
+        load_parameters_file(tmp_path / "missing.yaml")
+    assert parse_value("true") is True and parse_value("0.5") == 0.5 and parse_value("abc") == "abc"
+    assert parse_value("[1, 2]") == [1, 2]
+
+
+def test_index_escapes_errors_and_shows_states():
+    entries = [
+        {"name": "01-a", "title": "A", "status": "ok", "duration_s": 75.0, "html": "01-a.html",
+         "metrics": {"metrics": {"p": 0.84531, "n": 3}, "paper": {"p": 0.8453}, "units": {}}},
+        {"name": "02-b", "status": "failed", "error": "ValueError: <script>alert(1)</script>", "error_cell": 4},
+        {"name": "03-c", "status": "not run"},
+    ]
+    page = render_index(entries, {"started": "2026-01-01T00:00:00", "duration_s": 3700, "final": True,
+                                  "ran": ["01-a", "02-b"], "versions": {"hsmap": "0.1.0"}})
+    assert "<script>alert" not in page and "&lt;script&gt;" in page
+    assert "FAILED: 1 of 2 notebooks failed, 1 ok" in page
+    assert "0.8453</td><td>0.8453" in page and "1 min 15 s" in page and "1 h 01 min" in page
+    running = render_index(entries[:1], {"final": False, "ran": ["01-a"]})
+    assert "in progress" in running and "http-equiv='refresh'" in running
+    assert format_duration(None) == "-" and format_value(None) == "-" and format_value(1e-5) == "1.000e-05"
+    assert headline_rows({"metrics": {"a": 1, "b": {"x": 1}}, "paper": {}}) == [("a", 1, None, "")]
+
+
+# --- the study notebooks' conventions --------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("path", STUDY_NOTEBOOKS, ids=[p.name for p in STUDY_NOTEBOOKS])
+def test_study_notebooks_are_committed_clean_with_one_parameters_cell(path):
+    nb = read_nb(path)
+    code = [c for c in nb["cells"] if c["cell_type"] == "code"]
+    with_outputs = [i for i, c in enumerate(code) if c.get("outputs") or c.get("execution_count") is not None]
+    assert not with_outputs, f"{path.name}: code cells {with_outputs} have outputs; clear them before committing"
+    tagged = [c for c in nb["cells"] if "parameters" in c.get("metadata", {}).get("tags", [])]
+    assert len(tagged) == 1, f"{path.name}: {len(tagged)} cells tagged 'parameters', need exactly one"
+    assert tagged[0]["cell_type"] == "code"
+    src = "".join(tagged[0]["source"])
+    assert "quick: bool = False" in src and "out_dir: str = " in src, (
+        f"{path.name}: the parameters cell must declare 'quick: bool = False' and 'out_dir: str = ...'")
+    first = nb["cells"][0]
+    assert first["cell_type"] == "markdown" and "".join(first["source"]).startswith("# "), (
+        f"{path.name}: the first cell must be a Markdown title '# NN: ...'")
+
+
+def test_an_interrupted_run_leaves_no_temporaries_and_says_so(tmp_path, monkeypatch):
+    import papermill
+
+    import hsmap.reproduce as rp
+
+    nbdir = tmp_path / "notebooks"
+    nbdir.mkdir()
+    for name in ("02-fails.ipynb", "03-second.ipynb"):
+        shutil.copy(DATA / name, nbdir / name)
+    out = tmp_path / "reports"
+    out.mkdir()
+    (out / ".03-second.abc.running.ipynb").write_text("{}")  # left by a killed run
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(papermill, "execute_notebook", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        run_study(nbdir, out, log=None)
+    index = json.loads((out / "index.json").read_text())
+    assert index["final"] is True
+    assert [e["status"] for e in index["notebooks"]] == ["interrupted", "interrupted"]
+    assert "FAILED: 2 of 2 notebooks failed" in (out / "index.html").read_text()
+    assert every_file(out) == ["index.html", "index.json"]
+
+    calls = []
+
+    def fake_worker(spec, *args):
+        calls.append(spec.name)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return rp.NotebookRun(name=spec.name, notebook=str(spec.path), status="ok", duration_s=1.0).to_dict()
+
+    monkeypatch.setattr(rp, "_worker", fake_worker)
+    with pytest.raises(KeyboardInterrupt):
+        run_study(nbdir, out, log=None)
+    index = json.loads((out / "index.json").read_text())
+    assert [e["status"] for e in index["notebooks"]] == ["ok", "interrupted"]

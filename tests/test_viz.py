@@ -1,0 +1,427 @@
+"""hsmap.viz: rerun recordings (written atomically, verified by `rerun rrd verify`, holding what they should
+where they should), matplotlib figures in world metres, the Study helper notebooks write through."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import networkx as nx
+import numpy as np
+import pytest
+
+from hsmap.datasets import Frame, LaserScan2D
+from hsmap.errors import ConfigError, DataFormatError, InputError, ShapeError
+from hsmap.geometry import quaternion_to_matrix
+from hsmap.grid import GridGeometry
+from hsmap.io import Trajectory
+from hsmap.viz import figures
+from hsmap.viz import rerun as hr
+from hsmap.viz.colors import label_color, label_colors
+from hsmap.viz.occupancy import occupancy_to_image, occupancy_to_ros
+from hsmap.viz.report import NOTEBOOK_ENV, Study
+
+needs_rerun_binary = pytest.mark.skipif(hr.rerun_binary() is None,
+                                        reason="the rerun command-line tool is not installed")
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def two_rooms():
+    """A 4 m x 10 m floor at 5 cm: two rooms split by a wall at x = 5 m with a 1 m doorway."""
+    geo = GridGeometry((80, 200), 0.05, (-1.0, -2.0))  # x in [-1, 9], y in [-2, 2]
+    occ = np.zeros(geo.shape, bool)
+    occ[[0, -1], :] = True
+    occ[:, [0, -1]] = True
+    wall_col = geo.world_to_index([5.0, 0.0])[1]
+    occ[:, wall_col] = True
+    r0, r1 = geo.world_to_index([5.0, 0.5])[0], geo.world_to_index([5.0, -0.5])[0]
+    occ[r0:r1 + 1, wall_col] = False
+    lab = np.zeros(geo.shape, np.uint16)
+    lab[1:-1, 1:wall_col] = 1
+    lab[1:-1, wall_col + 1:-1] = 2
+    g = nx.Graph()
+    g.add_node(1, kind="room", centroid=(2.0, 0.0), area=23.0, label=1)
+    g.add_node(2, kind="room", centroid=(7.0, 0.0), area=15.0, label=2)
+    g.add_node("d1", kind="door", centroid=(5.0, 0.0))
+    g.add_edge(1, "d1", distance=3.0)
+    g.add_edge("d1", 2, distance=2.0)
+    return geo, occ, lab, g
+
+
+# --- recordings ------------------------------------------------------------------------------------------
+
+
+def test_recording_appears_only_when_closed(tmp_path):
+    path = tmp_path / "run.rrd"
+    rec = hr.open_recording(path)
+    hr.set_frame_time(rec, 0, 0.0)
+    hr.log_robot_pose(rec, [0.0, 0.0, 0.0])
+    assert not path.exists(), "a recording must not appear under its name before it is complete"
+    assert rec.close() == path and path.stat().st_size > 0
+    assert rec.close() == path  # idempotent
+    assert [p.name for p in tmp_path.iterdir()] == ["run.rrd"]
+    assert oct(path.stat().st_mode & 0o777) != oct(0o600), "reports must be readable like any other file"
+
+
+def test_recording_aborted_by_an_error_leaves_nothing(tmp_path):
+    path = tmp_path / "run.rrd"
+    with pytest.raises(RuntimeError), hr.open_recording(path) as rec:
+        hr.log_robot_pose(rec, [0.0, 0.0, 0.0])
+        raise RuntimeError("stage failed")
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(InputError, match=r"\.rrd"):
+        hr.Recording(tmp_path / "run.bin")
+
+
+@needs_rerun_binary
+def test_full_scene_recording_verifies_and_holds_each_part(tmp_path):
+    geo, occ, lab, g = two_rooms()
+    n = 25
+    stamps = 0.1 * np.arange(n)
+    truth = np.column_stack([np.linspace(0, 8, n), 0.3 * np.sin(np.linspace(0, 3, n)), np.linspace(0, 0.5, n)])
+    angles = np.linspace(-2.35, 2.35, 1081)
+    rng = np.random.default_rng(0)
+    with hr.open_recording(tmp_path / "scene.rrd") as rec:
+        hr.log_occupancy_grid(rec, occ, geo)
+        hr.log_room_labels(rec, lab, geo, names={1: "office", 2: "lab"})
+        hr.log_room_graph(rec, g, geometry=geo)
+        hr.log_path(rec, "groundtruth", truth)
+        hr.log_map2d_path(rec, "groundtruth", truth, geo)
+        pm = hr.PointMapLogger(rec, block=10)
+        for i in range(n):
+            f = Frame(stamp=stamps[i], scan2d=LaserScan2D(np.full(1081, 2.0), angles, 0.1, 10.0),
+                      cloud3d=rng.normal(size=(3000, 3)), index=i, extrinsic2d=np.array([0.2, 0.0, 0.0]),
+                      extrinsic3d=np.array([0.0, 0.0, 1.6, 0.0, 0.0, 0.0]))
+            hr.log_frame(rec, f, truth[i], lidar2d_height=0.2)
+            pts = f.scan2d.points()
+            pm.add(np.column_stack([pts + truth[i, :2], np.full(len(pts), 0.2)]))
+        pm.flush()
+        hr.log_trajectory(rec, Trajectory(stamps, truth), name="estimate", robot_entity="world/estimate_robot")
+    out = hr.verify_rrd(tmp_path / "scene.rrd")
+    assert "verified" in out
+    c = hr.recording_contents(tmp_path / "scene.rrd")
+    expect = {
+        "/world": "ViewCoordinates:xyz",
+        "/world/robot": "Transform3D:translation",
+        "/world/robot/lidar2d": "Transform3D:translation",
+        "/world/robot/lidar2d/scan": "Points3D:positions",
+        "/world/robot/lidar3d/cloud": "Points3D:positions",
+        "/world/map/occupancy": "GridMap:data",
+        "/world/map/rooms": "GridMap:data",
+        "/world/map/graph/nodes": "Points3D:positions",
+        "/world/map/graph/edges": "LineStrips3D:strips",
+        "/world/trajectory/groundtruth": "LineStrips3D:strips",
+        "/world/trajectory/estimate": "LineStrips3D:strips",
+        "/map/occupancy": "Image:buffer",
+        "/map/rooms": "SegmentationImage:buffer",
+        "/map/paths/groundtruth": "LineStrips2D:strips",
+        "/graph": "GraphNodes:node_ids",
+    }
+    for entity, column in expect.items():
+        assert entity in c and column in c[entity]["columns"], f"{entity} lacks {column}"
+    assert "AnnotationContext:context" in c["/map/rooms"]["columns"]
+    assert "GraphEdges:edges" in c["/graph"]["columns"]
+    assert c["/world/robot"]["rows"] >= n  # one pose per scan on the timelines
+    assert c["/world/estimate_robot"]["rows"] == n
+    blocks = sorted(e for e in c if e.startswith("/world/map/points/"))
+    assert blocks == [f"/world/map/points/{k:04d}" for k in range(3)]  # 25 scans in blocks of 10
+    assert any(e.startswith("/view/") for e in c), "the default blueprint is stored with the recording"
+
+
+@needs_rerun_binary
+def test_verify_rejects_a_broken_recording(tmp_path):
+    bad = tmp_path / "bad.rrd"
+    bad.write_bytes(b"not a recording at all")
+    with pytest.raises(DataFormatError, match="rrd verify"):
+        hr.verify_rrd(bad)
+    good = tmp_path / "good.rrd"
+    with hr.open_recording(good) as rec:
+        hr.log_robot_pose(rec, [1.0, 2.0, 0.3])
+    truncated = tmp_path / "truncated.rrd"
+    truncated.write_bytes(good.read_bytes()[: good.stat().st_size // 2])
+    with pytest.raises(DataFormatError):
+        hr.verify_rrd(truncated)
+    with pytest.raises(DataFormatError, match="no such"):
+        hr.verify_rrd(tmp_path / "missing.rrd")
+
+
+class Spy:
+    """Collects what is logged on a recording stream (and forwards it)."""
+
+    def __init__(self, rec, monkeypatch):
+        self.logged = []
+        orig = rec.stream.log
+
+        def log(entity, *archetypes, **kw):
+            self.logged.append((entity, archetypes, kw))
+            return orig(entity, *archetypes, **kw)
+
+        monkeypatch.setattr(rec.stream, "log", log)
+
+    def get(self, entity, cls):
+        hits = [a for e, arch, _ in self.logged if e == entity for a in arch if isinstance(a, cls)]
+        assert hits, f"nothing of type {cls.__name__} logged at {entity}"
+        return hits[-1]
+
+
+def test_grid_and_labels_are_placed_by_their_geometry(tmp_path, monkeypatch):
+    import rerun as rr
+
+    geo, occ, lab, g = two_rooms()
+    with hr.open_recording(tmp_path / "grid.rrd") as rec:
+        spy = Spy(rec, monkeypatch)
+        hr.log_occupancy_grid(rec, occ, geo, z=0.0)
+        hr.log_room_labels(rec, lab, geo)
+        hr.log_room_graph(rec, g, geometry=geo, scale=10.0)
+    gm = spy.get("world/map/occupancy", rr.GridMap)
+    # the lower-left corner of the lower-left pixel sits at the grid's origin, one cell = one pixel
+    assert gm.translation.pa_array.to_pylist() == [[-1.0, -2.0, 0.0]]
+    assert gm.cell_size.pa_array.to_pylist()[0] == pytest.approx(0.05)
+    data = np.array(gm.data.pa_array.to_pylist()[0], np.uint8).reshape(geo.shape)
+    np.testing.assert_array_equal(data, np.where(occ, 100, 0))  # row 0 = top row, as rerun draws it
+    rooms = spy.get("world/map/rooms", rr.GridMap)
+    assert rooms.translation.pa_array.to_pylist()[0][:2] == [-1.0, -2.0]
+    rgba = np.array(rooms.data.pa_array.to_pylist()[0], np.uint8).reshape(geo.shape + (4,))
+    np.testing.assert_array_equal(rgba[40, 50, :3], label_color(1))
+    np.testing.assert_array_equal(rgba[40, 150, :3], label_color(2))
+    assert rgba[0, 0, 3] == 0  # no room: transparent
+    ctx = spy.get("map/rooms", rr.AnnotationContext)
+    assert "room 2" in str(ctx.context.pa_array.to_pylist())
+    seg = spy.get("map/rooms", rr.SegmentationImage)
+    assert seg.format.pa_array.to_pylist()[0]["width"] == 200
+    # the graph view shows the map from above: world (x, -y) * scale
+    nodes = spy.get("graph", rr.GraphNodes)
+    ids = nodes.node_ids.pa_array.to_pylist()
+    pos = dict(zip(ids, nodes.positions.pa_array.to_pylist(), strict=True))
+    assert pos["1"] == pytest.approx([20.0, -0.0]) and pos["d1"] == pytest.approx([50.0, -0.0])
+    edges = spy.get("graph", rr.GraphEdges).edges.pa_array.to_pylist()
+    assert sorted(map(sorted, ([e["first"], e["second"]] if isinstance(e, dict) else e for e in edges))) == [
+        ["1", "d1"], ["2", "d1"]]
+    # over the 2D map, in pixel coordinates: room 1's centroid (2, 0) is at column 60, row 40
+    p2 = spy.get("map/graph/nodes", rr.Points2D).positions.pa_array.to_pylist()
+    assert p2[0] == pytest.approx([60.0, 40.0])
+
+
+def test_poses_become_transforms(tmp_path, monkeypatch):
+    import rerun as rr
+
+    with hr.open_recording(tmp_path / "p.rrd") as rec:
+        spy = Spy(rec, monkeypatch)
+        hr.log_robot_pose(rec, [1.0, 2.0, np.pi / 2])
+        hr.log_sensor_rig(rec, extrinsic2d=[0.3, 0.0, 0.0], extrinsic3d=[0.0, 0.1, 1.6, 0.0, 0.0, np.pi],
+                          lidar2d_height=0.2)
+    t = spy.get("world/robot", rr.Transform3D)
+    assert t.translation.pa_array.to_pylist() == [[1.0, 2.0, 0.0]]
+    q = np.array(t.quaternion.pa_array.to_pylist()[0])
+    R = quaternion_to_matrix(q)
+    np.testing.assert_allclose(R @ [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], atol=1e-6)  # yaw 90 deg: x -> y
+    l2 = spy.get("world/robot/lidar2d", rr.Transform3D)
+    assert l2.translation.pa_array.to_pylist()[0] == pytest.approx([0.3, 0.0, 0.2])
+    l3 = spy.get("world/robot/lidar3d", rr.Transform3D)
+    assert l3.translation.pa_array.to_pylist()[0] == pytest.approx([0.0, 0.1, 1.6])
+
+
+def test_bad_inputs_are_named(tmp_path):
+    geo, occ, lab, g = two_rooms()
+    with hr.open_recording(tmp_path / "x.rrd") as rec:
+        with pytest.raises(ShapeError, match="GridGeometry"):
+            hr.log_occupancy_grid(rec, occ[:-1], geo)
+        with pytest.raises(ShapeError, match="pose"):
+            hr.log_robot_pose(rec, [1.0, 2.0])
+        with pytest.raises(InputError, match="NaN"):
+            hr.log_robot_pose(rec, [np.nan, 0.0, 0.0])
+        with pytest.raises(ShapeError, match="points"):
+            hr.log_scan2d(rec, np.zeros((5, 4)))
+        g2 = g.copy()
+        g2.add_node("d9", kind="door")
+        with pytest.raises(InputError, match="d9.*centroid"):
+            hr.log_room_graph(rec, g2)
+        with pytest.raises(InputError, match="convention"):
+            hr.log_occupancy_grid(rec, occ.astype(np.int32), geo)
+        with pytest.raises(InputError, match="networkx"):
+            hr.log_room_graph(rec, {"a": 1})
+    with pytest.raises(Exception, match="closed"):
+        hr.log_robot_pose(rec, [0.0, 0.0, 0.0])
+
+
+def test_unix_stamps_use_a_timestamp_timeline(tmp_path, monkeypatch):
+    calls = []
+    with hr.open_recording(tmp_path / "t.rrd") as rec:
+        monkeypatch.setattr(rec.stream, "set_time", lambda name, **kw: calls.append((name, kw)))
+        hr.set_frame_time(rec, 3, 12.5)
+        hr.set_frame_time(rec, 4, 1.7e9)
+    assert calls == [("scan", {"sequence": 3}), ("time", {"duration": 12.5}),
+                     ("scan", {"sequence": 4}), ("time", {"timestamp": 1.7e9})]
+
+
+def test_point_map_blocks_and_voxels():
+    pts = np.array([[0.01, 0.01, 0.0], [0.02, 0.02, 0.0], [0.5, 0.0, 0.0], [0.51, 0.01, 0.0]])
+    np.testing.assert_array_equal(hr.voxel_downsample(pts, 0.1), pts[[0, 2]])
+    with pytest.raises(InputError):
+        hr.voxel_downsample(pts, 0.0)
+    with pytest.raises(InputError, match="block"):
+        hr.PointMapLogger(None, block=0)
+
+
+def test_occupancy_conventions_agree():
+    occ = np.array([[True, False]])
+    prob = np.array([[1.0, 0.0], [np.nan, 0.5]])
+    img = np.array([[0, 254], [205, 127]], np.uint8)
+    ros = np.array([[100, 0], [-1, 50]], np.int8)
+    np.testing.assert_array_equal(occupancy_to_ros(occ), [[100, 0]])
+    np.testing.assert_array_equal(occupancy_to_ros(prob), [[100, 0], [255, 50]])
+    np.testing.assert_array_equal(occupancy_to_ros(img), [[100, 0], [255, 50]])
+    np.testing.assert_array_equal(occupancy_to_ros(ros), [[100, 0], [255, 50]])
+    np.testing.assert_array_equal(occupancy_to_image(ros), [[0, 254], [205, 127]])
+    with pytest.raises(InputError, match=r"\[0, 1\]"):
+        occupancy_to_ros(np.array([[1.5]]))
+    with pytest.raises(InputError, match="-1..100"):
+        occupancy_to_ros(np.array([[101]], np.int8))
+
+
+def test_label_colours_are_stable_and_transparent_on_background():
+    lab = np.array([[0, 1, 2, 21]])
+    rgba = label_colors(lab)
+    assert rgba[0, 0, 3] == 0 and np.all(rgba[0, 1:, 3] == 255)
+    assert tuple(rgba[0, 1, :3]) == label_color(1) != label_color(2)
+    assert label_color(21) == label_color(1)  # the palette cycles after 20 labels
+    with pytest.raises(InputError):
+        label_colors(np.array([[0.5]]))
+
+
+def test_blueprint_views():
+    import rerun.blueprint as rrb
+
+    assert isinstance(hr.default_blueprint(), rrb.Blueprint)
+    assert isinstance(hr.default_blueprint(map2d=False, graph=False), rrb.Blueprint)
+    with pytest.raises(InputError):
+        hr.default_blueprint(view3d=False, map2d=False, graph=False)
+
+
+# --- figures ---------------------------------------------------------------------------------------------
+
+
+def _png_size(path):
+    from PIL import Image
+
+    with Image.open(path) as im:
+        return im.size
+
+
+def test_figures_render_in_world_metres(tmp_path):
+    geo, occ, lab, g = two_rooms()
+    t = np.linspace(0, 2 * np.pi, 50)
+    truth = Trajectory(t, np.column_stack([3 * np.cos(t), 1.5 * np.sin(t), t]))
+    odo = truth.poses + [0.2, 0.1, 0.0]
+    ax = figures.plot_trajectories({"odometry": odo, "HS-SLAM": truth}, groundtruth=truth, title="paths")
+    assert [line.get_label() for line in ax.get_lines() if not line.get_label().startswith("_")] == [
+        "ground truth", "odometry", "HS-SLAM"]
+    ax.figure.savefig(tmp_path / "paths.png")
+
+    ax = figures.plot_labels(lab, geo, base=occ, names={1: "office"})
+    assert ax.images[0].get_extent() == pytest.approx(list(geo.extent()))
+    texts = sorted(t.get_text() for t in ax.texts)
+    assert texts == ["2", "office"]
+    x, y = next(t.get_position() for t in ax.texts if t.get_text() == "office")
+    assert x == pytest.approx(2.0, abs=0.1) and y == pytest.approx(0.0, abs=0.1)  # centre of room 1
+    figures.plot_graph(g, ax=ax)
+    figures.plot_segments([[[5.0, -0.5], [5.0, 0.5]]], ax=ax, labels=["door"])
+    ax.figure.savefig(tmp_path / "rooms.png")
+
+    ax = figures.plot_grid(occ, geo, title="grid")
+    img = ax.images[0].get_array()
+    assert img[0, 0] == 0 and img[40, 50] == 254  # wall black, free white
+    ax.figure.savefig(tmp_path / "grid.png")
+
+    rng = np.random.default_rng(1)
+    cloud = np.column_stack([rng.uniform(0, 10, 5000), rng.uniform(0, 4, 5000), rng.uniform(0, 2.5, 5000)])
+    fig = figures.plot_cloud_views(cloud, views=("top", "side"), title="map")
+    assert [a.get_title() for a in fig.axes[:2]] == ["top view", "side view"]
+    fig.savefig(tmp_path / "cloud.png")
+
+    fig = figures.plot_errors({"x": rng.normal(0, 0.01, 30), "yaw": rng.normal(0, 0.5, 30)},
+                              units={"x": "m", "yaw": "deg"}, limits={"x": 0.03})
+    fig.savefig(tmp_path / "errors.png")
+    ax = figures.plot_points2d(cloud, title="points")
+    ax.figure.savefig(tmp_path / "points.png")
+    for name in ("paths", "rooms", "grid", "cloud", "errors", "points"):
+        p = tmp_path / f"{name}.png"
+        assert p.read_bytes()[:8] == PNG_MAGIC
+        w, h = _png_size(p)
+        assert w > 200 and h > 150
+
+
+def test_figure_inputs_are_checked():
+    geo, occ, lab, g = two_rooms()
+    with pytest.raises(ShapeError, match="GridGeometry"):
+        figures.plot_labels(lab[:, :-1], geo)
+    with pytest.raises(ShapeError):
+        figures.plot_cloud_views(np.zeros((10, 2)))
+    with pytest.raises(InputError, match="views"):
+        figures.plot_cloud_views(np.zeros((10, 3)), views=("bottom",))
+    with pytest.raises(ShapeError, match=r"\(N, 2, 2\)"):
+        figures.plot_segments(np.zeros((3, 2)))
+    with pytest.raises(InputError):
+        figures.plot_errors({})
+
+
+# --- the Study helper ------------------------------------------------------------------------------------
+
+
+@pytest.fixture
+def no_notebook_env(monkeypatch):
+    monkeypatch.delenv(NOTEBOOK_ENV, raising=False)
+    monkeypatch.delenv("JPY_SESSION_NAME", raising=False)
+
+
+def test_study_writes_metrics_beside_the_paper(tmp_path, no_notebook_env):
+    study = Study(tmp_path, "07-occlusion")
+    assert study.dir == tmp_path / "07-occlusion" and study.dir.is_dir()
+    table = study.metrics({"precision": np.float64(0.84), "recall": 0.5}, paper={"precision": 0.8453},
+                          units={"precision": ""})
+    study.metrics({"recall": 0.61, "per_map": {"a": [1, 2]}}, paper={"recall": 0.4838}, notes="quick")
+    doc = json.loads((study.dir / "metrics.json").read_text())
+    assert doc["metrics"] == {"precision": 0.84, "recall": 0.61, "per_map": {"a": [1, 2]}}
+    assert doc["paper"] == {"precision": 0.8453, "recall": 0.4838}
+    assert doc["notes"] == "quick" and doc["notebook"] == "07-occlusion"
+    assert "0.8453" in table._repr_html_() and "precision" in repr(table)
+    with pytest.raises(InputError, match="headline"):
+        study.metrics(headline=["nonexistent"])
+    with pytest.raises(InputError, match="JSON"):
+        study.metrics({"bad": object()})
+    assert [p.name for p in study.dir.iterdir()] == ["metrics.json"]  # nothing half-written
+
+
+def test_study_name_comes_from_the_runner_and_must_agree(tmp_path, no_notebook_env, monkeypatch):
+    with pytest.raises(ConfigError, match="name"):
+        Study(tmp_path)
+    monkeypatch.setenv(NOTEBOOK_ENV, "03-slam-6dof")
+    assert Study(tmp_path).name == "03-slam-6dof"
+    assert Study(tmp_path, "03-slam-6dof").name == "03-slam-6dof"
+    with pytest.raises(ConfigError, match="03-slam-6dof"):
+        Study(tmp_path, "03-old-name")
+    monkeypatch.delenv(NOTEBOOK_ENV)
+    monkeypatch.setenv("JPY_SESSION_NAME", "/home/u/notebooks/05-voronoi-steps.ipynb")
+    assert Study(tmp_path).name == "05-voronoi-steps"
+    with pytest.raises(InputError):
+        Study(tmp_path, "../escape")
+
+
+def test_study_savefig_and_recording(tmp_path, no_notebook_env):
+    study = Study(tmp_path, "01-x")
+    fig, ax = figures.new_figure()
+    ax.plot([0, 1], [1, 0])
+    assert study.savefig(fig, "curve") is None
+    assert (study.dir / "curve.png").read_bytes()[:8] == PNG_MAGIC
+    assert study.figures == [study.dir / "curve.png"]
+    with pytest.raises(InputError):
+        study.savefig(fig, "curve.png")
+    rec = study.recording("run")
+    hr.log_robot_pose(rec, [0.0, 0.0, 0.0])
+    assert not (study.dir / "run.rrd").exists()
+    assert study.close() == [study.dir / "run.rrd"]
+    assert (study.dir / "run.rrd").stat().st_size > 0
+    assert rec.application_id == "hsmap_01-x"
+    assert sorted(p.name for p in study.dir.iterdir()) == ["curve.png", "run.rrd"]
+    assert os.access(study.dir / "curve.png", os.R_OK)

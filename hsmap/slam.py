@@ -102,8 +102,8 @@ class SlamConfig:
     map_voxel: float | None = None
     scan_voxel: float | None = None
     local_map_radius: float = 20.0
-    keyframe_distance: float = 0.25
-    keyframe_angle: float = np.deg2rad(10.0)
+    keyframe_distance: float = 0.5
+    keyframe_angle: float = np.deg2rad(15.0)
     min_range: float = 0.1
     max_range: float = 30.0
 
@@ -421,7 +421,8 @@ def run_slam(
     from tqdm.auto import tqdm
 
     slam = HsSlam(config, rng=rng, initial_pose=initial_pose, prior=prior)
-    frames = dataset.frames() if isinstance(dataset, Dataset) else iter(dataset)
+    dof = slam.config.dof
+    frames = dataset.frames(clouds=dof == 6) if isinstance(dataset, Dataset) else iter(dataset)
     total = len(dataset) if isinstance(dataset, Dataset) else None
     if max_frames is not None:
         total = min(total, max_frames) if total is not None else max_frames

@@ -144,3 +144,44 @@ def sensor_cloud(world_points: NDArray[np.float64], sensor_pose: NDArray[np.floa
     """World points expressed in the frame of a sensor at ``sensor_pose``."""
     T = np.linalg.inv(pose_to_matrix(sensor_pose))
     return transform_points(T, world_points)
+
+
+def office_segments() -> NDArray[np.float64]:
+    """Segments of two furnished 5 m x 4 m rooms joined by a 1.5 m wide corridor through two 0.9 m doors."""
+    walls = np.array([
+        # room A: x 0..5, y 0..4, door on its east wall at y 1.55..2.45
+        [[0, 0], [5, 0]], [[0, 0], [0, 4]], [[0, 4], [5, 4]], [[5, 0], [5, 1.55]], [[5, 2.45], [5, 4]],
+        # corridor: x 5..9, y 1.25..2.75
+        [[5, 1.25], [9, 1.25]], [[5, 2.75], [9, 2.75]],
+        # room B: x 9..15, y -1..5, door on its west wall at y 1.55..2.45
+        [[9, -1], [15, -1]], [[15, -1], [15, 5]], [[9, 5], [15, 5]], [[9, -1], [9, 1.55]], [[9, 2.45], [9, 5]],
+    ], dtype=float)
+    furniture = [
+        _box_segments(1.0, 3.2, 1.4, 0.8),
+        _box_segments(3.8, 0.6, 1.2, 0.6, 0.2),
+        _box_segments(11.0, 4.0, 2.0, 0.8),
+        _box_segments(13.8, 0.5, 0.8, 1.6, -0.3),
+        _box_segments(12.0, 1.0, 0.6, 0.6),
+    ]
+    return np.concatenate([walls, *furniture])
+
+
+def office_route(step: float = 0.2, turn_step: float = np.deg2rad(10)) -> NDArray[np.float64]:
+    """Poses (x, y, yaw) every ``step`` metres (and ``turn_step`` when turning on the spot) through
+    :func:`office_segments`: round room A, through the corridor, round room B and back to the corridor."""
+    waypoints = np.array([[1.5, 1.5], [3.5, 2.0], [3.5, 3.0], [2.0, 2.0], [4.5, 2.0], [7.0, 2.0], [10.5, 2.0],
+                          [13.0, 2.5], [13.0, 3.8], [10.5, 3.0], [10.0, 1.0], [12.5, 2.0], [10.0, 2.0], [7.0, 2.0]])
+    poses = [np.array([*waypoints[0], np.arctan2(*(waypoints[1] - waypoints[0])[::-1])])]
+    for a, b in zip(waypoints[:-1], waypoints[1:], strict=True):
+        yaw = np.arctan2(b[1] - a[1], b[0] - a[0])
+        cur = poses[-1][2]
+        dyaw = (yaw - cur + np.pi) % (2 * np.pi) - np.pi
+        for k in range(1, int(np.ceil(abs(dyaw) / turn_step)) + 1):  # turn on the spot
+            poses.append(np.array([a[0], a[1], cur + dyaw * min(1.0, k * turn_step / abs(dyaw))]))
+        n = int(np.ceil(np.linalg.norm(b - a) / step))
+        for k in range(1, n + 1):
+            p = a + (b - a) * k / n
+            poses.append(np.array([p[0], p[1], yaw]))
+    out = np.asarray(poses)
+    out[:, 2] = (out[:, 2] + np.pi) % (2 * np.pi) - np.pi
+    return out

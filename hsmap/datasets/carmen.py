@@ -267,8 +267,8 @@ class CarmenDataset(Dataset):
         r[~((r >= 0.0) & (r < thr))] = np.nan  # NaN, inf, negative, no return
         return LaserScan2D(ranges=r, angles=angles, range_min=0.0, range_max=thr)
 
-    def frames(self) -> Iterator[Frame]:
-        """Yield one frame per laser message, in log order."""
+    def frames(self, clouds: bool = True) -> Iterator[Frame]:
+        """Yield one frame per laser message, in log order (CARMEN logs have no 3D clouds)."""
         for k in range(len(self.stamps)):
             yield Frame(
                 stamp=float(self.stamps[k]),

@@ -90,6 +90,6 @@ class Dataset:
     def __len__(self) -> int:
         raise NotImplementedError
 
-    def frames(self):  # -> Iterator[Frame]
-        """Yield the frames in recording order."""
+    def frames(self, clouds: bool = True):  # -> Iterator[Frame]
+        """Yield the frames in recording order; ``clouds=False`` may skip reading 3D clouds (faster 2D runs)."""
         raise NotImplementedError

@@ -638,10 +638,11 @@ class RosbagDataset(Dataset):
                     del pending[k]
                 yield cloud
 
-    def frames(self) -> Iterator[Frame]:
-        """Yield the frames in :attr:`order` (see the module docstring)."""
+    def frames(self, clouds: bool = True) -> Iterator[Frame]:
+        """Yield the frames in :attr:`order` (see the module docstring); ``clouds=False`` skips the 3D clouds."""
         n = len(self.stamps)
-        clouds = self._clouds_in_order(self._cloud_index) if self._cloud_index is not None else (None for _ in range(n))
+        want = clouds and self._cloud_index is not None
+        clouds = self._clouds_in_order(self._cloud_index) if want else (None for _ in range(n))
         for i, cloud in zip(range(n), clouds, strict=True):
             odo = self._odometry[i]
             yield Frame(

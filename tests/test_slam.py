@@ -1,0 +1,162 @@
+"""HS-SLAM on a synthetic office (exact 2D ray casting): accuracy, seeding, outputs, bad input."""
+
+import json
+
+import numpy as np
+import pytest
+
+from hsmap.datasets.frames import Frame, LaserScan2D
+from hsmap.errors import ConfigError, EmptyInputError, InputError
+from hsmap.geometry import compose, relative, wrap_angle
+from hsmap.io import Trajectory, read_tum
+from hsmap.slam import HsSlam, SlamConfig, run_slam, write_slam_outputs
+from hsmap.testing import office_route, office_segments, raycast_2d, room_cloud_3d, sensor_cloud
+
+SEGMENTS = office_segments()
+ROUTE = office_route()
+
+
+def make_frames(route=ROUTE, odometry_drift=0.0, seed=0):
+    """Frames with a 1081-beam scan (1 cm noise) at each pose, and odometry with a heading drift per metre."""
+    rng = np.random.default_rng(seed)
+    frames, odom = [], route[0].copy()
+    for i, pose in enumerate(route):
+        if i > 0:
+            step = relative(route[i - 1], pose)
+            step[2] += odometry_drift * np.hypot(*step[:2]) + rng.normal(0, 0.002)
+            step[:2] *= 1.02
+            odom = compose(odom, step)
+        r, a = raycast_2d(SEGMENTS, pose, noise=0.01, rng=rng)
+        frames.append(Frame(stamp=100.0 + 0.5 * i, scan2d=LaserScan2D(r, a, 0.05, 10.0), odometry=odom.copy(),
+                            index=i))
+    return frames
+
+
+def relative_errors(est, truth):
+    err = relative(est[0], est) - relative(truth[0], truth)
+    err[:, 2] = wrap_angle(err[:, 2])
+    return err
+
+
+@pytest.fixture(scope="module")
+def frames():
+    return make_frames(odometry_drift=np.deg2rad(2.0))
+
+
+def test_route_is_long_enough():
+    assert len(ROUTE) > 150
+    assert Trajectory(np.arange(len(ROUTE)), ROUTE).path_length() > 30
+
+
+@pytest.mark.parametrize("use_odometry", [False, True])
+def test_slam_2d_tracks_the_route(frames, use_odometry):
+    res = run_slam(frames, SlamConfig(use_odometry=use_odometry), rng=1, progress=False)
+    err = relative_errors(res.trajectory.poses, ROUTE)
+    assert np.abs(err[:, :2]).max() < 0.03, np.abs(err[:, :2]).max(0)
+    assert np.rad2deg(np.abs(err[:, 2]).max()) < 1.0
+    np.testing.assert_array_equal(res.trajectory.stamps, [f.stamp for f in frames])
+    assert len(res.frames) == len(frames)
+    assert 0 < sum(f.keyframe for f in res.frames) < len(frames)
+    assert np.median([f.inlier_ratio for f in res.frames[1:]]) > 0.9
+
+
+def test_odometry_alone_drifts(frames):
+    odom = np.array([f.odometry for f in frames])
+    err = relative_errors(odom, ROUTE)
+    assert np.abs(err[:, :2]).max() > 0.3  # the input is hard enough that the SLAM result above means something
+
+
+def test_deterministic(frames):
+    a = run_slam(frames[:40], SlamConfig(), rng=5, progress=False)
+    b = run_slam(frames[:40], SlamConfig(), rng=5, progress=False)
+    np.testing.assert_array_equal(a.trajectory.poses, b.trajectory.poses)
+
+
+def test_seeds_include_odometry_velocity_and_mean(frames):
+    slam = HsSlam(SlamConfig(), rng=0)
+    for f in frames[:4]:
+        slam.process(f)
+    seeds, half = slam.seeds(frames[4])
+    assert len(seeds) == 4  # previous, constant velocity, odometry, mean of recent
+    np.testing.assert_allclose(seeds[0], slam.poses[-1])
+    assert half.shape == (3,)
+    no_odom = HsSlam(SlamConfig(use_odometry=False), rng=0)
+    for f in frames[:4]:
+        no_odom.process(f)
+    assert len(no_odom.seeds(frames[4])[0]) == 3
+
+
+def test_initial_pose(frames):
+    start = np.array([1.0, 2.0, 0.5])
+    res = run_slam(frames[:10], SlamConfig(), rng=0, initial_pose=start, progress=False)
+    np.testing.assert_array_equal(res.trajectory.poses[0], start)
+
+
+def test_outputs_written(tmp_path, frames):
+    res = run_slam(frames[:30], SlamConfig(), rng=0, progress=False)
+    paths = write_slam_outputs(res, tmp_path)
+    traj = read_tum(paths["trajectory"], dof=3)
+    np.testing.assert_allclose(traj.poses, res.trajectory.poses, atol=1e-6)
+    metrics = json.loads(paths["metrics"].read_text())
+    assert metrics["frames"] == 30 and len(metrics["per_frame"]["seconds"]) == 30
+    assert metrics["config"]["dof"] == 3 and metrics["peak_memory_mb"] > 0
+    import open3d as o3d
+
+    assert len(o3d.io.read_point_cloud(str(paths["map"])).points) == metrics["map_points"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["config.yaml", "map.ply", "metrics.json",
+                                                           "trajectory.tum"]
+
+
+def test_slam_6dof_in_a_room():
+    rng = np.random.default_rng(0)
+    truth = []
+    frames = []
+    for i in range(14):
+        pose = np.array([2.5 + 0.25 * i, 2.0 + 0.1 * np.sin(i / 3), 0.0, 0.0, 0.0, 0.3 + 0.05 * i])
+        sensor = compose(pose, np.array([0.0, 0.0, 1.6, 0.0, 0.0, 0.0]))
+        cloud = sensor_cloud(room_cloud_3d(6000, viewpoint=sensor[:3], noise=0.01, rng=rng), sensor)
+        frames.append(Frame(stamp=float(i), cloud3d=cloud, index=i, extrinsic3d=np.array([0, 0, 1.6, 0, 0, 0.0])))
+        truth.append(pose)
+    res = run_slam(frames, SlamConfig(dof=6), rng=0, progress=False)
+    est, truth = res.trajectory.poses, np.asarray(truth)
+    err = relative(est[0], est) - relative(truth[0], truth)
+    err[:, 3:] = wrap_angle(err[:, 3:])
+    assert np.abs(err[:, :3]).max() < 0.03
+    assert np.rad2deg(np.abs(err[:, 3:]).max()) < 0.5
+
+
+def test_prior_seeds_6dof():
+    prior = Trajectory([0.0, 1.0], [[0, 0, 0], [0.5, 0.1, 0.2]])
+    slam = HsSlam(SlamConfig(dof=6), prior=prior)
+    slam.poses.append(np.zeros(6))
+    seeds, half = slam.seeds(Frame(stamp=1.0, cloud3d=np.zeros((10, 3))))
+    np.testing.assert_allclose(seeds[0], [0.5, 0.1, 0, 0, 0, 0.2])
+    assert half[0] == SlamConfig().prior_translation_range
+    with pytest.raises(InputError, match="prior trajectory seeds 6-DOF runs only"):
+        HsSlam(SlamConfig(dof=3), prior=prior)
+
+
+def test_bad_inputs(frames):
+    with pytest.raises(InputError, match="has no 2D scan"):
+        run_slam([Frame(stamp=0.0)], SlamConfig(), progress=False)
+    with pytest.raises(InputError, match="has no 3D cloud"):
+        run_slam(frames[:2], SlamConfig(dof=6), progress=False)
+    empty = Frame(stamp=0.0, scan2d=LaserScan2D(np.full(10, np.nan), np.linspace(-1, 1, 10)))
+    with pytest.raises(EmptyInputError, match="frame 0 .* has 0 usable points"):
+        run_slam([empty], SlamConfig(), progress=False)
+    with pytest.raises(EmptyInputError, match="the input has no frames"):
+        run_slam([], SlamConfig(), progress=False)
+    with pytest.raises(InputError, match="initial_pose must have 3 values"):
+        HsSlam(SlamConfig(), initial_pose=np.zeros(6))
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(dof=4), "slam.dof must be 3"),
+    (dict(keyframe_distance=-1.0), "slam.keyframe_distance must be a finite number >= 0"),
+    (dict(max_range=0.05), r"slam.max_range \(0.05\) must exceed slam.min_range"),
+    (dict(warmup_frames=0), "slam.warmup_frames must be an integer >= 1"),
+    (dict(map_voxel=0.0), "slam.map_voxel must be None or > 0"),
+])
+def test_bad_config(kwargs, match):
+    with pytest.raises(ConfigError, match=match):
+        SlamConfig(**kwargs)

@@ -160,3 +160,44 @@ def test_bad_inputs(frames):
 def test_bad_config(kwargs, match):
     with pytest.raises(ConfigError, match=match):
         SlamConfig(**kwargs)
+
+
+def write_carmen(path, route, odometry_drift=0.0):
+    """A CARMEN log of FLASER lines (180 beams over 180 deg, robot pose = odometry) along ``route``."""
+    rng = np.random.default_rng(0)
+    lines = ["# synthetic office", "PARAM robot_front_laser_max 10.0 0 host 0"]
+    for i, pose in enumerate(route):
+        r, _ = raycast_2d(SEGMENTS, pose, fov=np.pi, beams=180, noise=0.01, rng=rng)
+        r = np.where(np.isfinite(r), r, 81.83)  # no return
+        odom = pose + [0.0, 0.0, odometry_drift * i]
+        t = 1000.0 + 0.2 * i
+        lines.append("FLASER 180 " + " ".join(f"{v:.3f}" for v in r) + f" {odom[0]:.4f} {odom[1]:.4f} {odom[2]:.5f}"
+                     f" {odom[0]:.4f} {odom[1]:.4f} {odom[2]:.5f} {t:.6f} host {t:.6f}")
+    path.write_text("\n".join(lines) + "\n")
+
+
+def test_cli_slam_on_a_carmen_log(tmp_path):
+    import subprocess
+    import sys
+
+    log = tmp_path / "office.log"
+    route = ROUTE[:60]
+    write_carmen(log, route, odometry_drift=np.deg2rad(0.3))
+    out = tmp_path / "run"
+    r = subprocess.run([sys.executable, "-m", "hsmap.cli", "slam", str(log), "--out", str(out), "--quiet",
+                        "--seed", "3"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    traj = read_tum(out / "trajectory.tum", dof=3)
+    np.testing.assert_allclose(traj.stamps, 1000.0 + 0.2 * np.arange(len(route)), atol=1e-6)
+    err = relative_errors(traj.poses, route)
+    assert np.abs(err[:, :2]).max() < 0.05 and np.rad2deg(np.abs(err[:, 2]).max()) < 1.0
+    assert (out / "slam.rrd").stat().st_size > 0 and (out / "map.ply").is_file()
+    from hsmap.viz.rerun import rerun_binary, verify_rrd
+
+    if rerun_binary() is not None:
+        verify_rrd(out / "slam.rrd")
+    # bad input: one line, no traceback, exit 2
+    r = subprocess.run([sys.executable, "-m", "hsmap.cli", "slam", str(tmp_path / "missing.bag"), "--out",
+                        str(out)], capture_output=True, text=True)
+    assert r.returncode == 2 and r.stderr.startswith("hsmap: error:") and "Traceback" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1

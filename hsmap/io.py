@@ -130,7 +130,7 @@ class Trajectory:
 
     def path_length(self) -> float:
         """Length of the path through the positions, in metres."""
-        d = self.poses.shape[1] // 2
+        d = 2 if self.dof == 3 else 3
         return float(np.linalg.norm(np.diff(self.poses[:, :d], axis=0), axis=1).sum())
 
 

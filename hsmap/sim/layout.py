@@ -18,11 +18,10 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
-from matplotlib.path import Path as MplPath
 from numpy.typing import NDArray
 
 from ..grid import GridGeometry
-from .shapes import box_sdf, make_box
+from .shapes import box_sdf, make_box, points_in_polygon
 
 if TYPE_CHECKING:  # pragma: no cover
     from .scenario import Door, Furniture, Scenario
@@ -203,7 +202,7 @@ def rasterize_rooms(scn: Scenario, resolution: float | None = None, margin: floa
     labels = np.zeros(len(xy), dtype=np.uint16)
     overlap = None
     for room in scn.rooms:
-        inside = MplPath(room.polygon).contains_points(xy) & free
+        inside = points_in_polygon(xy, room.polygon) & free
         if report_overlap and overlap is None:
             taken = labels[inside]
             if np.count_nonzero(taken) > 2:
@@ -216,7 +215,7 @@ def rasterize_rooms(scn: Scenario, resolution: float | None = None, margin: floa
 def room_at(scn: Scenario, xy: NDArray[np.float64]) -> int | None:
     """Index of the first room whose polygon contains the point, or None."""
     for room in scn.rooms:
-        if MplPath(room.polygon).contains_point(tuple(xy)):
+        if points_in_polygon(xy, room.polygon)[0]:
             return room.index
     return None
 

@@ -330,7 +330,8 @@ def simulate_motion(start: ArrayLike, steps: list[RouteStep], robot: RobotConfig
     """Drive the route and return ground truth and odometry at ``frame_rate`` Hz.
 
     The internal rate is rounded up to a whole multiple of ``frame_rate`` so that every frame coincides with
-    an internal sample. Frames run from ``start_time`` until the route is finished.
+    an internal sample. Frames run from ``start_time`` until the route is finished (the last frame at or
+    just after its end).
     """
     if not (frame_rate > 0 and np.isfinite(frame_rate)):
         raise ConfigError(f"frame_rate must be > 0 Hz, got {frame_rate}")
@@ -339,7 +340,7 @@ def simulate_motion(start: ArrayLike, steps: list[RouteStep], robot: RobotConfig
         raise ConfigError("the route does not move the robot")
     end = legs[-1].t0 + legs[-1].duration
     per_frame = max(1, int(np.ceil(robot.internal_rate / frame_rate - 1e-9)))
-    n_frames = int(np.floor((end - start_time) * frame_rate + 1e-9)) + 1
+    n_frames = int(np.ceil((end - start_time) * frame_rate - 1e-9)) + 1  # the last frame sees the route's end
     n_samples = (n_frames - 1) * per_frame + 1
     times = start_time + np.arange(n_samples) / (frame_rate * per_frame)
     gt = sample_legs(legs, times)

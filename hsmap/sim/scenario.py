@@ -222,7 +222,8 @@ class _Parser:
         try:
             return from_dict(cls, value, key)
         except ConfigError as exc:
-            raise ScenarioError(f"{self.file}: {exc}") from None
+            msg = str(exc)
+            raise ScenarioError(f"{self.file}: {msg if msg.startswith(key) else f'{key}: {msg}'}") from None
 
 
 def parse_scenario(data: Any, file: str = "<scenario>", check: bool = True) -> Scenario:

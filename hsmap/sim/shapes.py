@@ -17,6 +17,7 @@ __all__ = [
     "boxes_overlap",
     "segment_box_distance",
     "boxes_to_mesh_arrays",
+    "points_in_polygon",
 ]
 
 # the 12 triangles of a box whose 8 corners are ordered as in boxes_to_mesh_arrays (outward normals)
@@ -135,3 +136,19 @@ def boxes_to_mesh_arrays(boxes: ArrayLike) -> tuple[NDArray[np.float64], NDArray
     verts = np.concatenate([low, high], 1).reshape(-1, 3)
     tris = (_BOX_TRIANGLES[None, :, :] + 8 * np.arange(len(b))[:, None, None]).reshape(-1, 3)
     return verts, tris
+
+
+def points_in_polygon(points: ArrayLike, polygon: ArrayLike) -> NDArray[np.bool_]:
+    """Whether 2D points (P, 2) lie inside a simple polygon (K, 2) (even-odd rule; edges count as either)."""
+    p = np.asarray(points, dtype=float).reshape(-1, 2)
+    poly = np.asarray(polygon, dtype=float)
+    x, y = p[:, 0], p[:, 1]
+    inside = np.zeros(len(p), dtype=bool)
+    for (x0, y0), (x1, y1) in zip(poly, np.roll(poly, -1, axis=0), strict=True):
+        crosses = (y0 > y) != (y1 > y)
+        if not crosses.any():
+            continue
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xc = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
+        inside ^= crosses & (x < xc)
+    return inside

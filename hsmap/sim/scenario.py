@@ -158,7 +158,12 @@ class Scenario:
     raw: dict = field(default_factory=dict)
 
     def replace(self, **changes: Any) -> Scenario:
-        """A copy with some fields changed (e.g. smaller sensors for a quick run); not re-validated."""
+        """A copy with some fields changed (e.g. smaller sensors for a quick run); not re-validated.
+
+        The copy no longer matches its file, so its ``sha256`` is cleared (datasets made from it are never
+        taken for up to date by :func:`hsmap.sim.ensure_dataset`).
+        """
+        changes.setdefault("sha256", "")
         return dataclasses.replace(self, **changes)
 
     def wall(self, ref: int) -> Wall:

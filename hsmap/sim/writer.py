@@ -308,7 +308,7 @@ def ensure_dataset(scenario: str | os.PathLike = "slam-office", seed: int | None
             meta = yaml.safe_load(meta_path.read_text(encoding="utf-8")) or {}
         except yaml.YAMLError:
             meta = {}
-        if (meta.get("format_version") == FORMAT_VERSION and meta.get("scenario_sha256") == scn.sha256
+        if (scn.sha256 and meta.get("format_version") == FORMAT_VERSION and meta.get("scenario_sha256") == scn.sha256
                 and meta.get("seed") == seed and meta.get("frames") == len(motion_for(scn, seed))):
             return out
     simulate(scn, out, seed, **kwargs)

@@ -329,7 +329,8 @@ Read it with `hsmap.datasets.simulated.SimulatedDataset(folder)`.
 ## Frames and units
 Metres, seconds, radians (degrees only where a key says `_deg`). The world frame has z up and the floor at
 z = 0. The robot base frame lies on the floor (x forward, y left). Poses are (x, y, yaw); 3D poses
-(x, y, z, roll, pitch, yaw) with R = Rz(yaw) Ry(pitch) Rx(roll).
+(x, y, z, roll, pitch, yaw) with R = Rz(yaw) Ry(pitch) Rx(roll). Both LiDARs take each frame's scan
+instantaneously at the frame's ground-truth pose (no motion distortion); the robot moves on a flat floor.
 
 ## Files
 - `dataset.yaml`: format `{FORMAT}` version {FORMAT_VERSION}, scenario, seed, frame count and rate, the

@@ -1,18 +1,61 @@
-"""hsmap simulate (not implemented yet)."""
+"""Simulate a scenario: drive its route, cast the floor-level 2D LiDAR and the mast-mounted 3D LiDAR, integrate
+drifting wheel odometry, and write a documented dataset folder (2D scans, 3D range images, groundtruth.tum,
+odometry.tum, sensor description, ground-truth room labels and doors; see the folder's README.md).
+
+SCENARIO is a shipped scenario name (default slam-office; --list shows them) or a path to a scenario YAML.
+"""
 
 from __future__ import annotations
 
 import argparse
 
 NAME = "simulate"
-HELP = "(not implemented yet)"
+HELP = "simulate a scenario into a dataset folder (2D scans, 3D clouds, ground truth, odometry)"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    pass
+    parser.add_argument("scenario", nargs="?", default="slam-office", metavar="SCENARIO",
+                        help="shipped scenario name or YAML file (default: slam-office)")
+    parser.add_argument("--out", metavar="DIR", default=None,
+                        help="output folder (default: data/generated/SCENARIO)")
+    parser.add_argument("--seed", type=int, default=None, metavar="N",
+                        help="seed of odometry slip and range noise (default: the scenario's seed)")
+    parser.add_argument("--max-frames", type=int, default=None, metavar="N", help="stop after N frames")
+    parser.add_argument("--label-resolution", type=float, default=None, metavar="M",
+                        help="metres per pixel of rooms.png (default: the scenario's, 0.05)")
+    parser.add_argument("--figures", action="store_true",
+                        help="also write preview pictures into DIR/figures/ (top view, a 3D cloud, odometry map)")
+    parser.add_argument("--check", action="store_true", help="only parse and check the scenario, write nothing")
+    parser.add_argument("--list", action="store_true", help="list the shipped scenarios and exit")
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..errors import HsmapError
+    import json
 
-    raise HsmapError("'hsmap simulate' is not implemented yet")
+    from ..errors import InputError
+    from ..sim import list_scenarios, load_scenario, motion_for, resolve_scenario, scenario_dir, simulate
+
+    if args.list:
+        for name in list_scenarios():
+            print(name)
+        if not list_scenarios():
+            print(f"(no scenarios in {scenario_dir()})")
+        return 0
+    if args.seed is not None and args.seed < 0:
+        raise InputError(f"--seed must be >= 0, got {args.seed}")
+    if args.max_frames is not None and args.max_frames < 1:
+        raise InputError(f"--max-frames must be >= 1, got {args.max_frames}")
+    if args.label_resolution is not None and not args.label_resolution > 0:
+        raise InputError(f"--label-resolution must be > 0 metres, got {args.label_resolution}")
+    scn = load_scenario(resolve_scenario(args.scenario))
+    if args.check:
+        m = motion_for(scn, args.seed, args.max_frames)
+        print(json.dumps({"scenario": scn.name, "file": scn.path, "ok": True, "frames": len(m),
+                          "path_length_m": round(m.path_length(), 3),
+                          "odometry_end_error_m": round(float(
+                              ((m.odometry[-1, :2] - m.groundtruth[-1, :2]) ** 2).sum() ** 0.5), 4)}))
+        return 0
+    summary = simulate(scn, args.out, args.seed, max_frames=args.max_frames,
+                       label_resolution=args.label_resolution, figures=args.figures)
+    print(json.dumps(summary.as_dict(), indent=2))
+    return 0

@@ -1,0 +1,218 @@
+"""Reader of the dataset folders written by ``hsmap simulate`` (see :mod:`hsmap.sim.writer`)."""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import yaml
+from numpy.typing import NDArray
+
+from ..errors import DataFormatError, DatasetError, InputError
+from ..grid import GridGeometry
+from ..io import Trajectory, read_tum
+from .frames import Dataset, Frame, LaserScan2D
+
+__all__ = ["SimulatedDataset", "is_simulated_dataset"]
+
+FORMAT = "hsmap-simulated-dataset"
+SUPPORTED_VERSIONS = (1,)
+
+
+def is_simulated_dataset(path: str | os.PathLike) -> bool:
+    """Whether ``path`` is a folder with a simulator ``dataset.yaml``."""
+    p = Path(path) / "dataset.yaml"
+    if not p.is_file():
+        return False
+    try:
+        meta = yaml.safe_load(p.read_text(encoding="utf-8"))
+    except (yaml.YAMLError, OSError, UnicodeDecodeError):
+        return False
+    return isinstance(meta, dict) and meta.get("format") == FORMAT
+
+
+class SimulatedDataset(Dataset):
+    """A simulated dataset folder as a sequence of :class:`~hsmap.datasets.frames.Frame`.
+
+    Parameters
+    ----------
+    path : str or path
+        The folder written by ``hsmap simulate`` (it must hold ``dataset.yaml``, written last).
+
+    Attributes
+    ----------
+    meta : dict
+        The parsed ``dataset.yaml``.
+    sensors : dict
+        ``{"lidar2d": {...}, "lidar3d": {...}}`` as described in ``dataset.yaml``.
+    odometry, groundtruth : Trajectory
+        (x, y, yaw) poses of the robot base at the scan stamps.
+    stamps : ndarray of shape (N,)
+    extrinsic2d : ndarray of shape (3,)
+    extrinsic3d : ndarray of shape (6,)
+    """
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = str(path)
+        root = Path(path)
+        if not root.is_dir():
+            raise DatasetError(f"{root}: no such dataset folder")
+        meta_path = root / "dataset.yaml"
+        if not meta_path.is_file():
+            raise DatasetError(f"{root}: incomplete simulated dataset (no dataset.yaml; it is written last, so "
+                               "the simulation did not finish); run `hsmap simulate` again")
+        try:
+            meta = yaml.safe_load(meta_path.read_text(encoding="utf-8"))
+        except yaml.YAMLError as exc:
+            raise DataFormatError(f"{meta_path}: not valid YAML: {exc}") from None
+        if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+            raise DataFormatError(f"{meta_path}: not a simulated dataset description (format must be {FORMAT!r})")
+        if meta.get("format_version") not in SUPPORTED_VERSIONS:
+            raise DataFormatError(f"{meta_path}: format_version {meta.get('format_version')!r} is not supported "
+                                  f"(this hsmap reads {list(SUPPORTED_VERSIONS)})")
+        self.root = root
+        self.meta = meta
+        self.name = str(meta.get("scenario", root.name))
+        self.sensors = meta["sensors"]
+        try:
+            self.extrinsic2d = np.asarray(self.sensors["lidar2d"]["extrinsic"], dtype=float).reshape(3)
+            self.extrinsic3d = np.asarray(self.sensors["lidar3d"]["extrinsic"], dtype=float).reshape(6)
+            s3 = self.sensors["lidar3d"]
+            self._shape3d = (int(s3["channels"]), int(s3["columns"]))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise DataFormatError(f"{meta_path}: bad sensor description: {exc}") from None
+        scans = root / "scans2d.npz"
+        if not scans.is_file():
+            raise DatasetError(f"{scans}: missing (the dataset folder is damaged)")
+        with np.load(scans) as z:
+            try:
+                self.stamps = np.asarray(z["stamps"], dtype=float)
+                self._ranges = np.asarray(z["ranges"])
+                self.angles = np.asarray(z["angles"], dtype=float)
+            except KeyError as exc:
+                raise DataFormatError(f"{scans}: missing array {exc}") from None
+        n = int(meta.get("frames", len(self.stamps)))
+        if self._ranges.shape != (n, len(self.angles)) or len(self.stamps) != n:
+            raise DataFormatError(f"{scans}: expected {n} scans of {len(self.angles)} beams, got ranges "
+                                  f"{self._ranges.shape} and {len(self.stamps)} stamps")
+        self.groundtruth = read_tum(root / "groundtruth.tum", dof=3)
+        self.odometry = read_tum(root / "odometry.tum", dof=3)
+        for name, tr in (("groundtruth.tum", self.groundtruth), ("odometry.tum", self.odometry)):
+            if len(tr) != n or not np.allclose(tr.stamps, self.stamps, atol=1e-6):
+                raise DataFormatError(f"{root / name}: its {len(tr)} stamps do not match the {n} scan stamps")
+        self._dirs: NDArray[np.float64] | None = None
+
+    def __len__(self) -> int:
+        return len(self.stamps)
+
+    def __repr__(self) -> str:
+        return f"SimulatedDataset({self.path!r}, scenario={self.name!r}, frames={len(self)})"
+
+    # ------------------------------------------------------------------ sensors
+    def scan2d(self, index: int) -> LaserScan2D:
+        """The 2D scan of frame ``index`` in the 2D sensor frame."""
+        s = self.sensors["lidar2d"]
+        return LaserScan2D(self._ranges[index].astype(float), self.angles, float(s["range_min"]),
+                           float(s["range_max"]))
+
+    @property
+    def ranges2d(self) -> NDArray[np.float32]:
+        """All 2D ranges (N, M), NaN = no return."""
+        return self._ranges
+
+    def beam_directions(self) -> NDArray[np.float64]:
+        """Unit directions (channels, columns, 3) of the 3D LiDAR's pixels in its frame."""
+        if self._dirs is None:
+            from ..sim.sensors import beam_directions
+
+            s = self.sensors["lidar3d"]
+            el = np.deg2rad(np.asarray(s["vertical_angles_deg"], dtype=float))
+            az = float(s["azimuth_min"]) + float(s["azimuth_increment"]) * np.arange(int(s["columns"]))
+            self._dirs = beam_directions(el, az)
+        return self._dirs
+
+    def range_image(self, index: int) -> NDArray[np.uint16]:
+        """The stored 3D range image (channels, columns) of frame ``index``: uint16 mm, 0 = no return."""
+        if not 0 <= index < len(self):
+            raise IndexError(f"frame {index} out of range 0..{len(self) - 1}")
+        p = self.root / "clouds3d" / f"{index:06d}.npz"
+        if not p.is_file():
+            raise DatasetError(f"{p}: missing 3D frame (the dataset folder is damaged)")
+        with np.load(p) as z:
+            img = z["range_mm"]
+        if img.shape != self._shape3d or img.dtype != np.uint16:
+            raise DataFormatError(f"{p}: expected a {self._shape3d} uint16 range image, got {img.shape} {img.dtype}")
+        return img
+
+    def cloud3d(self, index: int) -> NDArray[np.float64]:
+        """The 3D cloud (K, 3) of frame ``index`` in the 3D sensor frame (no-return pixels dropped)."""
+        from ..sim.sensors import range_image_to_points
+
+        return range_image_to_points(self.range_image(index), self.beam_directions())
+
+    # ------------------------------------------------------------------ frames
+    def frame(self, index: int, clouds: bool = True) -> Frame:
+        """Frame ``index`` (negative indices count from the end)."""
+        if index < 0:
+            index += len(self)
+        if not 0 <= index < len(self):
+            raise IndexError(f"frame {index} out of range 0..{len(self) - 1}")
+        return Frame(
+            stamp=float(self.stamps[index]),
+            scan2d=self.scan2d(index),
+            cloud3d=self.cloud3d(index) if clouds else None,
+            odometry=self.odometry.poses[index].copy(),
+            index=index,
+            extrinsic2d=self.extrinsic2d.copy(),
+            extrinsic3d=self.extrinsic3d.copy(),
+        )
+
+    __getitem__ = frame
+
+    def frames(self, start: int = 0, stop: int | None = None, step: int = 1,
+               clouds: bool = True) -> Iterator[Frame]:
+        """Yield frames ``start:stop:step`` in order; ``clouds=False`` skips reading the 3D clouds."""
+        for i in range(*slice(start, stop, step).indices(len(self))):
+            yield self.frame(i, clouds)
+
+    # ------------------------------------------------------------------ ground truth
+    def labels(self) -> tuple[NDArray[np.uint16], GridGeometry, dict[int, str]]:
+        """Ground-truth room labels: (image (H, W) uint16, 0 = no room; its GridGeometry; label -> name)."""
+        from PIL import Image
+
+        png, meta_path = self.root / "rooms.png", self.root / "rooms.yaml"
+        if not png.is_file() or not meta_path.is_file():
+            raise DatasetError(f"{self.root}: missing rooms.png or rooms.yaml")
+        meta = yaml.safe_load(meta_path.read_text(encoding="utf-8"))
+        with Image.open(png) as im:
+            img = np.array(im)
+        if img.ndim != 2:
+            raise DataFormatError(f"{png}: expected a single-channel label image, got shape {img.shape}")
+        img = img.astype(np.uint16)
+        grid = GridGeometry(img.shape, float(meta["resolution"]), tuple(meta["origin"][:2]))
+        names = {int(k): str(v) for k, v in (meta.get("labels") or {}).items()}
+        return img, grid, names
+
+    def doors(self) -> list[dict]:
+        """Ground-truth doors (see ``doors.json``): name, center, width, endpoints, rooms, open, ..."""
+        p = self.root / "doors.json"
+        if not p.is_file():
+            raise DatasetError(f"{p}: missing")
+        try:
+            data = json.loads(p.read_text(encoding="utf-8"))
+        except json.JSONDecodeError as exc:
+            raise DataFormatError(f"{p}: not valid JSON: {exc}") from None
+        return list(data["doors"])
+
+    def scenario_path(self) -> Path:
+        """The copy of the scenario file in the folder."""
+        return self.root / "scenario.yaml"
+
+    def trajectory(self, which: str = "groundtruth") -> Trajectory:
+        """``"groundtruth"`` or ``"odometry"``."""
+        if which not in ("groundtruth", "odometry"):
+            raise InputError(f"which must be 'groundtruth' or 'odometry', got {which!r}")
+        return self.groundtruth if which == "groundtruth" else self.odometry

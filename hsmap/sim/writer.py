@@ -1,0 +1,361 @@
+"""``simulate``: drive a scenario's route, cast both LiDARs and write a documented dataset folder.
+
+Folder contents (format version :data:`FORMAT_VERSION`; ``README.md`` in the folder says the same):
+
+- ``dataset.yaml``      written last: a folder without it is incomplete. Format, scenario, seed, frame count and
+                        rate, sensor descriptions, the file list.
+- ``scans2d.npz``       ``stamps (N,)`` float64 s, ``ranges (N, M)`` float32 m (NaN = no return), ``angles (M,)``.
+- ``clouds3d/NNNNNN.npz`` per frame ``range_mm (C, W)`` uint16 range image (0 = no return), ``stamp`` float64.
+- ``groundtruth.tum``, ``odometry.tum``: robot base poses at the scan stamps.
+- ``rooms.png`` (16-bit labels, 0 = no room) + ``rooms.yaml`` (resolution, origin, label -> name).
+- ``doors.json``        the doors: centre, width, end points, the rooms they join, open/closed.
+- ``scenario.yaml``     a copy of the scenario that made the data.
+
+Every file is written atomically; identical scenario and seed give byte-identical files.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import shutil
+import time
+import zipfile
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from .. import __version__
+from ..config import to_dict
+from ..errors import DatasetError, ScenarioError
+from ..io import Trajectory, atomic_path, write_json, write_text, write_tum
+from . import layout
+from .catalog import default_output_dir, resolve_scenario
+from .robot import Motion, simulate_motion
+from .scenario import Scenario, load_scenario
+from .sensors import encode_range_image, range_image_to_points
+
+__all__ = ["FORMAT", "FORMAT_VERSION", "SimulationSummary", "simulate", "ensure_dataset", "save_npz",
+           "motion_for", "noise_rngs"]
+
+FORMAT = "hsmap-simulated-dataset"
+FORMAT_VERSION = 1
+
+FILE_DESCRIPTIONS = {
+    "dataset.yaml": "this description; written last, a folder without it is incomplete",
+    "scans2d.npz": "2D LiDAR: stamps (N,) float64 s, ranges (N, M) float32 m with NaN = no return, "
+                   "angles (M,) float64 rad in the 2D sensor frame",
+    "clouds3d/": "3D LiDAR, one NNNNNN.npz per frame: range_mm (channels, columns) uint16 millimetres "
+                 "(0 = no return), stamp float64 s; row i looks at vertical_angles_deg[i], column j at "
+                 "azimuth_min + j * azimuth_increment",
+    "groundtruth.tum": "ground-truth robot base poses in the world frame at the scan stamps (TUM: t x y z qx qy qz qw)",
+    "odometry.tum": "wheel-odometry robot base poses in the odometry frame (starting at the first ground-truth "
+                    "pose) at the scan stamps (TUM)",
+    "rooms.png": "16-bit ground-truth room labels (0 = no room: walls, doorways, outside), row 0 at the top",
+    "rooms.yaml": "map_server-style metadata of rooms.png (resolution, origin) and label -> room name",
+    "doors.json": "ground-truth doors: centre, width, end points, the rooms they join, open/closed",
+    "scenario.yaml": "the scenario file that made this dataset",
+    "README.md": "human-readable description of this folder",
+}
+
+
+@dataclass
+class SimulationSummary:
+    """What :func:`simulate` wrote and measured."""
+
+    path: Path
+    scenario: str
+    seed: int
+    frames: int
+    duration: float
+    path_length: float
+    odometry_end_error: float
+    odometry_end_yaw_error_deg: float
+    timings: dict = field(default_factory=dict)
+
+    def as_dict(self) -> dict:
+        return {
+            "path": str(self.path), "scenario": self.scenario, "seed": self.seed, "frames": self.frames,
+            "duration_s": round(self.duration, 3), "path_length_m": round(self.path_length, 3),
+            "odometry_end_error_m": round(self.odometry_end_error, 4),
+            "odometry_end_yaw_error_deg": round(self.odometry_end_yaw_error_deg, 3),
+            "timings_s": {k: round(v, 3) for k, v in self.timings.items()},
+        }
+
+
+def save_npz(path: str | os.PathLike, compresslevel: int = 6, **arrays: np.ndarray) -> None:
+    """Write arrays as a compressed ``.npz`` (readable by ``np.load``), atomically and byte-reproducibly
+    (fixed zip timestamps, unlike ``np.savez_compressed``)."""
+    with atomic_path(path, suffix=".npz") as tmp, zipfile.ZipFile(tmp, "w", allowZip64=True) as zf:
+        for name, arr in arrays.items():
+            buf = io.BytesIO()
+            np.lib.format.write_array(buf, np.asanyarray(arr), allow_pickle=False)
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.external_attr = 0o644 << 16
+            zf.writestr(info, buf.getvalue(), compress_type=zipfile.ZIP_DEFLATED, compresslevel=compresslevel)
+
+
+def noise_rngs(seed: int, stream: int, indices) -> list[np.random.Generator]:
+    """One generator per frame index, independent of how frames are batched."""
+    return [np.random.default_rng([int(seed), int(stream), int(k)]) for k in indices]
+
+
+def motion_for(scn: Scenario, seed: int | None = None, max_frames: int | None = None) -> Motion:
+    """The robot's ground truth and odometry for a scenario (no sensors): cheap, for checks and tests."""
+    seed = scn.seed if seed is None else int(seed)
+    m = simulate_motion(scn.start, scn.steps, scn.robot, scn.odometry, scn.frame_rate,
+                        np.random.default_rng([seed, 1]), scn.start_time)
+    if max_frames is not None and max_frames < len(m):
+        if max_frames < 1:
+            raise ScenarioError(f"max_frames must be >= 1, got {max_frames}")
+        m.stamps, m.groundtruth, m.odometry = m.stamps[:max_frames], m.groundtruth[:max_frames], m.odometry[:max_frames]
+        keep = m.sample_times <= m.stamps[-1] + 1e-9
+        m.sample_times, m.sample_groundtruth, m.sample_odometry = (
+            m.sample_times[keep], m.sample_groundtruth[keep], m.sample_odometry[keep])
+    return m
+
+
+def _as_scenario(scenario: Scenario | str | os.PathLike) -> Scenario:
+    if isinstance(scenario, Scenario):
+        return scenario
+    return load_scenario(resolve_scenario(scenario))
+
+
+def simulate(scenario: Scenario | str | os.PathLike, out: str | os.PathLike | None = None,
+             seed: int | None = None, *, max_frames: int | None = None, label_resolution: float | None = None,
+             batch_frames: int = 8, compresslevel: int = 1, figures: bool = False) -> SimulationSummary:
+    """Simulate a scenario and write its dataset folder.
+
+    Parameters
+    ----------
+    scenario : Scenario, str or path
+        A parsed scenario, a shipped scenario name (``slam-office``, ``two-rooms``) or a YAML file.
+    out : path, optional
+        Output folder; default ``data/generated/<scenario name>``. Existing files of a previous dataset
+        are replaced (its ``dataset.yaml`` is removed first, so the folder reads as incomplete meanwhile).
+    seed : int, optional
+        Seed of all random choices (odometry slip, range noise); default the scenario's ``seed``.
+    max_frames : int, optional
+        Stop after this many frames (quick runs).
+    label_resolution : float, optional
+        Metres per pixel of ``rooms.png``; default the scenario's ``label_resolution`` (0.05).
+    batch_frames : int
+        3D frames ray-cast per open3d call.
+    compresslevel : int
+        zlib level of the 3D range images (1 is fast and nearly as small as 9 for noisy ranges).
+    figures : bool
+        Also write preview pictures (top view, one 3D cloud, odometry-only map) into ``figures/``.
+
+    Returns
+    -------
+    SimulationSummary
+    """
+    from .world import World
+
+    t_start = time.perf_counter()
+    scn = _as_scenario(scenario)
+    seed = scn.seed if seed is None else int(seed)
+    if seed < 0:
+        raise ScenarioError(f"seed must be >= 0, got {seed}")
+    out = Path(out) if out is not None else default_output_dir(scn.name)
+    if out.exists() and not out.is_dir():
+        raise DatasetError(f"{out}: exists and is not a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "dataset.yaml").unlink(missing_ok=True)  # incomplete from now on
+    timings: dict[str, float] = {}
+
+    t = time.perf_counter()
+    motion = motion_for(scn, seed, max_frames)
+    n = len(motion)
+    timings["motion"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    world = World(scn)
+    timings["world"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    ranges2d = np.empty((n, scn.lidar2d.beams), dtype=np.float32)
+    for a in range(0, n, 256):
+        b = min(n, a + 256)
+        ranges2d[a:b] = world.scan2d(motion.groundtruth[a:b], scn.lidar2d, noise_rngs(seed, 2, range(a, b)))
+    save_npz(out / "scans2d.npz", stamps=motion.stamps, ranges=ranges2d, angles=scn.lidar2d.angles())
+    timings["scan2d"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    cdir = out / "clouds3d"
+    cdir.mkdir(exist_ok=True)
+    dirs = scn.lidar3d.directions()
+    t_cast = 0.0
+
+    def write_frame(k: int, img: np.ndarray) -> None:
+        save_npz(cdir / f"{k:06d}.npz", compresslevel, range_mm=encode_range_image(img),
+                 stamp=np.float64(motion.stamps[k]))
+
+    # ray-cast batch i+1 while a writer thread compresses batch i (zlib releases the GIL)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        pending: list = []
+        for a in range(0, n, batch_frames):
+            b = min(n, a + batch_frames)
+            tc = time.perf_counter()
+            imgs = world.scan3d(motion.groundtruth[a:b], scn.lidar3d, noise_rngs(seed, 3, range(a, b)), dirs)
+            t_cast += time.perf_counter() - tc
+            for f in pending:
+                f.result()
+            pending = [pool.submit(write_frame, k, imgs[k - a]) for k in range(a, b)]
+        for f in pending:
+            f.result()
+    for stale in cdir.glob("*.npz"):
+        if not stale.stem.isdigit() or int(stale.stem) >= n:
+            stale.unlink()
+    timings["scan3d"] = time.perf_counter() - t
+    timings["scan3d_raycast"] = t_cast
+
+    t = time.perf_counter()
+    gt = Trajectory(motion.stamps, motion.groundtruth)
+    odo = Trajectory(motion.stamps, motion.odometry)
+    write_tum(out / "groundtruth.tum", gt)
+    write_tum(out / "odometry.tum", odo)
+    labels, grid, names, _ = layout.rasterize_rooms(scn, label_resolution)
+    _write_png16(out / "rooms.png", labels)
+    write_text(out / "rooms.yaml", yaml.safe_dump({
+        "image": "rooms.png",
+        "resolution": grid.resolution,
+        "origin": [grid.origin[0], grid.origin[1], 0.0],
+        "labels": {int(k): v for k, v in names.items()},
+        "convention": "map_server: origin is the world (x, y, yaw) of the lower-left pixel's lower-left corner; "
+                      "row 0 of the image is the top; 0 = no room (walls, doorways, outside)",
+    }, sort_keys=False))
+    write_json(out / "doors.json", {"format_version": FORMAT_VERSION, "frame": "world",
+                                    "doors": layout.door_records(scn)})
+    if scn.path and Path(scn.path).is_file():
+        with atomic_path(out / "scenario.yaml") as tmp:
+            shutil.copyfile(scn.path, tmp)
+    else:
+        write_text(out / "scenario.yaml", yaml.safe_dump(scn.raw, sort_keys=False))
+    timings["ground_truth"] = time.perf_counter() - t
+
+    end_err = float(np.hypot(*(motion.odometry[-1, :2] - motion.groundtruth[-1, :2])))
+    yaw_err = float(np.rad2deg(np.angle(np.exp(1j * (motion.odometry[-1, 2] - motion.groundtruth[-1, 2])))))
+    summary = SimulationSummary(out, scn.name, seed, n, float(motion.stamps[-1] - motion.stamps[0]),
+                                gt.path_length(), end_err, yaw_err, timings)
+    files = dict(FILE_DESCRIPTIONS)
+    if figures:
+        t = time.perf_counter()
+        from .plot import write_previews
+
+        k = n // 2
+        cloud_k = world.scan3d(motion.groundtruth[k:k + 1], scn.lidar3d, noise_rngs(seed, 3, [k]), dirs)[0]
+        cloud_k = range_image_to_points(encode_range_image(cloud_k), dirs)
+        for name in write_previews(out, scn, motion.groundtruth, motion.odometry, ranges2d, k, cloud_k,
+                                   motion.stamps):
+            files[f"figures/{name}"] = "preview picture (see README.md)"
+        timings["figures"] = time.perf_counter() - t
+    write_text(out / "README.md", _readme(scn, summary, grid))
+    meta = {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "hsmap_version": __version__,
+        "scenario": scn.name,
+        "scenario_sha256": scn.sha256,
+        "description": scn.description,
+        "seed": seed,
+        "frames": n,
+        "frame_rate": float(scn.frame_rate),
+        "start_time": float(motion.stamps[0]),
+        "duration": round(summary.duration, 6),
+        "path_length": round(summary.path_length, 6),
+        "odometry_end_error": round(end_err, 6),
+        "frames_conventions": {
+            "world": "x, y on the floor, z up, metres; the floor is z = 0",
+            "base": "robot base frame on the floor: x forward, y left, z up",
+            "lidar2d": "scans in the 2D sensor frame; its pose in the base frame is sensors.lidar2d.extrinsic "
+                       "at height sensors.lidar2d.mount_height",
+            "lidar3d": "clouds in the 3D sensor frame; its pose in the base frame is sensors.lidar3d.extrinsic",
+        },
+        "sensors": {"lidar2d": scn.lidar2d.describe(), "lidar3d": scn.lidar3d.describe()},
+        "robot": to_dict(scn.robot),
+        "odometry_model": to_dict(scn.odometry),
+        "files": files,
+    }
+    timings["total"] = time.perf_counter() - t_start
+    write_text(out / "dataset.yaml", yaml.safe_dump(meta, sort_keys=False, width=110))
+    return summary
+
+
+def _write_png16(path: Path, labels: np.ndarray) -> None:
+    from PIL import Image
+
+    with atomic_path(path) as tmp:
+        Image.fromarray(np.ascontiguousarray(labels.astype(np.uint16))).save(tmp, format="PNG")
+
+
+def ensure_dataset(scenario: str | os.PathLike = "slam-office", seed: int | None = None,
+                   out: str | os.PathLike | None = None, **kwargs) -> Path:
+    """The folder of a simulated dataset, generated first when missing, incomplete or out of date.
+
+    A folder is reused when its ``dataset.yaml`` has the same format version, scenario file hash and seed
+    and no ``max_frames`` cut; otherwise :func:`simulate` (re)writes it.
+    """
+    scn = _as_scenario(scenario)
+    seed = scn.seed if seed is None else int(seed)
+    out = Path(out) if out is not None else default_output_dir(scn.name)
+    meta_path = out / "dataset.yaml"
+    if meta_path.is_file() and not kwargs.get("max_frames"):
+        try:
+            meta = yaml.safe_load(meta_path.read_text(encoding="utf-8")) or {}
+        except yaml.YAMLError:
+            meta = {}
+        if (scn.sha256 and meta.get("format_version") == FORMAT_VERSION and meta.get("scenario_sha256") == scn.sha256
+                and meta.get("seed") == seed and meta.get("frames") == len(motion_for(scn, seed))):
+            return out
+    simulate(scn, out, seed, **kwargs)
+    return out
+
+
+def _readme(scn: Scenario, s: SimulationSummary, grid) -> str:
+    l2, l3 = scn.lidar2d, scn.lidar3d
+    return f"""# Simulated dataset: {scn.name}
+
+{scn.description}
+
+Written by `hsmap simulate` (hsmap {__version__}), seed {s.seed}: {s.frames} frames at {scn.frame_rate:g} Hz
+over {s.duration:.1f} s, a route of {s.path_length:.1f} m; the wheel odometry ends {s.odometry_end_error:.2f} m
+and {s.odometry_end_yaw_error_deg:.1f} deg off the ground truth. Same scenario and seed: byte-identical files.
+Read it with `hsmap.datasets.simulated.SimulatedDataset(folder)`.
+
+## Frames and units
+Metres, seconds, radians (degrees only where a key says `_deg`). The world frame has z up and the floor at
+z = 0. The robot base frame lies on the floor (x forward, y left). Poses are (x, y, yaw); 3D poses
+(x, y, z, roll, pitch, yaw) with R = Rz(yaw) Ry(pitch) Rx(roll). Both LiDARs take each frame's scan
+instantaneously at the frame's ground-truth pose (no motion distortion); the robot moves on a flat floor.
+
+## Files
+- `dataset.yaml`: format `{FORMAT}` version {FORMAT_VERSION}, scenario, seed, frame count and rate, the
+  sensors, robot and odometry model, the file list. Written last: without it the folder is incomplete.
+- `scans2d.npz`: `stamps` (N,) float64 s; `ranges` (N, {l2.beams}) float32 m, NaN = no return; `angles`
+  ({l2.beams},) rad. The 2D LiDAR scans a horizontal plane {l2.height:g} m above the floor from
+  {l2.angle_min_deg:g} to {l2.angle_max_deg:g} deg in {l2.angle_increment_deg:g} deg steps, ranges
+  {l2.range_min:g}..{l2.range_max:g} m, Gaussian noise sigma {l2.noise_sigma:g} m; its pose in the base
+  frame is `sensors.lidar2d.extrinsic` (x, y, yaw).
+- `clouds3d/NNNNNN.npz` (one per frame, NNNNNN = frame index): `range_mm` ({l3.channels}, {l3.columns})
+  uint16 millimetres, 0 = no return; `stamp` float64 s. Row i looks at elevation
+  `sensors.lidar3d.vertical_angles_deg[i]` (top beam first), column j at azimuth -pi + j * 2 pi / {l3.columns}
+  (counter-clockwise from the sensor's x axis). The point of pixel (i, j) in the sensor frame is
+  r * (cos el cos az, cos el sin az, sin el). Ranges {l3.range_min:g}..{l3.range_max:g} m, noise sigma
+  {l3.noise_sigma:g} m; the sensor's pose in the base frame is `sensors.lidar3d.extrinsic`
+  (x, y, z, roll, pitch, yaw), {l3.position[2]:g} m above the floor.
+- `groundtruth.tum`: true robot base poses in the world frame, one per frame, stamps equal to the scans'.
+- `odometry.tum`: wheel odometry of the robot base (odometry frame = world frame at the first pose), same
+  stamps. Error model: scale {scn.odometry.scale_error:+g}, rotation scale {scn.odometry.turn_scale_error:+g},
+  heading bias {scn.odometry.heading_bias_deg_per_m:g} deg/m, random slip (stronger when turning on the spot).
+- `rooms.png` + `rooms.yaml`: ground-truth room labels, {grid.shape[0]} x {grid.shape[1]} pixels of
+  {grid.resolution:g} m, 16-bit, 0 = no room (walls, doorways, outside), label k = room k of the scenario;
+  `rooms.yaml` gives the resolution, the map_server origin (world x, y of the lower-left corner of the
+  lower-left pixel) and the label names. Furniture does not change the labels.
+- `doors.json`: per door its name, centre (x, y), width, height, end points, wall, the rooms on both sides
+  (`null` = outside) and whether it is open.
+- `scenario.yaml`: the scenario that made this dataset.
+"""

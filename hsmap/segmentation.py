@@ -63,6 +63,11 @@ class SegmentationConfig:
         on the skeleton plus the narrowing test (the default, see the module docstring).
     median_size : int
         Side of the median filter on the free-space image (paper: yes; 0 or 1 disables).
+    median_keeps_walls : bool
+        The filter may only turn free pixels occupied (removing free speckle), never erase occupied ones:
+        a plain median erases walls one pixel thick. False gives the plain median of the paper.
+    min_obstacle_area : float
+        Occupied blobs smaller than this (m^2; specks, chair legs) are ignored by door detection.
     door_half_width, door_half_width_tolerance : float
         The paper's band of half door widths, metres (40 +/- 5 cm). Used by ``method="paper"``.
     min_door_half_width, max_door_half_width : float
@@ -80,6 +85,8 @@ class SegmentationConfig:
 
     method: str = "critical"
     median_size: int = 3
+    median_keeps_walls: bool = True
+    min_obstacle_area: float = 0.0
     door_half_width: float = 0.40
     door_half_width_tolerance: float = 0.05
     min_door_half_width: float = 0.2
@@ -237,6 +244,30 @@ def _march(free: NDArray[np.bool_], start: NDArray[np.float64], direction: NDArr
     return idx[int(np.argmax(hit))]
 
 
+def _basis_points(free: NDArray[np.bool_], p: NDArray[np.int64], q1: NDArray[np.int64], radius: int,
+                  min_angle: float = np.deg2rad(110)) -> tuple[NDArray[np.int64] | None, NDArray[np.int64] | None]:
+    """The two obstacle pixels a critical line joins: ``q1`` (nearest to ``p``) and the nearest obstacle
+    pixel seen from ``p`` at least ``min_angle`` away from ``q1`` (on the other side of the passage)."""
+    H, W = free.shape
+    r0, r1 = max(p[0] - radius, 0), min(p[0] + radius + 1, H)
+    c0, c1 = max(p[1] - radius, 0), min(p[1] + radius + 1, W)
+    orr, occ = np.nonzero(~free[r0:r1, c0:c1])
+    if not len(orr):
+        return None, None
+    v = np.stack([orr + r0 - p[0], occ + c0 - p[1]], 1).astype(float)
+    v1 = (q1 - p).astype(float)
+    n1 = np.hypot(*v1)
+    if n1 < 1e-9:
+        return None, None
+    d = np.hypot(v[:, 0], v[:, 1])
+    cosang = (v @ v1) / np.maximum(d * n1, 1e-9)
+    ok = (cosang <= np.cos(min_angle)) & (d <= radius)
+    if not ok.any():
+        return None, None
+    j = np.nonzero(ok)[0][np.argmin(d[ok])]
+    return q1.astype(np.int64), np.array([orr[j] + r0, occ[j] + c0], dtype=np.int64)
+
+
 def _line_pixels(a: NDArray[np.int64], b: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """4-connected pixel line from a to b (rows, cols), so that 4-connected regions cannot leak through."""
     n = int(max(abs(b[0] - a[0]), abs(b[1] - a[1]))) * 2 + 1
@@ -355,10 +386,17 @@ def segment_rooms(
     # 1. median filter
     if cfg.median_size > 1:
         filtered = ndi.median_filter(free.astype(np.uint8), size=cfg.median_size).astype(bool)
+        if cfg.median_keeps_walls:
+            filtered &= free
     else:
         filtered = free.copy()
     if not filtered.any():
         filtered = free.copy()
+    if cfg.min_obstacle_area > 0:
+        occ, n_occ = ndi.label(~filtered, structure=_EIGHT)
+        small = np.bincount(occ.ravel(), minlength=n_occ + 1) * res * res < cfg.min_obstacle_area
+        small[0] = False
+        filtered |= small[occ]
     # 2. skeleton x distance transform
     from skimage.morphology import skeletonize
 
@@ -382,8 +420,11 @@ def segment_rooms(
     max_steps = int(np.ceil(1.5 * max_len / res)) + 2
     for (r, c), u in zip(centres, directions, strict=True):
         p = np.array([r, c], dtype=float)
-        a = _march(filtered, p, u, max_steps)
-        b = _march(filtered, p, -u, max_steps)
+        if cfg.method == "paper":
+            a = _march(filtered, p, u, max_steps)
+            b = _march(filtered, p, -u, max_steps)
+        else:
+            a, b = _basis_points(filtered, np.array([r, c]), nearest[:, r, c], max_steps)
         if a is None or b is None:
             continue
         width = float(np.hypot(*(a - b))) * res

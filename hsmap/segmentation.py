@@ -244,10 +244,11 @@ def _march(free: NDArray[np.bool_], start: NDArray[np.float64], direction: NDArr
     return idx[int(np.argmax(hit))]
 
 
-def _basis_points(free: NDArray[np.bool_], p: NDArray[np.int64], q1: NDArray[np.int64], radius: int,
+def _basis_points(free: NDArray[np.bool_], p: NDArray[np.int64], radius: int,
                   min_angle: float = np.deg2rad(110)) -> tuple[NDArray[np.int64] | None, NDArray[np.int64] | None]:
-    """The two obstacle pixels a critical line joins: ``q1`` (nearest to ``p``) and the nearest obstacle
-    pixel seen from ``p`` at least ``min_angle`` away from ``q1`` (on the other side of the passage)."""
+    """The two obstacle pixels a critical line joins: the nearest one to ``p`` and the nearest one seen from
+    ``p`` at least ``min_angle`` away from the first (on the other side of the passage); None if absent
+    within ``radius`` pixels."""
     H, W = free.shape
     r0, r1 = max(p[0] - radius, 0), min(p[0] + radius + 1, H)
     c0, c1 = max(p[1] - radius, 0), min(p[1] + radius + 1, W)
@@ -255,17 +256,16 @@ def _basis_points(free: NDArray[np.bool_], p: NDArray[np.int64], q1: NDArray[np.
     if not len(orr):
         return None, None
     v = np.stack([orr + r0 - p[0], occ + c0 - p[1]], 1).astype(float)
-    v1 = (q1 - p).astype(float)
-    n1 = np.hypot(*v1)
-    if n1 < 1e-9:
-        return None, None
     d = np.hypot(v[:, 0], v[:, 1])
-    cosang = (v @ v1) / np.maximum(d * n1, 1e-9)
+    i = int(np.argmin(d))
+    if d[i] < 1e-9:
+        return None, None
+    cosang = (v @ v[i]) / np.maximum(d * d[i], 1e-9)
     ok = (cosang <= np.cos(min_angle)) & (d <= radius)
     if not ok.any():
         return None, None
     j = np.nonzero(ok)[0][np.argmin(d[ok])]
-    return q1.astype(np.int64), np.array([orr[j] + r0, occ[j] + c0], dtype=np.int64)
+    return np.array([orr[i] + r0, occ[i] + c0], dtype=np.int64), np.array([orr[j] + r0, occ[j] + c0], dtype=np.int64)
 
 
 def _line_pixels(a: NDArray[np.int64], b: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
@@ -400,7 +400,7 @@ def segment_rooms(
     # 2. skeleton x distance transform
     from skimage.morphology import skeletonize
 
-    dist_px, nearest = ndi.distance_transform_edt(filtered, return_indices=True)
+    dist_px = ndi.distance_transform_edt(filtered)
     skel = skeletonize(filtered)
     product = np.where(skel, dist_px * res, 0.0)
 
@@ -410,7 +410,7 @@ def segment_rooms(
     if cfg.method == "paper":
         centres, directions = _paper_candidates(skel, product, rr, cc, nbr, dvals, cfg, res)
     else:
-        centres, directions = _critical_candidates(rr, cc, nbr, dvals, nearest, cfg, res)
+        centres, directions = _critical_candidates(rr, cc, nbr, dvals, cfg, res)
 
     # 4. door lines
     cut = np.zeros_like(free)
@@ -424,7 +424,7 @@ def segment_rooms(
             a = _march(filtered, p, u, max_steps)
             b = _march(filtered, p, -u, max_steps)
         else:
-            a, b = _basis_points(filtered, np.array([r, c]), nearest[:, r, c], max_steps)
+            a, b = _basis_points(filtered, np.array([r, c]), max_steps)
         if a is None or b is None:
             continue
         width = float(np.hypot(*(a - b))) * res
@@ -435,12 +435,12 @@ def segment_rooms(
         door_px.append((np.array([r, c]), a, b, np.stack([lr, lc], 1), width))
 
     # 5. regions
-    lab, n = ndi.label(free & ~cut, structure=_FOUR)
+    lab, n = ndi.label(filtered & ~cut, structure=_FOUR)
     regions0 = lab.copy()
     peak = np.zeros(n + 1)
     if n:
-        peak[1:] = ndi.maximum(dist_px * res, lab, np.arange(1, n + 1))
-    area = np.bincount(lab.ravel(), minlength=n + 1).astype(float) * res * res
+        np.maximum.at(peak, lab[rr, cc], dvals)
+        peak[0] = 0.0
     uf = _UnionFind(n + 1)
     # which regions does each door line separate?
     door_regions: list[tuple[int, int]] = []
@@ -461,6 +461,7 @@ def segment_rooms(
     # 6. fold the cut pixels into regions, then merge small regions
     lab = _relabel(lab, uf)
     lab = _fill_from_neighbours(lab, free)
+    lab[~free] = 0
     lab = _merge_small(lab, res, cfg.min_room_area)
     if cfg.assign_furniture:
         lab = _assign_furniture(lab, free)
@@ -539,32 +540,31 @@ def _paper_candidates(skel, product, rr, cc, nbr, dvals, cfg, res):
     return centres, dirs
 
 
-def _critical_candidates(rr, cc, nbr, dvals, nearest, cfg, res):
+def _critical_candidates(rr, cc, nbr, dvals, cfg, res):
     """Critical points: skeleton pixels with the least clearance within ``critical_radius`` along it."""
+    from scipy.spatial import cKDTree
+
     steps = max(1, int(round(cfg.critical_radius / res)))
     gmin = _geodesic_filter(dvals, nbr, steps, np.minimum)
     degree = (nbr >= 0).sum(1)
     cand = (dvals <= gmin + 1e-9) & (degree >= 2)
     cand &= (dvals >= cfg.min_door_half_width) & (dvals <= cfg.max_door_half_width)
     idx = np.nonzero(cand)[0]
-    # non-maximum suppression of ties (plateaus): keep the first of each cluster within the radius
+    if not len(idx):
+        return [], []
+    # non-maximum suppression of ties (plateaus): greedily keep the lowest, drop the others within the radius
     order = idx[np.argsort(dvals[idx], kind="stable")]
-    taken: list[int] = []
-    pos = np.stack([rr, cc], 1).astype(float)
-    centres, dirs = [], []
-    rad2 = float(steps) ** 2
-    for i in order:
-        if taken and np.min(((pos[taken] - pos[i]) ** 2).sum(1)) < rad2:
+    pos = np.stack([rr[order], cc[order]], 1).astype(float)
+    tree = cKDTree(pos)
+    close = tree.query_ball_point(pos, r=steps - 1e-6)
+    alive = np.ones(len(order), dtype=bool)
+    centres = []
+    for k in range(len(order)):
+        if not alive[k]:
             continue
-        taken.append(int(i))
-        q = nearest[:, rr[i], cc[i]].astype(float)
-        v = pos[i] - q
-        nv = np.hypot(*v)
-        if nv < 1e-9:
-            continue
-        centres.append((int(rr[i]), int(cc[i])))
-        dirs.append(v / nv)
-    return centres, dirs
+        alive[close[k]] = False
+        centres.append((int(pos[k, 0]), int(pos[k, 1])))
+    return centres, [None] * len(centres)
 
 
 def _merge_by_narrowing(door_px, door_regions, peak, uf, cfg) -> None:
@@ -573,19 +573,23 @@ def _merge_by_narrowing(door_px, door_regions, peak, uf, cfg) -> None:
         return
     half = np.array([d[4] / 2.0 for d in door_px])
     pairs = np.array(door_regions, dtype=np.int64)
+    root = np.arange(len(peak))
     pk = peak.copy()
     while True:
-        ra = np.array([uf.find(int(a)) for a in pairs[:, 0]])
-        rb = np.array([uf.find(int(b)) for b in pairs[:, 1]])
+        ra, rb = root[pairs[:, 0]], root[pairs[:, 1]]
         live = (ra != rb) & (ra > 0) & (rb > 0)
         if not live.any():
-            return
+            break
         ratio = np.where(live, half / np.maximum(np.minimum(pk[ra], pk[rb]), 1e-9), -1.0)
         j = int(np.argmax(ratio))
         if ratio[j] <= cfg.narrowing_ratio:
-            return
-        top = uf.union(int(ra[j]), int(rb[j]))
-        pk[top] = max(pk[ra[j]], pk[rb[j]])
+            break
+        a, b = int(ra[j]), int(rb[j])
+        root[root == b] = a
+        pk[a] = max(pk[a], pk[b])
+    for i in range(1, len(root)):
+        if root[i] != i:
+            uf.union(int(root[i]), i)
 
 
 def _relabel(lab: NDArray[np.int64], uf: _UnionFind) -> NDArray[np.int64]:
@@ -596,13 +600,15 @@ def _relabel(lab: NDArray[np.int64], uf: _UnionFind) -> NDArray[np.int64]:
 
 
 def _fill_from_neighbours(lab: NDArray[np.int64], free: NDArray[np.bool_]) -> NDArray[np.int64]:
-    """Give unlabelled free pixels (door lines) the label of the nearest labelled pixel."""
-    hole = free & (lab == 0)
-    if not hole.any() or not (lab > 0).any():
-        return lab
-    _, ind = ndi.distance_transform_edt(lab == 0, return_indices=True)
+    """Give unlabelled free pixels (door lines, filtered-out specks) the label of a labelled neighbour within
+    three pixels; free specks further away stay unlabelled."""
     out = lab.copy()
-    out[hole] = lab[ind[0][hole], ind[1][hole]]
+    for _ in range(3):
+        hole = free & (out == 0)
+        if not hole.any():
+            return out
+        grown = ndi.maximum_filter(out, size=3)
+        out[hole] = grown[hole]
     return out
 
 

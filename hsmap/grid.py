@@ -409,11 +409,16 @@ def grid_from_scans(
 ) -> OccupancyGrid:
     """Occupancy grid from 2D scans taken at known poses: free along each beam, occupied at its end.
 
+    Each scan adds ``config.miss`` to every cell its beams sweep (the scan polygon from the sensor through the
+    consecutive end points, rasterised; a beam with no return contributes the sensor position, i.e. nothing,
+    unless ``config.max_range_free``) and ``config.hit`` to the cell of every end point; the summed
+    log-odds are thresholded.
+
     Parameters
     ----------
     scans : sequence of (N_i, 2) arrays or LaserScan2D
-        Each scan in its sensor frame (points are beam end points; a LaserScan2D also gives the no-return
-        beams, used when ``config.max_range_free``).
+        Each scan in its sensor frame. Arrays are end points in beam order (a LaserScan2D also gives the
+        no-return beams).
     poses : ndarray of shape (M, 3)
         World pose (x, y, yaw) of the robot at each scan (M = len(scans)).
     resolution : float
@@ -428,8 +433,10 @@ def grid_from_scans(
     Returns
     -------
     OccupancyGrid
-        Cells never touched by a beam are unknown.
+        Cells no beam touched are unknown.
     """
+    from PIL import Image, ImageDraw
+
     from .geometry import compose, pose_to_matrix
 
     cfg = config or ScanGridConfig()
@@ -442,66 +449,49 @@ def grid_from_scans(
     if not (np.isfinite(resolution) and resolution > 0):
         raise InputError(f"resolution must be a positive number of metres per cell, got {resolution}")
     ext = np.zeros(3) if extrinsic is None else np.asarray(extrinsic, dtype=float).reshape(3)
-    origins, ends, hits = [], [], []
+    world: list[tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]] = []
     for i, (scan, pose) in enumerate(zip(scans, poses, strict=True)):
         pts, hit = _as_scan_points(scan, f"scans[{i}]")
-        if not len(pts):
-            continue
         sensor = compose(pose, ext)
         T = pose_to_matrix(sensor)
         w = pts @ T[:2, :2].T + T[:2, 2]
-        origins.append(np.broadcast_to(sensor[:2], w.shape))
-        ends.append(w)
-        hits.append(hit)
-    if not ends:
-        raise EmptyInputError("grid_from_scans: no beam end points in any scan")
-    o = np.concatenate(origins)
-    e = np.concatenate(ends)
-    h = np.concatenate(hits)
-    if not cfg.max_range_free:
-        o, e, h = o[h], e[h], h[h]
-        if not len(e):
-            raise EmptyInputError("grid_from_scans: no valid returns in any scan")
+        if not cfg.max_range_free:
+            w[~hit] = sensor[:2]
+        if hit.any() or (cfg.max_range_free and len(w)):
+            world.append((sensor[:2], w, hit))
+    if not world:
+        raise EmptyInputError("grid_from_scans: no valid return in any scan")
     if geometry is None:
-        allp = np.vstack([o[:1], e, np.unique(o, axis=0)])
+        allp = np.vstack([np.vstack([o[None], w]) for o, w, _ in world])
         geometry = GridGeometry.covering(allp.min(0), allp.max(0), resolution, margin)
     H, W = geometry.shape
-    logodds = np.zeros(H * W)
-    # free cells: sample each beam every half cell, excluding the end cell; one miss per (beam, cell)
-    step = 0.5 * geometry.resolution
-    length = np.linalg.norm(e - o, axis=1)
-    n_samp = np.floor(length / step).astype(np.int64)
-    chunk = 2_000_000
-    start = 0
-    end_idx = geometry.world_to_index(e)
-    end_flat = np.where(geometry.inside(end_idx), end_idx[:, 0] * W + end_idx[:, 1], -1)
-    while start < len(e):
-        # choose a run of beams with about `chunk` samples
-        csum = np.cumsum(n_samp[start:])
-        stop = start + max(1, int(np.searchsorted(csum, chunk)))
-        ns = n_samp[start:stop]
-        beam = np.repeat(np.arange(start, stop), ns)
-        offs = np.arange(len(beam)) - np.repeat(np.cumsum(ns) - ns, ns)
-        t = (offs * step) / np.maximum(length[beam], 1e-12)
-        p = o[beam] + t[:, None] * (e[beam] - o[beam])
-        idx = geometry.world_to_index(p)
+    logodds = np.zeros((H, W))
+    touched = np.zeros((H, W), dtype=bool)
+    for o, w, hit in world:
+        poly = geometry.world_to_pixel(np.vstack([o[None], w]))  # (row, col), pixel centres at integers
+        lo = np.floor(poly.min(0)).astype(int) - 1
+        hi = np.ceil(poly.max(0)).astype(int) + 2
+        lo = np.maximum(lo, 0)
+        hi = np.minimum(hi, [H, W])
+        if np.any(hi <= lo):
+            continue
+        canvas = Image.new("1", (int(hi[1] - lo[1]), int(hi[0] - lo[0])), 0)
+        xy = (poly[:, ::-1] - lo[::-1]).ravel().tolist()  # PIL wants (x=col, y=row) pairs
+        ImageDraw.Draw(canvas).polygon(xy, fill=1, outline=1)
+        swept = np.asarray(canvas, dtype=bool).copy()
+        idx = geometry.world_to_index(w[hit])
         ok = geometry.inside(idx)
-        flat = idx[ok, 0] * W + idx[ok, 1]
-        b = beam[ok]
-        keep = flat != end_flat[b]  # the end cell is not a miss for its own beam
-        key = np.unique(b[keep] * (H * W) + flat[keep])  # one miss per beam and cell
-        np.add.at(logodds, key % (H * W), cfg.miss)
-        start = stop
-    ok = (end_flat >= 0) & h
-    hit_cells, counts = np.unique(end_flat[ok], return_counts=True)
-    logodds[hit_cells] += cfg.hit * counts
-    touched = np.zeros(H * W, dtype=bool)
-    touched[hit_cells] = True
-    touched |= logodds != 0
-    data = np.full(H * W, UNKNOWN, dtype=np.int8)
+        hr, hc = idx[ok, 0], idx[ok, 1]
+        inside = (hr >= lo[0]) & (hr < hi[0]) & (hc >= lo[1]) & (hc < hi[1])
+        swept[hr[inside] - lo[0], hc[inside] - lo[1]] = False  # a scan's own hits are no misses
+        logodds[lo[0]:hi[0], lo[1]:hi[1]] += cfg.miss * swept
+        touched[lo[0]:hi[0], lo[1]:hi[1]] |= swept
+        np.add.at(logodds, (hr, hc), cfg.hit)
+        touched[hr, hc] = True
+    data = np.full((H, W), UNKNOWN, dtype=np.int8)
     data[touched & (logodds < cfg.free_below)] = FREE
-    data[logodds > cfg.occupied_above] = OCCUPIED
-    return OccupancyGrid(data.reshape(H, W), geometry)
+    data[touched & (logodds > cfg.occupied_above)] = OCCUPIED
+    return OccupancyGrid(data, geometry)
 
 
 def grid_from_point_slice(

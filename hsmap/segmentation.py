@@ -86,10 +86,10 @@ class SegmentationConfig:
     method: str = "critical"
     median_size: int = 3
     median_keeps_walls: bool = True
-    min_obstacle_area: float = 0.0
+    min_obstacle_area: float = 0.25
     door_half_width: float = 0.40
     door_half_width_tolerance: float = 0.05
-    min_door_half_width: float = 0.2
+    min_door_half_width: float = 0.15
     max_door_half_width: float = 0.75
     critical_radius: float = 0.5
     narrowing_ratio: float = 0.7
@@ -563,8 +563,34 @@ def _critical_candidates(rr, cc, nbr, dvals, cfg, res):
         if not alive[k]:
             continue
         alive[close[k]] = False
-        centres.append((int(pos[k, 0]), int(pos[k, 1])))
+        j = _plateau_centre(int(order[k]), rr, cc, nbr, dvals, 0.5 * res, steps)
+        centres.append((int(rr[j]), int(cc[j])))
     return centres, [None] * len(centres)
+
+
+def _plateau_centre(i: int, rr, cc, nbr: NDArray[np.int64], dvals: NDArray[np.float64], tol: float,
+                    steps: int) -> int:
+    """The middle of the run of skeleton pixels around ``i`` whose clearance is within ``tol`` of its own
+    (a doorway through a thick wall is such a run; its middle is the door's centre)."""
+    level = dvals[i] + tol
+    seen = {i}
+    frontier = [i]
+    for _ in range(steps):
+        nxt = []
+        for a in frontier:
+            for b in nbr[a]:
+                if b >= 0 and b not in seen and dvals[b] <= level:
+                    seen.add(int(b))
+                    nxt.append(int(b))
+        if not nxt:
+            break
+        frontier = nxt
+    if len(seen) < 3:
+        return i
+    m = np.fromiter(seen, dtype=np.int64)
+    pr, pc = rr[m].astype(float), cc[m].astype(float)
+    k = int(np.argmin((pr - pr.mean()) ** 2 + (pc - pc.mean()) ** 2))
+    return int(m[k])
 
 
 def _merge_by_narrowing(door_px, door_regions, peak, uf, cfg) -> None:

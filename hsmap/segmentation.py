@@ -439,7 +439,9 @@ def segment_rooms(
     regions0 = lab.copy()
     peak = np.zeros(n + 1)
     if n:
-        np.maximum.at(peak, lab[rr, cc], dvals)
+        # largest clearance of each region: it lies on a local maximum of the distance transform
+        top = (dist_px >= ndi.maximum_filter(dist_px, size=3)) & (lab > 0)
+        np.maximum.at(peak, lab[top], dist_px[top] * res)
         peak[0] = 0.0
     uf = _UnionFind(n + 1)
     # which regions does each door line separate?

@@ -468,7 +468,12 @@ def grid_from_scans(
     logodds = np.zeros((H, W))
     touched = np.zeros((H, W), dtype=bool)
     for o, w, hit in world:
-        poly = geometry.world_to_pixel(np.vstack([o[None], w]))  # (row, col), pixel centres at integers
+        # the swept area stops short of each end point by 0.75 cell, so the hit cell and those behind it
+        # are not cleared by rounding
+        v = w - o
+        n = np.linalg.norm(v, axis=1, keepdims=True)
+        w_short = o + v * np.clip(1.0 - 0.75 * geometry.resolution / np.maximum(n, 1e-12), 0.0, 1.0)
+        poly = geometry.world_to_pixel(np.vstack([o[None], w_short]))  # (row, col), centres at integers
         lo = np.floor(poly.min(0)).astype(int) - 1
         hi = np.ceil(poly.max(0)).astype(int) + 2
         lo = np.maximum(lo, 0)
@@ -477,7 +482,7 @@ def grid_from_scans(
             continue
         canvas = Image.new("1", (int(hi[1] - lo[1]), int(hi[0] - lo[0])), 0)
         xy = (poly[:, ::-1] - lo[::-1]).ravel().tolist()  # PIL wants (x=col, y=row) pairs
-        ImageDraw.Draw(canvas).polygon(xy, fill=1, outline=1)
+        ImageDraw.Draw(canvas).polygon(xy, fill=1)
         swept = np.asarray(canvas, dtype=bool).copy()
         idx = geometry.world_to_index(w[hit])
         ok = geometry.inside(idx)

@@ -125,7 +125,8 @@ class Door:
     end_points : ndarray of shape (2, 2)
         World (x, y) of the two ends (the occupied cells it spans between).
     width : float
-        Distance between the end points, metres.
+        Free span between the end points, metres (their distance less one pixel: the end points are the
+        centres of the occupied pixels on either side).
     rooms : tuple of int
         Labels of the two rooms it connects (0 where not known).
     pixel : tuple of int
@@ -427,7 +428,8 @@ def segment_rooms(
             a, b = _basis_points(filtered, np.array([r, c]), max_steps)
         if a is None or b is None:
             continue
-        width = float(np.hypot(*(a - b))) * res
+        # the free span: between the facing edges of the two end pixels
+        width = max(float(np.hypot(*(a - b))) - 1.0, 0.0) * res
         if width > 1.5 * max_len:
             continue
         lr, lc = _line_pixels(a, b)
@@ -472,7 +474,7 @@ def segment_rooms(
     doors: list[Door] = []
     full_labels = np.zeros(free_full.shape, dtype=np.int32)
     full_labels[r0:r1, c0:c1] = lab[pad:-pad, pad:-pad]
-    seen: set[tuple[int, int, int, int]] = set()
+    found = []
     for centre, a, b, px, width in door_px:
         nb = (px[:, None, :] + _OFFSETS[None, :, :]).reshape(-1, 2)
         ok = (nb[:, 0] >= 0) & (nb[:, 0] < lab.shape[0]) & (nb[:, 1] >= 0) & (nb[:, 1] < lab.shape[1])
@@ -481,13 +483,18 @@ def segment_rooms(
         if len(u) < 2:
             continue
         o = np.argsort(-cnt)
-        ra, rb = sorted((int(u[o[0]]), int(u[o[1]])))
-        key = (ra, rb, int(centre[0]) // 4, int(centre[1]) // 4)
-        if key in seen:
+        found.append((width, tuple(sorted((int(u[o[0]]), int(u[o[1]])))), centre, a, b))
+    # one door per passage: of several lines between the same rooms closer than a door width, keep the
+    # narrowest
+    kept: list[tuple] = []
+    for width, pair, centre, a, b in sorted(found, key=lambda t: t[0]):
+        if any(k[1] == pair and np.hypot(*(k[2] - centre)) * res < max(width, k[0]) for k in kept):
             continue
-        seen.add(key)
+        kept.append((width, pair, centre, a, b))
+    kept.sort(key=lambda t: (t[2][0], t[2][1]))
+    for width, pair, centre, a, b in kept:
         ends = geometry.pixel_to_world(np.stack([a, b]) + off)
-        doors.append(Door(geometry.pixel_to_world(centre + off), ends, width, (ra, rb),
+        doors.append(Door(geometry.pixel_to_world(centre + off), ends, width, pair,
                           (int(centre[0] + off[0]), int(centre[1] + off[1]))))
 
     if keep_steps:

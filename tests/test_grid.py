@@ -1,8 +1,24 @@
 import numpy as np
 import pytest
+import yaml
+from PIL import Image
+from scipy import ndimage as ndi
 
-from hsmap.errors import InputError
-from hsmap.grid import GridGeometry
+from hsmap.errors import DataFormatError, DatasetError, EmptyInputError, HsmapError, InputError, ShapeError
+from hsmap.grid import (
+    FREE,
+    OCCUPIED,
+    UNKNOWN,
+    GridGeometry,
+    OccupancyGrid,
+    grid_from_point_slice,
+    grid_from_scans,
+    read_image_gray,
+    read_label_image,
+    read_map,
+    write_label_image,
+    write_map,
+)
 
 
 def test_world_pixel_roundtrip(rng):
@@ -35,24 +51,6 @@ def test_bad_resolution():
 # occupancy grids: map_server I/O, images, scans, height slices
 # ---------------------------------------------------------------------------------------------------------
 
-import yaml  # noqa: E402
-from scipy import ndimage as ndi  # noqa: E402
-from PIL import Image  # noqa: E402
-
-from hsmap.errors import DataFormatError, DatasetError, EmptyInputError, HsmapError, ShapeError  # noqa: E402
-from hsmap.grid import (  # noqa: E402
-    FREE,
-    OCCUPIED,
-    UNKNOWN,
-    OccupancyGrid,
-    grid_from_point_slice,
-    grid_from_scans,
-    read_image_gray,
-    read_label_image,
-    read_map,
-    write_label_image,
-    write_map,
-)
 
 
 def _small_grid():

@@ -69,7 +69,10 @@ def steps_figure(segmentation, title: str | None = None, crop: bool = True):
         sl = (slice(None), slice(None))
     off = np.array([sl[0].start or 0, sl[1].start or 0])
     cfg = segmentation.config
-    fig = Figure(figsize=(16, 8.5), layout="constrained")
+    h = (sl[0].stop or free.shape[0]) - off[0]
+    w = (sl[1].stop or free.shape[1]) - off[1]
+    aspect = min(max(w / max(h, 1), 0.5), 3.0)
+    fig = Figure(figsize=(17, 2 * 4.0 / aspect + 1.4), layout="constrained")
     axes = fig.subplots(2, 4)
     for ax in axes.ravel():
         ax.set_xticks([])

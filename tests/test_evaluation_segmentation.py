@@ -115,7 +115,7 @@ def _cli(*args):
     return subprocess.run([sys.executable, "-m", "hsmap.cli", *map(str, args)], capture_output=True, text=True)
 
 
-def test_cli_evaluate_segmentation(tmp_path):
+def test_cli_evaluate_segmentation(tmp_path, capsys):
     gt = _gt_two_rooms()
     Image.fromarray(gt).convert("RGB").save(tmp_path / "gt.png")  # RGB like some benchmark files
     seg = np.zeros(gt.shape, np.int32)
@@ -127,11 +127,17 @@ def test_cli_evaluate_segmentation(tmp_path):
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout)
     assert out["recall"] == pytest.approx(0.875) and out["precision"] == 1.0 and out["n_segments"] == 3
+    from hsmap.cli import main
+
     (tmp_path / "bad.png").write_text("not an image")
-    r = _cli("evaluate", "segmentation", tmp_path / "bad.png", tmp_path / "gt.png")
-    assert r.returncode == 2 and r.stderr.startswith("hsmap: error:") and "bad.png" in r.stderr
-    r = _cli("evaluate", "segmentation", tmp_path / "missing.png", tmp_path / "gt.png")
-    assert r.returncode == 2 and "no such" in r.stderr
+    assert main(["evaluate", "segmentation", str(tmp_path / "bad.png"), str(tmp_path / "gt.png")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("hsmap: error:") and "bad.png" in err
+    assert main(["evaluate", "segmentation", str(tmp_path / "missing.png"), str(tmp_path / "gt.png")]) == 2
+    assert "no such" in capsys.readouterr().err
+    Image.fromarray(np.zeros((3, 3), np.uint8)).save(tmp_path / "small.png")
+    assert main(["evaluate", "segmentation", str(tmp_path / "small.png"), str(tmp_path / "gt.png")]) == 2
+    assert "differ" in capsys.readouterr().err
 
 
 @pytest.mark.datasets

@@ -201,3 +201,22 @@ def test_benchmark_map(datasets_dir):
         s = segmentation_scores(seg.labels, gt)
         assert s.precision >= p_min and s.recall >= r_min, (name, s)
         assert 8 <= seg.n_rooms <= 12 and len(seg.doors) >= 8
+
+
+def test_office_floor_rooms_and_doors():
+    # the simulator's slam-office layout: 8 rooms (3 offices, corridor, meeting room, kitchen, office 4,
+    # open area with two columns) and 10 open 0.9 m doors
+    t = 0.15
+    walls = [(0, 0, 21, 0, 0.25), (21, 0, 21, 13.6, 0.25), (21, 13.6, 0, 13.6, 0.25), (0, 13.6, 0, 0, 0.25),
+             (0, 6, 15, 6, t), (0, 7.8, 15, 7.8, t), (15, 0, 15, 13.6, 0.2), (5, 0, 5, 6, t), (10, 0, 10, 6, t),
+             (7, 7.8, 7, 13.6, t), (10.5, 7.8, 10.5, 13.6, t)]
+    doors = [((3.8, 6), 0.9, "x"), ((8.8, 6), 0.9, "x"), ((13.8, 6), 0.9, "x"), ((1.2, 7.8), 0.9, "x"),
+             ((5.8, 7.8), 0.9, "x"), ((8.8, 7.8), 0.9, "x"), ((13.8, 7.8), 0.9, "x"), ((15, 6.9), 0.9, "y"),
+             ((15, 2.0), 0.9, "y"), ((15, 11.0), 0.9, "y")]
+    columns = [(17.8, 4.3, 18.2, 4.7), (17.8, 9.3, 18.2, 9.7)]
+    grid = draw_world(walls, doors, [(0, 0, 21, 13.6)], furniture=columns)
+    seg = segment_rooms(grid)
+    assert seg.n_rooms == 8 and len(seg.doors) == 10
+    assert np.all(_match_doors(seg, np.array([c for c, _, _ in doors])) < 0.1)
+    corridor = _region_at(seg, (7.5, 6.9))
+    assert sum(corridor in d.rooms for d in seg.doors) == 8

@@ -8,7 +8,9 @@ precision and recall, :func:`hsmap.evaluation.segmentation_scores`).
 Methods, in this process, on the same maps:
 - ``critical`` (hsmap default): critical points on the skeleton + narrowing test + merging;
 - ``paper``: the paper's Algorithm 2 as published (band of half door widths 40 +/- 5 cm), same merging of
-  small regions.
+  small regions;
+- ``critical+furniture``: the default plus the optional step that gives furniture enclosed by a room that
+  room's label (full-room labels; not in the default configuration).
 
 Times are wall-clock medians over ``--repeats`` runs of ``segment_rooms`` per map (map already in memory),
 one map at a time, single process. Writes reports/benchmarks/segmentation.json (atomically), the step
@@ -63,7 +65,7 @@ def run_method(name: str, cfg: SegmentationConfig, folder: Path, maps: list[str]
                 "n_rooms": s.n_rooms, "n_segments": s.n_segments, "n_doors": len(seg.doors),
                 "time_s": float(np.median(times)), "times_s": times, "pixels": int(free.size),
             })
-            print(f"  {name:8s} {n + suffix:28s} P={s.precision:.3f} R={s.recall:.3f} "
+            print(f"  {name:18s} {n + suffix:28s} P={s.precision:.3f} R={s.recall:.3f} "
                   f"segs={s.n_segments:3d}/{s.n_rooms:3d} t={np.median(times):.2f}s", flush=True)
     return rows
 
@@ -93,7 +95,7 @@ def main(argv=None) -> int:
     ap.add_argument("--datasets", default=os.environ.get("HSMAP_DATASETS", "../shared/datasets"))
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--maps", default=",".join(NAMES), help="comma-separated building names")
-    ap.add_argument("--methods", default="critical,paper")
+    ap.add_argument("--methods", default="critical,paper,critical+furniture")
     ap.add_argument("--figure-map", default="Freiburg52_scan_furnitures",
                     help="map whose step-by-step figure is written ('' for none)")
     ap.add_argument("--out", default="reports/benchmarks/segmentation.json")
@@ -103,7 +105,11 @@ def main(argv=None) -> int:
         print(f"benchmark data not found: {folder} (set HSMAP_DATASETS)", file=sys.stderr)
         return 2
     maps = [m for m in args.maps.split(",") if m]
-    configs = {"critical": SegmentationConfig(), "paper": dataclasses.replace(SegmentationConfig(), method="paper")}
+    configs = {
+        "critical": SegmentationConfig(),
+        "paper": dataclasses.replace(SegmentationConfig(), method="paper"),
+        "critical+furniture": dataclasses.replace(SegmentationConfig(), assign_furniture=True),
+    }
     methods = [m for m in args.methods.split(",") if m]
     result = {
         "benchmark": "ipa_room_segmentation (Bormann et al. 2016), 15 buildings x {plain, furnished}",
@@ -147,12 +153,12 @@ def main(argv=None) -> int:
             print(f"{n:18s} {a['precision']:8.3f} {a['recall']:8.3f} {a['time_s']:6.2f}   "
                   f"{b['precision']:7.3f} {b['recall']:7.3f} {b['time_s']:6.2f}")
     print("\nsummary (means over maps; targets plain P,R >= 0.90; furnished R >= 0.80, P >= 0.90)")
-    print(f"{'method':10s} {'kind':10s} {'P':>6s} {'R':>6s} {'P_area':>7s} {'R_area':>7s} {'t_med':>6s} {'t_max':>6s}")
+    print(f"{'method':18s} {'kind':10s} {'P':>6s} {'R':>6s} {'P_area':>7s} {'R_area':>7s} {'t_med':>6s} {'t_max':>6s}")
     for m in methods:
         for kind, s in result["methods"][m]["summary"].items():
             if kind == "all":
                 continue
-            print(f"{m:10s} {kind:10s} {s['precision']:6.3f} {s['recall']:6.3f} {s['precision_area']:7.3f} "
+            print(f"{m:18s} {kind:10s} {s['precision']:6.3f} {s['recall']:6.3f} {s['precision_area']:7.3f} "
                   f"{s['recall_area']:7.3f} {s['time_median_s']:6.2f} {s['time_max_s']:6.2f}")
     print(f"\nwrote {args.out}")
     return 0

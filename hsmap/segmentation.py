@@ -2,7 +2,9 @@
 
 Pipeline (images in (row, col), world coordinates through :class:`hsmap.grid.GridGeometry`):
 
-1. binary free-space image, median filtered;
+1. binary free-space image, median filtered (by default the filter may clear free speckle but never erase
+   an occupied pixel: a plain 3x3 median erases walls one pixel thick); occupied blobs smaller than
+   ``min_obstacle_area`` (chairs, table legs, specks) are ignored by the door detection;
 2. skeleton of the free space and its Euclidean distance transform (clearance, metres); their product is
    the clearance along the skeleton;
 3. door candidates on the skeleton:
@@ -12,19 +14,27 @@ Pipeline (images in (row, col), world coordinates through :class:`hsmap.grid.Gri
      each segment is a door centre;
    * ``method="critical"`` (default): the Voronoi critical points of Thrun (1998) and Bormann et al. (2016):
      skeleton pixels whose clearance is the smallest within ``critical_radius`` along the skeleton and lies
-     in ``[min_door_half_width, max_door_half_width]``;
+     in ``[min_door_half_width, max_door_half_width]``, moved to the middle of their run of equal clearance
+     (a doorway through a thick wall);
 
 4. at each centre a line is drawn out to the nearest occupied cells on both sides, perpendicular to the
-   skeleton (``paper``) or through the two nearest obstacle points (``critical``); the lines cut the free
-   space, whose 4-connected components are the first regions;
+   skeleton (``paper``) or through the two nearest obstacle points on opposite sides (``critical``; this also
+   closes gaps between free-standing wall ends); the lines cut the free space, whose 4-connected components
+   are the first regions;
 5. (``critical`` only) a door is kept only where it is a real narrowing: its half width is at most
-   ``narrowing_ratio`` times the largest clearance of the smaller-clearance region on either side; other
+   ``narrowing_ratio`` times the largest clearance of each of the two regions it separates; the other
    doors are removed and their regions merged, least door-like first;
-6. regions under ``min_room_area`` (1.5 m^2) are merged into the neighbour they share the longest border with;
-7. optionally (``assign_furniture``) occupied pixels enclosed by a room are given its label.
+6. regions under ``min_room_area`` (1.5 m^2) are merged into the neighbour they share the longest border
+   with (isolated ones, free specks, are dropped);
+7. optionally (``assign_furniture``) occupied blobs enclosed by a single room are given its label.
 
-The result carries the room labels, the door list in world coordinates and, on request, every
-intermediate image (for the step-by-step figure, :func:`hsmap.viz.segmentation_steps_figure`).
+The result carries the room labels (on the input's free pixels), the door list in world coordinates (only
+doors between two different final rooms, one per passage) and, on request, every intermediate image (for
+the step-by-step figure, :func:`hsmap.segmentation_figures.steps_figure`).
+
+On the Bormann et al. (2016) benchmark (``benchmarks/segmentation.py``) the paper's band alone finds only
+doors 70-90 cm wide and under-segments (per-room precision about 0.73); the critical-point variant reaches
+about 0.94 precision and 0.98 (plain) / 0.92 (furnished) recall with the defaults below.
 """
 
 from __future__ import annotations
@@ -755,7 +765,6 @@ def points_in_doors(points: ArrayLike, doors: list[Door], depth: float = 0.3, ma
     out = []
     for d in doors:
         a, b = np.asarray(d.end_points, dtype=float)
-        c = np.asarray(d.centre, dtype=float)
         along = b - a
         L = float(np.hypot(*along))
         u = along / L if L > 0 else np.array([1.0, 0.0])
@@ -767,6 +776,5 @@ def points_in_doors(points: ArrayLike, doors: list[Door], depth: float = 0.3, ma
         m = (np.abs(s) <= L / 2 + margin) & (np.abs(t) <= depth)
         if z_range is not None and pts.shape[1] == 3:
             m &= (pts[:, 2] >= z_range[0]) & (pts[:, 2] <= z_range[1])
-        del c
         out.append(pts[m])
     return out

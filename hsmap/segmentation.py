@@ -76,8 +76,11 @@ class SegmentationConfig:
     median_keeps_walls : bool
         The filter may only turn free pixels occupied (removing free speckle), never erase occupied ones:
         a plain median erases walls one pixel thick. False gives the plain median of the paper.
-    min_obstacle_area : float
-        Occupied blobs smaller than this (m^2; specks, chair legs) are ignored by door detection.
+    min_obstacle_area, min_obstacle_length : float
+        Occupied blobs surrounded by free space that are smaller than ``min_obstacle_area`` (m^2) and
+        shorter than ``min_obstacle_length`` (m, the longer side of their bounding box) are clutter
+        (specks, chairs, table legs) and ignored by the door detection; a thin free-standing wall piece
+        is kept by its length.
     door_half_width, door_half_width_tolerance : float
         The paper's band of half door widths, metres (40 +/- 5 cm). Used by ``method="paper"``.
     min_door_half_width, max_door_half_width : float
@@ -97,6 +100,7 @@ class SegmentationConfig:
     median_size: int = 3
     median_keeps_walls: bool = True
     min_obstacle_area: float = 0.25
+    min_obstacle_length: float = 1.0
     door_half_width: float = 0.40
     door_half_width_tolerance: float = 0.05
     min_door_half_width: float = 0.15
@@ -120,6 +124,8 @@ class SegmentationConfig:
             raise ConfigError(f"narrowing_ratio must lie in (0, 1], got {self.narrowing_ratio}")
         if self.min_room_area < 0:
             raise ConfigError(f"min_room_area must be >= 0 m^2, got {self.min_room_area}")
+        if self.min_obstacle_area < 0 or self.min_obstacle_length < 0:
+            raise ConfigError("min_obstacle_area and min_obstacle_length must be >= 0")
         if self.median_size < 0:
             raise ConfigError(f"median_size must be >= 0, got {self.median_size}")
 
@@ -405,8 +411,14 @@ def segment_rooms(
         filtered = free.copy()
     if cfg.min_obstacle_area > 0:
         occ, n_occ = ndi.label(~filtered, structure=_EIGHT)
+        boxes = ndi.find_objects(occ)
         small = np.bincount(occ.ravel(), minlength=n_occ + 1) * res * res < cfg.min_obstacle_area
         small[0] = False
+        for k in np.nonzero(small)[0]:
+            box = boxes[k - 1]
+            if box is not None and max(box[0].stop - box[0].start, box[1].stop - box[1].start) * res >= \
+                    cfg.min_obstacle_length:
+                small[k] = False
         filtered |= small[occ]
     # 2. skeleton x distance transform
     from skimage.morphology import skeletonize

@@ -220,3 +220,15 @@ def test_office_floor_rooms_and_doors():
     assert np.all(_match_doors(seg, np.array([c for c, _, _ in doors])) < 0.1)
     corridor = _region_at(seg, (7.5, 6.9))
     assert sum(corridor in d.rooms for d in seg.doors) == 8
+
+
+def test_thin_free_standing_partition_is_a_wall_not_clutter():
+    # an 8 m x 4 m hall split at x = 4 by a free-standing partition one pixel thick, with 0.9 m gaps to
+    # the outer walls at both ends: two rooms, two doors; a chair-sized blob is clutter and changes nothing
+    walls = [(0, 0, 8, 0, 0.1), (8, 0, 8, 4, 0.1), (8, 4, 0, 4, 0.1), (0, 4, 0, 0, 0.1), (4.0, 0.95, 4.0, 3.05, 0.05)]
+    grid = draw_world(walls, [], [(0, 0, 8, 4)], furniture=[(1.8, 1.8, 2.2, 2.2)])
+    assert grid.occupied[:, grid.geometry.world_to_index([4.0, 2.0])[1]].sum() < 50  # the partition is thin
+    seg = segment_rooms(grid)
+    assert seg.n_rooms == 2 and len(seg.doors) == 2
+    assert np.all(_match_doors(seg, np.array([[4.0, 0.5], [4.0, 3.5]])) < 0.15)
+    assert _region_at(seg, (2.0, 3.0)) != _region_at(seg, (6.0, 3.0))

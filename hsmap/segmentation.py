@@ -22,10 +22,11 @@ Pipeline (images in (row, col), world coordinates through :class:`hsmap.grid.Gri
    closes gaps between free-standing wall ends); the lines cut the free space, whose 4-connected components
    are the first regions;
 5. (``critical`` only) a door is kept only where it is a real narrowing: its half width is at most
-   ``narrowing_ratio`` times the largest clearance of each of the two regions it separates; the other
+   ``narrowing_ratio`` times the geometric mean of the largest clearances of the two regions it separates
+   (a door from a narrow corridor into a room narrows the room much more than the corridor); the other
    doors are removed and their regions merged, least door-like first;
 6. regions under ``min_room_area`` (1.5 m^2) are merged into the neighbour they share the longest border
-   with (isolated ones, free specks, are dropped);
+   with (isolated ones under ``min_isolated_area``, free specks, are dropped);
 7. optionally (``assign_furniture``) occupied blobs enclosed by a single room are given its label.
 
 The result carries the room labels (on the input's free pixels), the door list in world coordinates (only
@@ -88,10 +89,13 @@ class SegmentationConfig:
     critical_radius : float
         Metres along the skeleton within which a critical point has the smallest clearance.
     narrowing_ratio : float
-        A door is kept only if its half width is at most this fraction of the largest clearance in each of
-        the two regions it separates.
+        A door is kept only if its half width is at most this fraction of the geometric mean of the largest
+        clearances of the two regions it separates.
     min_room_area : float
         Regions smaller than this (m^2) are merged into a neighbour (paper: 1.5).
+    min_isolated_area : float
+        Regions with no neighbour (free space seen through a window, a pocket enclosed by furniture) stay
+        rooms of their own if at least this large (m^2); smaller ones are dropped as speckle.
     assign_furniture : bool
         Give occupied pixels enclosed by a room (furniture) that room's label.
     """
@@ -108,6 +112,7 @@ class SegmentationConfig:
     critical_radius: float = 0.5
     narrowing_ratio: float = 0.7
     min_room_area: float = 1.5
+    min_isolated_area: float = 0.25
     assign_furniture: bool = False
 
     def __post_init__(self) -> None:
@@ -122,8 +127,8 @@ class SegmentationConfig:
             raise ConfigError("min_door_half_width must not exceed max_door_half_width")
         if not 0 < self.narrowing_ratio <= 1:
             raise ConfigError(f"narrowing_ratio must lie in (0, 1], got {self.narrowing_ratio}")
-        if self.min_room_area < 0:
-            raise ConfigError(f"min_room_area must be >= 0 m^2, got {self.min_room_area}")
+        if self.min_room_area < 0 or self.min_isolated_area < 0:
+            raise ConfigError("min_room_area and min_isolated_area must be >= 0 m^2")
         if self.min_obstacle_area < 0 or self.min_obstacle_length < 0:
             raise ConfigError("min_obstacle_area and min_obstacle_length must be >= 0")
         if self.median_size < 0:
@@ -488,7 +493,7 @@ def segment_rooms(
     lab = _relabel(lab, uf)
     lab = _fill_from_neighbours(lab, free)
     lab[~free] = 0
-    lab = _merge_small(lab, res, cfg.min_room_area)
+    lab = _merge_small(lab, res, cfg.min_room_area, cfg.min_isolated_area)
     if cfg.assign_furniture:
         lab = _assign_furniture(lab, free)
 
@@ -625,7 +630,8 @@ def _plateau_centre(i: int, rr, cc, nbr: NDArray[np.int64], dvals: NDArray[np.fl
 
 
 def _merge_by_narrowing(door_px, door_regions, peak, uf, cfg) -> None:
-    """Remove doors that are not narrowings (half width > ratio x smaller region peak), least door-like first."""
+    """Remove doors that are not narrowings (half width > ratio x geometric mean of the two regions' largest
+    clearances), least door-like first; merged regions take the larger clearance."""
     if not door_px:
         return
     half = np.array([d[4] / 2.0 for d in door_px])
@@ -637,7 +643,7 @@ def _merge_by_narrowing(door_px, door_regions, peak, uf, cfg) -> None:
         live = (ra != rb) & (ra > 0) & (rb > 0)
         if not live.any():
             break
-        ratio = np.where(live, half / np.maximum(np.minimum(pk[ra], pk[rb]), 1e-9), -1.0)
+        ratio = np.where(live, half / np.maximum(np.sqrt(pk[ra] * pk[rb]), 1e-9), -1.0)
         j = int(np.argmax(ratio))
         if ratio[j] <= cfg.narrowing_ratio:
             break
@@ -669,11 +675,12 @@ def _fill_from_neighbours(lab: NDArray[np.int64], free: NDArray[np.bool_]) -> ND
     return out
 
 
-def _merge_small(lab: NDArray[np.int64], res: float, min_area: float) -> NDArray[np.int64]:
-    """Merge regions under ``min_area`` m^2 into the neighbour with the longest shared border; drop isolated
-    ones; renumber 1..R in scan order."""
+def _merge_small(lab: NDArray[np.int64], res: float, min_area: float, min_isolated: float) -> NDArray[np.int64]:
+    """Merge regions under ``min_area`` m^2 into the neighbour with the longest shared border; isolated ones
+    (no neighbour) are kept if at least ``min_isolated`` m^2, else dropped; renumber 1..R in scan order."""
     lab = lab.copy()
     min_px = min_area / (res * res)
+    min_iso_px = min_isolated / (res * res)
     while True:
         n = int(lab.max(initial=0))
         if n == 0:
@@ -701,7 +708,7 @@ def _merge_small(lab: NDArray[np.int64], res: float, min_area: float) -> NDArray
                 if tgt != x:
                     remap[x] = tgt
                     changed = True
-            else:
+            elif size[x] < min_iso_px:
                 remap[x] = 0
                 changed = True
         # resolve chains

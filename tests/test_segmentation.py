@@ -174,6 +174,10 @@ def test_bad_input():
     data[50:55, 50:55] = FREE
     seg = segment_rooms(OccupancyGrid(data, GridGeometry((60, 60), 0.05)))
     assert seg.n_rooms == 1 and (seg.labels > 0).sum() == 40 * 40
+    # an isolated pocket of 0.3 m^2 (>= min_isolated_area) is a room of its own, though under min_room_area
+    data[50:58, 5:20] = FREE
+    seg = segment_rooms(OccupancyGrid(data, GridGeometry((60, 60), 0.05)))
+    assert seg.n_rooms == 2 and (seg.labels == seg.labels[52, 10]).sum() == 8 * 15
 
 
 def test_points_in_doors(rng):

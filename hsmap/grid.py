@@ -12,14 +12,31 @@ Every other module converts through :class:`GridGeometry`; nothing else flips ro
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .errors import InputError
+from .errors import DataFormatError, DatasetError, EmptyInputError, InputError, ShapeError
+from .io import atomic_path, write_text
 
-__all__ = ["GridGeometry"]
+__all__ = [
+    "GridGeometry",
+    "OccupancyGrid",
+    "ScanGridConfig",
+    "UNKNOWN",
+    "FREE",
+    "OCCUPIED",
+    "read_map",
+    "write_map",
+    "read_image_gray",
+    "read_label_image",
+    "write_label_image",
+    "grid_from_scans",
+    "grid_from_point_slice",
+]
 
 
 @dataclass(frozen=True)
@@ -93,3 +110,455 @@ class GridGeometry:
         """(left, right, bottom, top) in world metres, for matplotlib's ``imshow(extent=...)``."""
         x0, y0 = self.origin
         return (x0, x0 + self.shape[1] * self.resolution, y0, y0 + self.shape[0] * self.resolution)
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Occupancy grids
+# --------------------------------------------------------------------------------------------------------------
+
+#: Cell values of :class:`OccupancyGrid` (those of ROS ``nav_msgs/OccupancyGrid``).
+UNKNOWN, FREE, OCCUPIED = -1, 0, 100
+
+#: Gray values map_server's ``trinary`` mode writes (and the benchmark's ``*_scan`` maps use).
+PGM_FREE, PGM_OCCUPIED, PGM_UNKNOWN = 254, 0, 205
+
+#: Default free-space rule for plain images (no YAML): gray value >= 250 is free (the IPA benchmark's rule).
+IMAGE_FREE_MIN = 250
+
+_IMAGE_SUFFIXES = {".png", ".pgm", ".ppm", ".pnm", ".bmp", ".tif", ".tiff", ".jpg", ".jpeg"}
+
+
+@dataclass
+class OccupancyGrid:
+    """A 2D occupancy grid: cell states plus where the image lies in the world.
+
+    Attributes
+    ----------
+    data : ndarray of shape (H, W), int8
+        ``FREE`` (0), ``OCCUPIED`` (100) or ``UNKNOWN`` (-1); row 0 is the top of the image (largest y).
+    geometry : GridGeometry
+        Resolution and origin; convert with ``geometry.world_to_index`` / ``pixel_to_world``.
+    """
+
+    data: NDArray[np.int8]
+    geometry: GridGeometry
+
+    def __post_init__(self) -> None:
+        self.data = np.asarray(self.data, dtype=np.int8)
+        if self.data.ndim != 2:
+            raise ShapeError(f"OccupancyGrid.data must be 2D (H, W), got shape {self.data.shape}")
+        if self.data.shape != self.geometry.shape:
+            raise ShapeError(f"OccupancyGrid.data {self.data.shape} differs from geometry {self.geometry.shape}")
+
+    @property
+    def free(self) -> NDArray[np.bool_]:
+        """(H, W) bool, True on free cells."""
+        return self.data == FREE
+
+    @property
+    def occupied(self) -> NDArray[np.bool_]:
+        """(H, W) bool, True on occupied cells."""
+        return self.data == OCCUPIED
+
+    @property
+    def resolution(self) -> float:
+        return self.geometry.resolution
+
+    def to_image(self) -> NDArray[np.uint8]:
+        """(H, W) uint8 gray image as map_server writes it: 254 free, 0 occupied, 205 unknown."""
+        img = np.full(self.data.shape, PGM_UNKNOWN, dtype=np.uint8)
+        img[self.data == FREE] = PGM_FREE
+        img[self.data == OCCUPIED] = PGM_OCCUPIED
+        return img
+
+    @classmethod
+    def from_image(
+        cls,
+        image: ArrayLike,
+        resolution: float,
+        origin: tuple[float, float] = (0.0, 0.0),
+        *,
+        free_min: int = IMAGE_FREE_MIN,
+        occupied_max: int = 89,
+    ) -> OccupancyGrid:
+        """Cell states from a gray image: ``>= free_min`` free, ``<= occupied_max`` occupied, else unknown.
+
+        The defaults are the benchmark's rule (>= 250 free) and map_server's occupied threshold (0.65).
+        """
+        img = np.asarray(image)
+        if img.ndim != 2:
+            raise ShapeError(f"map image must be a 2D gray image (H, W), got shape {img.shape}")
+        data = np.full(img.shape, UNKNOWN, dtype=np.int8)
+        data[img >= free_min] = FREE
+        data[img <= occupied_max] = OCCUPIED
+        return cls(data, GridGeometry(img.shape, resolution, origin))
+
+
+def read_image_gray(path: str | os.PathLike) -> NDArray[np.uint8]:
+    """Read an image file as 8-bit gray, the way OpenCV's ``imread(path, 0)`` does (alpha dropped).
+
+    16-bit images are scaled to 8 bits. Raises :class:`DataFormatError` for files that are not images.
+    """
+    from PIL import Image, UnidentifiedImageError
+
+    path = Path(path)
+    if not path.is_file():
+        raise DatasetError(f"{path}: no such map image")
+    try:
+        with Image.open(path) as im:
+            if im.mode in ("I;16", "I;16B", "I;16L", "I"):
+                arr = np.asarray(im, dtype=np.int64)
+                return np.clip(arr // 256 if arr.max(initial=0) > 255 else arr, 0, 255).astype(np.uint8)
+            return np.asarray(im.convert("L"), dtype=np.uint8)
+    except (UnidentifiedImageError, OSError, SyntaxError) as exc:
+        raise DataFormatError(f"{path}: not a readable image ({exc})") from None
+
+
+def read_label_image(path: str | os.PathLike) -> NDArray[np.int32]:
+    """Read a room label image (8- or 16-bit gray PNG; 0 = no room) as int32 without rescaling."""
+    from PIL import Image, UnidentifiedImageError
+
+    path = Path(path)
+    if not path.is_file():
+        raise DatasetError(f"{path}: no such label image")
+    try:
+        with Image.open(path) as im:
+            if im.mode in ("I;16", "I;16B", "I;16L", "I", "L", "P"):
+                return np.asarray(im, dtype=np.int64).astype(np.int32)
+            if im.mode in ("LA", "RGB", "RGBA"):
+                return np.asarray(im.convert("L"), dtype=np.int32)
+            raise DataFormatError(f"{path}: label images must be gray (L or I;16), got mode {im.mode}")
+    except (UnidentifiedImageError, OSError, SyntaxError) as exc:
+        raise DataFormatError(f"{path}: not a readable image ({exc})") from None
+
+
+def write_label_image(path: str | os.PathLike, labels: ArrayLike) -> None:
+    """Write a room label image as a 16-bit gray PNG (0 = no room), atomically."""
+    from PIL import Image
+
+    lab = np.asarray(labels)
+    if lab.ndim != 2:
+        raise ShapeError(f"labels must be 2D (H, W), got shape {lab.shape}")
+    if lab.size and (lab.min() < 0 or lab.max() > 65535):
+        raise InputError(f"labels must lie in 0..65535 for a 16-bit PNG, got {lab.min()}..{lab.max()}")
+    with atomic_path(path, suffix=".png") as tmp:
+        Image.fromarray(lab.astype(np.uint16)).save(tmp, format="PNG")
+
+
+def read_map(path: str | os.PathLike, resolution: float | None = None) -> OccupancyGrid:
+    """Read a map: a map_server YAML (with its PGM/PNG image) or a plain image.
+
+    Parameters
+    ----------
+    path : path-like
+        ``.yaml``/``.yml``: map_server metadata (``image``, ``resolution``, ``origin``, ``negate``,
+        ``occupied_thresh``, ``free_thresh``); otherwise a gray image read with the benchmark's rule
+        (>= 250 free).
+    resolution : float, optional
+        Metres per pixel. Overrides the YAML's value; for plain images the default is 0.05.
+
+    Raises
+    ------
+    DatasetError
+        The file, or the image a YAML names, does not exist.
+    DataFormatError
+        The file is not an image, or the YAML lacks a key or has a malformed one.
+    InputError
+        ``resolution <= 0``.
+    """
+    path = Path(path)
+    if resolution is not None and not (np.isfinite(resolution) and resolution > 0):
+        raise InputError(f"resolution must be a positive number of metres per pixel, got {resolution}")
+    if not path.is_file():
+        raise DatasetError(f"{path}: no such map file")
+    if path.suffix.lower() in (".yaml", ".yml"):
+        return _read_map_yaml(path, resolution)
+    img = read_image_gray(path)
+    return OccupancyGrid.from_image(img, 0.05 if resolution is None else float(resolution))
+
+
+def _read_map_yaml(path: Path, resolution: float | None) -> OccupancyGrid:
+    import yaml
+
+    try:
+        meta = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        raise DataFormatError(f"{path}: not valid YAML ({exc})") from None
+    if not isinstance(meta, dict):
+        raise DataFormatError(f"{path}: expected a map_server mapping with 'image', 'resolution', 'origin'")
+    for key in ("image", "resolution", "origin"):
+        if key not in meta:
+            raise DataFormatError(f"{path}: missing key '{key}' (map_server YAML needs image, resolution, origin)")
+    image_path = Path(str(meta["image"]))
+    if not image_path.is_absolute():
+        image_path = path.parent / image_path
+    if not image_path.is_file():
+        raise DatasetError(f"{path}: its image '{meta['image']}' does not exist ({image_path})")
+    try:
+        res = float(meta["resolution"]) if resolution is None else float(resolution)
+        origin = [float(v) for v in meta["origin"]]
+        negate = int(meta.get("negate", 0))
+        occ_t = float(meta.get("occupied_thresh", 0.65))
+        free_t = float(meta.get("free_thresh", 0.196))
+    except (TypeError, ValueError) as exc:
+        raise DataFormatError(f"{path}: malformed value ({exc})") from None
+    if len(origin) < 2:
+        raise DataFormatError(f"{path}: 'origin' must be [x, y, yaw], got {meta['origin']}")
+    if not (np.isfinite(res) and res > 0):
+        raise InputError(f"{path}: resolution must be > 0 metres per pixel, got {res}")
+    if len(origin) > 2 and abs(origin[2]) > 1e-9:
+        raise DataFormatError(f"{path}: rotated map origins (yaw = {origin[2]}) are not supported")
+    img = read_image_gray(image_path).astype(float)
+    occ = img / 255.0 if negate else (255.0 - img) / 255.0
+    data = np.full(img.shape, UNKNOWN, dtype=np.int8)
+    data[occ > occ_t] = OCCUPIED
+    data[occ < free_t] = FREE
+    return OccupancyGrid(data, GridGeometry(img.shape, res, (origin[0], origin[1])))
+
+
+def write_map(path: str | os.PathLike, grid: OccupancyGrid) -> tuple[Path, Path]:
+    """Write ``grid`` as map_server PGM + YAML (``trinary``: 254 free, 0 occupied, 205 unknown), atomically.
+
+    Parameters
+    ----------
+    path : path-like
+        The YAML file (``.yaml``) or the stem; the PGM is written beside it with the same stem.
+
+    Returns
+    -------
+    (yaml_path, pgm_path)
+    """
+    import yaml
+    from PIL import Image
+
+    path = Path(path)
+    yaml_path = path if path.suffix.lower() in (".yaml", ".yml") else path.with_suffix(".yaml")
+    pgm_path = yaml_path.with_suffix(".pgm")
+    with atomic_path(pgm_path, suffix=".pgm") as tmp:
+        Image.fromarray(grid.to_image()).save(tmp, format="PPM")
+    meta = {
+        "image": pgm_path.name,
+        "mode": "trinary",
+        "resolution": float(grid.geometry.resolution),
+        "origin": [float(grid.geometry.origin[0]), float(grid.geometry.origin[1]), 0.0],
+        "negate": 0,
+        "occupied_thresh": 0.65,
+        "free_thresh": 0.196,
+    }
+    write_text(yaml_path, yaml.safe_dump(meta, sort_keys=False))
+    return yaml_path, pgm_path
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Grids from scans and from 3D point maps
+# --------------------------------------------------------------------------------------------------------------
+
+
+@dataclass
+class ScanGridConfig:
+    """Log-odds occupancy update for :func:`grid_from_scans`.
+
+    Attributes
+    ----------
+    hit : float
+        Log-odds added to the cell of a beam's end point.
+    miss : float
+        Log-odds added (negative) to each cell a beam passes through before its end point.
+    occupied_above : float
+        Cells with log-odds above this are occupied (default: one hit outweighs one miss).
+    free_below : float
+        Cells with log-odds below this are free (default: one miss suffices).
+    max_range_free : bool
+        Beams without a return (NaN or ``>= range_max``) clear the cells up to ``range_max``.
+    """
+
+    hit: float = 0.85
+    miss: float = -0.4
+    occupied_above: float = 0.4
+    free_below: float = -0.39
+    max_range_free: bool = False
+
+
+def _as_scan_points(scan, name: str) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """(K, 2) beam end points in the sensor frame and a (K,) mask of real returns."""
+    if hasattr(scan, "ranges") and hasattr(scan, "angles"):
+        r = np.asarray(scan.ranges, dtype=float)
+        a = np.asarray(scan.angles, dtype=float)
+        if r.shape != a.shape:
+            raise ShapeError(f"{name}: ranges {r.shape} and angles {a.shape} differ")
+        hit = np.isfinite(r) & (r >= scan.range_min) & (r < scan.range_max)
+        rr = np.where(hit, r, np.where(np.isfinite(scan.range_max), scan.range_max, 0.0))
+        rr = np.where(np.isfinite(rr), rr, 0.0)
+        return np.column_stack([rr * np.cos(a), rr * np.sin(a)]), hit
+    pts = np.asarray(scan, dtype=float)
+    if pts.ndim != 2 or pts.shape[1] != 2:
+        raise ShapeError(f"{name} must be (N, 2) points or a LaserScan2D, got shape {pts.shape}")
+    ok = np.all(np.isfinite(pts), axis=1)
+    return pts[ok], np.ones(int(ok.sum()), dtype=bool)
+
+
+def grid_from_scans(
+    scans,
+    poses: ArrayLike,
+    resolution: float = 0.05,
+    *,
+    extrinsic: ArrayLike | None = None,
+    geometry: GridGeometry | None = None,
+    margin: float = 0.5,
+    config: ScanGridConfig | None = None,
+) -> OccupancyGrid:
+    """Occupancy grid from 2D scans taken at known poses: free along each beam, occupied at its end.
+
+    Each scan adds ``config.miss`` to every cell its beams sweep (the scan polygon from the sensor through the
+    consecutive end points, rasterised; a beam with no return contributes the sensor position, i.e. nothing,
+    unless ``config.max_range_free``) and ``config.hit`` to the cell of every end point; the summed
+    log-odds are thresholded.
+
+    Parameters
+    ----------
+    scans : sequence of (N_i, 2) arrays or LaserScan2D
+        Each scan in its sensor frame. Arrays are end points in beam order (a LaserScan2D also gives the
+        no-return beams).
+    poses : ndarray of shape (M, 3)
+        World pose (x, y, yaw) of the robot at each scan (M = len(scans)).
+    resolution : float
+        Metres per cell.
+    extrinsic : ndarray of shape (3,), optional
+        Pose of the sensor in the robot frame (default identity).
+    geometry : GridGeometry, optional
+        The grid to fill; by default the smallest grid covering all beams plus ``margin``.
+    config : ScanGridConfig, optional
+        Log-odds increments and thresholds.
+
+    Returns
+    -------
+    OccupancyGrid
+        Cells no beam touched are unknown.
+    """
+    from PIL import Image, ImageDraw
+
+    from .geometry import compose, pose_to_matrix
+
+    cfg = config or ScanGridConfig()
+    poses = np.asarray(poses, dtype=float)
+    if poses.ndim != 2 or poses.shape[1] != 3:
+        raise ShapeError(f"poses must have shape (M, 3) (x, y, yaw), got {poses.shape}")
+    scans = list(scans)
+    if len(scans) != len(poses):
+        raise ShapeError(f"{len(scans)} scans but {len(poses)} poses")
+    if not (np.isfinite(resolution) and resolution > 0):
+        raise InputError(f"resolution must be a positive number of metres per cell, got {resolution}")
+    ext = np.zeros(3) if extrinsic is None else np.asarray(extrinsic, dtype=float).reshape(3)
+    world: list[tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]] = []
+    for i, (scan, pose) in enumerate(zip(scans, poses, strict=True)):
+        pts, hit = _as_scan_points(scan, f"scans[{i}]")
+        sensor = compose(pose, ext)
+        T = pose_to_matrix(sensor)
+        w = pts @ T[:2, :2].T + T[:2, 2]
+        if not cfg.max_range_free:
+            w[~hit] = sensor[:2]
+        if hit.any() or (cfg.max_range_free and len(w)):
+            world.append((sensor[:2], w, hit))
+    if not world:
+        raise EmptyInputError("grid_from_scans: no valid return in any scan")
+    if geometry is None:
+        allp = np.vstack([np.vstack([o[None], w]) for o, w, _ in world])
+        geometry = GridGeometry.covering(allp.min(0), allp.max(0), resolution, margin)
+    H, W = geometry.shape
+    logodds = np.zeros((H, W))
+    touched = np.zeros((H, W), dtype=bool)
+    for o, w, hit in world:
+        # the swept area stops short of each end point by 0.75 cell, so the hit cell and those behind it
+        # are not cleared by rounding
+        v = w - o
+        n = np.linalg.norm(v, axis=1, keepdims=True)
+        w_short = o + v * np.clip(1.0 - 0.75 * geometry.resolution / np.maximum(n, 1e-12), 0.0, 1.0)
+        poly = geometry.world_to_pixel(np.vstack([o[None], w_short]))  # (row, col), centres at integers
+        lo = np.floor(poly.min(0)).astype(int) - 1
+        hi = np.ceil(poly.max(0)).astype(int) + 2
+        lo = np.maximum(lo, 0)
+        hi = np.minimum(hi, [H, W])
+        if np.any(hi <= lo):
+            continue
+        canvas = Image.new("1", (int(hi[1] - lo[1]), int(hi[0] - lo[0])), 0)
+        xy = (poly[:, ::-1] - lo[::-1]).ravel().tolist()  # PIL wants (x=col, y=row) pairs
+        ImageDraw.Draw(canvas).polygon(xy, fill=1)
+        swept = np.asarray(canvas, dtype=bool).copy()
+        idx = geometry.world_to_index(w[hit])
+        ok = geometry.inside(idx)
+        hr, hc = idx[ok, 0], idx[ok, 1]
+        inside = (hr >= lo[0]) & (hr < hi[0]) & (hc >= lo[1]) & (hc < hi[1])
+        swept[hr[inside] - lo[0], hc[inside] - lo[1]] = False  # a scan's own hits are no misses
+        logodds[lo[0]:hi[0], lo[1]:hi[1]] += cfg.miss * swept
+        touched[lo[0]:hi[0], lo[1]:hi[1]] |= swept
+        np.add.at(logodds, (hr, hc), cfg.hit)
+        touched[hr, hc] = True
+    data = np.full((H, W), UNKNOWN, dtype=np.int8)
+    data[touched & (logodds < cfg.free_below)] = FREE
+    data[touched & (logodds > cfg.occupied_above)] = OCCUPIED
+    return OccupancyGrid(data, geometry)
+
+
+def grid_from_point_slice(
+    points: ArrayLike,
+    *,
+    z_min: float = 1.7,
+    z_max: float = 1.8,
+    resolution: float = 0.05,
+    floor_band: tuple[float, float] | None = (-0.15, 0.15),
+    geometry: GridGeometry | None = None,
+    margin: float = 0.5,
+    min_points: int = 1,
+) -> OccupancyGrid:
+    """Occupancy grid from a horizontal slice of a 3D point map (the paper slices at 1.7-1.8 m).
+
+    Cells holding at least ``min_points`` points with ``z_min <= z < z_max`` are occupied (walls above the
+    furniture). Cells holding floor points (``floor_band[0] <= z < floor_band[1]``) and no slice point are
+    free: the floor is seen wherever the room is open. Everything else is unknown.
+
+    Parameters
+    ----------
+    points : ndarray of shape (N, 3)
+        World points, z up, metres.
+    z_min, z_max : float
+        The slice (z_min < z_max).
+    resolution : float
+        Metres per cell.
+    floor_band : (float, float) or None
+        Height band of floor points giving free space; None leaves non-occupied cells unknown.
+    geometry : GridGeometry, optional
+        The grid to fill (e.g. a 2D map's, to overlay both); by default the slice's and floor's extent
+        plus ``margin``.
+    min_points : int
+        Points a cell needs to count as occupied.
+    """
+    pts = np.asarray(points, dtype=float)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ShapeError(f"points must have shape (N, 3), got {pts.shape}")
+    if not z_min < z_max:
+        raise InputError(f"the slice needs z_min < z_max, got {z_min} >= {z_max}")
+    if not (np.isfinite(resolution) and resolution > 0):
+        raise InputError(f"resolution must be a positive number of metres per cell, got {resolution}")
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    in_slice = (pts[:, 2] >= z_min) & (pts[:, 2] < z_max)
+    on_floor = (
+        (pts[:, 2] >= floor_band[0]) & (pts[:, 2] < floor_band[1]) if floor_band is not None else np.zeros(len(pts), bool)
+    )
+    if not in_slice.any():
+        raise EmptyInputError(f"no point lies in the slice {z_min} <= z < {z_max} (of {len(pts)} points)")
+    if geometry is None:
+        used = pts[in_slice | on_floor, :2]
+        geometry = GridGeometry.covering(used.min(0), used.max(0), resolution, margin)
+    H, W = geometry.shape
+
+    def counts(mask: NDArray[np.bool_]) -> NDArray[np.int64]:
+        idx = geometry.world_to_index(pts[mask, :2])
+        ok = geometry.inside(idx)
+        return np.bincount(idx[ok, 0] * W + idx[ok, 1], minlength=H * W)
+
+    occ = counts(in_slice) >= max(1, int(min_points))
+    data = np.full(H * W, UNKNOWN, dtype=np.int8)
+    if floor_band is not None:
+        data[counts(on_floor) > 0] = FREE
+    data[occ] = OCCUPIED
+    return OccupancyGrid(data.reshape(H, W), geometry)

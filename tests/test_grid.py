@@ -1,8 +1,24 @@
 import numpy as np
 import pytest
+import yaml
+from PIL import Image
+from scipy import ndimage as ndi
 
-from hsmap.errors import InputError
-from hsmap.grid import GridGeometry
+from hsmap.errors import DataFormatError, DatasetError, EmptyInputError, HsmapError, InputError, ShapeError
+from hsmap.grid import (
+    FREE,
+    OCCUPIED,
+    UNKNOWN,
+    GridGeometry,
+    OccupancyGrid,
+    grid_from_point_slice,
+    grid_from_scans,
+    read_image_gray,
+    read_label_image,
+    read_map,
+    write_label_image,
+    write_map,
+)
 
 
 def test_world_pixel_roundtrip(rng):
@@ -29,3 +45,173 @@ def test_covering_and_extent():
 def test_bad_resolution():
     with pytest.raises(InputError, match="resolution"):
         GridGeometry((10, 10), 0.0)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# occupancy grids: map_server I/O, images, scans, height slices
+# ---------------------------------------------------------------------------------------------------------
+
+
+
+def _small_grid():
+    data = np.full((6, 8), UNKNOWN, dtype=np.int8)
+    data[1:5, 1:7] = FREE
+    data[0, :] = OCCUPIED
+    data[2, 3] = OCCUPIED
+    return OccupancyGrid(data, GridGeometry((6, 8), 0.1, (-1.5, 2.0)))
+
+
+def test_map_server_roundtrip(tmp_path):
+    g = _small_grid()
+    yml, pgm = write_map(tmp_path / "m.yaml", g)
+    assert pgm.name == "m.pgm" and pgm.is_file()
+    meta = yaml.safe_load(yml.read_text())
+    assert meta["image"] == "m.pgm" and meta["resolution"] == 0.1 and meta["origin"] == [-1.5, 2.0, 0.0]
+    with Image.open(pgm) as im:
+        img = np.asarray(im)
+    assert img[0, 0] == 0 and img[1, 1] == 254 and img[5, 0] == 205
+    back = read_map(yml)
+    np.testing.assert_array_equal(back.data, g.data)
+    assert back.geometry == g.geometry
+    # resolution override
+    assert read_map(yml, resolution=0.2).geometry.resolution == 0.2
+    # no temporary files left behind
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.pgm", "m.yaml"]
+
+
+def test_map_server_negate_and_thresholds(tmp_path):
+    Image.fromarray(np.array([[0, 128, 255]], dtype=np.uint8)).save(tmp_path / "n.png")
+    (tmp_path / "n.yaml").write_text("image: n.png\nresolution: 0.5\norigin: [0, 0, 0]\nnegate: 1\n"
+                                     "occupied_thresh: 0.65\nfree_thresh: 0.196\n")
+    g = read_map(tmp_path / "n.yaml")
+    np.testing.assert_array_equal(g.data, [[FREE, UNKNOWN, OCCUPIED]])
+
+
+def test_plain_image_uses_benchmark_rule(tmp_path):
+    Image.fromarray(np.array([[255, 254, 250, 249, 205, 0]], dtype=np.uint8)).save(tmp_path / "a.png")
+    g = read_map(tmp_path / "a.png")
+    assert g.geometry.resolution == 0.05
+    np.testing.assert_array_equal(g.free, [[True, True, True, False, False, False]])
+    assert g.occupied[0, 5] and not g.occupied[0, 4]
+    # RGBA images read as gray like OpenCV's imread(path, 0)
+    rgba = np.zeros((2, 2, 4), dtype=np.uint8)
+    rgba[..., :3] = 254
+    rgba[..., 3] = 255
+    Image.fromarray(rgba, "RGBA").save(tmp_path / "b.png")
+    assert (read_image_gray(tmp_path / "b.png") == 254).all()
+
+
+def test_label_image_roundtrip(tmp_path):
+    lab = np.zeros((5, 7), dtype=np.int32)
+    lab[1:3, 1:4] = 1
+    lab[3:, 4:] = 700  # needs 16 bits
+    write_label_image(tmp_path / "r.png", lab)
+    with Image.open(tmp_path / "r.png") as im:
+        assert im.mode.startswith("I")
+    np.testing.assert_array_equal(read_label_image(tmp_path / "r.png"), lab)
+
+
+def test_bad_map_inputs(tmp_path):
+    with pytest.raises(DatasetError, match="no such"):
+        read_map(tmp_path / "missing.png")
+    (tmp_path / "notimage.png").write_text("hello, not a PNG")
+    with pytest.raises(DataFormatError, match="not a readable image"):
+        read_map(tmp_path / "notimage.png")
+    Image.fromarray(np.full((3, 3), 255, np.uint8)).save(tmp_path / "ok.png")
+    for bad in (0.0, -0.05, float("nan")):
+        with pytest.raises(InputError, match="resolution"):
+            read_map(tmp_path / "ok.png", resolution=bad)
+    (tmp_path / "m.yaml").write_text("image: nowhere.pgm\nresolution: 0.05\norigin: [0, 0, 0]\n")
+    with pytest.raises(DatasetError, match="nowhere.pgm"):
+        read_map(tmp_path / "m.yaml")
+    (tmp_path / "k.yaml").write_text("image: ok.png\norigin: [0, 0, 0]\n")
+    with pytest.raises(DataFormatError, match="resolution"):
+        read_map(tmp_path / "k.yaml")
+    (tmp_path / "r.yaml").write_text("image: ok.png\nresolution: 0\norigin: [0, 0, 0]\n")
+    with pytest.raises(HsmapError, match="resolution"):
+        read_map(tmp_path / "r.yaml")
+
+
+def _square_room_scans(poses, half=2.0, n=720):
+    """Exact ranges of a planar LiDAR inside the square room [-half, half]^2."""
+    angles = np.linspace(-np.pi, np.pi, n, endpoint=False)
+    ranges = []
+    for x, y, yaw in poses:
+        a = angles + yaw
+        c, s = np.cos(a), np.sin(a)
+        with np.errstate(divide="ignore"):
+            tx = np.where(c > 0, (half - x) / c, np.where(c < 0, (-half - x) / c, np.inf))
+            ty = np.where(s > 0, (half - y) / s, np.where(s < 0, (-half - y) / s, np.inf))
+        ranges.append(np.minimum(tx, ty))
+    return np.array(ranges), angles
+
+
+def test_grid_from_scans_square_room():
+    from hsmap.datasets.frames import LaserScan2D
+
+    poses = np.array([[0.0, 0.0, 0.0], [0.7, -0.4, 1.0], [-0.8, 0.6, -2.0]])
+    ranges, angles = _square_room_scans(poses)
+    # scans in the sensor frame; the sensor sits 0.1 m ahead of the robot base
+    ext = np.array([0.1, 0.0, 0.0])
+    base = poses.copy()
+    base[:, 0] -= 0.1 * np.cos(poses[:, 2])
+    base[:, 1] -= 0.1 * np.sin(poses[:, 2])
+    scans = [LaserScan2D(r, angles, 0.05, 10.0) for r in ranges]
+    g = grid_from_scans(scans, base, 0.05, extrinsic=ext)
+    geo = g.geometry
+    # walls: cells at the wall are occupied, the room's inside is free, the outside unknown
+    wall = np.array([[2.0, y] for y in np.linspace(-1.8, 1.8, 10)] + [[x, -2.0] for x in np.linspace(-1.8, 1.8, 10)])
+    idx = geo.world_to_index(wall)
+    near = ndi.maximum_filter(g.occupied, size=3)  # the wall line lies on a cell border: either side
+    assert near[idx[:, 0], idx[:, 1]].all()
+    assert g.occupied.sum() < 1.5 * 4 * 4.0 / 0.05  # a thin outline, not a blob
+    inside = geo.world_to_index(np.array([[0.0, 0.0], [1.5, 1.5], [-1.7, -1.2], [1.0, -1.8]]))
+    assert g.free[inside[:, 0], inside[:, 1]].all()
+    outside = geo.world_to_index(np.array([[2.3, 0.0], [0.0, -2.35]]))
+    assert (g.data[outside[:, 0], outside[:, 1]] == UNKNOWN).all()
+    # nothing is cleared behind the walls (the swept area stops short of the hits)
+    fxy = geo.pixel_to_world(np.argwhere(g.free))
+    assert (np.abs(fxy).max(1) > 2.0).sum() < 0.01 * len(fxy)
+    # the room's free area is about 16 m^2
+    assert abs(g.free.sum() * 0.05**2 - 16.0) < 1.0
+    # plain (N, 2) end points give the same occupied cells
+    pts = [np.column_stack([r * np.cos(angles), r * np.sin(angles)]) for r in ranges]
+    g2 = grid_from_scans(pts, base, 0.05, extrinsic=ext, geometry=geo)
+    assert (g2.occupied == g.occupied).mean() > 0.999
+
+
+def test_grid_from_scans_bad_input():
+    with pytest.raises(ShapeError):
+        grid_from_scans([np.zeros((3, 2))], np.zeros((2, 3)))
+    with pytest.raises(ShapeError):
+        grid_from_scans([np.zeros((3, 3))], np.zeros((1, 3)))
+    with pytest.raises(EmptyInputError):
+        grid_from_scans([np.full((3, 2), np.nan)], np.zeros((1, 3)))
+    with pytest.raises(InputError, match="resolution"):
+        grid_from_scans([np.ones((3, 2))], np.zeros((1, 3)), resolution=0)
+
+
+def test_grid_from_point_slice(rng):
+    # a 4 m x 3 m room: walls 0..2.6 m high, floor points, and a 0.75 m high table that must not show
+    n = 20000
+    t = rng.uniform(0, 1, n)
+    z = rng.uniform(0, 2.6, n)
+    side = rng.integers(0, 4, n)
+    x = np.where(side == 0, 0.0, np.where(side == 1, 4.0, t * 4.0))
+    y = np.where(side == 2, 0.0, np.where(side == 3, 3.0, t * 3.0))
+    walls = np.column_stack([x, y, z])
+    floor = np.column_stack([rng.uniform(0.05, 3.95, n), rng.uniform(0.05, 2.95, n), rng.normal(0, 0.01, n)])
+    table = np.column_stack([rng.uniform(1.5, 2.5, 3000), rng.uniform(1.0, 2.0, 3000), rng.uniform(0.7, 0.75, 3000)])
+    g = grid_from_point_slice(np.vstack([walls, floor, table]), z_min=1.7, z_max=1.8, resolution=0.05)
+    geo = g.geometry
+    wall_idx = geo.world_to_index(np.array([[0.0, 1.5], [4.0, 1.0], [2.0, 0.0], [1.0, 3.0]]))
+    assert g.occupied[wall_idx[:, 0], wall_idx[:, 1]].all()
+    table_idx = geo.world_to_index(np.array([[2.0, 1.5]]))
+    assert g.free[table_idx[:, 0], table_idx[:, 1]].all()  # the table is below the slice
+    assert g.occupied.sum() * 0.05 < 2 * (4 + 3) * 1.6  # only the walls' outline
+    with pytest.raises(EmptyInputError, match="slice"):
+        grid_from_point_slice(floor, z_min=1.7, z_max=1.8)
+    with pytest.raises(InputError):
+        grid_from_point_slice(walls, z_min=1.8, z_max=1.7)
+    with pytest.raises(ShapeError):
+        grid_from_point_slice(walls[:, :2])

@@ -56,6 +56,12 @@ def _trajectory(args: argparse.Namespace) -> dict:
 
 
 def _segmentation(args: argparse.Namespace) -> dict:
-    from ..errors import HsmapError
+    from ..evaluation.segmentation import segmentation_scores
+    from ..grid import read_image_gray, read_label_image
 
-    raise HsmapError("'hsmap evaluate segmentation' is not implemented yet")
+    labels = read_label_image(args.rooms)
+    gt = read_image_gray(args.groundtruth)
+    scores = segmentation_scores(labels, gt)
+    out = {"rooms": str(args.rooms), "groundtruth": str(args.groundtruth)}
+    out.update(scores.as_dict())
+    return out

@@ -1,18 +1,75 @@
-"""hsmap segment (not implemented yet)."""
+"""Segment a 2D map into rooms: doors (skeleton x distance transform), room labels and the room/door graph.
+
+MAP is a PNG/PGM image (pixels >= 250 are free, the benchmark's rule; 0.05 m per pixel unless --resolution)
+or a ROS map_server YAML (its image, resolution, origin and thresholds). Writes into --out: rooms.png
+(16-bit room labels, 0 = no room, same size as the map), doors.json, topology.json, topology.graphml,
+topology.txt (readable listing), segmentation.png (coloured overlay) and segmentation_config.yaml (the
+effective configuration); --steps adds steps.png, a panel per step of the algorithm.
+"""
 
 from __future__ import annotations
 
 import argparse
 
 NAME = "segment"
-HELP = "(not implemented yet)"
+HELP = "detect doors and segment a 2D map into rooms, with the room/door graph"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    pass
+    parser.add_argument("map", help="map image (PNG/PGM; >= 250 free) or map_server YAML")
+    parser.add_argument("--out", required=True, help="output folder")
+    parser.add_argument("--resolution", type=float, default=None,
+                        help="metres per pixel (default: the YAML's, or 0.05 for images)")
+    parser.add_argument("--config", default=None, help="YAML file with SegmentationConfig fields")
+    parser.add_argument("--method", choices=("critical", "paper"), default=None,
+                        help="door detection: critical points + narrowing test (default) or the paper's band")
+    parser.add_argument("--furniture", action="store_true",
+                        help="give occupied pixels enclosed by a room (furniture) that room's label")
+    parser.add_argument("--steps", action="store_true", help="also write steps.png (a panel per step)")
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..errors import HsmapError
+    import dataclasses
+    from pathlib import Path
 
-    raise HsmapError("'hsmap segment' is not implemented yet")
+    from PIL import Image
+
+    from ..config import dump_config, load_config
+    from ..errors import InputError
+    from ..grid import read_map, write_label_image
+    from ..io import atomic_path, write_json
+    from ..segmentation import SegmentationConfig, segment_rooms
+    from ..segmentation_figures import label_overlay, steps_figure
+    from ..topology import room_graph, topology_listing, write_topology
+
+    if args.resolution is not None and not args.resolution > 0:
+        raise InputError(f"--resolution must be > 0 metres per pixel, got {args.resolution}")
+    cfg = load_config(SegmentationConfig, args.config) if args.config else SegmentationConfig()
+    if args.method:
+        cfg = dataclasses.replace(cfg, method=args.method)
+    if args.furniture:
+        cfg = dataclasses.replace(cfg, assign_furniture=True)
+    grid = read_map(args.map, args.resolution)
+    seg = segment_rooms(grid, config=cfg, keep_steps=args.steps)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    write_label_image(out / "rooms.png", seg.labels)
+    write_json(out / "doors.json", {
+        "map": str(args.map),
+        "frame": "map (world x, y in metres; map_server origin convention)",
+        "resolution": grid.geometry.resolution,
+        "origin": list(grid.geometry.origin),
+        "doors": [d.as_dict() for d in seg.doors],
+    })
+    g = room_graph(seg)
+    write_topology(g, out)
+    with atomic_path(out / "segmentation.png") as tmp:
+        Image.fromarray(label_overlay(seg.labels, grid.free, doors=seg.doors)).save(tmp, format="PNG")
+    dump_config(cfg, out / "segmentation_config.yaml")
+    if args.steps:
+        fig = steps_figure(seg, title=Path(args.map).name)
+        with atomic_path(out / "steps.png") as tmp:
+            fig.savefig(tmp, dpi=110)
+    print(topology_listing(g), end="")
+    print(f"wrote {out}/rooms.png, doors.json, topology.json, topology.graphml, segmentation.png")
+    return 0

@@ -21,6 +21,7 @@ from .trajectory import (
     rpe,
     umeyama,
 )
+from .segmentation import SegmentationScores, ground_truth_rooms, segmentation_scores
 
 __all__ = [
     "DEFAULT_MAX_DT",
@@ -39,4 +40,7 @@ __all__ = [
     "relations_error",
     "rpe",
     "umeyama",
+    "SegmentationScores",
+    "ground_truth_rooms",
+    "segmentation_scores",
 ]

@@ -197,3 +197,17 @@ def test_radish_corrected_logs(datasets_dir, path, n_frames, n_beams, offset, pa
     # a corrected log's poses: a smooth path (subsampled scans, no jumps) of the expected length
     steps = np.linalg.norm(np.diff(ds.logged_poses.poses[:, :2], axis=0), axis=1)
     assert ds.logged_poses.path_length() == pytest.approx(path_m, abs=0.5) and steps.max() < 1.5
+
+
+def test_extrinsic_override(tmp_path):
+    from hsmap.datasets.open import open_dataset
+    from hsmap.errors import ShapeError
+
+    log = tmp_path / "one.log"
+    log.write_text("PARAM robot_frontlaser_offset 0.2 host 0\n"
+                   "FLASER 3 1.0 2.0 3.0 0 0 0 0 0 0 10.0 host 10.0\n")
+    assert open_dataset(log).extrinsic2d[0] == 0.2
+    ds = open_dataset(log, extrinsic2d=[-0.04, 0.0, 0.0])
+    np.testing.assert_allclose(next(ds.frames()).extrinsic2d, [-0.04, 0, 0])
+    with pytest.raises(ShapeError, match="extrinsic2d must be 3 finite numbers"):
+        open_dataset(log, extrinsic2d=[0.0, 1.0])

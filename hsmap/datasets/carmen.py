@@ -267,6 +267,12 @@ class CarmenDataset(Dataset):
         r[~((r >= 0.0) & (r < thr))] = np.nan  # NaN, inf, negative, no return
         return LaserScan2D(ranges=r, angles=angles, range_min=0.0, range_max=thr)
 
+    def override_extrinsics(self, extrinsic2d=None, extrinsic3d=None) -> None:
+        """Replace the laser extrinsic (also the per-message one of ROBOTLASER lines); see :class:`Dataset`."""
+        super().override_extrinsics(extrinsic2d, extrinsic3d)
+        if extrinsic2d is not None:
+            self._extrinsics = None
+
     def frames(self, clouds: bool = True) -> Iterator[Frame]:
         """Yield one frame per laser message, in log order (CARMEN logs have no 3D clouds)."""
         for k in range(len(self.stamps)):

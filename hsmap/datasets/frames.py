@@ -90,6 +90,26 @@ class Dataset:
     def __len__(self) -> int:
         raise NotImplementedError
 
+    def override_extrinsics(self, extrinsic2d=None, extrinsic3d=None) -> None:
+        """Replace the sensor extrinsics the source declares (e.g. a TF known to be wrong).
+
+        Parameters
+        ----------
+        extrinsic2d : array_like of shape (3,), optional
+            (x, y, yaw) of the 2D LiDAR in the robot base frame.
+        extrinsic3d : array_like of shape (6,), optional
+            (x, y, z, roll, pitch, yaw) of the 3D LiDAR in the robot base frame.
+        """
+        from ..errors import ShapeError
+
+        for name, value, n in (("extrinsic2d", extrinsic2d, 3), ("extrinsic3d", extrinsic3d, 6)):
+            if value is None:
+                continue
+            arr = np.asarray(value, dtype=float)
+            if arr.shape != (n,) or not np.all(np.isfinite(arr)):
+                raise ShapeError(f"{name} must be {n} finite numbers, got {np.asarray(value).tolist()}")
+            setattr(self, name, arr)
+
     def frames(self, clouds: bool = True):  # -> Iterator[Frame]
         """Yield the frames in recording order; ``clouds=False`` may skip reading 3D clouds (faster 2D runs)."""
         raise NotImplementedError

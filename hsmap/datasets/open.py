@@ -20,6 +20,8 @@ def open_dataset(
     scan_topic: str | None = None,
     cloud_topic: str | None = None,
     odom_topic: str | None = None,
+    extrinsic2d=None,
+    extrinsic3d=None,
 ) -> Dataset:
     """Open a simulator folder, a ROS1/ROS2 bag or a CARMEN log.
 
@@ -32,6 +34,10 @@ def open_dataset(
         - a ``.log``/``.clf`` file or its ``.gz``: :class:`hsmap.datasets.carmen.CarmenDataset`.
     scan_topic, cloud_topic, odom_topic : str, optional
         Bag topics (auto-detected by message type when None); only meaningful for bags.
+    extrinsic2d, extrinsic3d : array_like of shape (3,) / (6,), optional
+        Override the sensor extrinsics the input declares (see :meth:`Dataset.override_extrinsics`). For
+        example, the fr079 bag's TF puts the laser 0.04 m forward while the CARMEN log's PARAM says 0.04 m back;
+        the Freiburg relations agree with the PARAM.
 
     Raises
     ------
@@ -39,7 +45,13 @@ def open_dataset(
         ``path`` does not exist, is none of the above, topics are given for a non-bag input, or the
         simulated-dataset reader is not available.
     """
-    p = Path(path)
+    ds = _open(Path(path), scan_topic, cloud_topic, odom_topic)
+    if extrinsic2d is not None or extrinsic3d is not None:
+        ds.override_extrinsics(extrinsic2d, extrinsic3d)
+    return ds
+
+
+def _open(p: Path, scan_topic: str | None, cloud_topic: str | None, odom_topic: str | None) -> Dataset:
     if not p.exists():
         raise DatasetError(f"{p}: no such file or folder")
     topics = {"scan_topic": scan_topic, "cloud_topic": cloud_topic, "odom_topic": odom_topic}

@@ -3,6 +3,7 @@
 Pure functions on arrays and small dataclasses; file reading lives in :mod:`hsmap.io` and the readers.
 """
 
+from .segmentation import SegmentationScores, ground_truth_rooms, segmentation_scores
 from .trajectory import (
     DEFAULT_MAX_DT,
     Alignment,
@@ -21,7 +22,6 @@ from .trajectory import (
     rpe,
     umeyama,
 )
-from .segmentation import SegmentationScores, ground_truth_rooms, segmentation_scores
 
 __all__ = [
     "DEFAULT_MAX_DT",

@@ -149,3 +149,38 @@ def splat_field_3d(pts, origin, res, field, radius):  # pragma: no cover - JIT
                     d = np.sqrt(dxy + dz * dz)
                     if d < field[a, b, c]:
                         field[a, b, c] = d
+
+
+@nb.njit(cache=True, nogil=True)
+def voxel_centroids(pts, voxel):  # pragma: no cover - JIT
+    """Centroid of the points in each occupied voxel (side `voxel`), in the order of their voxel keys."""
+    n, d = pts.shape
+    keys = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        k = np.int64(0)
+        for j in range(d):
+            k = (k << 21) | (np.int64(np.floor(pts[i, j] / voxel)) + (1 << 20))
+        keys[i] = k
+    order = np.argsort(keys)
+    out = np.empty((n, d))
+    m = -1
+    count = 0
+    last = np.int64(-1)
+    for ii in range(n):
+        i = order[ii]
+        if ii == 0 or keys[i] != last:
+            if m >= 0:
+                for j in range(d):
+                    out[m, j] /= count
+            m += 1
+            count = 0
+            last = keys[i]
+            for j in range(d):
+                out[m, j] = 0.0
+        for j in range(d):
+            out[m, j] += pts[i, j]
+        count += 1
+    if m >= 0:
+        for j in range(d):
+            out[m, j] /= count
+    return out[: m + 1]

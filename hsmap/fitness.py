@@ -52,6 +52,11 @@ def transform_batch(poses: NDArray[np.float64], points: NDArray[np.float64]) -> 
 class DistanceField:
     """Truncated distance to a point set, precomputed on a regular grid (2D) or voxel volume (3D).
 
+    The volume is indexed along the world axes, ``values[ix, iy(, iz)]`` (it is not an image), and padded by one
+    cell of the truncation value so that points outside it read ``truncation``. Points can be added later
+    (:meth:`add`): each new point lowers the nodes within the truncation band around it, so a map's field can
+    grow scan by scan without being rebuilt.
+
     Parameters
     ----------
     points : ndarray of shape (M, d), d in {2, 3}
@@ -59,14 +64,18 @@ class DistanceField:
     resolution : float
         Cell size in metres.
     truncation : float
-        Distances are clipped at this value (the fitness threshold); the grid extends this far beyond the points.
+        Distances are clipped at this value (the fitness threshold).
+    bounds : array_like of shape (2, d), optional
+        [lower corner, upper corner] of the volume in world metres; default: the points' bounding box grown by
+        the truncation. Points outside the volume do not count.
 
     Notes
     -----
     Memory is one float32 per cell: a 40 m x 40 m floor at 2 cm is 4 M cells (16 MB).
     """
 
-    def __init__(self, points: ArrayLike, resolution: float, truncation: float) -> None:
+    def __init__(self, points: ArrayLike, resolution: float, truncation: float,
+                 bounds: ArrayLike | None = None) -> None:
         pts = np.asarray(points, dtype=float)
         if not resolution > 0:
             raise InputError(f"field resolution must be > 0 m, got {resolution}")
@@ -75,29 +84,48 @@ class DistanceField:
         self.dim = pts.shape[1]
         self.resolution = float(resolution)
         self.truncation = float(truncation)
-        margin = truncation + 2 * resolution
-        self.origin = pts.min(axis=0) - margin
-        shape = np.ceil((pts.max(axis=0) + margin - self.origin) / resolution).astype(int) + 1
+        if bounds is None:
+            margin = truncation + 2 * resolution
+            lo, hi = pts.min(axis=0) - margin, pts.max(axis=0) + margin
+        else:
+            lo, hi = np.asarray(bounds, dtype=float)
+            if lo.shape != (self.dim,) or np.any(hi <= lo):
+                raise InputError(f"field bounds must be [lower, upper] corners of {self.dim} values with "
+                                 f"lower < upper, got {np.asarray(bounds).tolist()}")
+        self.origin = lo
+        shape = np.ceil((hi - lo) / resolution).astype(int) + 1
         self.shape = tuple(int(s) for s in shape)
-        from . import _kernels
-
-        # Exact distances from each node to the points within the truncation band, splatted point by point
-        # (cheaper than a full Euclidean distance transform when only distances below `truncation` matter).
-        radius = int(np.ceil(truncation / resolution)) + 1
-        values = np.full(self.shape, np.float32(truncation), dtype=np.float32)
-        splat = _kernels.splat_field_2d if self.dim == 2 else _kernels.splat_field_3d
-        splat(np.ascontiguousarray(pts), self.origin, self.resolution, values, radius)
-        np.minimum(values, np.float32(truncation), out=values)
-        self.values = values
-        # Pad with the truncation value so that any point outside the grid reads `truncation`.
-        self._padded = np.pad(self.values, 1, constant_values=np.float32(truncation))
+        # Padded storage: one cell of `truncation` on every side; `values` is a view of the interior.
+        self._padded = np.full(tuple(s + 2 for s in self.shape), np.float32(truncation), dtype=np.float32)
+        self.values = self._padded[(slice(1, -1),) * self.dim]
         self._strides = np.array([int(np.prod(self._padded.shape[i + 1 :])) for i in range(self.dim)])
         self._pshape = np.array(self._padded.shape)
         self._flat = self._padded.ravel()
+        self._radius = int(np.ceil(truncation / resolution)) + 1
+        self.add(pts)
+
+    def add(self, points: ArrayLike) -> None:
+        """Lower the field around new target points (N, d); points outside the volume are ignored.
+
+        Each node within the truncation band of a point takes the exact distance from its centre to the point if
+        that is smaller (cheaper than a Euclidean distance transform when only short distances matter).
+        """
+        from . import _kernels
+
+        pts = np.ascontiguousarray(points, dtype=float)
+        if len(pts) == 0:
+            return
+        splat = _kernels.splat_field_2d if self.dim == 2 else _kernels.splat_field_3d
+        splat(pts, self.origin, self.resolution, self.values, self._radius)
+
+    def covers(self, lower: ArrayLike, upper: ArrayLike) -> bool:
+        """Whether the box [lower, upper] (world metres) lies inside the volume."""
+        top = self.origin + (np.asarray(self.shape) - 1) * self.resolution
+        return bool(np.all(np.asarray(lower) >= self.origin) and np.all(np.asarray(upper) <= top))
 
     @property
     def nbytes(self) -> int:
-        return int(self.values.nbytes + self._padded.nbytes)
+        return int(self._padded.nbytes)
 
     def score_batch(self, poses: NDArray[np.float64], points: NDArray[np.float64]) -> tuple[NDArray, NDArray]:
         """Mean truncated distance (B,) and inlier ratio (B,) of ``points`` moved by each of the B ``poses``."""

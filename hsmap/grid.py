@@ -437,7 +437,7 @@ def grid_from_scans(
     """
     from PIL import Image, ImageDraw
 
-    from .geometry import compose, pose_to_matrix
+    from .geometry import compose, pose_to_matrix, transform_points
 
     cfg = config or ScanGridConfig()
     poses = np.asarray(poses, dtype=float)
@@ -454,7 +454,7 @@ def grid_from_scans(
         pts, hit = _as_scan_points(scan, f"scans[{i}]")
         sensor = compose(pose, ext)
         T = pose_to_matrix(sensor)
-        w = pts @ T[:2, :2].T + T[:2, 2]
+        w = transform_points(T, pts)
         if not cfg.max_range_free:
             w[~hit] = sensor[:2]
         if hit.any() or (cfg.max_range_free and len(w)):

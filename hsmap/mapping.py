@@ -48,6 +48,7 @@ class VoxelMap:
         self.voxel = float(voxel)
         self._keys = np.empty(0, dtype=np.int64)  # sorted
         self._points = np.empty((0, dim))  # in the order of _keys
+        self._normals = np.empty((0, dim))  # NaN where unknown
 
     def __len__(self) -> int:
         return len(self._keys)
@@ -57,31 +58,50 @@ class VoxelMap:
         """All map points, (N, dim)."""
         return self._points
 
-    def add(self, points: ArrayLike) -> int:
-        """Insert world points; a point whose voxel already holds one is dropped. Returns how many were added."""
+    @property
+    def normals(self) -> NDArray[np.float64]:
+        """Unit normals of the map points, (N, dim); NaN rows where none was given."""
+        return self._normals
+
+    def add(self, points: ArrayLike, normals: ArrayLike | None = None) -> NDArray[np.float64]:
+        """Insert world points (and their normals); a point whose voxel already holds one is dropped.
+
+        Returns the points that were added, (K, dim).
+        """
         pts = np.asarray(points, dtype=float)
         if pts.ndim != 2 or pts.shape[1] != self.dim:
             raise ShapeError(f"points must have shape (N, {self.dim}), got {pts.shape}")
-        pts = pts[np.all(np.isfinite(pts), axis=1)]
+        nrm = np.full(pts.shape, np.nan) if normals is None else np.asarray(normals, dtype=float)
+        if nrm.shape != pts.shape:
+            raise ShapeError(f"normals must have the shape of the points {pts.shape}, got {nrm.shape}")
+        ok = np.all(np.isfinite(pts), axis=1)
+        pts, nrm = pts[ok], nrm[ok]
         if len(pts) == 0:
-            return 0
+            return pts
         keys = voxel_keys(pts, self.voxel)
         keys, first = np.unique(keys, return_index=True)
-        pts = pts[first]
+        pts, nrm = pts[first], nrm[first]
         pos = np.searchsorted(self._keys, keys)
         hit = pos < len(self._keys)
         hit[hit] = self._keys[pos[hit]] == keys[hit]
         new = ~hit
         if not new.any():
-            return 0
-        all_keys = np.concatenate([self._keys, keys[new]])
-        all_pts = np.concatenate([self._points, pts[new]])
-        order = np.argsort(all_keys, kind="stable")
-        self._keys, self._points = all_keys[order], all_pts[order]
-        return int(new.sum())
+            return pts[:0]
+        pos_new = pos[new]  # where the new keys go in the sorted arrays (np.insert keeps them sorted)
+        self._keys = np.insert(self._keys, pos_new, keys[new])
+        self._points = np.insert(self._points, pos_new, pts[new], axis=0)
+        self._normals = np.insert(self._normals, pos_new, nrm[new], axis=0)
+        return pts[new]
 
     def crop(self, centre: ArrayLike, radius: float) -> NDArray[np.float64]:
         """Map points within ``radius`` metres of ``centre`` (horizontal distance in 3D)."""
+        return self._points[self._near(centre, radius)]
+
+    def crop_with_normals(self, centre: ArrayLike, radius: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Map points within ``radius`` metres of ``centre`` and their normals."""
+        near = self._near(centre, radius)
+        return self._points[near], self._normals[near]
+
+    def _near(self, centre: ArrayLike, radius: float) -> NDArray[np.bool_]:
         c = np.asarray(centre, dtype=float)[:2]
-        d2 = ((self._points[:, :2] - c) ** 2).sum(1)
-        return self._points[d2 <= radius * radius]
+        return ((self._points[:, :2] - c) ** 2).sum(1) <= radius * radius

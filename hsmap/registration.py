@@ -24,7 +24,7 @@ from scipy.spatial import cKDTree
 
 from .errors import ConfigError, EmptyInputError, InputError, ShapeError
 from .fitness import DistanceField, KDTreeLookup, score
-from .geometry import dof_of_dim, matrix_to_pose, pose_to_matrix, wrap_angle
+from .geometry import dof_of_dim, matrix_to_pose, pose_to_matrix, transform_points, wrap_angle
 from .harmony import HarmonyConfig, HarmonyResult, as_rng, harmony_search
 
 __all__ = [
@@ -36,6 +36,7 @@ __all__ = [
     "harmony_icp",
     "refine_icp",
     "voxel_downsample",
+    "estimate_normals",
 ]
 
 
@@ -197,15 +198,18 @@ class RegistrationResult:
 
 
 def voxel_downsample(points: NDArray[np.floating], voxel: float) -> NDArray[np.float64]:
-    """Centroid of the points in each occupied voxel (cube or square of side ``voxel``)."""
-    if voxel <= 0 or len(points) == 0:
-        return np.asarray(points, dtype=float)
-    keys = np.floor(points / voxel).astype(np.int64)
-    _, inv, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
-    inv = inv.reshape(-1)
-    out = np.zeros((len(counts), points.shape[1]))
-    np.add.at(out, inv, points)
-    return out / counts[:, None]
+    """Centroid of the points in each occupied voxel (cube or square of side ``voxel``), ordered by voxel.
+
+    Coordinates must lie within +/- 2^20 voxels of the origin (about +/- 100 km at 0.1 m).
+    """
+    pts = np.asarray(points, dtype=float)
+    if voxel <= 0 or len(pts) == 0:
+        return pts
+    if np.abs(pts).max() >= (1 << 20) * voxel:
+        raise InputError(f"points beyond +/-{(1 << 20) * voxel:.0f} m cannot be downsampled at {voxel} m voxels")
+    from . import _kernels
+
+    return _kernels.voxel_centroids(np.ascontiguousarray(pts), float(voxel))
 
 
 def _clean_cloud(points: ArrayLike, name: str, dim: int | None = None) -> tuple[NDArray[np.float64], int]:
@@ -236,16 +240,26 @@ class RegistrationTarget:
     ----------
     points : array_like of shape (M, 2) or (M, 3)
     config : RegistrationConfig, optional
+    normals : array_like of shape (M, 2) or (M, 3), optional
+        Unit normals of the points, when known (otherwise estimated on first use by PCA of neighbourhoods).
+    fields : dict of float to DistanceField, optional
+        Distance fields already built for given truncations (e.g. a map's field grown scan by scan).
     """
 
-    def __init__(self, points: ArrayLike, config: RegistrationConfig | None = None) -> None:
+    def __init__(self, points: ArrayLike, config: RegistrationConfig | None = None, *,
+                 normals: ArrayLike | None = None, fields: dict[float, DistanceField] | None = None) -> None:
         self.config = config or RegistrationConfig()
         self.points, self.dropped = _clean_cloud(points, "target")
         self.dim = self.points.shape[1]
-        self._lookups: dict[float, DistanceField | KDTreeLookup] = {}
+        self._lookups: dict[float, DistanceField | KDTreeLookup] = dict(fields or {})
         self._tree: cKDTree | None = None
         self._normals: NDArray[np.float64] | None = None
-        self._o3d = None
+        if normals is not None:
+            n = np.asarray(normals, dtype=float)
+            if n.shape != self.points.shape or self.dropped:
+                raise ShapeError(f"target normals must have the shape of the (finite) points {self.points.shape}, "
+                                 f"got {n.shape}")
+            self._normals = n
 
     def lookup(self, truncation: float) -> DistanceField | KDTreeLookup:
         """The distance look-up for a truncation distance (built on first use, then cached)."""
@@ -275,32 +289,36 @@ class RegistrationTarget:
 
     @property
     def normals(self) -> NDArray[np.float64]:
-        """Unit normals of the target points from PCA of their neighbourhoods (lines in 2D, planes in 3D)."""
+        """Unit normals of the target points (lines in 2D, planes in 3D), estimated once when not given."""
         if self._normals is None:
-            if self.dim == 2:
-                k = min(8, len(self.points))
-                _, idx = self.tree.query(self.points, k=k)
-                nb = self.points[idx.reshape(len(self.points), -1)]
-                nb = nb - nb.mean(axis=1, keepdims=True)
-                cxx = (nb[..., 0] ** 2).sum(1)
-                cyy = (nb[..., 1] ** 2).sum(1)
-                cxy = (nb[..., 0] * nb[..., 1]).sum(1)
-                # the principal axis of a 2x2 covariance is at 0.5*atan2(2cxy, cxx-cyy); the normal is across it
-                a = 0.5 * np.arctan2(2 * cxy, cxx - cyy) + np.pi / 2
-                self._normals = np.column_stack([np.cos(a), np.sin(a)])
-            else:
-                self._normals = np.asarray(self.o3d_cloud.normals)
+            self._normals = estimate_normals(self.points, tree=self.tree)
         return self._normals
 
-    @property
-    def o3d_cloud(self):  # -> open3d.geometry.PointCloud with normals (3D targets)
-        if self._o3d is None:
-            import open3d as o3d
 
-            pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(self.points))
-            pc.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(12))
-            self._o3d = pc
-        return self._o3d
+def estimate_normals(points: NDArray[np.float64], k: int | None = None,
+                     tree: cKDTree | None = None) -> NDArray[np.float64]:
+    """Unit normals of points (N, 2) or (N, 3) from the principal axes of their k nearest neighbours.
+
+    2D: the normal is across the principal axis of the 2x2 covariance (closed form); 3D: Open3D's estimator
+    (the eigenvector of the smallest eigenvalue), oriented arbitrarily.
+    """
+    dim = points.shape[1]
+    if dim == 3:
+        import open3d as o3d
+
+        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+        pc.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(k or 12))
+        return np.asarray(pc.normals).copy()
+    k = min(k or 8, len(points))
+    tree = tree if tree is not None else cKDTree(points)
+    _, idx = tree.query(points, k=k)
+    nb = points[idx.reshape(len(points), -1)]
+    nb = nb - nb.mean(axis=1, keepdims=True)
+    cxx = (nb[..., 0] ** 2).sum(1)
+    cyy = (nb[..., 1] ** 2).sum(1)
+    cxy = (nb[..., 0] * nb[..., 1]).sum(1)
+    a = 0.5 * np.arctan2(2 * cxy, cxx - cyy) + np.pi / 2  # principal axis at 0.5*atan2(2cxy, cxx-cyy)
+    return np.column_stack([np.cos(a), np.sin(a)])
 
 
 def _default_bounds(centres: NDArray[np.float64], cfg: RegistrationConfig) -> NDArray[np.float64]:
@@ -355,56 +373,70 @@ def refine_icp(
     method: str = Refinement.POINT_TO_PLANE.value,
     tolerance: float = 1e-5,
 ) -> NDArray[np.float64]:
-    """Local ICP refinement of ``pose`` (a pose vector).
+    """Local ICP refinement of ``pose`` (a pose vector), in 2D or 3D.
 
-    Correspondences farther apart than the current trimming distance are ignored; the trimming distance halves
-    from ``start_distance`` (default ``max_distance``) down to ``max_distance``, ``iterations`` at most in all.
-    2D: point-to-line (Gauss-Newton on the target normals) or point-to-point (closed-form SVD step), in numpy.
-    3D: Open3D's point-to-plane or point-to-point ICP.
+    Correspondences (nearest target points, from the target's KD-tree) farther apart than the current trimming
+    distance are ignored; the trimming distance halves from ``start_distance`` (default ``max_distance``) down to
+    ``max_distance``, ``iterations`` at most in all. Point-to-plane (point-to-line in 2D) takes Gauss-Newton steps
+    on the target normals; point-to-point takes the closed-form SVD (Kabsch) step.
     """
     dim = source.shape[1]
     schedule = _trim_schedule(start_distance or max_distance, max_distance)
     per_stage = max(1, iterations // len(schedule))
     T = pose_to_matrix(pose)
-    if dim == 3:
-        import open3d as o3d
-
-        reg = o3d.pipelines.registration
-        est = (reg.TransformationEstimationPointToPlane() if method == Refinement.POINT_TO_PLANE.value
-               else reg.TransformationEstimationPointToPoint())
-        src = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(source))
-        for dist in schedule:
-            crit = reg.ICPConvergenceCriteria(relative_fitness=1e-7, relative_rmse=1e-7, max_iteration=per_stage)
-            T = np.asarray(reg.registration_icp(src, target.o3d_cloud, dist, T, est, crit).transformation)
-        return matrix_to_pose(T)
     normals = target.normals if method == Refinement.POINT_TO_PLANE.value else None
     for dist in schedule:
         for _ in range(per_stage):
-            moved = source @ T[:2, :2].T + T[:2, 2]
+            moved = transform_points(T, source)
             d, idx = target.tree.query(moved, k=1, distance_upper_bound=dist)
             ok = np.isfinite(d)
-            if ok.sum() < 3:
+            if ok.sum() < 2 * dim:
                 break
             p, q = moved[ok], target.points[idx[ok]]
+            dT = np.eye(dim + 1)
             if normals is None:
                 mp, mq = p.mean(0), q.mean(0)
                 U, _, Vt = np.linalg.svd((p - mp).T @ (q - mq))
-                S = np.diag([1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-                R = Vt.T @ S @ U.T
-                delta = np.array([*(mq - R @ mp), np.arctan2(R[1, 0], R[0, 0])])
-                dT = np.eye(3)
-                dT[:2, :2], dT[:2, 2] = R, delta[:2]
+                S = np.eye(dim)
+                S[-1, -1] = np.sign(np.linalg.det(Vt.T @ U.T))
+                dT[:dim, :dim] = Vt.T @ S @ U.T
+                dT[:dim, dim] = mq - dT[:dim, :dim] @ mp
+                step = max(np.abs(dT[:dim, dim]).max(), np.abs(dT[:dim, :dim] - np.eye(dim)).max())
             else:
                 n = normals[idx[ok]]
                 r = np.einsum("ij,ij->i", n, p - q)
-                J = np.column_stack([n, n[:, 1] * p[:, 0] - n[:, 0] * p[:, 1]])
-                delta = -np.linalg.solve(J.T @ J + 1e-9 * np.eye(3), J.T @ r)
-                c, s_ = np.cos(delta[2]), np.sin(delta[2])
-                dT = np.array([[c, -s_, delta[0]], [s_, c, delta[1]], [0.0, 0.0, 1.0]])
+                if dim == 2:
+                    J = np.column_stack([n, n[:, 1] * p[:, 0] - n[:, 0] * p[:, 1]])
+                else:
+                    J = np.column_stack([n, np.cross(p, n)])
+                delta = -np.linalg.solve(J.T @ J + 1e-9 * np.eye(J.shape[1]), J.T @ r)
+                if dim == 2:
+                    c, s_ = np.cos(delta[2]), np.sin(delta[2])
+                    dT[:2, :2] = [[c, -s_], [s_, c]]
+                else:
+                    w = delta[3:]
+                    theta = np.linalg.norm(w)
+                    if theta > 1e-12:
+                        K = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]]) / theta
+                        dT[:3, :3] = np.eye(3) + np.sin(theta) * K + (1 - np.cos(theta)) * K @ K
+                dT[:dim, dim] = delta[:dim]
+                step = np.abs(delta).max()
             T = dT @ T
-            if np.abs(delta).max() < tolerance:
+            if step < tolerance:
                 break
     return matrix_to_pose(T)
+
+
+def _alignment_cost(pose: NDArray[np.float64], source: NDArray[np.float64], target: RegistrationTarget,
+                    threshold: float, plane: bool) -> float:
+    """Mean truncated residual / threshold: point-to-plane (point-to-line) distances of the correspondences within
+    ``threshold``, or point distances; a point with no correspondence costs 1."""
+    moved = transform_points(pose_to_matrix(pose), source)
+    d, idx = target.tree.query(moved, k=1, distance_upper_bound=threshold)
+    ok = np.isfinite(d)
+    if plane:
+        d[ok] = np.abs(np.einsum("ij,ij->i", target.normals[idx[ok]], moved[ok] - target.points[idx[ok]]))
+    return float(np.where(ok, np.minimum(d, threshold), threshold).mean() / threshold)
 
 
 def harmony_icp(
@@ -504,17 +536,20 @@ def harmony_icp(
     full = src if len(src) <= cfg.refine_points else src[np.sort(gen.choice(len(src), cfg.refine_points,
                                                                             replace=False))]
     exact = tgt.exact(cfg.threshold)
-    before = score(pose, full, exact, cfg.inlier_weight)
     refined = False
     if cfg.refinement != Refinement.NONE.value and cfg.refine_iterations > 0:
-        cand = refine_icp(full, tgt, pose, max_distance=cfg.threshold, start_distance=cfg.search_threshold / 2,
+        cand = refine_icp(full, tgt, pose, max_distance=cfg.threshold, start_distance=cfg.search_threshold,
                           iterations=cfg.refine_iterations, method=cfg.refinement)
-        after = score(cand, full, exact, cfg.inlier_weight)
-        if after.value[0] <= before.value[0]:
+        # Keep the refinement unless it made the alignment worse, judged by its own (point-to-plane) metric: the
+        # point-to-point fitness is biased towards poses where the scan's sampling pattern (a LiDAR's rings on
+        # the floor) repeats the map's, i.e. towards no motion.
+        plane = cfg.refinement == Refinement.POINT_TO_PLANE.value
+        if _alignment_cost(cand, full, tgt, cfg.threshold, plane) <= _alignment_cost(pose, full, tgt, cfg.threshold,
+                                                                                     plane) + 1e-12:
             pose, refined = cand, True
     pose = pose.copy()
     pose[dim:] = wrap_angle(pose[dim:])
-    d = exact(src @ pose_to_matrix(pose)[:dim, :dim].T + pose[:dim])
+    d = exact(transform_points(pose_to_matrix(pose), src))
     inl = d < cfg.threshold * (1 - 1e-6)
     inlier_ratio = float(inl.mean())
     fitness = float(d.mean() / cfg.threshold + cfg.inlier_weight * (1.0 - inlier_ratio))

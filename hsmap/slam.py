@@ -1,8 +1,9 @@
 """HS-SLAM (the paper's Algorithm 3): scan-to-map Harmony-ICP in 2D (3-DOF) and 3D (6-DOF).
 
 Each new scan is registered with :func:`hsmap.harmony_icp` against the previous scans for the first frames
-(``warmup_frames``) and then against a bounded local map around the robot (a crop of a voxel-hashed point map,
-:class:`hsmap.mapping.VoxelMap`). The harmony memory is seeded with
+(``warmup_frames``, all keyframes) and then against a bounded local map around the robot (a crop of a
+voxel-hashed point map, :class:`hsmap.mapping.VoxelMap`, whose points carry normals computed when they were
+inserted). The harmony memory is seeded with
 
 - the previous pose,
 - a constant-velocity prediction (the last motion repeated),
@@ -13,8 +14,9 @@ Each new scan is registered with :func:`hsmap.harmony_icp` against the previous 
   poses) with a narrower range,
 
 and the search box spans the seeds plus a range around them. Scans are added to the map at keyframes (the robot
-moved or turned enough since the last one), and only then is the registration target (distance field, KD-tree,
-normals) rebuilt.
+moved or turned enough since the last one); a keyframe's new points are splatted into the search distance field
+(a window around the robot, rebuilt from the map only when the robot nears its edge) and the refinement's KD-tree
+over the local map is rebuilt before the next registration.
 
 :class:`HsSlam` processes frames one by one; :func:`run_slam` runs a whole dataset and returns a
 :class:`SlamResult`; :func:`write_slam_outputs` writes ``trajectory.tum``, ``map.ply``, ``metrics.json`` and
@@ -35,11 +37,18 @@ from numpy.typing import NDArray
 from .config import dump_config, to_dict
 from .datasets.frames import Dataset, Frame
 from .errors import ConfigError, EmptyInputError, InputError
+from .fitness import DistanceField
 from .geometry import compose, pose_to_matrix, relative, transform_points, wrap_angle
 from .harmony import HarmonyConfig, as_rng
 from .io import Trajectory, atomic_path, write_json, write_tum
 from .mapping import VoxelMap
-from .registration import RegistrationConfig, RegistrationTarget, harmony_icp, voxel_downsample
+from .registration import (
+    RegistrationConfig,
+    RegistrationTarget,
+    estimate_normals,
+    harmony_icp,
+    voxel_downsample,
+)
 
 __all__ = ["SlamConfig", "FrameResult", "SlamResult", "HsSlam", "run_slam", "write_slam_outputs",
            "frame_points"]
@@ -75,7 +84,7 @@ class SlamConfig:
     recent_poses : int
         How many recent poses the "mean of recent poses" seed averages.
     warmup_frames : int
-        Frames registered against the previous scans (accumulated) before the map takes over.
+        The first frames are all keyframes: each is registered against all the previous scans.
     map_voxel : float or None
         Voxel size of the point map; None: 0.05 m (2D), 0.1 m (3D).
     scan_voxel : float or None
@@ -222,15 +231,6 @@ def frame_points(frame: Frame, dof: int, min_range: float = 0.0, max_range: floa
     return pts
 
 
-def _downsample(points: NDArray[np.float64], voxel: float) -> NDArray[np.float64]:
-    if points.shape[1] == 3 and len(points) > 20000:
-        import open3d as o3d
-
-        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
-        return np.asarray(pc.voxel_down_sample(voxel).points)
-    return voxel_downsample(points, voxel)
-
-
 def _mean_pose(poses: NDArray[np.float64]) -> NDArray[np.float64]:
     dim = 2 if poses.shape[1] == 3 else 3
     out = poses.mean(axis=0)
@@ -273,7 +273,8 @@ class HsSlam:
             p = prior.as_3dof()
             self._prior = (p.stamps, p.poses)
         self._target: RegistrationTarget | None = None
-        self._recent_scans: list[NDArray[np.float64]] = []
+        self._field: DistanceField | None = None
+        self._field_centre = np.zeros(self.dim)
         self._last_key: NDArray[np.float64] | None = None
         self._prev_odom: NDArray[np.float64] | None = None
 
@@ -328,7 +329,7 @@ class HsSlam:
         t0 = time.perf_counter()
         cfg = self.config
         pts = frame_points(frame, cfg.dof, cfg.min_range, cfg.max_range)
-        scan = _downsample(pts, cfg.effective_scan_voxel())
+        scan = voxel_downsample(pts, cfg.effective_scan_voxel())
         if len(scan) < 3 * cfg.dim:
             raise EmptyInputError(f"frame {frame.index} (stamp {frame.stamp}) has {len(scan)} usable points "
                                   f"within {cfg.min_range}..{cfg.max_range} m; at least {3 * cfg.dim} needed")
@@ -347,19 +348,9 @@ class HsSlam:
                               config=cfg.registration, rng=self.rng)
             pose = res.pose
             fitness, inlier, rmse, evaluations = res.fitness, res.inlier_ratio, res.rmse, res.evaluations
-        world = transform_points(pose_to_matrix(pose), scan)
-        keyframe = first or self._is_keyframe(pose)
-        n_frames = len(self.poses) + 1
-        if n_frames <= cfg.warmup_frames:
-            self._recent_scans.append(world)
-            self.map.add(world)
-            self._last_key = pose
-            self._target = None
-            keyframe = True
-        elif keyframe:
-            self.map.add(world)
-            self._last_key = pose
-            self._target = None
+        keyframe = first or len(self.poses) < cfg.warmup_frames or self._is_keyframe(pose)
+        if keyframe:
+            self._insert(pts, scan, pose)
         self.poses.append(pose)
         self.stamps.append(float(frame.stamp))
         if frame.odometry is not None:
@@ -375,14 +366,33 @@ class HsSlam:
         return bool(np.linalg.norm(d[: self.dim]) >= cfg.keyframe_distance
                     or np.abs(wrap_angle(d[self.dim:])).max() >= cfg.keyframe_angle)
 
-    def _rebuild_target(self) -> None:
+    def _insert(self, pts: NDArray[np.float64], scan: NDArray[np.float64], pose: NDArray[np.float64]) -> None:
+        """Add a keyframe to the map (with normals from its own neighbourhoods) and to the search field."""
         cfg = self.config
-        if len(self.poses) < cfg.warmup_frames:
-            pts = np.concatenate(self._recent_scans)
-        else:
-            self._recent_scans = []
-            pts = self.map.crop(self.poses[-1][: self.dim], cfg.local_map_radius)
-        self._target = RegistrationTarget(pts, cfg.registration)
+        T = pose_to_matrix(pose)
+        dense = scan if cfg.dof == 3 else voxel_downsample(pts, cfg.effective_map_voxel())
+        world = transform_points(T, dense)
+        added = self.map.add(world, estimate_normals(world))
+        if self._field is not None and len(added):
+            self._field.add(added)
+        self._last_key = pose
+        self._target = None  # the refinement target (KD-tree) is rebuilt before the next registration
+
+    def _rebuild_target(self) -> None:
+        """The registration target: the local map crop (points, normals) and the search field around the robot."""
+        cfg = self.config
+        reg = cfg.registration
+        centre = self.poses[-1][: self.dim]
+        pts, normals = self.map.crop_with_normals(centre, cfg.local_map_radius)
+        if self._field is None or np.linalg.norm(centre[:2] - self._field_centre[:2]) > cfg.local_map_radius / 2:
+            half = cfg.local_map_radius + reg.search_threshold
+            lo = np.r_[centre[:2] - half, pts[:, 2].min() - 1.0] if self.dim == 3 else centre[:2] - half
+            hi = np.r_[centre[:2] + half, pts[:, 2].max() + 1.0] if self.dim == 3 else centre[:2] + half
+            res = reg.field_resolution or (max(0.02, reg.search_threshold / 10) if self.dim == 2
+                                           else reg.search_threshold / 3)
+            self._field = DistanceField(pts, res, reg.search_threshold, bounds=[lo, hi])
+            self._field_centre = centre.copy()
+        self._target = RegistrationTarget(pts, reg, normals=normals, fields={reg.search_threshold: self._field})
 
     @property
     def trajectory(self) -> Trajectory:

@@ -61,3 +61,19 @@ def test_bad_field_parameters(rng):
         DistanceField(rng.normal(size=(5, 2)), -1.0, 0.2)
     with pytest.raises(InputError, match="threshold must be > 0"):
         KDTreeLookup(rng.normal(size=(5, 2)), -0.1)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_field_grows_incrementally(rng, dim):
+    a = rng.uniform(0, 4, (400, dim))
+    b = rng.uniform(0, 4, (400, dim))
+    bounds = [np.full(dim, -0.5), np.full(dim, 4.5)]
+    grown = DistanceField(a, 0.05, 0.3, bounds=bounds)
+    grown.add(b)
+    whole = DistanceField(np.vstack([a, b]), 0.05, 0.3, bounds=bounds)
+    np.testing.assert_allclose(grown.values, whole.values)
+    q = rng.uniform(0, 4, (1000, dim))
+    np.testing.assert_allclose(grown(q), KDTreeLookup(np.vstack([a, b]), 0.3)(q), atol=0.05)
+    assert grown.covers(np.zeros(dim), np.full(dim, 4.0)) and not grown.covers(np.zeros(dim), np.full(dim, 5.0))
+    with pytest.raises(InputError, match="field bounds"):
+        DistanceField(a, 0.05, 0.3, bounds=[np.ones(dim), np.zeros(dim)])

@@ -152,16 +152,28 @@ def splat_field_3d(pts, origin, res, field, radius):  # pragma: no cover - JIT
 
 
 @nb.njit(cache=True, nogil=True)
-def voxel_centroids(pts, voxel):  # pragma: no cover - JIT
-    """Centroid of the points in each occupied voxel (side `voxel`), in the order of their voxel keys."""
+def voxel_centroids(pts, voxel, rmin=0.0, rmax=np.inf):  # pragma: no cover - JIT
+    """Centroid of the points in each occupied voxel (side `voxel`), in the order of their voxel keys.
+
+    Points that are not finite, or whose distance from the origin is outside [rmin, rmax], are skipped.
+    """
     n, d = pts.shape
     keys = np.empty(n, dtype=np.int64)
+    big = np.iinfo(np.int64).max
     for i in range(n):
+        r2 = 0.0
+        for j in range(d):
+            r2 += pts[i, j] * pts[i, j]
+        if not (r2 >= rmin * rmin and r2 <= rmax * rmax):  # also false for NaN
+            keys[i] = big
+            continue
         k = np.int64(0)
         for j in range(d):
             k = (k << 21) | (np.int64(np.floor(pts[i, j] / voxel)) + (1 << 20))
         keys[i] = k
     order = np.argsort(keys)
+    while n > 0 and keys[order[n - 1]] == big:
+        n -= 1
     out = np.empty((n, d))
     m = -1
     count = 0

@@ -197,19 +197,22 @@ class RegistrationResult:
     seconds: float
 
 
-def voxel_downsample(points: NDArray[np.floating], voxel: float) -> NDArray[np.float64]:
+def voxel_downsample(points: NDArray[np.floating], voxel: float, min_range: float = 0.0,
+                     max_range: float = np.inf) -> NDArray[np.float64]:
     """Centroid of the points in each occupied voxel (cube or square of side ``voxel``), ordered by voxel.
 
-    Coordinates must lie within +/- 2^20 voxels of the origin (about +/- 100 km at 0.1 m).
+    Points that are not finite, or whose distance from the origin is outside [min_range, max_range], are dropped
+    first. Coordinates must lie within +/- 2^20 voxels of the origin (about +/- 100 km at 0.1 m).
     """
     pts = np.asarray(points, dtype=float)
     if voxel <= 0 or len(pts) == 0:
         return pts
-    if np.abs(pts).max() >= (1 << 20) * voxel:
+    limit = min(max_range, float(np.nanmax(np.abs(pts), initial=0.0)))
+    if limit >= (1 << 20) * voxel:
         raise InputError(f"points beyond +/-{(1 << 20) * voxel:.0f} m cannot be downsampled at {voxel} m voxels")
     from . import _kernels
 
-    return _kernels.voxel_centroids(np.ascontiguousarray(pts), float(voxel))
+    return _kernels.voxel_centroids(np.ascontiguousarray(pts), float(voxel), float(min_range), float(max_range))
 
 
 def _clean_cloud(points: ArrayLike, name: str, dim: int | None = None) -> tuple[NDArray[np.float64], int]:

@@ -179,6 +179,7 @@ class SlamResult:
     seconds: float
     peak_memory_mb: float
     input_name: str = ""
+    cpu_seconds: float = float("nan")
 
     def metrics(self) -> dict:
         """Per-frame and total metrics, JSON-ready."""
@@ -191,6 +192,7 @@ class SlamResult:
             "keyframes": int(sum(f.keyframe for f in self.frames)),
             "map_points": len(self.map),
             "seconds_total": self.seconds,
+            "cpu_seconds_total": self.cpu_seconds,
             "seconds_per_frame_median": float(np.median(secs)) if len(secs) else None,
             "seconds_per_frame_p95": float(np.percentile(secs, 95)) if len(secs) else None,
             "input_duration_s": duration,
@@ -211,8 +213,13 @@ class SlamResult:
         }
 
 
-def frame_points(frame: Frame, dof: int, min_range: float = 0.0, max_range: float = np.inf) -> NDArray[np.float64]:
-    """The frame's scan (dof 3) or cloud (dof 6) as points in the robot base frame, range-filtered."""
+def frame_points(frame: Frame, dof: int, min_range: float = 0.0, max_range: float = np.inf,
+                 voxel: float | None = None) -> NDArray[np.float64]:
+    """The frame's scan (dof 3) or cloud (dof 6) as points in the robot base frame, range-filtered.
+
+    With ``voxel``, the points are downsampled (voxel centroids, in the sensor frame) in the same pass, before
+    they are moved to the base frame.
+    """
     if dof == 3:
         if frame.scan2d is None:
             raise InputError(f"frame {frame.index} (stamp {frame.stamp}) has no 2D scan: a 3-DOF run needs them")
@@ -223,9 +230,12 @@ def frame_points(frame: Frame, dof: int, min_range: float = 0.0, max_range: floa
             raise InputError(f"frame {frame.index} (stamp {frame.stamp}) has no 3D cloud: a 6-DOF run needs them")
         pts = np.asarray(frame.cloud3d, dtype=float)
         ext = np.asarray(frame.extrinsic3d, dtype=float)
-    pts = pts[np.all(np.isfinite(pts), axis=1)]
-    r = np.linalg.norm(pts, axis=1)
-    pts = pts[(r >= min_range) & (r <= max_range)]
+    if voxel is not None:
+        pts = voxel_downsample(pts, voxel, min_range, max_range)
+    else:
+        pts = pts[np.all(np.isfinite(pts), axis=1)]
+        r = np.linalg.norm(pts, axis=1)
+        pts = pts[(r >= min_range) & (r <= max_range)]
     if np.any(ext != 0):
         pts = transform_points(pose_to_matrix(ext), pts)
     return pts
@@ -328,8 +338,7 @@ class HsSlam:
         """Register one frame and update the map; returns what was done."""
         t0 = time.perf_counter()
         cfg = self.config
-        pts = frame_points(frame, cfg.dof, cfg.min_range, cfg.max_range)
-        scan = voxel_downsample(pts, cfg.effective_scan_voxel())
+        scan = frame_points(frame, cfg.dof, cfg.min_range, cfg.max_range, voxel=cfg.effective_scan_voxel())
         if len(scan) < 3 * cfg.dim:
             raise EmptyInputError(f"frame {frame.index} (stamp {frame.stamp}) has {len(scan)} usable points "
                                   f"within {cfg.min_range}..{cfg.max_range} m; at least {3 * cfg.dim} needed")
@@ -350,7 +359,7 @@ class HsSlam:
             fitness, inlier, rmse, evaluations = res.fitness, res.inlier_ratio, res.rmse, res.evaluations
         keyframe = first or len(self.poses) < cfg.warmup_frames or self._is_keyframe(pose)
         if keyframe:
-            self._insert(pts, scan, pose)
+            self._insert(frame, scan, pose)
         self.poses.append(pose)
         self.stamps.append(float(frame.stamp))
         if frame.odometry is not None:
@@ -366,11 +375,12 @@ class HsSlam:
         return bool(np.linalg.norm(d[: self.dim]) >= cfg.keyframe_distance
                     or np.abs(wrap_angle(d[self.dim:])).max() >= cfg.keyframe_angle)
 
-    def _insert(self, pts: NDArray[np.float64], scan: NDArray[np.float64], pose: NDArray[np.float64]) -> None:
+    def _insert(self, frame: Frame, scan: NDArray[np.float64], pose: NDArray[np.float64]) -> None:
         """Add a keyframe to the map (with normals from its own neighbourhoods) and to the search field."""
         cfg = self.config
         T = pose_to_matrix(pose)
-        dense = scan if cfg.dof == 3 else voxel_downsample(pts, cfg.effective_map_voxel())
+        dense = scan if cfg.dof == 3 else frame_points(frame, cfg.dof, cfg.min_range, cfg.max_range,
+                                                       voxel=cfg.effective_map_voxel())
         world = transform_points(T, dense)
         added = self.map.add(world, estimate_normals(world))
         if self._field is not None and len(added):
@@ -436,7 +446,7 @@ def run_slam(
     total = len(dataset) if isinstance(dataset, Dataset) else None
     if max_frames is not None:
         total = min(total, max_frames) if total is not None else max_frames
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     bar = tqdm(total=total, unit="scan", disable=None if progress is None else not progress,
                desc=f"HS-SLAM {slam.config.dof}-DOF")
     try:
@@ -453,7 +463,7 @@ def run_slam(
         raise EmptyInputError("the input has no frames")
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     return SlamResult(slam.trajectory, slam.map, slam.results, slam.config, time.perf_counter() - t0, peak,
-                      getattr(dataset, "name", ""))
+                      getattr(dataset, "name", ""), time.process_time() - c0)
 
 
 def write_slam_outputs(result: SlamResult, out_dir: str | Path) -> dict[str, Path]:

@@ -10,61 +10,47 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-__all__ = ["field_score_2d", "field_score_3d"]
+__all__ = ["field_score", "hs_chunk_field", "splat_field_2d", "splat_field_3d", "voxel_centroids"]
 
 _OPTS = dict(fastmath=True, cache=True, nogil=True)
 
 
-@nb.njit(**_OPTS)
-def field_score_2d(poses, pts, field, origin, inv_res, tau, out_mean, out_inl):  # pragma: no cover - JIT
-    nbatch = poses.shape[0]
-    npts = pts.shape[0]
-    nx = field.shape[0]
-    ny = field.shape[1]
+@nb.njit(cache=True, nogil=True, fastmath=True)
+def _score_pose(pose, pts, flat, shape, origin, inv_res, tau):  # pragma: no cover - JIT
+    """Mean truncated distance and inlier ratio of `pts` moved by one pose, looked up in a padded flat field."""
+    npts, d = pts.shape
     lim = tau * (1.0 - 1e-6)
-    for b in range(nbatch):
-        c = np.cos(poses[b, 2])
-        s = np.sin(poses[b, 2])
-        tx = poses[b, 0]
-        ty = poses[b, 1]
-        acc = 0.0
-        inl = 0
+    acc = 0.0
+    inl = 0
+    if d == 2:
+        c = np.cos(pose[2])
+        s = np.sin(pose[2])
+        s1 = shape[1]
         for i in range(npts):
-            x = c * pts[i, 0] - s * pts[i, 1] + tx
-            y = s * pts[i, 0] + c * pts[i, 1] + ty
+            x = c * pts[i, 0] - s * pts[i, 1] + pose[0]
+            y = s * pts[i, 0] + c * pts[i, 1] + pose[1]
             u = (x - origin[0]) * inv_res + 0.5
             v = (y - origin[1]) * inv_res + 0.5
             iu = int(np.floor(u))
             iv = int(np.floor(v))
-            if iu < 0 or iv < 0 or iu > nx - 2 or iv > ny - 2:
-                d = tau
+            if iu < 0 or iv < 0 or iu > shape[0] - 2 or iv > shape[1] - 2:
+                dd = tau
             else:
                 fu = u - iu
                 fv = v - iv
-                d = ((1 - fu) * ((1 - fv) * field[iu, iv] + fv * field[iu, iv + 1])
-                     + fu * ((1 - fv) * field[iu + 1, iv] + fv * field[iu + 1, iv + 1]))
-            acc += d
-            if d < lim:
+                k = iu * s1 + iv
+                dd = ((1 - fu) * ((1 - fv) * flat[k] + fv * flat[k + 1])
+                      + fu * ((1 - fv) * flat[k + s1] + fv * flat[k + s1 + 1]))
+            acc += dd
+            if dd < lim:
                 inl += 1
-        out_mean[b] = acc / npts
-        out_inl[b] = inl / npts
-
-
-@nb.njit(**_OPTS)
-def field_score_3d(poses, pts, field, origin, inv_res, tau, out_mean, out_inl):  # pragma: no cover - JIT
-    nbatch = poses.shape[0]
-    npts = pts.shape[0]
-    nx = field.shape[0]
-    ny = field.shape[1]
-    nz = field.shape[2]
-    lim = tau * (1.0 - 1e-6)
-    for b in range(nbatch):
-        cr = np.cos(poses[b, 3])
-        sr = np.sin(poses[b, 3])
-        cp = np.cos(poses[b, 4])
-        sp = np.sin(poses[b, 4])
-        cy = np.cos(poses[b, 5])
-        sy = np.sin(poses[b, 5])
+    else:
+        cr = np.cos(pose[3])
+        sr = np.sin(pose[3])
+        cp = np.cos(pose[4])
+        sp = np.sin(pose[4])
+        cy = np.cos(pose[5])
+        sy = np.sin(pose[5])
         r00 = cy * cp
         r01 = cy * sp * sr - sy * cr
         r02 = cy * sp * cr + sy * sr
@@ -74,37 +60,94 @@ def field_score_3d(poses, pts, field, origin, inv_res, tau, out_mean, out_inl): 
         r20 = -sp
         r21 = cp * sr
         r22 = cp * cr
-        acc = 0.0
-        inl = 0
+        s2 = shape[2]
+        s1 = shape[1] * s2
         for i in range(npts):
             px = pts[i, 0]
             py = pts[i, 1]
             pz = pts[i, 2]
-            x = r00 * px + r01 * py + r02 * pz + poses[b, 0]
-            y = r10 * px + r11 * py + r12 * pz + poses[b, 1]
-            z = r20 * px + r21 * py + r22 * pz + poses[b, 2]
+            x = r00 * px + r01 * py + r02 * pz + pose[0]
+            y = r10 * px + r11 * py + r12 * pz + pose[1]
+            z = r20 * px + r21 * py + r22 * pz + pose[2]
             u = (x - origin[0]) * inv_res + 0.5
             v = (y - origin[1]) * inv_res + 0.5
             w = (z - origin[2]) * inv_res + 0.5
             iu = int(np.floor(u))
             iv = int(np.floor(v))
             iw = int(np.floor(w))
-            if iu < 0 or iv < 0 or iw < 0 or iu > nx - 2 or iv > ny - 2 or iw > nz - 2:
-                d = tau
+            if iu < 0 or iv < 0 or iw < 0 or iu > shape[0] - 2 or iv > shape[1] - 2 or iw > shape[2] - 2:
+                dd = tau
             else:
                 fu = u - iu
                 fv = v - iv
                 fw = w - iw
-                c00 = (1 - fw) * field[iu, iv, iw] + fw * field[iu, iv, iw + 1]
-                c01 = (1 - fw) * field[iu, iv + 1, iw] + fw * field[iu, iv + 1, iw + 1]
-                c10 = (1 - fw) * field[iu + 1, iv, iw] + fw * field[iu + 1, iv, iw + 1]
-                c11 = (1 - fw) * field[iu + 1, iv + 1, iw] + fw * field[iu + 1, iv + 1, iw + 1]
-                d = (1 - fu) * ((1 - fv) * c00 + fv * c01) + fu * ((1 - fv) * c10 + fv * c11)
-            acc += d
-            if d < lim:
+                k = iu * s1 + iv * s2 + iw
+                c00 = (1 - fw) * flat[k] + fw * flat[k + 1]
+                c01 = (1 - fw) * flat[k + s2] + fw * flat[k + s2 + 1]
+                c10 = (1 - fw) * flat[k + s1] + fw * flat[k + s1 + 1]
+                c11 = (1 - fw) * flat[k + s1 + s2] + fw * flat[k + s1 + s2 + 1]
+                dd = (1 - fu) * ((1 - fv) * c00 + fv * c01) + fu * ((1 - fv) * c10 + fv * c11)
+            acc += dd
+            if dd < lim:
                 inl += 1
-        out_mean[b] = acc / npts
-        out_inl[b] = inl / npts
+    return acc / npts, inl / npts
+
+
+@nb.njit(cache=True, nogil=True)
+def field_score(poses, pts, flat, shape, origin, inv_res, tau, out_mean, out_inl):  # pragma: no cover - JIT
+    """Mean truncated distance and inlier ratio for each of B poses (2D or 3D, by the points' width)."""
+    for b in range(poses.shape[0]):
+        out_mean[b], out_inl[b] = _score_pose(poses[b], pts, flat, shape, origin, inv_res, tau)
+
+
+@nb.njit(cache=True, nogil=True)
+def hs_chunk_field(memory, fun, pick, consider, adjust_u, step, rand, par, bw, lo, hi, span, history, state,
+                   global_best, patience, convergence_tol, min_improvement,
+                   pts, flat, shape, origin, inv_res, tau, weight):  # pragma: no cover - JIT
+    """hsmap.harmony._run_chunk with the two-term field fitness inline (same arithmetic, same order)."""
+    hms, dim = memory.shape
+    nchunk, batch, _ = pick.shape
+    new = np.empty((batch, dim))
+    f_new = np.empty(batch)
+    all_x = np.empty((hms + batch, dim))
+    all_f = np.empty(hms + batch)
+    stale = state[1]
+    state[0] = 0
+    for k in range(nchunk):
+        for b in range(batch):
+            for j in range(dim):
+                if consider[k, b, j]:
+                    v = memory[pick[k, b, j], j]
+                    if adjust_u[k, b, j] < par[k]:
+                        if global_best:
+                            v = memory[0, j]
+                        else:
+                            v = v + step[k, b, j] * (bw[k] * span[j])
+                else:
+                    v = rand[k, b, j]
+                new[b, j] = min(max(v, lo[j]), hi[j])
+            m, r = _score_pose(new[b], pts, flat, shape, origin, inv_res, tau)
+            f = m / tau + weight * (1.0 - r)
+            f_new[b] = f if np.isfinite(f) else np.inf
+        all_x[:hms] = memory
+        all_x[hms:] = new
+        all_f[:hms] = fun
+        all_f[hms:] = f_new
+        keep = np.argsort(all_f, kind="mergesort")[:hms]
+        for i in range(hms):
+            memory[i] = all_x[keep[i]]
+            fun[i] = all_f[keep[i]]
+        improved = history[k] - fun[0] > min_improvement
+        history[k + 1] = fun[0]
+        stale = 0 if improved else stale + 1
+        state[0] = k + 1
+        state[1] = stale
+        if convergence_tol >= 0 and np.isfinite(fun[hms - 1]) and fun[hms - 1] - fun[0] <= convergence_tol:
+            state[2] = 1
+            return
+        if stale >= patience:
+            state[2] = 2
+            return
 
 
 @nb.njit(**_OPTS)
@@ -196,3 +239,39 @@ def voxel_centroids(pts, voxel, rmin=0.0, rmax=np.inf):  # pragma: no cover - JI
         for j in range(d):
             out[m, j] /= count
     return out[: m + 1]
+
+
+@nb.njit(cache=True, nogil=True)
+def point_to_plane_normal_equations(p, q, n):  # pragma: no cover - JIT
+    """J^T J and J^T r of the point-to-plane (point-to-line in 2D) residuals r_i = n_i . (p_i - q_i).
+
+    2D: unknowns (tx, ty, theta), J_i = [n_x, n_y, n_y p_x - n_x p_y]; 3D: (t, omega), J_i = [n, p x n].
+    """
+    m, d = p.shape
+    k = 3 if d == 2 else 6
+    A = np.zeros((k, k))
+    g = np.zeros(k)
+    J = np.empty(k)
+    for i in range(m):
+        r = 0.0
+        for j in range(d):
+            r += n[i, j] * (p[i, j] - q[i, j])
+        if d == 2:
+            J[0] = n[i, 0]
+            J[1] = n[i, 1]
+            J[2] = n[i, 1] * p[i, 0] - n[i, 0] * p[i, 1]
+        else:
+            J[0] = n[i, 0]
+            J[1] = n[i, 1]
+            J[2] = n[i, 2]
+            J[3] = p[i, 1] * n[i, 2] - p[i, 2] * n[i, 1]
+            J[4] = p[i, 2] * n[i, 0] - p[i, 0] * n[i, 2]
+            J[5] = p[i, 0] * n[i, 1] - p[i, 1] * n[i, 0]
+        for a in range(k):
+            g[a] += J[a] * r
+            for b in range(a, k):
+                A[a, b] += J[a] * J[b]
+    for a in range(k):
+        for b in range(a):
+            A[a, b] = A[b, a]
+    return A, g

@@ -29,7 +29,7 @@ from scipy.spatial import cKDTree
 from .errors import InputError
 from .geometry import euler_to_matrix
 
-__all__ = ["DistanceField", "KDTreeLookup", "transform_batch", "Fitness", "score"]
+__all__ = ["DistanceField", "KDTreeLookup", "FieldObjective", "transform_batch", "Fitness", "score"]
 
 
 def transform_batch(poses: NDArray[np.float64], points: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -135,9 +135,8 @@ class DistanceField:
         points = np.ascontiguousarray(points, dtype=np.float64)
         mean = np.empty(poses.shape[0])
         inl = np.empty(poses.shape[0])
-        kernel = _kernels.field_score_2d if self.dim == 2 else _kernels.field_score_3d
-        kernel(poses, points, self._padded, self.origin, 1.0 / self.resolution,
-               self.truncation, mean, inl)
+        _kernels.field_score(poses, points, self._flat, self._pshape, self.origin, 1.0 / self.resolution,
+                             self.truncation, mean, inl)
         return mean, inl
 
     def __call__(self, points: NDArray[np.floating]) -> NDArray[np.float32]:
@@ -183,6 +182,28 @@ class KDTreeLookup:
         d, _ = self.tree.query(points.reshape(-1, points.shape[-1]), k=1, distance_upper_bound=self.truncation,
                                workers=self.workers)
         return np.minimum(d, self.truncation).reshape(points.shape[:-1])
+
+
+class FieldObjective:
+    """The two-term fitness of poses for ``source`` against a :class:`DistanceField`, as a Harmony Search
+    objective with a compiled fast path: :func:`hsmap.harmony.harmony_search` runs whole chunks of improvisation
+    rounds in one call (:meth:`run_chunk`), with the same arithmetic as the Python loop.
+    """
+
+    def __init__(self, source: NDArray[np.float64], field: DistanceField, inlier_weight: float = 1.0) -> None:
+        self.source = np.ascontiguousarray(source, dtype=np.float64)
+        self.field = field
+        self.inlier_weight = float(inlier_weight)
+
+    def __call__(self, poses: NDArray[np.float64]) -> NDArray[np.float64]:
+        return score(poses, self.source, self.field, self.inlier_weight).value
+
+    def run_chunk(self, *args) -> None:
+        from . import _kernels
+
+        f = self.field
+        _kernels.hs_chunk_field(*args, self.source, f._flat, f._pshape, f.origin, 1.0 / f.resolution,
+                                f.truncation, self.inlier_weight)
 
 
 @dataclass

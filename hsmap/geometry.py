@@ -82,6 +82,9 @@ def pose_to_matrix(pose: ArrayLike) -> NDArray[np.float64]:
     """Homogeneous matrices from pose vectors: (..., 3) -> (..., 3, 3); (..., 6) -> (..., 4, 4)."""
     pose = np.asarray(pose, dtype=float)
     dof = pose.shape[-1] if pose.ndim else 0
+    if pose.ndim == 1 and dof == 3:  # fast path for one pose (hot in the ICP loops)
+        c, s = np.cos(pose[2]), np.sin(pose[2])
+        return np.array([[c, -s, pose[0]], [s, c, pose[1]], [0.0, 0.0, 1.0]])
     if dof == 3:
         T = np.zeros(pose.shape[:-1] + (3, 3))
         T[..., :2, :2] = rot2(pose[..., 2])

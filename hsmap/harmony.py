@@ -249,57 +249,44 @@ def harmony_search(
         memory[: len(init)] = np.clip(init, lo, hi)
     fun = evaluate(memory)
     order = np.argsort(fun, kind="stable")
-    memory, fun = memory[order], fun[order]
-    evaluations = hms
-    history = [fun[0]]
+    memory, fun = np.ascontiguousarray(memory[order]), np.ascontiguousarray(fun[order])
     variant = Variant(cfg.variant)
     batch = cfg.batch_size
-    stale = 0
-    stop = StopReason.MAX_ITERATIONS
-    it = 0
+    runner = getattr(objective, "run_chunk", None)  # a compiled fast path (see hsmap.fitness.FieldObjective)
+    history = np.empty(cfg.max_iterations + 1)
+    history[0] = fun[0]
+    state = np.zeros(3, dtype=np.int64)  # rounds done in the last chunk, rounds without improvement, stop code
     log_bw_ratio = np.log(cfg.bw_min / cfg.bw_max)
-    chunk = 0
-    for it in range(1, cfg.max_iterations + 1):
+    patience = cfg.patience if cfg.patience is not None else cfg.max_iterations + 1
+    it = 0
+    while it < cfg.max_iterations and state[2] == 0:
+        # Draw the random numbers of up to 32 rounds at once (fewer small calls); a run that stops early leaves
+        # some unused, which keeps the stream identical between the Python and the compiled chunk runners.
+        c = min(32, cfg.max_iterations - it)
+        its = np.arange(it, it + c)
         if variant is Variant.IHS:
-            frac = (it - 1) / max(cfg.max_iterations - 1, 1)
+            frac = its / max(cfg.max_iterations - 1, 1)
             par = cfg.par_min + (cfg.par_max - cfg.par_min) * frac
             bw = cfg.bw_max * np.exp(log_bw_ratio * frac)
         else:
-            par, bw = cfg.par, cfg.bandwidth
-        if chunk == 0:  # draw the random numbers of several rounds at once (fewer small numpy calls)
-            chunk = min(32, cfg.max_iterations - it + 1)
-            r_pick = gen.integers(0, hms, size=(chunk, batch, dim))
-            r_consider = gen.random((chunk, batch, dim)) < cfg.hmcr
-            r_adjust = gen.random((chunk, batch, dim))
-            r_step = gen.uniform(-1.0, 1.0, (chunk, batch, dim))
-            r_rand = lo + gen.random((chunk, batch, dim)) * span
-        k = chunk = chunk - 1
-        # Improvise a batch: memory consideration, pitch adjustment, random selection, per variable.
-        consider = r_consider[k]
-        new = memory[r_pick[k], np.arange(dim)]
-        adjust = consider & (r_adjust[k] < par)
-        if variant is Variant.GLOBAL_BEST:
-            new = np.where(adjust, memory[0], new)
+            par, bw = np.full(c, cfg.par), np.full(c, cfg.bandwidth)
+        draws = (
+            gen.integers(0, hms, size=(c, batch, dim)),
+            gen.random((c, batch, dim)) < cfg.hmcr,
+            gen.random((c, batch, dim)),
+            gen.uniform(-1.0, 1.0, (c, batch, dim)),
+            lo + gen.random((c, batch, dim)) * span,
+        )
+        args = (memory, fun, *draws, par, bw, lo, hi, span, history[it:], state,
+                variant is Variant.GLOBAL_BEST, patience, cfg.convergence_tol, cfg.min_improvement)
+        if runner is not None:
+            runner(*args)
         else:
-            new += adjust * r_step[k] * (bw * span)
-        new = np.where(consider, new, r_rand[k])
-        np.clip(new, lo, hi, out=new)
-        f_new = evaluate(new)
-        evaluations += batch
-        # Keep the best HMS of memory + batch (stable: ties keep the older harmony).
-        all_x = np.concatenate([memory, new])
-        all_f = np.concatenate([fun, f_new])
-        keep = np.argsort(all_f, kind="stable")[:hms]
-        memory, fun = all_x[keep], all_f[keep]
-        improved = history[-1] - fun[0] > cfg.min_improvement
-        history.append(fun[0])
-        stale = 0 if improved else stale + 1
-        if cfg.convergence_tol >= 0 and np.isfinite(fun[-1]) and fun[-1] - fun[0] <= cfg.convergence_tol:
-            stop = StopReason.CONVERGED
-            break
-        if cfg.patience is not None and stale >= cfg.patience:
-            stop = StopReason.NO_IMPROVEMENT
-            break
+            _run_chunk(evaluate, *args)
+        it += int(state[0])
+    stop = {0: StopReason.MAX_ITERATIONS, 1: StopReason.CONVERGED, 2: StopReason.NO_IMPROVEMENT}[int(state[2])]
+    evaluations = hms + it * batch
+    history = history[: it + 1]
     return HarmonyResult(
         x=memory[0].copy(),
         fun=float(fun[0]),
@@ -310,3 +297,45 @@ def harmony_search(
         memory_fun=fun,
         history=np.asarray(history),
     )
+
+
+def _run_chunk(evaluate, memory, fun, pick, consider, adjust_u, step, rand, par, bw, lo, hi, span, history, state,
+               global_best, patience, convergence_tol, min_improvement) -> None:
+    """Run up to ``len(pick)`` improvisation rounds in place (the reference for the compiled runners).
+
+    ``memory`` (HMS, D) and ``fun`` (HMS,) are sorted best first and updated in place; ``history[k + 1]`` gets
+    the best value after round k; ``state`` = [rounds done, rounds without improvement, stop code (0 running or
+    max-iterations, 1 converged, 2 no improvement)] is updated in place.
+    """
+    hms, dim = memory.shape
+    cols = np.arange(dim)
+    stale = int(state[1])
+    state[0] = 0
+    for k in range(len(pick)):
+        # improvise a batch: memory consideration, pitch adjustment, random selection, per variable
+        new = memory[pick[k], cols]
+        adjust = consider[k] & (adjust_u[k] < par[k])
+        if global_best:
+            new = np.where(adjust, memory[0], new)
+        else:
+            new = new + adjust * step[k] * (bw[k] * span)
+        new = np.where(consider[k], new, rand[k])
+        np.clip(new, lo, hi, out=new)
+        f_new = evaluate(new)
+        # keep the best HMS of memory + batch (stable: ties keep the older harmony)
+        all_x = np.concatenate([memory, new])
+        all_f = np.concatenate([fun, f_new])
+        keep = np.argsort(all_f, kind="stable")[:hms]
+        memory[:] = all_x[keep]
+        fun[:] = all_f[keep]
+        improved = history[k] - fun[0] > min_improvement
+        history[k + 1] = fun[0]
+        stale = 0 if improved else stale + 1
+        state[0] = k + 1
+        state[1] = stale
+        if convergence_tol >= 0 and np.isfinite(fun[-1]) and fun[-1] - fun[0] <= convergence_tol:
+            state[2] = 1
+            return
+        if stale >= patience:
+            state[2] = 2
+            return

@@ -23,7 +23,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
 from .errors import ConfigError, EmptyInputError, InputError, ShapeError
-from .fitness import DistanceField, KDTreeLookup, score
+from .fitness import DistanceField, FieldObjective, KDTreeLookup, score
 from .geometry import dof_of_dim, matrix_to_pose, pose_to_matrix, transform_points, wrap_angle
 from .harmony import HarmonyConfig, HarmonyResult, as_rng, harmony_search
 
@@ -383,6 +383,8 @@ def refine_icp(
     ``max_distance``, ``iterations`` at most in all. Point-to-plane (point-to-line in 2D) takes Gauss-Newton steps
     on the target normals; point-to-point takes the closed-form SVD (Kabsch) step.
     """
+    from . import _kernels
+
     dim = source.shape[1]
     schedule = _trim_schedule(start_distance or max_distance, max_distance)
     per_stage = max(1, iterations // len(schedule))
@@ -406,13 +408,8 @@ def refine_icp(
                 dT[:dim, dim] = mq - dT[:dim, :dim] @ mp
                 step = max(np.abs(dT[:dim, dim]).max(), np.abs(dT[:dim, :dim] - np.eye(dim)).max())
             else:
-                n = normals[idx[ok]]
-                r = np.einsum("ij,ij->i", n, p - q)
-                if dim == 2:
-                    J = np.column_stack([n, n[:, 1] * p[:, 0] - n[:, 0] * p[:, 1]])
-                else:
-                    J = np.column_stack([n, np.cross(p, n)])
-                delta = -np.linalg.solve(J.T @ J + 1e-9 * np.eye(J.shape[1]), J.T @ r)
+                A, g = _kernels.point_to_plane_normal_equations(p, q, normals[idx[ok]])
+                delta = -np.linalg.solve(A + 1e-9 * np.eye(len(g)), g)
                 if dim == 2:
                     c, s_ = np.cos(delta[2]), np.sin(delta[2])
                     dT[:2, :2] = [[c, -s_], [s_, c]]
@@ -525,9 +522,11 @@ def harmony_icp(
             box = np.column_stack([np.maximum(hs.x - half, b[:, 0]), np.minimum(hs.x + half, b[:, 1])])
             seeds = hs.memory[: max(1, cfg.harmony.memory_size // 3)]
         lookup = tgt.lookup(tau)
-
-        def objective(X: NDArray[np.float64], lookup=lookup) -> NDArray[np.float64]:
-            return score(X, sample, lookup, cfg.inlier_weight).value
+        if isinstance(lookup, DistanceField):
+            objective = FieldObjective(sample, lookup, cfg.inlier_weight)  # compiled Harmony Search rounds
+        else:
+            def objective(X: NDArray[np.float64], lookup=lookup) -> NDArray[np.float64]:
+                return score(X, sample, lookup, cfg.inlier_weight).value
 
         hs = harmony_search(objective, box, initial=seeds, config=cfg.harmony, rng=gen)
         iterations += hs.iterations

@@ -242,10 +242,12 @@ def voxel_centroids(pts, voxel, rmin=0.0, rmax=np.inf):  # pragma: no cover - JI
 
 
 @nb.njit(cache=True, nogil=True)
-def point_to_plane_normal_equations(p, q, n):  # pragma: no cover - JIT
-    """J^T J and J^T r of the point-to-plane (point-to-line in 2D) residuals r_i = n_i . (p_i - q_i).
+def point_to_plane_normal_equations(p, q, n, kernel):  # pragma: no cover - JIT
+    """J^T W J and J^T W r of the point-to-plane (point-to-line in 2D) residuals r_i = n_i . (p_i - q_i).
 
     2D: unknowns (tx, ty, theta), J_i = [n_x, n_y, n_y p_x - n_x p_y]; 3D: (t, omega), J_i = [n, p x n].
+    W: Geman-McClure weights w_i = k^2 / (k^2 + r_i^2)^2 (times k^2, so w -> 1 for small r) with scale
+    k = ``kernel``; ``kernel <= 0`` gives plain least squares.
     """
     m, d = p.shape
     k = 3 if d == 2 else 6
@@ -267,10 +269,14 @@ def point_to_plane_normal_equations(p, q, n):  # pragma: no cover - JIT
             J[3] = p[i, 1] * n[i, 2] - p[i, 2] * n[i, 1]
             J[4] = p[i, 2] * n[i, 0] - p[i, 0] * n[i, 2]
             J[5] = p[i, 0] * n[i, 1] - p[i, 1] * n[i, 0]
+        w = 1.0
+        if kernel > 0:
+            t = kernel * kernel + r * r
+            w = kernel * kernel * kernel * kernel / (t * t)
         for a in range(k):
-            g[a] += J[a] * r
+            g[a] += w * J[a] * r
             for b in range(a, k):
-                A[a, b] += J[a] * J[b]
+                A[a, b] += w * J[a] * J[b]
     for a in range(k):
         for b in range(a):
             A[a, b] = A[b, a]

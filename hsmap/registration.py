@@ -99,6 +99,13 @@ class RegistrationConfig:
         Maximum refinement iterations.
     refine_points : int
         Source points used by the refinement.
+    refine_seeds : int
+        Also refine from this many of the initial guesses (in the order given) and keep, of all refined
+        candidates, the one with the lowest point-to-plane cost. Guards against a global search that settles in
+        a flat, sampling-biased valley of the point-to-point fitness (a long corridor).
+    robust_kernel : float
+        Metres. Scale of the Geman-McClure kernel weighting the point-to-plane residuals (0: plain least squares):
+        correspondences much farther than it (new, unmapped surfaces matched to old ones) lose their pull.
     """
 
     harmony: HarmonyConfig = field(default_factory=_default_harmony)
@@ -118,6 +125,8 @@ class RegistrationConfig:
     refinement: str = Refinement.POINT_TO_PLANE.value
     refine_iterations: int = 30
     refine_points: int = 2000
+    refine_seeds: int = 0
+    robust_kernel: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("threshold", "search_threshold", "inlier_weight", "translation_range", "z_range", "yaw_range",
@@ -127,13 +136,15 @@ class RegistrationConfig:
             if not (np.isfinite(v) and (v > 0 if positive else v >= 0)):
                 need = "> 0" if positive else ">= 0"
                 raise ConfigError(f"registration.{name} must be a finite number {need}, got {v!r}")
+        if not (np.isfinite(self.robust_kernel) and self.robust_kernel >= 0):
+            raise ConfigError(f"registration.robust_kernel must be a finite number >= 0, got {self.robust_kernel!r}")
         for name in ("field_resolution", "voxel_size", "fine_threshold"):
             v = getattr(self, name)
             if v is not None and not (np.isfinite(v) and v > 0):
                 raise ConfigError(f"registration.{name} must be None or > 0, got {v!r}")
-        for name in ("max_points", "refine_iterations", "refine_points"):
+        for name in ("max_points", "refine_iterations", "refine_points", "refine_seeds"):
             v = getattr(self, name)
-            if not isinstance(v, (int, np.integer)) or v < (0 if name == "refine_iterations" else 1):
+            if not isinstance(v, (int, np.integer)) or v < (0 if name in ("refine_iterations", "refine_seeds") else 1):
                 raise ConfigError(f"registration.{name} must be a positive integer, got {v!r}")
         try:
             self.backend = Backend(self.backend).value
@@ -375,13 +386,15 @@ def refine_icp(
     iterations: int = 30,
     method: str = Refinement.POINT_TO_PLANE.value,
     tolerance: float = 1e-5,
+    robust_kernel: float = 0.0,
 ) -> NDArray[np.float64]:
     """Local ICP refinement of ``pose`` (a pose vector), in 2D or 3D.
 
     Correspondences (nearest target points, from the target's KD-tree) farther apart than the current trimming
     distance are ignored; the trimming distance halves from ``start_distance`` (default ``max_distance``) down to
     ``max_distance``, ``iterations`` at most in all. Point-to-plane (point-to-line in 2D) takes Gauss-Newton steps
-    on the target normals; point-to-point takes the closed-form SVD (Kabsch) step.
+    on the target normals, weighted by a Geman-McClure kernel of scale ``robust_kernel`` (metres; 0: none);
+    point-to-point takes the closed-form SVD (Kabsch) step.
     """
     from . import _kernels
 
@@ -408,7 +421,7 @@ def refine_icp(
                 dT[:dim, dim] = mq - dT[:dim, :dim] @ mp
                 step = max(np.abs(dT[:dim, dim]).max(), np.abs(dT[:dim, :dim] - np.eye(dim)).max())
             else:
-                A, g = _kernels.point_to_plane_normal_equations(p, q, normals[idx[ok]])
+                A, g = _kernels.point_to_plane_normal_equations(p, q, normals[idx[ok]], robust_kernel)
                 delta = -np.linalg.solve(A + 1e-9 * np.eye(len(g)), g)
                 if dim == 2:
                     c, s_ = np.cos(delta[2]), np.sin(delta[2])
@@ -540,15 +553,19 @@ def harmony_icp(
     exact = tgt.exact(cfg.threshold)
     refined = False
     if cfg.refinement != Refinement.NONE.value and cfg.refine_iterations > 0:
-        cand = refine_icp(full, tgt, pose, max_distance=cfg.threshold, start_distance=cfg.search_threshold,
-                          iterations=cfg.refine_iterations, method=cfg.refinement)
-        # Keep the refinement unless it made the alignment worse, judged by its own (point-to-plane) metric: the
+        # Keep a refinement unless it made the alignment worse, judged by its own (point-to-plane) metric: the
         # point-to-point fitness is biased towards poses where the scan's sampling pattern (a LiDAR's rings on
         # the floor) repeats the map's, i.e. towards no motion.
         plane = cfg.refinement == Refinement.POINT_TO_PLANE.value
-        if _alignment_cost(cand, full, tgt, cfg.threshold, plane) <= _alignment_cost(pose, full, tgt, cfg.threshold,
-                                                                                     plane) + 1e-12:
-            pose, refined = cand, True
+        best_cost = _alignment_cost(pose, full, tgt, cfg.threshold, plane)
+        starts = [pose] + ([] if guesses is None else list(guesses[: cfg.refine_seeds]))
+        for start in starts:
+            cand = refine_icp(full, tgt, start, max_distance=cfg.threshold, start_distance=cfg.search_threshold,
+                              iterations=cfg.refine_iterations, method=cfg.refinement,
+                              robust_kernel=cfg.robust_kernel)
+            cost = _alignment_cost(cand, full, tgt, cfg.threshold, plane)
+            if cost <= best_cost + 1e-12:
+                pose, best_cost, refined = cand, cost, True
     pose = pose.copy()
     pose[dim:] = wrap_angle(pose[dim:])
     d = exact(transform_points(pose_to_matrix(pose), src))

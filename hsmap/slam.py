@@ -60,6 +60,7 @@ def _tracking_registration() -> RegistrationConfig:
         search_threshold=0.3,
         threshold=0.1,
         max_points=150,
+        robust_kernel=0.07,
     )
 
 

@@ -216,3 +216,16 @@ def test_config_from_yaml_dict():
     assert cfg.threshold == 0.05 and cfg.harmony.memory_size == 20 and cfg.harmony.variant == "ihs"
     with pytest.raises(ConfigError, match=r"registration.harmony: unknown key\(s\) \['hms'\]"):
         from_dict(RegistrationConfig, {"harmony": {"hms": 20}}, "registration")
+
+
+def test_robust_kernel_and_refine_seeds():
+    p0 = np.array([4.0, 3.0, 0.0])
+    src, tgt, truth = scan_pair_2d(p0, p0 + [0.5, -0.3, 0.3], seed=8)
+    cfg = RegistrationConfig(robust_kernel=0.05, refine_seeds=1)
+    res = harmony_icp(src, tgt, initial_guesses=[truth + [0.05, 0.0, 0.01]], config=cfg, rng=0)
+    t_err, r_err = errors(res.pose, truth)
+    assert t_err < 0.02 and r_err < 0.5
+    with pytest.raises(ConfigError, match="registration.robust_kernel"):
+        RegistrationConfig(robust_kernel=-1.0)
+    with pytest.raises(ConfigError, match="registration.refine_seeds"):
+        RegistrationConfig(refine_seeds=-1)

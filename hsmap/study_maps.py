@@ -28,6 +28,8 @@ import json
 import os
 import shutil
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -63,7 +65,9 @@ def simulated_dataset(scenario: str = "two-rooms", seed: int = 1, *, max_frames:
     The folder is ``data/generated/<scenario>-seed<seed>``; with ``max_frames`` (quick runs) the full folder
     is used when it is already complete, else the prefix folder ``<scenario>-seed<seed>-first<N>`` (the first
     frames of a route do not depend on how many follow). Generation runs under
-    :func:`hsmap.sim.writer.folder_lock`.
+    :func:`hsmap.sim.writer.folder_lock` and under the lock file ``data/generated/.locks/<scenario>-seed<seed>
+    .dataset.lock``, the one the study notebooks 01-03 take for the same folders, so that notebooks of both
+    groups running at once never write one folder twice.
 
     Returns
     -------
@@ -77,16 +81,34 @@ def simulated_dataset(scenario: str = "two-rooms", seed: int = 1, *, max_frames:
     scn = load_scenario(resolve_scenario(scenario))
     seed = int(seed)
     full = generated_dir() / f"{scn.name}-seed{seed}"
-    if max_frames is not None:
-        if int(max_frames) < 1:
-            raise InputError(f"max_frames must be >= 1, got {max_frames}")
-        with folder_lock(full):
-            complete = _is_current(full, scn, seed, None)
-        if not complete:
-            n = int(max_frames)
-            return SimulatedDataset(ensure_dataset(scn, seed, generated_dir() / f"{scn.name}-seed{seed}-first{n}",
-                                                   max_frames=n))
-    return SimulatedDataset(ensure_dataset(scn, seed, full))
+    if max_frames is not None and int(max_frames) < 1:
+        raise InputError(f"max_frames must be >= 1, got {max_frames}")
+    with _flock(generated_dir() / ".locks" / f"{scn.name}-seed{seed}.dataset.lock"):
+        if max_frames is not None:
+            with folder_lock(full):
+                complete = _is_current(full, scn, seed, None)
+            if not complete:
+                n = int(max_frames)
+                return SimulatedDataset(ensure_dataset(scn, seed, generated_dir() / f"{scn.name}-seed{seed}-first{n}",
+                                                       max_frames=n))
+        return SimulatedDataset(ensure_dataset(scn, seed, full))
+
+
+@contextmanager
+def _flock(path: Path) -> Iterator[None]:
+    """An exclusive ``flock`` on the file ``path`` for the block (unlocked where ``fcntl`` is missing)."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX
+        yield
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a+b") as fh:
+        fcntl.flock(fh.fileno(), fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
 
 
 @dataclass
@@ -101,17 +123,19 @@ class TwoLidarMaps:
     groundtruth : Trajectory
         (frames, 3) true robot poses.
     slam2d : Trajectory
-        (frames, 3) 2D HS-SLAM poses of the robot base.
+        (frames, 3) 2D HS-SLAM poses of the robot base (the true poses with ``poses="groundtruth"``).
     slam3d : Trajectory
-        (frames, 6) 6-DOF HS-SLAM poses of the robot base.
+        (frames, 6) 6-DOF HS-SLAM poses of the robot base (the true poses with ``poses="groundtruth"``).
     map2d : ndarray of shape (N, 2)
-        The 2D HS-SLAM map (keyframe scans, one point per 5 cm cell).
+        The 2D HS-SLAM map (keyframe scans, one point per 5 cm cell); empty with ``poses="groundtruth"``.
     map3d : ndarray of shape (M, 3)
-        The 6-DOF HS-SLAM map (keyframe clouds, one point per 10 cm voxel).
+        The 6-DOF HS-SLAM map (keyframe clouds, one point per 10 cm voxel); empty with ``poses="groundtruth"``.
     floor : OccupancyGrid
         Floor-level grid: every 2D scan at its 2D HS-SLAM pose.
     slice : OccupancyGrid
         Grid of the 3D map's slice ``z_range``: every 3D cloud at its 6-DOF HS-SLAM pose.
+    poses : str
+        ``"slam"`` or ``"groundtruth"``: the poses the grids were built at.
     floor_points, slice_points : ndarray of shape (K, 2)
         The points behind the two grids (scan end points; virtual slice-scan end points), one per 2 cm cell.
     slice_scans : list of ndarray of shape (K_i, 2)
@@ -144,6 +168,7 @@ class TwoLidarMaps:
     slice_scans: list[NDArray[np.float64]]
     slice_poses: NDArray[np.float64]
     z_range: tuple[float, float]
+    poses: str = "slam"
     seconds: dict = field(default_factory=dict)
     slam_metrics: dict = field(default_factory=dict)
     key: str = ""
@@ -203,31 +228,41 @@ def _thin(points: NDArray[np.float64], voxel: float) -> NDArray[np.float64]:
     return voxel_downsample(np.asarray(points, dtype=float), voxel)
 
 
-def _compute(ds, n: int, seed: int, z_range: tuple[float, float], resolution: float, bins: int) -> dict:
+def _compute(ds, n: int, seed: int, z_range: tuple[float, float], resolution: float, bins: int, poses: str,
+             every: int) -> dict:
     from .fusion import scans_to_points, slice_scans
     from .grid import grid_from_scans
     from .slam import run_slam
 
-    c2, c3 = _slam_configs()
     gt = ds.groundtruth.poses[:n]
     start = gt[0]
-    seconds = {}
-    t = time.perf_counter()
-    r2 = run_slam(ds, c2, rng=seed, max_frames=n, initial_pose=start, progress=False)
-    seconds["slam2d"] = time.perf_counter() - t
-    t = time.perf_counter()
-    start6 = np.array([start[0], start[1], 0.0, 0.0, 0.0, start[2]])
-    r3 = run_slam(ds, c3, rng=seed, max_frames=n, initial_pose=start6, prior=r2.trajectory, progress=False)
-    seconds["slam3d"] = time.perf_counter() - t
+    seconds: dict[str, float] = {}
+    if poses == "slam":
+        c2, c3 = _slam_configs()
+        t = time.perf_counter()
+        r2 = run_slam(ds, c2, rng=seed, max_frames=n, initial_pose=start, progress=False)
+        seconds["slam2d"] = time.perf_counter() - t
+        t = time.perf_counter()
+        start6 = np.array([start[0], start[1], 0.0, 0.0, 0.0, start[2]])
+        r3 = run_slam(ds, c3, rng=seed, max_frames=n, initial_pose=start6, prior=r2.trajectory, progress=False)
+        seconds["slam3d"] = time.perf_counter() - t
+        p2, p3 = r2.trajectory.poses, r3.trajectory.poses
+        map2d, map3d = r2.map.points, r3.map.points
+        runs = {"2d": r2, "3d": r3}
+    else:
+        p2 = gt
+        p3 = np.column_stack([gt[:, :2], np.zeros((n, 3)), gt[:, 2]])
+        map2d, map3d = np.empty((0, 2)), np.empty((0, 3))
+        runs = {}
 
     t = time.perf_counter()
-    p2 = r2.trajectory.poses
-    scans = [ds.scan2d(i) for i in range(n)]
-    floor = grid_from_scans(scans, p2, resolution, extrinsic=ds.extrinsic2d)
-    floor_pts = _thin(scans_to_points(scans, p2, ds.extrinsic2d), 0.02)
+    idx = np.arange(0, n, every)
+    scans = [ds.scan2d(int(i)) for i in idx]
+    floor = grid_from_scans(scans, p2[idx], resolution, extrinsic=ds.extrinsic2d)
+    floor_pts = _thin(scans_to_points(scans, p2[idx], ds.extrinsic2d), 0.02)
     seconds["floor"] = time.perf_counter() - t
     t = time.perf_counter()
-    sscans, spos = slice_scans(ds.frames(stop=n), r3.trajectory.poses, z_min=z_range[0], z_max=z_range[1],
+    sscans, spos = slice_scans(ds.frames(stop=n, step=every), p3[idx], z_min=z_range[0], z_max=z_range[1],
                                bins=bins)
     slice_ = grid_from_scans(sscans, spos, resolution)
     slice_pts = _thin(scans_to_points(sscans, spos), 0.02)
@@ -240,14 +275,14 @@ def _compute(ds, n: int, seed: int, z_range: tuple[float, float], resolution: fl
 
     return {
         "arrays": {
-            "stamps": ds.stamps[:n], "groundtruth": gt, "slam2d": p2, "slam3d": r3.trajectory.poses,
-            "map2d": r2.map.points, "map3d": r3.map.points, "floor_points": floor_pts, "slice_points": slice_pts,
+            "stamps": ds.stamps[:n], "groundtruth": gt, "slam2d": p2, "slam3d": p3,
+            "map2d": map2d, "map3d": map3d, "floor_points": floor_pts, "slice_points": slice_pts,
             "slice_scan_points": np.vstack(sscans) if sscans else np.empty((0, 2)),
             "slice_scan_sizes": np.array([len(a) for a in sscans], dtype=np.int64), "slice_poses": spos,
             **_grid_arrays("floor", floor), **_grid_arrays("slice", slice_),
         },
         "seconds": seconds,
-        "slam_metrics": {"2d": summary(r2), "3d": summary(r3)},
+        "slam_metrics": {k: summary(r) for k, r in runs.items()},
     }
 
 
@@ -265,7 +300,7 @@ def _load(folder: Path, ds, key: str, z_range, cached: bool) -> TwoLidarMaps:
                 map2d=z["map2d"], map3d=z["map3d"], floor=_grid_from(z, "floor"), slice=_grid_from(z, "slice"),
                 floor_points=z["floor_points"], slice_points=z["slice_points"],
                 slice_scans=np.split(z["slice_scan_points"], np.cumsum(z["slice_scan_sizes"])[:-1]),
-                slice_poses=z["slice_poses"], z_range=tuple(z_range),
+                slice_poses=z["slice_poses"], z_range=tuple(z_range), poses=meta["description"]["params"]["poses"],
                 seconds=meta.get("seconds", {}), slam_metrics=meta.get("slam_metrics", {}), key=key,
                 folder=folder, cached=cached)
     except (OSError, ValueError, KeyError) as exc:
@@ -281,6 +316,8 @@ def two_lidar_maps(
     z_range: tuple[float, float] = (1.7, 1.8),
     resolution: float = 0.05,
     slice_bins: int = 720,
+    poses: str = "slam",
+    every: int = 1,
     cache_dir: str | os.PathLike | None = None,
 ) -> TwoLidarMaps:
     """The 2D and 3D HS-SLAM maps of a simulated run and the grids made from them (see the module docstring).
@@ -299,6 +336,11 @@ def two_lidar_maps(
         Metres per cell of both grids.
     slice_bins : int
         Azimuth bins of the virtual slice scans.
+    poses : str
+        ``"slam"`` (the paper's pipeline: HS-SLAM in 2D and 6-DOF) or ``"groundtruth"`` (no SLAM: the grids
+        at the true poses; ``slam2d``/``slam3d`` then hold the true poses and ``map2d``/``map3d`` are empty).
+    every : int
+        Build the grids from every n-th frame (SLAM still runs on all frames).
     cache_dir : path, optional
         Default :func:`default_maps_dir`.
 
@@ -310,18 +352,23 @@ def two_lidar_maps(
 
     ds = simulated_dataset(scenario, seed, max_frames=max_frames)
     n = len(ds) if max_frames is None else min(int(max_frames), len(ds))
+    if poses not in ("slam", "groundtruth"):
+        raise InputError(f"poses must be 'slam' or 'groundtruth', got {poses!r}")
+    if int(every) < 1:
+        raise InputError(f"every must be >= 1, got {every}")
     params = {"z_range": [float(z_range[0]), float(z_range[1])], "resolution": float(resolution),
-              "slice_bins": int(slice_bins)}
+              "slice_bins": int(slice_bins), "poses": poses, "every": int(every)}
     key, desc = _key(ds, n, seed, params)
     cache = Path(cache_dir) if cache_dir is not None else default_maps_dir()
-    folder = cache / f"{Path(ds.path).name}-{n}f-{key[:16]}"
+    folder = cache / f"{Path(ds.path).name}-{n}f-{'gt-' if poses == 'groundtruth' else ''}{key[:16]}"
     with folder_lock(folder):
         if folder.exists():
             try:
                 return _load(folder, ds, key, z_range, cached=True)
             except DatasetError:
                 shutil.rmtree(folder)
-        res = _compute(ds, n, int(seed), (float(z_range[0]), float(z_range[1])), float(resolution), int(slice_bins))
+        res = _compute(ds, n, int(seed), (float(z_range[0]), float(z_range[1])), float(resolution), int(slice_bins),
+                       poses, int(every))
         tmp = folder.with_name(f".{folder.name}.tmp-{os.getpid()}")
         shutil.rmtree(tmp, ignore_errors=True)
         try:

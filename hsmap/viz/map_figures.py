@@ -299,7 +299,7 @@ def door_clouds_figure(doors: Sequence[Any], clouds3d: Sequence[NDArray], clouds
         ax.set_xlabel("along the door [m]")
         ax.set_ylabel("z [m]")
         ax.set_title(f"door D{k + 1} at ({d.centre[0]:.2f}, {d.centre[1]:.2f}), width {d.width:.2f} m", fontsize=9)
-        ax.legend(fontsize=7, loc="upper right")
+        ax.legend(fontsize=7, loc="center")  # the opening is empty
     for ax in axes[n:]:
         ax.set_visible(False)
     if sc is not None:

@@ -6,7 +6,7 @@ all start from the same products of one simulated run through the paper's pipeli
 1. the simulated dataset (:func:`simulated_dataset`: ``data/generated/<scenario>-seed<seed>``, or the prefix
    folder ``...-first<N>`` for quick runs; generated once, under a lock);
 2. HS-SLAM in 2D (3-DOF, the floor-level LiDAR) and in 3D (6-DOF, the 3D LiDAR, seeded by the 2D poses as in the
-   paper), both started at the first ground-truth pose so that their maps share the world frame of the ground
+   paper), without odometry by default (the paper's claim), both started at the first ground-truth pose so that their maps share the world frame of the ground
    truth (the rooms, doors and labels to compare with);
 3. the maps made from them: the 2D and 3D HS-SLAM point maps, the floor-level occupancy grid (every 2D scan
    at its 2D HS-SLAM pose, :func:`hsmap.grid.grid_from_scans`) and the grid of the 3D map's slice at
@@ -190,14 +190,14 @@ def _source_digest() -> str:
     return h.hexdigest()
 
 
-def _slam_configs():
+def _slam_configs(use_odometry: bool = False):
     from .slam import SlamConfig
 
-    return SlamConfig(dof=3), SlamConfig(dof=6)
+    return SlamConfig(dof=3, use_odometry=use_odometry), SlamConfig(dof=6, use_odometry=use_odometry)
 
 
 def _key(dataset, frames: int, seed: int, params: dict) -> tuple[str, dict]:
-    c2, c3 = _slam_configs()
+    c2, c3 = _slam_configs(params["use_odometry"])
     desc = {
         "dataset": _sha((Path(dataset.path) / "dataset.yaml").read_bytes()),
         "frames": int(frames),
@@ -229,7 +229,7 @@ def _thin(points: NDArray[np.float64], voxel: float) -> NDArray[np.float64]:
 
 
 def _compute(ds, n: int, seed: int, z_range: tuple[float, float], resolution: float, bins: int, poses: str,
-             every: int) -> dict:
+             every: int, use_odometry: bool) -> dict:
     from .fusion import scans_to_points, slice_scans
     from .grid import grid_from_scans
     from .slam import run_slam
@@ -238,7 +238,7 @@ def _compute(ds, n: int, seed: int, z_range: tuple[float, float], resolution: fl
     start = gt[0]
     seconds: dict[str, float] = {}
     if poses == "slam":
-        c2, c3 = _slam_configs()
+        c2, c3 = _slam_configs(use_odometry)
         t = time.perf_counter()
         r2 = run_slam(ds, c2, rng=seed, max_frames=n, initial_pose=start, progress=False)
         seconds["slam2d"] = time.perf_counter() - t
@@ -318,6 +318,7 @@ def two_lidar_maps(
     slice_bins: int = 720,
     poses: str = "slam",
     every: int = 1,
+    use_odometry: bool = False,
     cache_dir: str | os.PathLike | None = None,
 ) -> TwoLidarMaps:
     """The 2D and 3D HS-SLAM maps of a simulated run and the grids made from them (see the module docstring).
@@ -341,6 +342,9 @@ def two_lidar_maps(
         at the true poses; ``slam2d``/``slam3d`` then hold the true poses and ``map2d``/``map3d`` are empty).
     every : int
         Build the grids from every n-th frame (SLAM still runs on all frames).
+    use_odometry : bool
+        Seed HS-SLAM with the wheel odometry (default no: the paper's claim is that it needs none; notebooks
+        01-03 run it without too).
     cache_dir : path, optional
         Default :func:`default_maps_dir`.
 
@@ -357,7 +361,8 @@ def two_lidar_maps(
     if int(every) < 1:
         raise InputError(f"every must be >= 1, got {every}")
     params = {"z_range": [float(z_range[0]), float(z_range[1])], "resolution": float(resolution),
-              "slice_bins": int(slice_bins), "poses": poses, "every": int(every)}
+              "slice_bins": int(slice_bins), "poses": poses, "every": int(every),
+              "use_odometry": bool(use_odometry)}
     key, desc = _key(ds, n, seed, params)
     cache = Path(cache_dir) if cache_dir is not None else default_maps_dir()
     folder = cache / f"{Path(ds.path).name}-{n}f-{'gt-' if poses == 'groundtruth' else ''}{key[:16]}"
@@ -368,7 +373,7 @@ def two_lidar_maps(
             except DatasetError:
                 shutil.rmtree(folder)
         res = _compute(ds, n, int(seed), (float(z_range[0]), float(z_range[1])), float(resolution), int(slice_bins),
-                       poses, int(every))
+                       poses, int(every), bool(use_odometry))
         tmp = folder.with_name(f".{folder.name}.tmp-{os.getpid()}")
         shutil.rmtree(tmp, ignore_errors=True)
         try:

@@ -21,7 +21,9 @@ import os
 import shutil
 import time
 import zipfile
+from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -38,7 +40,7 @@ from .robot import Motion, simulate_motion
 from .scenario import Scenario, load_scenario
 from .sensors import encode_range_image, range_image_to_points
 
-__all__ = ["FORMAT", "FORMAT_VERSION", "SimulationSummary", "simulate", "ensure_dataset", "save_npz",
+__all__ = ["FORMAT", "FORMAT_VERSION", "SimulationSummary", "simulate", "ensure_dataset", "folder_lock", "save_npz",
            "motion_for", "noise_rngs"]
 
 FORMAT = "hsmap-simulated-dataset"
@@ -292,27 +294,60 @@ def _write_png16(path: Path, labels: np.ndarray) -> None:
         Image.fromarray(np.ascontiguousarray(labels.astype(np.uint16))).save(tmp, format="PNG")
 
 
+@contextmanager
+def folder_lock(folder: str | os.PathLike) -> Iterator[None]:
+    """Hold an exclusive lock on ``folder`` (a ``.<name>.lock`` file beside it) while the block runs.
+
+    Processes that generate or read the same dataset (two notebooks of ``hsmap reproduce --jobs 2``) take it in
+    turn: the second waits until the first has finished writing, then finds the folder complete. POSIX
+    ``flock``; the lock is released when the block ends or the process dies. Where ``fcntl`` is missing
+    (Windows) the block runs unlocked.
+    """
+    folder = Path(folder)
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX
+        yield
+        return
+    with open(folder.parent / f".{folder.name}.lock", "a+b") as fh:
+        fcntl.flock(fh.fileno(), fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
+
+
 def ensure_dataset(scenario: str | os.PathLike = "slam-office", seed: int | None = None,
                    out: str | os.PathLike | None = None, **kwargs) -> Path:
     """The folder of a simulated dataset, generated first when missing, incomplete or out of date.
 
-    A folder is reused when its ``dataset.yaml`` has the same format version, scenario file hash and seed
-    and no ``max_frames`` cut; otherwise :func:`simulate` (re)writes it.
+    A folder is reused when its ``dataset.yaml`` has the same format version, scenario file hash, seed and
+    frame count (all frames, or the first ``max_frames`` when that keyword is given); otherwise
+    :func:`simulate` (re)writes it. The check and the writing happen under :func:`folder_lock`, so parallel
+    callers never read a half-written folder nor write it twice.
     """
     scn = _as_scenario(scenario)
     seed = scn.seed if seed is None else int(seed)
     out = Path(out) if out is not None else default_output_dir(scn.name)
-    meta_path = out / "dataset.yaml"
-    if meta_path.is_file() and not kwargs.get("max_frames"):
-        try:
-            meta = yaml.safe_load(meta_path.read_text(encoding="utf-8")) or {}
-        except yaml.YAMLError:
-            meta = {}
-        if (scn.sha256 and meta.get("format_version") == FORMAT_VERSION and meta.get("scenario_sha256") == scn.sha256
-                and meta.get("seed") == seed and meta.get("frames") == len(motion_for(scn, seed))):
-            return out
-    simulate(scn, out, seed, **kwargs)
+    with folder_lock(out):
+        if not _is_current(out, scn, seed, kwargs.get("max_frames")):
+            simulate(scn, out, seed, **kwargs)
     return out
+
+
+def _is_current(out: Path, scn: Scenario, seed: int, max_frames: int | None) -> bool:
+    meta_path = out / "dataset.yaml"
+    if not meta_path.is_file() or not scn.sha256:
+        return False
+    try:
+        meta = yaml.safe_load(meta_path.read_text(encoding="utf-8")) or {}
+    except (yaml.YAMLError, OSError, UnicodeDecodeError):
+        return False
+    if not isinstance(meta, dict):
+        return False
+    return (meta.get("format_version") == FORMAT_VERSION and meta.get("scenario_sha256") == scn.sha256
+            and meta.get("seed") == seed and meta.get("frames") == len(motion_for(scn, seed, max_frames or None)))
 
 
 def _readme(scn: Scenario, s: SimulationSummary, grid) -> str:

@@ -38,7 +38,10 @@ test: setup
 	$(BIN)/python -m pytest -n 2 $(PYTEST_ARGS)
 
 bench: setup
-	$(BIN)/python benchmarks/registration.py
+	HSMAP_DATASETS=$${HSMAP_DATASETS:-../shared/datasets} $(BIN)/python benchmarks/registration.py
+	HSMAP_DATASETS=$${HSMAP_DATASETS:-../shared/datasets} $(BIN)/python benchmarks/segmentation.py
+	HSMAP_DATASETS=$${HSMAP_DATASETS:-../shared/datasets} $(BIN)/python benchmarks/slam.py
+	$(BIN)/python benchmarks/simulate.py
 
 lint: setup
 	$(BIN)/ruff check hsmap tests benchmarks

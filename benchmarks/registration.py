@@ -6,6 +6,7 @@ guess. A trial succeeds when the recovered transform is within 3 cm and 0.5 deg 
 
 Methods, all in this process, on the same pairs:
 - ``harmony_icp``: hsmap's Harmony-ICP (global search + local refinement), no initial guess.
+- ``harmony_no_refinement``: the same global search with a second, fine Harmony Search stage instead of ICP.
 - ``o3d_icp_p2p`` / ``o3d_icp_p2plane``: Open3D ICP from the identity (2D scans lifted to z = 0; the 2D
   point-to-plane variant gets a second copy of the scan at z = 1 m so that the system is not singular in roll and
   pitch).
@@ -90,6 +91,11 @@ def m_harmony(src, tgt, rng):
     return harmony_icp(src, tgt, rng=rng).pose
 
 
+def m_harmony_no_refinement(src, tgt, rng):
+    """Harmony Search alone (a fine second stage at 0.1 m instead of ICP): does the refinement earn its place?"""
+    return harmony_icp(src, tgt, config=RegistrationConfig(refinement="none", fine_threshold=0.1), rng=rng).pose
+
+
 def _lift(points, layers=(0.0,)):
     return np.concatenate([np.column_stack([points, np.full(len(points), z)]) for z in layers])
 
@@ -169,9 +175,9 @@ def m_differential_evolution(src, tgt, rng):
                       iterations=cfg.refine_iterations)
 
 
-METHODS_2D = {"harmony_icp": m_harmony, "o3d_icp_p2p": m_o3d_p2p, "o3d_icp_p2plane": m_o3d_p2plane,
+METHODS_2D = {"harmony_icp": m_harmony, "harmony_no_refinement": m_harmony_no_refinement, "o3d_icp_p2p": m_o3d_p2p, "o3d_icp_p2plane": m_o3d_p2plane,
               "differential_evolution": m_differential_evolution}
-METHODS_3D = {"harmony_icp": m_harmony, "o3d_icp_p2p": m_o3d_p2p, "o3d_icp_p2plane": m_o3d_p2plane,
+METHODS_3D = {"harmony_icp": m_harmony, "harmony_no_refinement": m_harmony_no_refinement, "o3d_icp_p2p": m_o3d_p2p, "o3d_icp_p2plane": m_o3d_p2plane,
               "o3d_ransac_fpfh": m_ransac_fpfh, "differential_evolution": m_differential_evolution}
 
 
@@ -179,7 +185,7 @@ def run_suite(name, levels, make_pairs, methods, trials, seed, target_level):
     print(f"\n== {name}: success rate (< {SUCCESS_T * 100:.0f} cm and < {SUCCESS_R} deg) and median ms per "
           f"registration, {trials} trials per level")
     rows = []
-    header = f"{'offset':>12} " + " ".join(f"{m:>24}" for m in methods)
+    header = f"{'offset':>12} " + " ".join(f"{m[:22]:>24}" for m in methods)
     print(header)
     for level in levels:
         pairs = list(make_pairs(level, trials, np.random.default_rng([seed, int(level[0] * 1000)])))

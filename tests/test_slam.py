@@ -201,3 +201,26 @@ def test_cli_slam_on_a_carmen_log(tmp_path):
                         str(out)], capture_output=True, text=True)
     assert r.returncode == 2 and r.stderr.startswith("hsmap: error:") and "Traceback" not in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
+
+
+def test_interrupted_cli_run_leaves_no_complete_looking_output(tmp_path, monkeypatch):
+    """A run stopped half-way (here: an error in the middle of the frames) writes no metrics.json, the marker of a
+    complete output folder, and leaves no temporary files; an older complete run's marker is removed first."""
+    import hsmap.slam as slam_mod
+    from hsmap.cli import main
+
+    log = tmp_path / "office.log"
+    write_carmen(log, ROUTE[:20])
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "metrics.json").write_text("{}")  # a previous run's
+    real = slam_mod.HsSlam.process
+
+    def failing(self, frame):
+        if frame.index == 10:
+            raise KeyboardInterrupt
+        return real(self, frame)
+
+    monkeypatch.setattr(slam_mod.HsSlam, "process", failing)
+    assert main(["slam", str(log), "--out", str(out), "--quiet"]) == 130
+    assert sorted(p.name for p in out.iterdir()) == []

@@ -1,0 +1,661 @@
+"""Helpers for the study notebooks: cached HS-SLAM runs, simulated datasets shared between notebooks, and maps
+built from a dataset and a trajectory (the HS-SLAM map, or the odometry-only map: scans placed at odometry
+poses).
+
+Several notebooks need the same SLAM run (notebooks 02 and 03 both use the 6-DOF run of ``slam-office``), and
+``hsmap reproduce --jobs 2`` runs two of them at once. :func:`cached_slam` runs :func:`hsmap.slam.run_slam` once
+per *key* and writes :func:`hsmap.slam.write_slam_outputs` into a folder named after the key; every later call
+with the same key reads that folder instead of running again. The key is a SHA-256 of
+
+- the dataset's identity (:func:`dataset_fingerprint`: the file contents of a bag or log, the ``dataset.yaml``
+  of a simulated folder, the reader's options, the extrinsics and a digest of the odometry actually served),
+- the effective :class:`~hsmap.slam.SlamConfig` (as a dict), the seed, ``max_frames``, ``initial_pose``,
+- a digest of the prior trajectory (6-DOF runs seeded by 2D poses),
+- the hsmap version and a digest of the source files that decide a SLAM result (:data:`SLAM_SOURCES`), so that
+  a change to the SLAM code never reuses a stale result.
+
+A run is published atomically: written into a temporary folder beside the cache folder, then renamed to its
+final name; ``metrics.json`` (written last by ``write_slam_outputs``) and ``key.json`` mark a complete folder.
+A folder that is incomplete or damaged (unreadable metrics, a trajectory whose length or stamps disagree with
+the metrics) is removed and computed again. Two processes asking for the same key at once serialise on an
+exclusive ``fcntl`` lock on ``cache_dir/.locks/KEY.lock``: the second waits and then reuses the first's result.
+
+Everything here calls the package; no algorithm lives in the notebooks.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import fcntl
+import hashlib
+import json
+import os
+import shutil
+import time
+from collections.abc import Iterable, Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from . import __version__
+from .config import from_dict, to_dict
+from .datasets.frames import Dataset, Frame
+from .errors import DatasetError, HsmapError, InputError
+from .geometry import compose, pose_to_matrix, transform_points
+from .io import Trajectory, read_tum, write_json
+from .mapping import VoxelMap
+
+__all__ = [
+    "SLAM_SOURCES",
+    "SlamRun",
+    "cached_slam",
+    "slam_key",
+    "dataset_fingerprint",
+    "default_cache_dir",
+    "file_lock",
+    "simulated_dataset",
+    "poses_at",
+    "point_map",
+    "scan_grid",
+    "record_slam_run",
+]
+
+#: Package files (relative to ``hsmap/``) whose contents decide a SLAM result; their digest is part of the key.
+SLAM_SOURCES = (
+    "slam.py", "registration.py", "harmony.py", "fitness.py", "mapping.py", "_kernels.py", "geometry.py",
+    "config.py", "io.py", "datasets/frames.py", "datasets/simulated.py", "datasets/rosbag.py",
+    "datasets/carmen.py", "datasets/open.py",
+)
+
+#: Files of a cache folder; ``metrics.json`` is written last.
+_FILES = ("key.json", "trajectory.tum", "map.ply", "config.yaml", "metrics.json")
+
+_digest_memo: dict[tuple[str, int, int], str] = {}
+
+
+def default_cache_dir() -> Path:
+    """``data/generated/slam`` of the repository (``$HSMAP_GENERATED/slam`` when that is set)."""
+    from .sim.catalog import generated_dir
+
+    return generated_dir() / "slam"
+
+
+def _sha(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def _file_digest(path: Path) -> str:
+    st = path.stat()
+    memo = (str(path.resolve()), st.st_size, st.st_mtime_ns)
+    if memo not in _digest_memo:
+        h = hashlib.sha256()
+        with open(path, "rb") as fh:
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                h.update(block)
+        _digest_memo[memo] = h.hexdigest()
+    return _digest_memo[memo]
+
+
+def _path_digest(path: str | os.PathLike) -> str:
+    """Digest of an input: a file's bytes; a simulated folder's ``dataset.yaml`` (which names the scenario
+    file's hash, the seed and the frame count, and is written last); any other folder's file names, sizes
+    and the bytes of its small description files."""
+    p = Path(path)
+    if p.is_file():
+        return _file_digest(p)
+    if p.is_dir():
+        if (p / "dataset.yaml").is_file():
+            return _file_digest(p / "dataset.yaml")
+        h = hashlib.sha256()
+        for f in sorted(q for q in p.rglob("*") if q.is_file()):
+            st = f.stat()
+            h.update(f"{f.relative_to(p)}:{st.st_size}:{st.st_mtime_ns}\n".encode())
+        return h.hexdigest()
+    raise DatasetError(f"{p}: no such file or folder")
+
+
+def _array_digest(a: Any) -> str | None:
+    if a is None:
+        return None
+    arr = np.ascontiguousarray(np.asarray(a, dtype=np.float64))
+    return _sha(str(arr.shape).encode() + arr.tobytes())
+
+
+def _source_digest() -> str:
+    root = Path(__file__).resolve().parent
+    h = hashlib.sha256()
+    for rel in SLAM_SOURCES:
+        f = root / rel
+        if f.is_file():
+            h.update(rel.encode() + b"\0" + f.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+#: Reader attributes that change the frames a dataset serves (part of its fingerprint when present).
+_READER_OPTIONS = ("scan_topic", "cloud_topic", "odom_topic", "order", "base_frame", "no_return",
+                   "odom_tolerance", "sync_tolerance")
+
+
+def _plain(v: Any) -> Any:
+    if isinstance(v, Mapping):
+        return {str(k): _plain(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_plain(x) for x in v]
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    if hasattr(v, "item"):
+        return v.item()
+    if hasattr(v, "value") and not isinstance(v, (int, float, str, bool)):
+        return v.value
+    if isinstance(v, Path):
+        return str(v)
+    return v
+
+
+def _frames_digest(frames: Iterable[Frame]) -> str:
+    h = hashlib.sha256()
+    for f in frames:
+        h.update(np.float64(f.stamp).tobytes())
+        for a in (None if f.scan2d is None else f.scan2d.ranges, None if f.scan2d is None else f.scan2d.angles,
+                  f.cloud3d, f.odometry, f.extrinsic2d, f.extrinsic3d):
+            h.update((_array_digest(a) or "-").encode())
+    return h.hexdigest()
+
+
+def dataset_fingerprint(dataset: Dataset | str | os.PathLike, open_kwargs: Mapping[str, Any] | None = None) -> dict:
+    """What identifies a dataset for the cache (a JSON-able dict).
+
+    Parameters
+    ----------
+    dataset : Dataset or path
+        A path is identified by its contents (:func:`_path_digest`) and ``open_kwargs`` (the options it will
+        be opened with) without opening it. A :class:`~hsmap.datasets.frames.Dataset` object is identified by
+        its type, the contents of its ``path`` (or, for a dataset without a file, a digest of all its frames),
+        its reader options, its extrinsics and a digest of its odometry, so that a dataset whose odometry was
+        replaced (:func:`hsmap.datasets.rosbag.adopt_odometry`) or whose extrinsic was overridden gets its
+        own key.
+    """
+    if isinstance(dataset, (str, os.PathLike)):
+        p = Path(dataset)
+        return {"kind": "path", "name": p.name, "content": _path_digest(p),
+                "open_kwargs": _plain(dict(open_kwargs or {}))}
+    if not isinstance(dataset, Dataset):
+        raise InputError(f"dataset must be a path or an hsmap Dataset, got {type(dataset).__name__}")
+    if open_kwargs:
+        raise InputError("open_kwargs apply to a dataset given as a path; this one is already open")
+    path = getattr(dataset, "path", "") or ""
+    fp: dict[str, Any] = {"kind": type(dataset).__name__, "name": str(getattr(dataset, "name", "")),
+                          "frames": len(dataset)}
+    if path and Path(path).exists():
+        fp["content"] = _path_digest(path)
+    else:
+        fp["content"] = _frames_digest(dataset.frames())
+    fp["options"] = {k: _plain(getattr(dataset, k)) for k in _READER_OPTIONS if hasattr(dataset, k)}
+    for k in ("extrinsic2d", "extrinsic3d"):
+        if getattr(dataset, k, None) is not None:
+            fp[k] = [float(v) for v in np.asarray(getattr(dataset, k), dtype=float).reshape(-1)]
+    odo = getattr(dataset, "odometry", None)
+    fp["odometry"] = None if odo is None else _array_digest(np.column_stack([odo.stamps, odo.poses]))
+    return fp
+
+
+def slam_key(
+    dataset: Dataset | str | os.PathLike,
+    config: Any,
+    seed: int,
+    *,
+    prior: Trajectory | None = None,
+    max_frames: int | None = None,
+    initial_pose: ArrayLike | None = None,
+    open_kwargs: Mapping[str, Any] | None = None,
+) -> tuple[str, dict]:
+    """The cache key (hex SHA-256) of a SLAM run and the description it hashes (see the module docstring)."""
+    desc = {
+        "dataset": dataset_fingerprint(dataset, open_kwargs),
+        "config": to_dict(config),
+        "seed": int(seed),
+        "max_frames": None if max_frames is None else int(max_frames),
+        "initial_pose": None if initial_pose is None else [float(v) for v in np.asarray(initial_pose).reshape(-1)],
+        "prior": None if prior is None else _array_digest(np.column_stack([prior.stamps, prior.poses])),
+        "hsmap_version": __version__,
+        "slam_sources": _source_digest(),
+    }
+    return _sha(json.dumps(desc, sort_keys=True).encode()), desc
+
+
+@contextlib.contextmanager
+def file_lock(path: str | os.PathLike, *, timeout: float | None = 3600.0, poll: float = 0.5) -> Iterator[Path]:
+    """Hold an exclusive ``fcntl`` lock on ``path`` (created when missing) for the ``with`` block.
+
+    The lock belongs to the open file: it is released when the block ends or the process dies, so a crashed
+    holder never blocks the next caller. Locks on the same file taken through separate ``open`` calls exclude
+    each other even within one process.
+
+    Raises
+    ------
+    HsmapError
+        The lock was not free within ``timeout`` seconds (None: wait for ever).
+    """
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    fh = open(p, "a+b")  # noqa: SIM115 - closed in finally
+    try:
+        t0 = time.monotonic()
+        while True:
+            try:
+                fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                if timeout is not None and time.monotonic() - t0 > timeout:
+                    raise HsmapError(f"{p}: still locked by another process after {timeout:g} s") from None
+                time.sleep(poll)
+        try:
+            yield p
+        finally:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
+    finally:
+        fh.close()
+
+
+@dataclass
+class SlamRun:
+    """A SLAM run as stored in its cache folder.
+
+    Attributes
+    ----------
+    folder : Path
+        ``trajectory.tum``, ``map.ply``, ``metrics.json``, ``config.yaml``, ``key.json``.
+    trajectory : Trajectory
+        (N, 3) poses for a 3-DOF run, (N, 6) for a 6-DOF run, stamps = the input's scan stamps.
+    metrics : dict
+        ``metrics.json`` (totals, per-frame values, the effective configuration).
+    config : SlamConfig
+    key : str
+    cached : bool
+        True when the folder existed (this call ran nothing).
+    """
+
+    folder: Path
+    trajectory: Trajectory
+    metrics: dict
+    config: Any
+    key: str
+    cached: bool
+    _map: NDArray[np.float64] | None = field(default=None, repr=False)
+
+    @property
+    def dof(self) -> int:
+        return int(self.config.dof)
+
+    @property
+    def map_points(self) -> NDArray[np.float64]:
+        """The SLAM map, (M, 2) for 3-DOF runs, (M, 3) for 6-DOF runs (read from ``map.ply`` once)."""
+        if self._map is None:
+            self._map = _read_ply_points(self.folder / "map.ply")
+            if self.dof == 3:
+                self._map = self._map[:, :2]
+        return self._map
+
+    @property
+    def seconds(self) -> float:
+        """Wall time of the SLAM run itself (when it was computed, not when it was read)."""
+        return float(self.metrics["seconds_total"])
+
+    @property
+    def real_time_factor(self) -> float | None:
+        return self.metrics.get("real_time_factor")
+
+    @property
+    def keyframes(self) -> NDArray[np.bool_]:
+        """(N,) whether each frame was added to the map."""
+        return np.asarray(self.metrics["per_frame"]["keyframe"], dtype=bool)
+
+    @property
+    def frame_indices(self) -> NDArray[np.int64]:
+        """(N,) the input frame index of each pose."""
+        return np.asarray(self.metrics["per_frame"]["index"], dtype=np.int64)
+
+
+def _read_ply_points(path: Path) -> NDArray[np.float64]:
+    import open3d as o3d
+
+    if not path.is_file():
+        raise DatasetError(f"{path}: missing")
+    pts = np.asarray(o3d.io.read_point_cloud(str(path)).points, dtype=float)
+    return pts
+
+
+def _load_run(folder: Path, key: str, cached: bool) -> SlamRun:
+    """Read a cache folder; DatasetError (or DataFormatError) when it is incomplete or inconsistent."""
+    from .slam import SlamConfig
+
+    for name in _FILES:
+        if not (folder / name).is_file():
+            raise DatasetError(f"{folder}: incomplete SLAM cache folder (no {name})")
+    try:
+        metrics = json.loads((folder / "metrics.json").read_text(encoding="utf-8"))
+        stored = json.loads((folder / "key.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise DatasetError(f"{folder}: unreadable metrics.json or key.json ({exc})") from None
+    if not isinstance(metrics, dict) or not isinstance(stored, dict) or stored.get("key") != key:
+        raise DatasetError(f"{folder}: key.json does not name key {key[:16]}")
+    try:
+        config = from_dict(SlamConfig, metrics["config"], where=f"{folder}/metrics.json config")
+        n = int(metrics["frames"])
+        stamps = np.asarray(metrics["per_frame"]["stamp"], dtype=float)
+    except (KeyError, TypeError, ValueError, HsmapError) as exc:
+        raise DatasetError(f"{folder}: metrics.json lacks the run's config or per-frame values ({exc})") from None
+    traj = read_tum(folder / "trajectory.tum", dof=6)
+    if config.dof == 3:
+        traj = traj.as_3dof()
+    if len(traj) != n or len(stamps) != n or not np.allclose(traj.stamps, stamps, atol=1e-6, rtol=0):
+        raise DatasetError(f"{folder}: trajectory.tum has {len(traj)} poses, metrics.json says {n} frames")
+    return SlamRun(folder, traj, metrics, config, key, cached)
+
+
+def _slug(text: str) -> str:
+    s = "".join(c if c.isalnum() or c in "-_" else "-" for c in text).strip("-")
+    return s[:40] or "dataset"
+
+
+def cached_slam(
+    dataset: Dataset | str | os.PathLike,
+    config: Any = None,
+    seed: int = 0,
+    *,
+    prior: Trajectory | None = None,
+    max_frames: int | None = None,
+    initial_pose: ArrayLike | None = None,
+    cache_dir: str | os.PathLike | None = None,
+    open_kwargs: Mapping[str, Any] | None = None,
+    lock_timeout: float | None = 3600.0,
+    progress: bool | None = False,
+) -> SlamRun:
+    """HS-SLAM on ``dataset``, computed once per key and read back from the cache afterwards.
+
+    Parameters
+    ----------
+    dataset : Dataset or path
+        A path (simulated folder, bag, CARMEN log) is opened with ``open_dataset(path, **open_kwargs)`` only
+        when the run has to be computed. Pass an open :class:`~hsmap.datasets.frames.Dataset` when it was
+        modified after opening (adopted odometry, an overridden extrinsic): its fingerprint covers that.
+    config : SlamConfig, optional
+    seed : int
+        The run's ``rng``.
+    prior, max_frames, initial_pose :
+        As :func:`hsmap.slam.run_slam`.
+    cache_dir : path, optional
+        Default :func:`default_cache_dir` (``data/generated/slam`` of the repository).
+    open_kwargs : mapping, optional
+        Keywords of :func:`hsmap.datasets.open.open_dataset` for a dataset given as a path.
+    lock_timeout : float or None
+        Seconds to wait for another process computing the same key.
+    progress : bool or None
+        Progress bar of the run (None: on a terminal only).
+
+    Returns
+    -------
+    SlamRun
+        ``.cached`` says whether the folder existed before the call.
+    """
+    from .slam import SlamConfig, run_slam, write_slam_outputs
+
+    config = config if config is not None else SlamConfig()
+    if not isinstance(config, SlamConfig):
+        raise InputError(f"config must be a SlamConfig, got {type(config).__name__}")
+    if max_frames is not None and int(max_frames) < 1:
+        raise InputError(f"max_frames must be >= 1, got {max_frames}")
+    key, desc = slam_key(dataset, config, seed, prior=prior, max_frames=max_frames, initial_pose=initial_pose,
+                         open_kwargs=open_kwargs)
+    cache = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+    name = desc["dataset"]["name"].split(".")[0]
+    folder = cache / f"{_slug(name)}-{config.dof}dof-{key[:16]}"
+    with file_lock(cache / ".locks" / f"{key[:32]}.lock", timeout=lock_timeout):
+        if folder.exists():
+            try:
+                return _load_run(folder, key, cached=True)
+            except HsmapError:
+                shutil.rmtree(folder)  # incomplete or damaged: computed again below
+        for stale in cache.glob(f".{folder.name}.tmp-*"):  # left by a killed run (we hold the lock)
+            shutil.rmtree(stale, ignore_errors=True)
+        ds = dataset
+        if not isinstance(ds, Dataset):
+            from .datasets.open import open_dataset
+
+            ds = open_dataset(dataset, **dict(open_kwargs or {}))
+        result = run_slam(ds, config, rng=int(seed), prior=prior, max_frames=max_frames,
+                          initial_pose=None if initial_pose is None else np.asarray(initial_pose, dtype=float),
+                          progress=progress)
+        tmp = cache / f".{folder.name}.tmp-{os.getpid()}"
+        try:
+            tmp.mkdir(parents=True)
+            write_json(tmp / "key.json", {"key": key, "description": desc})
+            write_slam_outputs(result, tmp)  # metrics.json last
+            os.rename(tmp, folder)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+        return _load_run(folder, key, cached=False)
+
+
+# --- simulated datasets shared by notebooks ---------------------------------------------------------------
+
+def simulated_dataset(scenario: str = "slam-office", seed: int = 1, out: str | os.PathLike | None = None,
+                      *, lock_timeout: float | None = 3600.0):
+    """The simulated dataset of ``scenario`` with ``seed``, generated once (under a lock) and then reused.
+
+    The folder is ``data/generated/<scenario>-seed<seed>`` unless ``out`` is given: one folder per seed, so
+    notebooks using different seeds never regenerate each other's data.
+
+    Returns
+    -------
+    SimulatedDataset
+    """
+    from .datasets.simulated import SimulatedDataset
+    from .sim.catalog import generated_dir
+    from .sim.writer import ensure_dataset
+
+    folder = Path(out) if out is not None else generated_dir() / f"{Path(str(scenario)).stem}-seed{int(seed)}"
+    with file_lock(folder.parent / ".locks" / f"{folder.name}.dataset.lock", timeout=lock_timeout):
+        ensure_dataset(scenario, seed=int(seed), out=folder)
+    return SimulatedDataset(folder)
+
+
+# --- maps from a dataset and a trajectory ----------------------------------------------------------------
+
+def poses_at(trajectory: Trajectory, stamps: ArrayLike, *, max_dt: float = 1e-3) -> tuple[NDArray, NDArray]:
+    """The trajectory's poses at ``stamps`` (the pose with the nearest stamp within ``max_dt``).
+
+    Returns
+    -------
+    poses : ndarray of shape (K, dof)
+        Poses of the stamps that have one.
+    found : ndarray of shape (M,) of bool
+        Which of the M stamps have a pose.
+    """
+    s = np.asarray(stamps, dtype=float).reshape(-1)
+    order = np.argsort(trajectory.stamps, kind="stable")
+    ts = trajectory.stamps[order]
+    if len(ts) == 0:
+        raise InputError("the trajectory is empty")
+    k = np.clip(np.searchsorted(ts, s), 1, max(len(ts) - 1, 1)) if len(ts) > 1 else np.zeros(len(s), int)
+    if len(ts) > 1:
+        k = np.where(np.abs(ts[k - 1] - s) <= np.abs(ts[k] - s), k - 1, k)
+    found = np.abs(ts[k] - s) <= max_dt
+    return trajectory.poses[order[k[found]]], found
+
+
+def _frames(dataset: Dataset | Iterable[Frame], clouds: bool, every: int, max_frames: int | None) -> Iterator[Frame]:
+    it = dataset.frames(clouds=clouds) if isinstance(dataset, Dataset) else iter(dataset)
+    for k, f in enumerate(it):
+        if max_frames is not None and k >= max_frames:
+            return
+        if k % every == 0:
+            yield f
+
+
+def point_map(
+    dataset: Dataset | Iterable[Frame],
+    trajectory: Trajectory,
+    *,
+    dof: int | None = None,
+    voxel: float | None = None,
+    every: int = 1,
+    max_frames: int | None = None,
+    min_range: float = 0.1,
+    max_range: float = 30.0,
+    max_dt: float = 1e-3,
+) -> NDArray[np.float64]:
+    """The point map of ``dataset``'s scans (dof 3) or clouds (dof 6) placed at ``trajectory``'s poses.
+
+    With the SLAM trajectory this is the SLAM map; with the odometry (``dataset.odometry``) it is the map the
+    odometry alone would make. Frames are matched to poses by stamp; frames without a pose are skipped.
+
+    Parameters
+    ----------
+    dof : int, optional
+        3 (2D scans) or 6 (3D clouds); default the trajectory's (a 3-DOF trajectory places 3D clouds at
+        z = roll = pitch = 0).
+    voxel : float, optional
+        One point per voxel of this size (default 0.05 m in 2D, 0.1 m in 3D, like the SLAM maps).
+    every : int
+        Use every n-th frame.
+
+    Returns
+    -------
+    ndarray of shape (M, 2) or (M, 3)
+        World points.
+    """
+    from .slam import frame_points
+
+    dof = trajectory.dof if dof is None else int(dof)
+    if dof not in (3, 6):
+        raise InputError(f"dof must be 3 (2D scans) or 6 (3D clouds), got {dof}")
+    if int(every) < 1:
+        raise InputError(f"every must be >= 1, got {every}")
+    traj = trajectory.as_6dof() if dof == 6 else trajectory.as_3dof()
+    vmap = VoxelMap(2 if dof == 3 else 3, voxel or (0.05 if dof == 3 else 0.1))
+    n_used = 0
+    for f in _frames(dataset, clouds=dof == 6, every=int(every), max_frames=max_frames):
+        pose, ok = poses_at(traj, [f.stamp], max_dt=max_dt)
+        if not ok[0]:
+            continue
+        pts = frame_points(f, dof, min_range, max_range)
+        vmap.add(transform_points(pose_to_matrix(pose[0]), pts))
+        n_used += 1
+    if n_used == 0:
+        raise InputError("no frame of the dataset has a pose in the trajectory (stamps differ?)")
+    return vmap.points
+
+
+def scan_grid(
+    dataset: Dataset | Iterable[Frame],
+    trajectory: Trajectory,
+    resolution: float = 0.05,
+    *,
+    every: int = 1,
+    max_frames: int | None = None,
+    geometry: Any = None,
+    config: Any = None,
+    max_dt: float = 1e-3,
+):
+    """Occupancy grid of ``dataset``'s 2D scans placed at ``trajectory``'s poses (:func:`hsmap.grid.grid_from_scans`).
+
+    Each scan is placed at its robot pose composed with its own 2D extrinsic. With the odometry this is the
+    odometry-only map of the paper's Figures 2 and 8 (walls smeared thick by the drift).
+
+    Returns
+    -------
+    hsmap.grid.OccupancyGrid
+    """
+    from .grid import grid_from_scans
+
+    if int(every) < 1:
+        raise InputError(f"every must be >= 1, got {every}")
+    traj = trajectory.as_3dof()
+    scans, poses = [], []
+    for f in _frames(dataset, clouds=False, every=int(every), max_frames=max_frames):
+        if f.scan2d is None:
+            raise InputError(f"frame {f.index} has no 2D scan")
+        pose, ok = poses_at(traj, [f.stamp], max_dt=max_dt)
+        if not ok[0]:
+            continue
+        scans.append(f.scan2d)
+        poses.append(compose(pose[0], np.asarray(f.extrinsic2d, dtype=float)))
+    if not scans:
+        raise InputError("no frame of the dataset has a pose in the trajectory (stamps differ?)")
+    return grid_from_scans(scans, np.asarray(poses), resolution, geometry=geometry, config=config)
+
+
+# --- rerun ---------------------------------------------------------------------------------------------------
+
+def record_slam_run(
+    rec: Any,
+    dataset: Dataset | Iterable[Frame],
+    run: SlamRun,
+    *,
+    every: int = 1,
+    map_block: int = 10,
+    map_voxel: float | None = None,
+    cloud_voxel: float = 0.25,
+    groundtruth: Trajectory | None = None,
+    odometry: Trajectory | None = None,
+) -> dict:
+    """Log a (cached) SLAM run to a rerun recording, frame by frame on the ``scan`` timeline.
+
+    Replays the run from its stored poses, as ``hsmap slam`` logs it live: the robot pose (``world/robot``),
+    the current 2D scan and 3D cloud under their sensors, the growing map (the keyframes' points, in blocks of
+    ``map_block`` keyframes under ``world/map/points``) and, as static lines, the estimated path and the
+    optional ground truth and odometry.
+
+    Parameters
+    ----------
+    every : int
+        Log every n-th frame's pose and scan (the map still gets every keyframe).
+
+    Returns
+    -------
+    dict
+        ``frames`` logged, ``map_blocks``, ``map_points`` logged.
+    """
+    from .slam import frame_points
+    from .viz import rerun as hv
+
+    if int(every) < 1:
+        raise InputError(f"every must be >= 1, got {every}")
+    dof = run.dof
+    cfg = run.config
+    index_of = {int(i): k for k, i in enumerate(run.frame_indices)}
+    key = run.keyframes
+    poses = run.trajectory.poses
+    logger = hv.PointMapLogger(rec, block=int(map_block),
+                               voxel=map_voxel or (0.05 if dof == 3 else 0.15),
+                               z_range=(-0.2, 3.0) if dof == 6 else None)
+    logged = 0
+    n_frames = len(run.trajectory)
+    for f in (dataset.frames(clouds=dof == 6) if isinstance(dataset, Dataset) else iter(dataset)):
+        k = index_of.get(int(f.index))
+        if k is None:
+            if f.index > run.frame_indices.max():
+                break
+            continue
+        if k % int(every) == 0 or k == n_frames - 1:
+            shown = f if dof == 6 else dataclasses.replace(f, cloud3d=None)
+            hv.log_frame(rec, shown, poses[k], index=k, cloud_voxel=cloud_voxel)
+            logged += 1
+        if key[k]:
+            if k % int(every) != 0:
+                hv.set_frame_time(rec, k, f.stamp)
+            pts = frame_points(f, dof, cfg.min_range, cfg.max_range)
+            logger.add(transform_points(pose_to_matrix(poses[k]), pts))
+    logger.flush()
+    hv.log_path(rec, "estimate", run.trajectory.poses)
+    if groundtruth is not None:
+        hv.log_path(rec, "groundtruth", groundtruth.poses)
+    if odometry is not None:
+        hv.log_path(rec, "odometry", odometry.poses)
+    return {"frames": logged, "map_blocks": logger.blocks, "map_points": logger.points_logged}

@@ -61,6 +61,7 @@ __all__ = [
     "poses_at",
     "point_map",
     "scan_grid",
+    "map_distances",
     "record_slam_run",
 ]
 
@@ -444,25 +445,61 @@ def cached_slam(
 
 # --- simulated datasets shared by notebooks ---------------------------------------------------------------
 
-def simulated_dataset(scenario: str = "slam-office", seed: int = 1, out: str | os.PathLike | None = None,
-                      *, lock_timeout: float | None = 3600.0):
+def _complete_dataset(folder: Path, scn: Any, seed: int, frames: int) -> bool:
+    """Whether ``folder`` holds the simulated dataset of ``scn`` with ``seed`` and exactly ``frames`` frames."""
+    import yaml
+
+    from .sim.writer import FORMAT_VERSION
+
+    meta_path = folder / "dataset.yaml"
+    if not meta_path.is_file():
+        return False
+    try:
+        meta = yaml.safe_load(meta_path.read_text(encoding="utf-8")) or {}
+    except (yaml.YAMLError, OSError):
+        return False
+    return bool(scn.sha256 and meta.get("format_version") == FORMAT_VERSION
+                and meta.get("scenario_sha256") == scn.sha256 and meta.get("seed") == seed
+                and meta.get("frames") == frames)
+
+
+def simulated_dataset(scenario: str | os.PathLike = "slam-office", seed: int = 1, *,
+                      max_frames: int | None = None, lock_timeout: float | None = 3600.0):
     """The simulated dataset of ``scenario`` with ``seed``, generated once (under a lock) and then reused.
 
-    The folder is ``data/generated/<scenario>-seed<seed>`` unless ``out`` is given: one folder per seed, so
-    notebooks using different seeds never regenerate each other's data.
+    The folder is ``data/generated/<scenario>-seed<seed>``: one folder per seed, so notebooks using different
+    seeds never regenerate each other's data. With ``max_frames`` (quick runs) only the first frames are
+    needed: the full folder is used when it is already complete, else a prefix folder
+    ``<scenario>-seed<seed>-first<N>`` is simulated (the simulator's frames do not depend on how many follow,
+    so a prefix holds the same first frames as the full route). Callers still cut their runs at ``max_frames``.
 
     Returns
     -------
     SimulatedDataset
     """
     from .datasets.simulated import SimulatedDataset
-    from .sim.catalog import generated_dir
-    from .sim.writer import ensure_dataset
+    from .sim.catalog import generated_dir, resolve_scenario
+    from .sim.scenario import load_scenario
+    from .sim.writer import motion_for, simulate
 
-    folder = Path(out) if out is not None else generated_dir() / f"{Path(str(scenario)).stem}-seed{int(seed)}"
-    with file_lock(folder.parent / ".locks" / f"{folder.name}.dataset.lock", timeout=lock_timeout):
-        ensure_dataset(scenario, seed=int(seed), out=folder)
-    return SimulatedDataset(folder)
+    scn = load_scenario(resolve_scenario(scenario))
+    seed = int(seed)
+    full = generated_dir() / f"{scn.name}-seed{seed}"
+    n_full = len(motion_for(scn, seed))
+    lock = generated_dir() / ".locks" / f"{scn.name}-seed{seed}.dataset.lock"
+    with file_lock(lock, timeout=lock_timeout):
+        if _complete_dataset(full, scn, seed, n_full):
+            return SimulatedDataset(full)
+        if max_frames is not None and int(max_frames) < n_full:
+            n = int(max_frames)
+            if n < 1:
+                raise InputError(f"max_frames must be >= 1, got {max_frames}")
+            prefix = generated_dir() / f"{scn.name}-seed{seed}-first{n}"
+            if not _complete_dataset(prefix, scn, seed, n):
+                simulate(scn, prefix, seed, max_frames=n)
+            return SimulatedDataset(prefix)
+        simulate(scn, full, seed)
+        return SimulatedDataset(full)
 
 
 # --- maps from a dataset and a trajectory ----------------------------------------------------------------
@@ -589,6 +626,32 @@ def scan_grid(
     if not scans:
         raise InputError("no frame of the dataset has a pose in the trajectory (stamps differ?)")
     return grid_from_scans(scans, np.asarray(poses), resolution, geometry=geometry, config=config)
+
+
+def map_distances(points: ArrayLike, reference: ArrayLike) -> NDArray[np.float64]:
+    """Distance (m) from each point of a map to the nearest point of a reference map (same dimension).
+
+    With the reference built from the ground-truth poses this measures how far a map's walls lie from where
+    they are: centimetres for a good SLAM map, metres for an odometry-only map with thick, doubled walls.
+
+    Parameters
+    ----------
+    points : ndarray of shape (N, 2) or (N, 3)
+    reference : ndarray of shape (M, 2) or (M, 3)
+
+    Returns
+    -------
+    ndarray of shape (N,)
+    """
+    from scipy.spatial import cKDTree
+
+    p = np.asarray(points, dtype=float)
+    r = np.asarray(reference, dtype=float)
+    if p.ndim != 2 or r.ndim != 2 or p.shape[1] != r.shape[1] or p.shape[1] not in (2, 3):
+        raise InputError(f"points and reference must be (N, 2) or (N, 3) alike, got {p.shape} and {r.shape}")
+    if len(r) == 0 or len(p) == 0:
+        raise InputError("points and reference must not be empty")
+    return cKDTree(r).query(p, k=1)[0]
 
 
 # --- rerun ---------------------------------------------------------------------------------------------------

@@ -317,11 +317,16 @@ def test_simulated_dataset_is_generated_once(tmp_path, monkeypatch):
     scn = tmp_path / "tiny.yaml"
     scn.write_text(TINY_SCENARIO)
     monkeypatch.setenv("HSMAP_GENERATED", str(tmp_path / "generated"))
+    # a quick run needs only the first frames: a prefix folder with exactly those
+    q = simulated_dataset(scn, seed=4, max_frames=2)
+    assert Path(q.path).name == "tiny-seed4-first2" and len(q) == 2
     a = simulated_dataset(scn, seed=4)
     assert Path(a.path) == tmp_path / "generated" / "tiny-seed4" and len(a) > 2
+    np.testing.assert_array_equal(np.asarray(a.ranges2d)[:2], np.asarray(q.ranges2d))  # the same first frames
     stamp = (Path(a.path) / "dataset.yaml").stat().st_mtime_ns
     b = simulated_dataset(scn, seed=4)
     assert (Path(b.path) / "dataset.yaml").stat().st_mtime_ns == stamp
+    assert Path(simulated_dataset(scn, seed=4, max_frames=2).path) == Path(a.path)  # the full one serves too
     c = simulated_dataset(scn, seed=5)
     assert Path(c.path).name == "tiny-seed5"
     assert not np.array_equal(np.asarray(a.ranges2d), np.asarray(c.ranges2d), equal_nan=True)

@@ -60,6 +60,7 @@ __all__ = [
     "simulated_dataset",
     "poses_at",
     "point_map",
+    "point_maps",
     "scan_grid",
     "map_distances",
     "record_slam_run",
@@ -535,9 +536,9 @@ def _frames(dataset: Dataset | Iterable[Frame], clouds: bool, every: int, max_fr
             yield f
 
 
-def point_map(
+def point_maps(
     dataset: Dataset | Iterable[Frame],
-    trajectory: Trajectory,
+    trajectories: Mapping[str, Trajectory],
     *,
     dof: int | None = None,
     voxel: float | None = None,
@@ -546,47 +547,94 @@ def point_map(
     min_range: float = 0.1,
     max_range: float = 30.0,
     max_dt: float = 1e-3,
-) -> NDArray[np.float64]:
-    """The point map of ``dataset``'s scans (dof 3) or clouds (dof 6) placed at ``trajectory``'s poses.
+    block: int = 20,
+) -> dict[str, NDArray[np.float64]]:
+    """Point maps of ``dataset``'s scans (dof 3) or clouds (dof 6) placed at the poses of each trajectory.
 
-    With the SLAM trajectory this is the SLAM map; with the odometry (``dataset.odometry``) it is the map the
-    odometry alone would make. Frames are matched to poses by stamp; frames without a pose are skipped.
+    One pass over the data serves every trajectory (3D clouds are read once). With the SLAM trajectory this is
+    the SLAM map; with the odometry (``dataset.odometry``) it is the map the odometry alone would make; with the
+    ground truth, the reference map. Frames are matched to poses by stamp; frames without a pose in a trajectory
+    are left out of that trajectory's map.
 
     Parameters
     ----------
+    trajectories : mapping of name to Trajectory
+        3-DOF trajectories place 3D clouds at z = roll = pitch = 0.
     dof : int, optional
-        3 (2D scans) or 6 (3D clouds); default the trajectory's (a 3-DOF trajectory places 3D clouds at
-        z = roll = pitch = 0).
+        3 (2D scans) or 6 (3D clouds); default 6 when any trajectory is 6-DOF, else 3.
     voxel : float, optional
         One point per voxel of this size (default 0.05 m in 2D, 0.1 m in 3D, like the SLAM maps).
     every : int
         Use every n-th frame.
+    block : int
+        Frames whose (per-frame thinned) points are merged into the maps at once.
+
+    Returns
+    -------
+    dict of name to ndarray of shape (M, 2) or (M, 3)
+        World points of each map.
+    """
+    from .mapping import voxel_keys
+    from .slam import frame_points
+
+    if not trajectories:
+        raise InputError("point_maps needs at least one trajectory")
+    if dof is None:
+        dof = 6 if any(t.dof == 6 for t in trajectories.values()) else 3
+    dof = int(dof)
+    if dof not in (3, 6):
+        raise InputError(f"dof must be 3 (2D scans) or 6 (3D clouds), got {dof}")
+    if int(every) < 1 or int(block) < 1:
+        raise InputError(f"every and block must be >= 1, got {every} and {block}")
+    vox = voxel or (0.05 if dof == 3 else 0.1)
+    trajs = {k: (t.as_6dof() if dof == 6 else t.as_3dof()) for k, t in trajectories.items()}
+    maps = {k: VoxelMap(2 if dof == 3 else 3, vox) for k in trajs}
+    pending: dict[str, list[NDArray[np.float64]]] = {k: [] for k in trajs}
+    used = dict.fromkeys(trajs, 0)
+
+    def flush() -> None:
+        for k, parts in pending.items():
+            if parts:
+                maps[k].add(np.concatenate(parts))
+                parts.clear()
+
+    for n, f in enumerate(_frames(dataset, clouds=dof == 6, every=int(every), max_frames=max_frames)):
+        if dof == 6 and f.cloud3d is not None and len(f.cloud3d) > 20000:
+            # dense 3D clouds: thin in the sensor frame first (one point per half map voxel), then place
+            c = np.asarray(f.cloud3d, dtype=float)
+            c = c[np.all(np.isfinite(c), axis=1)]
+            f = dataclasses.replace(f, cloud3d=c[np.unique(voxel_keys(c, vox / 2), return_index=True)[1]])
+        pts = frame_points(f, dof, min_range, max_range)
+        for k, traj in trajs.items():
+            pose, ok = poses_at(traj, [f.stamp], max_dt=max_dt)
+            if not ok[0]:
+                continue
+            w = transform_points(pose_to_matrix(pose[0]), pts)
+            w = w[np.all(np.isfinite(w), axis=1)]
+            _, first = np.unique(voxel_keys(w, vox), return_index=True)  # thin per frame, same voxels as the map
+            pending[k].append(w[first])
+            used[k] += 1
+        if (n + 1) % int(block) == 0:
+            flush()
+    flush()
+    empty = [k for k, c in used.items() if c == 0]
+    if empty:
+        raise InputError(f"no frame of the dataset has a pose in trajectory {empty[0]!r} (stamps differ?)")
+    return {k: m.points for k, m in maps.items()}
+
+
+def point_map(
+    dataset: Dataset | Iterable[Frame],
+    trajectory: Trajectory,
+    **kwargs: Any,
+) -> NDArray[np.float64]:
+    """The point map of ``dataset``'s scans or clouds placed at ``trajectory``'s poses (see :func:`point_maps`).
 
     Returns
     -------
     ndarray of shape (M, 2) or (M, 3)
-        World points.
     """
-    from .slam import frame_points
-
-    dof = trajectory.dof if dof is None else int(dof)
-    if dof not in (3, 6):
-        raise InputError(f"dof must be 3 (2D scans) or 6 (3D clouds), got {dof}")
-    if int(every) < 1:
-        raise InputError(f"every must be >= 1, got {every}")
-    traj = trajectory.as_6dof() if dof == 6 else trajectory.as_3dof()
-    vmap = VoxelMap(2 if dof == 3 else 3, voxel or (0.05 if dof == 3 else 0.1))
-    n_used = 0
-    for f in _frames(dataset, clouds=dof == 6, every=int(every), max_frames=max_frames):
-        pose, ok = poses_at(traj, [f.stamp], max_dt=max_dt)
-        if not ok[0]:
-            continue
-        pts = frame_points(f, dof, min_range, max_range)
-        vmap.add(transform_points(pose_to_matrix(pose[0]), pts))
-        n_used += 1
-    if n_used == 0:
-        raise InputError("no frame of the dataset has a pose in the trajectory (stamps differ?)")
-    return vmap.points
+    return point_maps(dataset, {"map": trajectory}, **kwargs)["map"]
 
 
 def scan_grid(

@@ -26,6 +26,7 @@ from hsmap.study import (
     dataset_fingerprint,
     file_lock,
     point_map,
+    point_maps,
     poses_at,
     record_slam_run,
     scan_grid,
@@ -262,6 +263,9 @@ def test_point_map_at_true_poses_lies_on_the_walls_and_odometry_smears_it(datase
     assert len(odo) > len(truth)  # thick walls fill more voxels
     sub = point_map(dataset, dataset.groundtruth, every=5, max_frames=20)
     assert 0 < len(sub) < len(truth)
+    both = point_maps(dataset, {"truth": dataset.groundtruth, "odometry": dataset.odometry}, voxel=0.05, block=7)
+    np.testing.assert_array_equal(both["truth"], truth)  # one pass, the same maps
+    np.testing.assert_array_equal(both["odometry"], odo)
     with pytest.raises(InputError, match="no frame"):
         point_map(dataset, Trajectory([0.0], [[0, 0, 0]]))
 

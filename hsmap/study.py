@@ -64,6 +64,11 @@ __all__ = [
     "scan_grid",
     "map_distances",
     "record_slam_run",
+    "datasets_dir",
+    "open_freiburg",
+    "BORMANN_BUILDINGS",
+    "room_segmentation_benchmark",
+    "summarise_segmentation",
 ]
 
 #: Package files (relative to ``hsmap/``) whose contents decide a SLAM result; their digest is part of the key.
@@ -770,3 +775,93 @@ def record_slam_run(
     if odometry is not None:
         hv.log_path(rec, "odometry", odometry.poses)
     return {"frames": logged, "map_blocks": logger.blocks, "map_points": logger.points_logged}
+
+
+# --- third-party benchmarks ------------------------------------------------------------------------------------
+
+def datasets_dir() -> Path:
+    """The third-party datasets folder: ``$HSMAP_DATASETS``, else ``../shared/datasets`` beside the repository."""
+    from .sim.catalog import repository_root
+
+    env = os.environ.get("HSMAP_DATASETS")
+    return Path(env) if env else (repository_root().parent / "shared" / "datasets").resolve()
+
+
+def open_freiburg(folder: str | os.PathLike, name: str, *, scan_odometry: bool = True,
+                  laser_x: float | None = None):
+    """A Freiburg benchmark log (``slam2d/NAME/NAME.orig.bag``) with the odometry CARMEN stored with each scan.
+
+    The ``.orig.bag`` has the true (IPC) scan stamps, which the ``.relations`` use; with ``scan_odometry`` its
+    frames get, by :func:`hsmap.datasets.rosbag.adopt_odometry`, the per-scan odometry of ``NAME.clf2bag.bag``
+    (the bag's own /odom runs at its own rate). ``laser_x`` overrides the laser's forward offset in the robot
+    frame (fr079: the bag's TF says +0.04 m, the CARMEN PARAM -0.04 m, and the relations agree with -0.04).
+
+    Returns
+    -------
+    RosbagDataset
+    """
+    from .datasets.open import open_dataset
+    from .datasets.rosbag import adopt_odometry
+
+    root = Path(folder) / name
+    ds = open_dataset(root / f"{name}.orig.bag")
+    if scan_odometry:
+        adopt_odometry(ds, open_dataset(root / f"{name}.clf2bag.bag"))
+    if laser_x is not None:
+        ext = np.asarray(ds.extrinsic2d, dtype=float).copy()
+        ext[0] = float(laser_x)
+        ds.extrinsic2d = ext  # frames() hands each frame a copy of this
+    return ds
+
+
+#: The 15 buildings of the ipa_room_segmentation maps in ``$HSMAP_DATASETS`` (Bormann et al. 2016).
+BORMANN_BUILDINGS = ("lab_ipa", "lab_c_scan", "Freiburg52_scan", "Freiburg79_scan", "lab_b_scan", "lab_f_scan",
+                     "lab_a_scan", "NLB", "office_a", "office_b", "office_d", "office_e", "office_f", "office_h",
+                     "office_i")
+
+
+def room_segmentation_benchmark(folder: str | os.PathLike, buildings=BORMANN_BUILDINGS, *, config: Any = None,
+                                resolution: float = 0.05, furnished: bool = True) -> list[dict]:
+    """Segment each building's plain (and furnished) map and score it against its ground truth.
+
+    The benchmark's rules (Bormann et al. 2016): pixels >= 250 are free, 0.05 m per pixel, ground-truth rooms are
+    the 8-connected regions of the ground-truth image above 250 larger than 100 px; scores from
+    :func:`hsmap.evaluation.segmentation_scores` (per-room mean precision and recall, area-weighted beside).
+
+    Returns
+    -------
+    list of dict
+        One row per map: building, kind (plain/furnished), precision, recall, precision_area, recall_area,
+        rooms, segments, doors, seconds (wall time of ``segment_rooms``), pixels.
+    """
+    from .evaluation import segmentation_scores
+    from .grid import read_image_gray
+    from .segmentation import segment_rooms
+
+    folder = Path(folder)
+    rows = []
+    for b in buildings:
+        gt = read_image_gray(folder / f"{b}_gt_segmentation.png")
+        for kind, suffix in (("plain", ""), ("furnished", "_furnitures"))[: 2 if furnished else 1]:
+            free = read_image_gray(folder / f"{b}{suffix}.png") >= 250
+            t0 = time.perf_counter()
+            seg = segment_rooms(free, resolution, config=config)
+            dt = time.perf_counter() - t0
+            sc = segmentation_scores(seg.labels, gt)
+            rows.append({"building": b, "kind": kind, "map": b + suffix, "precision": sc.precision,
+                         "recall": sc.recall, "precision_area": sc.precision_area, "recall_area": sc.recall_area,
+                         "rooms": sc.n_rooms, "segments": sc.n_segments, "doors": len(seg.doors),
+                         "seconds": dt, "pixels": int(free.size)})
+    return rows
+
+
+def summarise_segmentation(rows: list[dict]) -> dict:
+    """Means over the maps of each kind (precision, recall, area-weighted both) and the time per map."""
+    out = {}
+    for kind in ("plain", "furnished"):
+        r = [x for x in rows if x["kind"] == kind]
+        if r:
+            out[kind] = {"maps": len(r), **{k: float(np.mean([x[k] for x in r])) for k in
+                                            ("precision", "recall", "precision_area", "recall_area", "seconds")},
+                         "seconds_max": float(np.max([x["seconds"] for x in r]))}
+    return out

@@ -334,3 +334,33 @@ def test_simulated_dataset_is_generated_once(tmp_path, monkeypatch):
     c = simulated_dataset(scn, seed=5)
     assert Path(c.path).name == "tiny-seed5"
     assert not np.array_equal(np.asarray(a.ranges2d), np.asarray(c.ranges2d), equal_nan=True)
+
+
+@pytest.mark.datasets
+def test_open_freiburg_scan_odometry_and_laser_override(datasets_dir):
+    from hsmap.study import open_freiburg
+
+    folder = datasets_dir / "slam2d"
+    ds = open_freiburg(folder, "fr079", laser_x=-0.04)
+    assert len(ds) == 4934
+    frame = next(ds.frames())
+    np.testing.assert_allclose(frame.extrinsic2d, [-0.04, 0.0, 0.0])
+    assert ds.odometry is not None and len(ds.odometry) == len(ds)
+    plain = open_freiburg(folder, "fr079", scan_odometry=False)
+    np.testing.assert_allclose(plain.extrinsic2d, [0.04, 0.0, 0.0])  # what the bag's TF says
+    # the per-scan odometry differs from the bag's interpolated /odom, and both identify the dataset
+    fps = {json.dumps(dataset_fingerprint(d), sort_keys=True) for d in (ds, plain)}
+    assert len(fps) == 2
+
+
+@pytest.mark.datasets
+def test_room_segmentation_benchmark_scores_a_building(datasets_dir):
+    from hsmap.study import room_segmentation_benchmark, summarise_segmentation
+
+    rows = room_segmentation_benchmark(datasets_dir / "ipa_room_segmentation", ["Freiburg52_scan"])
+    assert [r["kind"] for r in rows] == ["plain", "furnished"]
+    assert rows[0]["rooms"] == 10  # the README's count for this building
+    for r in rows:
+        assert r["precision"] > 0.85 and r["recall"] > 0.8, r
+    summary = summarise_segmentation(rows)
+    assert summary["plain"]["maps"] == 1 and summary["furnished"]["recall"] == rows[1]["recall"]

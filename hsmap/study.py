@@ -738,6 +738,7 @@ def record_slam_run(
     dict
         ``frames`` logged, ``map_blocks``, ``map_points`` logged.
     """
+    from .mapping import voxel_keys
     from .slam import frame_points
     from .viz import rerun as hv
 
@@ -753,21 +754,33 @@ def record_slam_run(
                                z_range=(-0.2, 3.0) if dof == 6 else None)
     logged = 0
     n_frames = len(run.trajectory)
+    map_vox = map_voxel or (0.05 if dof == 3 else 0.15)
+
+    def thin(points: NDArray[np.float64], voxel: float) -> NDArray[np.float64]:
+        # one point per voxel with a 1-D key (fast); the viewer-side thinning then has little left to do
+        p = points[np.all(np.isfinite(points), axis=1)]
+        return p[np.sort(np.unique(voxel_keys(p, voxel), return_index=True)[1])] if len(p) else p
+
     for f in (dataset.frames(clouds=dof == 6) if isinstance(dataset, Dataset) else iter(dataset)):
         k = index_of.get(int(f.index))
         if k is None:
             if f.index > run.frame_indices.max():
                 break
             continue
-        if k % int(every) == 0 or k == n_frames - 1:
+        show = k % int(every) == 0 or k == n_frames - 1
+        if not (show or key[k]):
+            continue
+        if dof == 6 and f.cloud3d is not None:
+            f = dataclasses.replace(f, cloud3d=thin(np.asarray(f.cloud3d, dtype=float), min(cloud_voxel, map_vox)))
+        if show:
             shown = f if dof == 6 else dataclasses.replace(f, cloud3d=None)
             hv.log_frame(rec, shown, poses[k], index=k, cloud_voxel=cloud_voxel)
             logged += 1
         if key[k]:
-            if k % int(every) != 0:
+            if not show:
                 hv.set_frame_time(rec, k, f.stamp)
             pts = frame_points(f, dof, cfg.min_range, cfg.max_range)
-            logger.add(transform_points(pose_to_matrix(poses[k]), pts))
+            logger.add(thin(transform_points(pose_to_matrix(poses[k]), pts), map_vox))
     logger.flush()
     hv.log_path(rec, "estimate", run.trajectory.poses)
     if groundtruth is not None:

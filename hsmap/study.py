@@ -58,6 +58,8 @@ __all__ = [
     "default_cache_dir",
     "file_lock",
     "simulated_dataset",
+    "SimulatedRuns",
+    "simulated_slam_runs",
     "poses_at",
     "point_map",
     "point_maps",
@@ -506,6 +508,55 @@ def simulated_dataset(scenario: str | os.PathLike = "slam-office", seed: int = 1
             return SimulatedDataset(prefix)
         simulate(scn, full, seed)
         return SimulatedDataset(full)
+
+
+@dataclass
+class SimulatedRuns:
+    """The study's standard HS-SLAM runs of one simulated dataset (see :func:`simulated_slam_runs`).
+
+    Attributes
+    ----------
+    dataset : SimulatedDataset
+    truth, odometry : Trajectory
+        (x, y, yaw) ground truth and wheel odometry of the frames used (the first ``frames``).
+    run3 : SlamRun
+        3-DOF HS-SLAM on the 2D scans.
+    run6 : SlamRun or None
+        6-DOF HS-SLAM on the 3D clouds, seeded by ``run3``'s poses (``prior=``), as the paper does.
+    frames : int
+    """
+
+    dataset: Any
+    truth: Trajectory
+    odometry: Trajectory
+    run3: SlamRun
+    run6: SlamRun | None
+    frames: int
+
+
+def simulated_slam_runs(scenario: str = "slam-office", seed: int = 1, *, max_frames: int | None = None,
+                        dof6: bool = True, use_odometry: bool = False,
+                        cache_dir: str | os.PathLike | None = None) -> SimulatedRuns:
+    """The simulated dataset and its cached HS-SLAM runs, the same for every notebook that asks.
+
+    3-DOF HS-SLAM on the 2D scans and (``dof6``) 6-DOF HS-SLAM on the 3D clouds seeded by the 3-DOF poses, both
+    with ``seed`` as their rng, both starting at the first ground-truth pose (so that maps and paths share the
+    world frame of the ground truth and the odometry), without odometry unless ``use_odometry``. Notebooks that
+    call this with the same arguments share one computation (:func:`cached_slam`).
+    """
+    from .slam import SlamConfig
+
+    ds = simulated_dataset(scenario, seed, max_frames=max_frames)
+    n = len(ds) if max_frames is None else min(int(max_frames), len(ds))
+    truth = Trajectory(ds.groundtruth.stamps[:n], ds.groundtruth.poses[:n])
+    odometry = Trajectory(ds.odometry.stamps[:n], ds.odometry.poses[:n])
+    run3 = cached_slam(ds, SlamConfig(dof=3, use_odometry=use_odometry), seed, max_frames=max_frames,
+                       initial_pose=truth.poses[0], cache_dir=cache_dir)
+    run6 = None
+    if dof6:
+        run6 = cached_slam(ds, SlamConfig(dof=6, use_odometry=use_odometry), seed, max_frames=max_frames,
+                           initial_pose=truth.as_6dof().poses[0], prior=run3.trajectory, cache_dir=cache_dir)
+    return SimulatedRuns(ds, truth, odometry, run3, run6, n)
 
 
 # --- maps from a dataset and a trajectory ----------------------------------------------------------------

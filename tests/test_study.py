@@ -364,3 +364,22 @@ def test_room_segmentation_benchmark_scores_a_building(datasets_dir):
         assert r["precision"] > 0.85 and r["recall"] > 0.8, r
     summary = summarise_segmentation(rows)
     assert summary["plain"]["maps"] == 1 and summary["furnished"]["recall"] == rows[1]["recall"]
+
+
+def test_simulated_slam_runs_are_shared(tmp_path, monkeypatch, count_runs):
+    from hsmap.study import simulated_slam_runs
+
+    scn = tmp_path / "tiny.yaml"
+    scn.write_text(TINY_SCENARIO)
+    monkeypatch.setenv("HSMAP_GENERATED", str(tmp_path / "generated"))
+    a = simulated_slam_runs(scn, seed=3)
+    assert len(count_runs) == 2 and not a.run3.cached and not a.run6.cached
+    assert a.run3.dof == 3 and a.run6.dof == 6 and a.frames == len(a.dataset)
+    # both start at the true first pose: the paths lie in the ground truth's world frame
+    np.testing.assert_allclose(a.run3.trajectory.poses[0], a.truth.poses[0])
+    np.testing.assert_allclose(a.run6.trajectory.poses[0, [0, 1, 5]], a.truth.poses[0])
+    assert np.abs(a.run6.trajectory.poses[:, :2] - a.truth.poses[:, :2]).max() < 0.15  # a bare room, 16 beams
+    b = simulated_slam_runs(scn, seed=3)  # another notebook asking the same: nothing computed
+    assert len(count_runs) == 2 and b.run3.cached and b.run6.cached and b.run6.folder == a.run6.folder
+    c = simulated_slam_runs(scn, seed=3, dof6=False)
+    assert c.run6 is None and c.run3.folder == a.run3.folder

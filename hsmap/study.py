@@ -874,7 +874,10 @@ def open_freiburg(folder: str | os.PathLike, name: str, *, scan_odometry: bool =
     if laser_x is not None:
         ext = np.asarray(ds.extrinsic2d, dtype=float).copy()
         ext[0] = float(laser_x)
-        ds.extrinsic2d = ext  # frames() hands each frame a copy of this
+        if hasattr(ds, "override_extrinsics"):  # hsmap's own override (open_dataset(extrinsic2d=) uses it)
+            ds.override_extrinsics(extrinsic2d=ext)
+        else:  # the same effect on readers without it: frames() hands each frame a copy of this
+            ds.extrinsic2d = ext
     return ds
 
 

@@ -12,7 +12,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .errors import InputError, ShapeError
 
-__all__ = ["VoxelMap", "voxel_keys"]
+__all__ = ["VoxelMap", "voxel_keys", "first_per_voxel"]
 
 _BIAS = 1 << 20  # voxel indices in [-2^20, 2^20) per axis fit in 21 bits; 3 axes fit in an int64
 
@@ -26,6 +26,20 @@ def voxel_keys(points: NDArray[np.floating], voxel: float) -> NDArray[np.int64]:
     for k in range(1, points.shape[1]):
         key = (key << 21) | idx[:, k]
     return key
+
+
+def first_per_voxel(points: NDArray[np.floating], voxel: float) -> NDArray[np.float64]:
+    """Thin points (N, d) to one per voxel of side ``voxel``: the first, in input order; non-finite rows dropped.
+
+    Keeps raw points (unlike voxel centroids), fast (one 1-D key per point); for maps to draw and to log.
+    """
+    if not voxel > 0:
+        raise InputError(f"voxel must be > 0 metres, got {voxel}")
+    p = np.asarray(points, dtype=float)
+    p = p[np.all(np.isfinite(p), axis=1)]
+    if len(p) == 0:
+        return p
+    return p[np.sort(np.unique(voxel_keys(p, voxel), return_index=True)[1])]
 
 
 class VoxelMap:

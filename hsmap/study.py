@@ -630,7 +630,7 @@ def point_maps(
     dict of name to ndarray of shape (M, 2) or (M, 3)
         World points of each map.
     """
-    from .mapping import voxel_keys
+    from .mapping import first_per_voxel
     from .slam import frame_points
 
     if not trajectories:
@@ -657,18 +657,14 @@ def point_maps(
     for n, f in enumerate(_frames(dataset, clouds=dof == 6, every=int(every), max_frames=max_frames)):
         if dof == 6 and f.cloud3d is not None and len(f.cloud3d) > 20000:
             # dense 3D clouds: thin in the sensor frame first (one point per half map voxel), then place
-            c = np.asarray(f.cloud3d, dtype=float)
-            c = c[np.all(np.isfinite(c), axis=1)]
-            f = dataclasses.replace(f, cloud3d=c[np.unique(voxel_keys(c, vox / 2), return_index=True)[1]])
+            f = dataclasses.replace(f, cloud3d=first_per_voxel(f.cloud3d, vox / 2))
         pts = frame_points(f, dof, min_range, max_range)
         for k, traj in trajs.items():
             pose, ok = poses_at(traj, [f.stamp], max_dt=max_dt)
             if not ok[0]:
                 continue
             w = transform_points(pose_to_matrix(pose[0]), pts)
-            w = w[np.all(np.isfinite(w), axis=1)]
-            _, first = np.unique(voxel_keys(w, vox), return_index=True)  # thin per frame, same voxels as the map
-            pending[k].append(w[first])
+            pending[k].append(first_per_voxel(w, vox))  # thin per frame, same voxels as the map
             used[k] += 1
         if (n + 1) % int(block) == 0:
             flush()
@@ -789,7 +785,7 @@ def record_slam_run(
     dict
         ``frames`` logged, ``map_blocks``, ``map_points`` logged.
     """
-    from .mapping import voxel_keys
+    from .mapping import first_per_voxel
     from .slam import frame_points
     from .viz import rerun as hv
 
@@ -807,10 +803,7 @@ def record_slam_run(
     n_frames = len(run.trajectory)
     map_vox = map_voxel or (0.05 if dof == 3 else 0.15)
 
-    def thin(points: NDArray[np.float64], voxel: float) -> NDArray[np.float64]:
-        # one point per voxel with a 1-D key (fast); the viewer-side thinning then has little left to do
-        p = points[np.all(np.isfinite(points), axis=1)]
-        return p[np.sort(np.unique(voxel_keys(p, voxel), return_index=True)[1])] if len(p) else p
+    thin = first_per_voxel  # one point per voxel; the viewer-side thinning then has little left to do
 
     for f in (dataset.frames(clouds=dof == 6) if isinstance(dataset, Dataset) else iter(dataset)):
         k = index_of.get(int(f.index))

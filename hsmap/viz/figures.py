@@ -116,10 +116,16 @@ def plot_trajectories(
                 label="ground truth", zorder=3)
         if markers:
             ax.plot(*g[0], "o", color="k", ms=6, zorder=5)
-    for k, (name, traj) in enumerate(trajectories.items()):
+    used: set[str] = set()
+    for name, traj in trajectories.items():
         xy = _xy(traj, name)
         key = name.lower()
-        c = colors.get(name) or SERIES_COLORS.get(key) or SERIES_COLORS[palette[k % len(palette)]]
+        # by name ("HS-SLAM" -> slam, "wheel odometry" -> odometry), else the first palette colour not used yet
+        key = next((p for p in palette if p in key), key)
+        free = [p for p in palette if p not in used] or palette
+        key = key if key in SERIES_COLORS else free[0]
+        used.add(key)
+        c = colors.get(name) or SERIES_COLORS[key]
         ax.plot(xy[:, 0], xy[:, 1], "-", color=_rgb(c), lw=linewidth, label=name, zorder=4)
         if markers and len(xy):
             ax.plot(*xy[-1], "s", color=_rgb(c), ms=5, zorder=5)

@@ -340,13 +340,9 @@ def _points(points: ArrayLike, dims: tuple[int, ...], name: str) -> NDArray[np.f
 
 def voxel_downsample(points: NDArray[np.float64], voxel: float) -> NDArray[np.float64]:
     """One point (the first) per cubic voxel of side ``voxel`` metres, in input order (deterministic)."""
-    if voxel <= 0:
-        raise InputError(f"voxel must be > 0 metres, got {voxel}")
-    if len(points) == 0:
-        return points
-    keys = np.floor(points / voxel).astype(np.int64)
-    _, first = np.unique(keys, axis=0, return_index=True)
-    return points[np.sort(first)]
+    from ..mapping import first_per_voxel
+
+    return first_per_voxel(points, voxel)
 
 
 def log_points(

@@ -662,10 +662,17 @@ def run_study(
         write_text(index_path, render_index([e.to_dict() for e in ordered], meta))
         write_json(out / "index.json", {**meta, "notebooks": [e.to_dict() for e in ordered]})
 
-    # longest first (by the previous run's duration) keeps the parallel batch short
+    # longest first (by the previous run's duration, else the notebook's metadata hsmap.expected_seconds) keeps
+    # the parallel batch short
     def previous_duration(s: NotebookSpec) -> float:
         prev = _previous_run(out, s)
-        return -(prev.duration_s or 0.0) if prev else 0.0
+        if prev and prev.duration_s:
+            return -prev.duration_s
+        try:
+            meta = json.loads(s.path.read_text(encoding="utf-8")).get("metadata", {})
+            return -float(meta.get("hsmap", {}).get("expected_seconds", 0.0))
+        except (OSError, ValueError, AttributeError):
+            return 0.0
 
     order = sorted(chosen, key=previous_duration) if jobs > 1 else list(chosen)
     runs: dict[str, NotebookRun] = {}

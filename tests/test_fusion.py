@@ -28,7 +28,7 @@ from hsmap.grid import FREE, OCCUPIED, UNKNOWN, GridGeometry, OccupancyGrid, gri
 
 pytest.importorskip("open3d")
 
-FRAMES = 40  # the robot's first 20 s in the two-rooms world: room-a, around the meeting table
+FRAMES = 40  # the robot's first 20 s in the two-rooms world: room-a, west and south of the desk bench
 
 
 @pytest.fixture(scope="module")
@@ -82,10 +82,13 @@ def test_known_offset_recovered_from_grids(world, offset):
     assert dt < 0.03, f"translation error {dt:.3f} m"
     assert dyaw < 0.5, f"yaw error {dyaw:.2f} deg"
     assert res.floor.geometry == res.slice.geometry
-    # aligned, the walls agree: most of the slice lies on the floor map, not all of the floor map on the slice
-    assert res.slice_matched > 0.8
+    # aligned, the walls agree: more of the slice lies on the floor map than of the floor map on the slice (the
+    # furniture the slice does not see). Not all of the slice: in this furnished room the bookcases on the north
+    # wall, the cabinets on the west wall and the sofa on the east wall hide about 40% of the walls' cells from
+    # the floor-level LiDAR (before registration the overlap is about 0.1)
+    assert res.slice_matched > 0.5
     assert 0.3 < res.floor_matched < res.slice_matched
-    assert 0.5 < res.overlap < 1.0
+    assert 0.35 < res.overlap < 1.0
 
 
 def test_identity_when_maps_share_a_frame(world):
@@ -106,27 +109,38 @@ def test_slice_scans_and_points(world):
     pts = scans_to_points(scans, spos)
     idx = sl.geometry.world_to_index(pts)
     ok = sl.geometry.inside(idx)
-    assert ok.all() and (sl.data[idx[:, 0], idx[:, 1]] == OCCUPIED).mean() > 0.95
+    # most land on occupied cells; not all: the north wall's face (y = 4.9) lies on a cell border, and its hits
+    # (1 cm noise) that fall in the cell before it are cleared by other poses' rays ending just behind the border
+    assert ok.all() and (sl.data[idx[:, 0], idx[:, 1]] == OCCUPIED).mean() > 0.9
 
 
 def test_slice_sees_over_furniture(world):
-    """The 1.1 m cabinet at (0.36, 1.2) stands in the floor map; the slice sees the wall behind it instead; the
-    1.9 m shelf at (1.2, 4.68) is in both."""
+    """The 1.1 m cabinet at (0.36, 1.2) and the 1.5 m bookcase at (1.2, 4.73) stand in the floor map; the slice
+    sees over both to the walls behind them; the west wall where no furniture stands is in both maps."""
     _, floor, sl = world
     f2, s2 = common_grids(floor, sl)
     geo = f2.geometry
+    cls = overlay_classes(f2, s2, tolerance=0.1)
     cabinet = geo.world_to_index(np.array([[0.62, 1.2], [0.62, 1.0], [0.62, 1.4]]))  # its front face
     assert (f2.data[cabinet[:, 0], cabinet[:, 1]] == OCCUPIED).any()
     assert not (s2.data[cabinet[:, 0], cabinet[:, 1]] == OCCUPIED).any()
+    assert 3 in cls[cabinet[:, 0], cabinet[:, 1]]  # "floor only"
     # the slice: free in front of the west wall behind the cabinet, occupied at the wall
     assert s2.data[tuple(geo.world_to_index([0.3, 1.2]))] == FREE
     wall = geo.world_to_index(np.array([[x, 1.2] for x in (0.02, 0.07, 0.12)]))  # its face is at x = 0.1
     assert (s2.data[wall[:, 0], wall[:, 1]] == OCCUPIED).any()
-    shelf = geo.world_to_index(np.array([[x, 4.47] for x in np.arange(0.6, 1.85, 0.1)]))
-    cls = overlay_classes(f2, s2, tolerance=0.1)[shelf[:, 0], shelf[:, 1]]
-    assert (cls == 2).mean() > 0.6  # "both"
-    cab_cls = overlay_classes(f2, s2, tolerance=0.1)[cabinet[:, 0], cabinet[:, 1]]
-    assert 3 in cab_cls  # "floor only"
+    # the bookcase's front face (y = 4.58) is in the floor map only; the slice sees the north wall (face at
+    # y = 4.9) behind it, which the floor map does not
+    xs = np.arange(0.7, 1.75, 0.1)
+    face = np.stack([geo.world_to_index(np.array([[x, y] for x in xs])) for y in (4.56, 4.6)])  # (2, X, 2)
+    face_cls = cls[face[..., 0], face[..., 1]]
+    assert ((face_cls == 3).any(axis=0)).mean() > 0.6  # "floor only"
+    assert not (s2.data[face[..., 0], face[..., 1]] == OCCUPIED).any()
+    behind = np.stack([geo.world_to_index(np.array([[x, y] for x in xs])) for y in (4.88, 4.93)])
+    assert ((cls[behind[..., 0], behind[..., 1]] == 4).any(axis=0)).mean() > 0.6  # "slice only"
+    # the west wall north of the cabinets, seen by both
+    west = np.stack([geo.world_to_index(np.array([[x, y] for y in np.arange(2.7, 4.3, 0.1)])) for x in (0.07, 0.12)])
+    assert ((cls[west[..., 0], west[..., 1]] == 2).any(axis=0)).mean() > 0.6  # "both"
     rgb = overlay_image(f2, s2)
     assert rgb.shape == f2.data.shape + (3,) and rgb.dtype == np.uint8
 

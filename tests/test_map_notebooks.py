@@ -28,9 +28,11 @@ def test_notebooks_04_06_quick(tmp_path, monkeypatch):
         assert f.is_file(), f
     m4 = json.loads((o4 / "metrics.json").read_text())["metrics"]
     assert m4["frames"] == 30
-    # the known offset between the two maps is found, and registered they overlap far more than before
+    # the known offset between the two maps is found, and registered they overlap far more than before (not
+    # fully: in the furnished two-rooms world bookcases, cabinets and a sofa along the walls hide about half of
+    # the walls from the floor-level LiDAR; about 0.46 after against 0.14 before)
     assert m4["registration_error_m"] < 0.03 and m4["registration_error_deg"] < 0.5
-    assert m4["overlap"] > 0.7 > m4["overlap_before"]
+    assert m4["overlap"] > 0.35 > m4["overlap_before"]
     m6 = json.loads((o6 / "metrics.json").read_text())["metrics"]
     assert m6["rooms"] >= 1 and m6["frames"] == 30
     # one computation of the maps for both notebooks

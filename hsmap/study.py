@@ -25,9 +25,7 @@ Everything here calls the package; no algorithm lives in the notebooks.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
-import fcntl
 import hashlib
 import json
 import os
@@ -46,7 +44,7 @@ from .config import from_dict, to_dict
 from .datasets.frames import Dataset, Frame
 from .errors import DatasetError, HsmapError, InputError
 from .geometry import compose, pose_to_matrix, transform_points
-from .io import Trajectory, read_tum, write_json
+from .io import Trajectory, file_lock, read_tum, write_json
 from .mapping import VoxelMap
 
 __all__ = [
@@ -236,40 +234,6 @@ def slam_key(
     return _sha(json.dumps(desc, sort_keys=True).encode()), desc
 
 
-@contextlib.contextmanager
-def file_lock(path: str | os.PathLike, *, timeout: float | None = 3600.0, poll: float = 0.5) -> Iterator[Path]:
-    """Hold an exclusive ``fcntl`` lock on ``path`` (created when missing) for the ``with`` block.
-
-    The lock belongs to the open file: it is released when the block ends or the process dies, so a crashed
-    holder never blocks the next caller. Locks on the same file taken through separate ``open`` calls exclude
-    each other even within one process.
-
-    Raises
-    ------
-    HsmapError
-        The lock was not free within ``timeout`` seconds (None: wait for ever).
-    """
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fh = open(p, "a+b")  # noqa: SIM115 - closed in finally
-    try:
-        t0 = time.monotonic()
-        while True:
-            try:
-                fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-                break
-            except BlockingIOError:
-                if timeout is not None and time.monotonic() - t0 > timeout:
-                    raise HsmapError(f"{p}: still locked by another process after {timeout:g} s") from None
-                time.sleep(poll)
-        try:
-            yield p
-        finally:
-            fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
-    finally:
-        fh.close()
-
-
 @dataclass
 class SlamRun:
     """A SLAM run as stored in its cache folder.
@@ -453,33 +417,17 @@ def cached_slam(
 
 # --- simulated datasets shared by notebooks ---------------------------------------------------------------
 
-def _complete_dataset(folder: Path, scn: Any, seed: int, frames: int) -> bool:
-    """Whether ``folder`` holds the simulated dataset of ``scn`` with ``seed`` and exactly ``frames`` frames."""
-    import yaml
-
-    from .sim.writer import FORMAT_VERSION
-
-    meta_path = folder / "dataset.yaml"
-    if not meta_path.is_file():
-        return False
-    try:
-        meta = yaml.safe_load(meta_path.read_text(encoding="utf-8")) or {}
-    except (yaml.YAMLError, OSError):
-        return False
-    return bool(scn.sha256 and meta.get("format_version") == FORMAT_VERSION
-                and meta.get("scenario_sha256") == scn.sha256 and meta.get("seed") == seed
-                and meta.get("frames") == frames)
-
-
 def simulated_dataset(scenario: str | os.PathLike = "slam-office", seed: int = 1, *,
-                      max_frames: int | None = None, lock_timeout: float | None = 3600.0):
-    """The simulated dataset of ``scenario`` with ``seed``, generated once (under a lock) and then reused.
+                      max_frames: int | None = None):
+    """The simulated dataset of ``scenario`` with ``seed``, generated once and then reused.
 
     The folder is ``data/generated/<scenario>-seed<seed>``: one folder per seed, so notebooks using different
     seeds never regenerate each other's data. With ``max_frames`` (quick runs) only the first frames are
     needed: the full folder is used when it is already complete, else a prefix folder
     ``<scenario>-seed<seed>-first<N>`` is simulated (the simulator's frames do not depend on how many follow,
     so a prefix holds the same first frames as the full route). Callers still cut their runs at ``max_frames``.
+    Generation goes through :func:`hsmap.sim.writer.ensure_dataset`, under the folder's lock, so parallel
+    notebooks (and benchmarks) never write one folder twice.
 
     Returns
     -------
@@ -488,26 +436,21 @@ def simulated_dataset(scenario: str | os.PathLike = "slam-office", seed: int = 1
     from .datasets.simulated import SimulatedDataset
     from .sim.catalog import generated_dir, resolve_scenario
     from .sim.scenario import load_scenario
-    from .sim.writer import motion_for, simulate
+    from .sim.writer import _is_current, ensure_dataset, folder_lock
 
     scn = load_scenario(resolve_scenario(scenario))
     seed = int(seed)
+    if max_frames is not None and int(max_frames) < 1:
+        raise InputError(f"max_frames must be >= 1, got {max_frames}")
     full = generated_dir() / f"{scn.name}-seed{seed}"
-    n_full = len(motion_for(scn, seed))
-    lock = generated_dir() / ".locks" / f"{scn.name}-seed{seed}.dataset.lock"
-    with file_lock(lock, timeout=lock_timeout):
-        if _complete_dataset(full, scn, seed, n_full):
-            return SimulatedDataset(full)
-        if max_frames is not None and int(max_frames) < n_full:
+    if max_frames is not None:
+        with folder_lock(full):
+            complete = _is_current(full, scn, seed, None)
+        if not complete:
             n = int(max_frames)
-            if n < 1:
-                raise InputError(f"max_frames must be >= 1, got {max_frames}")
             prefix = generated_dir() / f"{scn.name}-seed{seed}-first{n}"
-            if not _complete_dataset(prefix, scn, seed, n):
-                simulate(scn, prefix, seed, max_frames=n)
-            return SimulatedDataset(prefix)
-        simulate(scn, full, seed)
-        return SimulatedDataset(full)
+            return SimulatedDataset(ensure_dataset(scn, seed, prefix, max_frames=n))
+    return SimulatedDataset(ensure_dataset(scn, seed, full))
 
 
 @dataclass

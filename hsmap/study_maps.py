@@ -28,8 +28,6 @@ import json
 import os
 import shutil
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -42,6 +40,7 @@ from .config import to_dict
 from .errors import DatasetError, InputError
 from .grid import GridGeometry, OccupancyGrid
 from .io import Trajectory, write_json
+from .study import simulated_dataset
 
 __all__ = ["TwoLidarMaps", "two_lidar_maps", "simulated_dataset", "MAP_SOURCES", "default_maps_dir"]
 
@@ -57,58 +56,6 @@ def default_maps_dir() -> Path:
     from .sim.catalog import generated_dir
 
     return generated_dir() / "maps"
-
-
-def simulated_dataset(scenario: str = "two-rooms", seed: int = 1, *, max_frames: int | None = None):
-    """The simulated dataset of ``scenario`` with ``seed``, generated once and then reused.
-
-    The folder is ``data/generated/<scenario>-seed<seed>``; with ``max_frames`` (quick runs) the full folder
-    is used when it is already complete, else the prefix folder ``<scenario>-seed<seed>-first<N>`` (the first
-    frames of a route do not depend on how many follow). Generation runs under
-    :func:`hsmap.sim.writer.folder_lock` and under the lock file ``data/generated/.locks/<scenario>-seed<seed>
-    .dataset.lock``, the one the study notebooks 01-03 take for the same folders, so that notebooks of both
-    groups running at once never write one folder twice.
-
-    Returns
-    -------
-    SimulatedDataset
-    """
-    from .datasets.simulated import SimulatedDataset
-    from .sim.catalog import generated_dir, resolve_scenario
-    from .sim.scenario import load_scenario
-    from .sim.writer import _is_current, ensure_dataset, folder_lock
-
-    scn = load_scenario(resolve_scenario(scenario))
-    seed = int(seed)
-    full = generated_dir() / f"{scn.name}-seed{seed}"
-    if max_frames is not None and int(max_frames) < 1:
-        raise InputError(f"max_frames must be >= 1, got {max_frames}")
-    with _flock(generated_dir() / ".locks" / f"{scn.name}-seed{seed}.dataset.lock"):
-        if max_frames is not None:
-            with folder_lock(full):
-                complete = _is_current(full, scn, seed, None)
-            if not complete:
-                n = int(max_frames)
-                return SimulatedDataset(ensure_dataset(scn, seed, generated_dir() / f"{scn.name}-seed{seed}-first{n}",
-                                                       max_frames=n))
-        return SimulatedDataset(ensure_dataset(scn, seed, full))
-
-
-@contextmanager
-def _flock(path: Path) -> Iterator[None]:
-    """An exclusive ``flock`` on the file ``path`` for the block (unlocked where ``fcntl`` is missing)."""
-    try:
-        import fcntl
-    except ImportError:  # pragma: no cover - not POSIX
-        yield
-        return
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "a+b") as fh:
-        fcntl.flock(fh.fileno(), fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
 
 
 @dataclass

@@ -33,7 +33,7 @@ import yaml
 from .. import __version__
 from ..config import to_dict
 from ..errors import DatasetError, ScenarioError
-from ..io import Trajectory, atomic_path, write_json, write_text, write_tum
+from ..io import Trajectory, atomic_path, file_lock, write_json, write_text, write_tum
 from . import layout
 from .catalog import default_output_dir, resolve_scenario
 from .robot import Motion, simulate_motion
@@ -299,23 +299,12 @@ def folder_lock(folder: str | os.PathLike) -> Iterator[None]:
     """Hold an exclusive lock on ``folder`` (a ``.<name>.lock`` file beside it) while the block runs.
 
     Processes that generate or read the same dataset (two notebooks of ``hsmap reproduce --jobs 2``) take it in
-    turn: the second waits until the first has finished writing, then finds the folder complete. POSIX
-    ``flock``; the lock is released when the block ends or the process dies. Where ``fcntl`` is missing
-    (Windows) the block runs unlocked.
+    turn: the second waits until the first has finished writing, then finds the folder complete
+    (:func:`hsmap.io.file_lock`).
     """
     folder = Path(folder)
-    folder.parent.mkdir(parents=True, exist_ok=True)
-    try:
-        import fcntl
-    except ImportError:  # pragma: no cover - not POSIX
+    with file_lock(folder.parent / f".{folder.name}.lock"):
         yield
-        return
-    with open(folder.parent / f".{folder.name}.lock", "a+b") as fh:
-        fcntl.flock(fh.fileno(), fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
 
 
 def ensure_dataset(scenario: str | os.PathLike = "slam-office", seed: int | None = None,

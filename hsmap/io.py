@@ -31,6 +31,7 @@ __all__ = [
     "Trajectory",
     "read_tum",
     "write_tum",
+    "read_number_rows",
 ]
 
 
@@ -193,33 +194,56 @@ def write_tum(path: str | os.PathLike, traj: Trajectory) -> None:
         np.savetxt(fh, rows, fmt=["%.9f"] + ["%.9g"] * 7)
 
 
-def read_tum(path: str | os.PathLike, dof: int = 6) -> Trajectory:
-    """Read a TUM trajectory file; ``dof=3`` returns (x, y, yaw)."""
+def read_number_rows(path: str | os.PathLike, fields: str, what: str) -> NDArray[np.float64]:
+    """Rows of whitespace- (or comma-) separated finite numbers, one per line; ``#`` lines and blank lines skipped.
+
+    Parameters
+    ----------
+    fields : str
+        The expected fields, e.g. ``"t x y z qx qy qz qw"``: their count is the row width, their names go into
+        the error messages.
+    what : str
+        What the rows are (``"poses"``), for the message of an empty file.
+
+    Raises
+    ------
+    DatasetError
+        The file does not exist.
+    DataFormatError
+        A line does not hold that many finite numbers (the message gives the file and line), or no line does.
+    """
     path = Path(path)
     if not path.is_file():
-        raise DatasetError(f"{path}: no such trajectory file")
-    stamps, poses = [], []
-    with open(path, encoding="utf-8") as fh:
+        raise DatasetError(f"{path}: no such file")
+    n = len(fields.split())
+    rows = []
+    with open(path, encoding="utf-8", errors="replace") as fh:
         for lineno, line in enumerate(fh, 1):
             line = line.strip()
             if not line or line.startswith("#"):
                 continue
             parts = line.replace(",", " ").split()
-            if len(parts) != 8:
-                raise DataFormatError(f"{path}:{lineno}: expected 8 values 't x y z qx qy qz qw', got {len(parts)}")
+            if len(parts) != n:
+                raise DataFormatError(f"{path}:{lineno}: expected {n} values '{fields}', got {len(parts)}")
             try:
                 vals = [float(v) for v in parts]
             except ValueError:
                 raise DataFormatError(f"{path}:{lineno}: not a number in {line!r}") from None
             if not np.all(np.isfinite(vals)):
                 raise DataFormatError(f"{path}:{lineno}: NaN or inf in {line!r}")
-            stamps.append(vals[0])
-            poses.append(vals[1:])
-    if not stamps:
-        raise DataFormatError(f"{path}: no poses in TUM file")
-    arr = np.asarray(poses)
-    rpy = matrix_to_euler(quaternion_to_matrix(arr[:, 3:]))
-    traj = Trajectory(np.asarray(stamps), np.column_stack([arr[:, :3], rpy]))
+            rows.append(vals)
+    if not rows:
+        raise DataFormatError(f"{path}: no {what} in file")
+    return np.asarray(rows)
+
+
+def read_tum(path: str | os.PathLike, dof: int = 6) -> Trajectory:
+    """Read a TUM trajectory file; ``dof=3`` returns (x, y, yaw)."""
+    if not Path(path).is_file():
+        raise DatasetError(f"{path}: no such trajectory file")
+    arr = read_number_rows(path, "t x y z qx qy qz qw", "poses")
+    rpy = matrix_to_euler(quaternion_to_matrix(arr[:, 4:]))
+    traj = Trajectory(arr[:, 0], np.column_stack([arr[:, 1:4], rpy]))
     return traj.as_3dof() if dof == 3 else traj
 
 

@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import DataFormatError, DatasetError, ShapeError
+from ..errors import DatasetError, ShapeError
+from ..io import read_number_rows
 
 __all__ = ["Relations", "read_relations"]
 
@@ -64,28 +65,7 @@ def read_relations(path: str | os.PathLike) -> Relations:
     DataFormatError
         A line does not hold 8 finite numbers (the message gives the file and line), or there is no relation.
     """
-    path = Path(path)
-    if not path.is_file():
+    if not Path(path).is_file():
         raise DatasetError(f"{path}: no such relations file")
-    rows = []
-    with open(path, encoding="utf-8", errors="replace") as fh:
-        for lineno, line in enumerate(fh, 1):
-            line = line.strip()
-            if not line or line.startswith("#"):
-                continue
-            parts = line.split()
-            if len(parts) != 8:
-                raise DataFormatError(
-                    f"{path}:{lineno}: expected 8 values 't_i t_j x y z roll pitch yaw', got {len(parts)}"
-                )
-            try:
-                vals = [float(v) for v in parts]
-            except ValueError:
-                raise DataFormatError(f"{path}:{lineno}: not a number in {line!r}") from None
-            if not np.all(np.isfinite(vals)):
-                raise DataFormatError(f"{path}:{lineno}: NaN or inf in {line!r}")
-            rows.append(vals)
-    if not rows:
-        raise DataFormatError(f"{path}: no relations in file")
-    a = np.asarray(rows)
+    a = read_number_rows(path, "t_i t_j x y z roll pitch yaw", "relations")
     return Relations(a[:, 0], a[:, 1], a[:, 2:])

@@ -23,6 +23,7 @@ import concurrent.futures as cf
 import contextlib
 import datetime as dt
 import json
+import logging
 import multiprocessing
 import os
 import platform
@@ -70,6 +71,21 @@ def _lighten_jupyter_imports() -> None:
     seconds of CPU in every process that imports nbformat); notebooks never use IRI formats."""
     if "jsonschema" not in sys.modules:
         sys.modules.setdefault("rfc3987_syntax", None)  # type: ignore[arg-type]
+
+
+class _QuietDashComm(logging.Filter):
+    """Drop nbclient's "No handler found for comm target 'dash'": importing open3d imports plotly's
+    ``dash``, whose Jupyter hook opens a comm that only a live front end answers. Harmless, but it was
+    the only line the batch printed besides the results."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return "comm target 'dash'" not in record.getMessage()
+
+
+def _quiet_papermill_log() -> None:
+    log = logging.getLogger("papermill")
+    if not any(isinstance(f, _QuietDashComm) for f in log.filters):
+        log.addFilter(_QuietDashComm())
 
 
 # --- discovery -----------------------------------------------------------------------------------------
@@ -394,6 +410,7 @@ def execute_notebook(
     run says ``failed`` with the error.
     """
     _lighten_jupyter_imports()
+    _quiet_papermill_log()
     import nbformat
     import papermill
 

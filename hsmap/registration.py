@@ -99,9 +99,6 @@ class RegistrationConfig:
         Maximum refinement iterations.
     refine_points : int
         Source points used by the refinement.
-    refine_coarse_points : int
-        Of those, the points used by the refinement's coarse stages (trimming distances above ``threshold``);
-        the last stage uses all ``refine_points``.
     refine_seeds : int
         Also refine from this many of the initial guesses (in the order given) and keep, of all refined
         candidates, the one with the lowest point-to-plane cost. Guards against a global search that settles in
@@ -129,7 +126,6 @@ class RegistrationConfig:
     refine_iterations: int = 30
     refine_points: int = 2000
     refine_seeds: int = 0
-    refine_coarse_points: int = 400
     robust_kernel: float = 0.0
 
     def __post_init__(self) -> None:
@@ -146,7 +142,7 @@ class RegistrationConfig:
             v = getattr(self, name)
             if v is not None and not (np.isfinite(v) and v > 0):
                 raise ConfigError(f"registration.{name} must be None or > 0, got {v!r}")
-        for name in ("max_points", "refine_iterations", "refine_points", "refine_seeds", "refine_coarse_points"):
+        for name in ("max_points", "refine_iterations", "refine_points", "refine_seeds"):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or v < (0 if name in ("refine_iterations", "refine_seeds") else 1):
                 raise ConfigError(f"registration.{name} must be a positive integer, got {v!r}")
@@ -391,7 +387,6 @@ def refine_icp(
     method: str = Refinement.POINT_TO_PLANE.value,
     tolerance: float = 1e-5,
     robust_kernel: float = 0.0,
-    coarse_points: int | None = None,
 ) -> NDArray[np.float64]:
     """Local ICP refinement of ``pose`` (a pose vector), in 2D or 3D.
 
@@ -399,10 +394,7 @@ def refine_icp(
     distance are ignored; the trimming distance halves from ``start_distance`` (default ``max_distance``) down to
     ``max_distance``, ``iterations`` at most in all. Point-to-plane (point-to-line in 2D) takes Gauss-Newton steps
     on the target normals, weighted by a Geman-McClure kernel of scale ``robust_kernel`` (metres; 0: none);
-    point-to-point takes the closed-form SVD (Kabsch) step. The stages before the last use ``coarse_points``
-    evenly spaced source points (default: all) and stop once a step moves less than 1 % of their trimming
-    distance: they only bring the pose into the last stage's basin. The last stage, on every point and down to
-    steps of ``tolerance``, sets the precision.
+    point-to-point takes the closed-form SVD (Kabsch) step.
     """
     from . import _kernels
 
@@ -411,15 +403,9 @@ def refine_icp(
     per_stage = max(1, iterations // len(schedule))
     T = pose_to_matrix(pose)
     normals = target.normals if method == Refinement.POINT_TO_PLANE.value else None
-    coarse = source
-    if coarse_points is not None and len(source) > coarse_points:
-        coarse = source[np.linspace(0, len(source) - 1, coarse_points).astype(np.intp)]
-    for stage, dist in enumerate(schedule):
-        last = stage == len(schedule) - 1
-        points = source if last else coarse
-        stop = tolerance if last else max(tolerance, 0.01 * dist)  # a coarse stage only has to settle
+    for dist in schedule:
         for _ in range(per_stage):
-            moved = transform_points(T, points)
+            moved = transform_points(T, source)
             d, idx = target.tree.query(moved, k=1, distance_upper_bound=dist)
             ok = np.isfinite(d)
             if ok.sum() < 2 * dim:
@@ -449,7 +435,7 @@ def refine_icp(
                 dT[:dim, dim] = delta[:dim]
                 step = np.abs(delta).max()
             T = dT @ T
-            if step < stop:
+            if step < tolerance:
                 break
     return matrix_to_pose(T)
 
@@ -576,7 +562,7 @@ def harmony_icp(
         for start in starts:
             cand = refine_icp(full, tgt, start, max_distance=cfg.threshold, start_distance=cfg.search_threshold,
                               iterations=cfg.refine_iterations, method=cfg.refinement,
-                              robust_kernel=cfg.robust_kernel, coarse_points=cfg.refine_coarse_points)
+                              robust_kernel=cfg.robust_kernel)
             cost = _alignment_cost(cand, full, tgt, cfg.threshold, plane)
             if cost <= best_cost + 1e-12:
                 pose, best_cost, refined = cand, cost, True

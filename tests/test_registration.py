@@ -229,22 +229,3 @@ def test_robust_kernel_and_refine_seeds():
         RegistrationConfig(robust_kernel=-1.0)
     with pytest.raises(ConfigError, match="registration.refine_seeds"):
         RegistrationConfig(refine_seeds=-1)
-
-
-def test_coarse_refinement_stages_keep_the_precision():
-    """The refinement's coarse stages run on a subsample; the last stage, on every point, must land where a
-    refinement on every point throughout lands (the subsample only saves time)."""
-    from hsmap.registration import refine_icp
-
-    p0 = np.array([4.0, 3.0, 0.0])
-    src, tgt, truth = scan_pair_2d(p0, p0 + [0.3, -0.2, 0.15], seed=5)
-    target = RegistrationTarget(tgt)
-    start = truth + [0.15, -0.1, np.deg2rad(4)]
-    kw = dict(max_distance=0.1, start_distance=0.5, iterations=30, robust_kernel=0.07)
-    full = refine_icp(src, target, start, **kw)
-    coarse = refine_icp(src, target, start, coarse_points=12, **kw)
-    assert errors(full, truth)[0] < 0.01
-    t_diff, r_diff = errors(coarse, full)
-    assert t_diff < 1e-3 and r_diff < 0.02, (t_diff, r_diff)
-    with pytest.raises(ConfigError, match="registration.refine_coarse_points"):
-        RegistrationConfig(refine_coarse_points=0)

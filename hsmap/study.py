@@ -132,10 +132,11 @@ def _array_digest(a: Any) -> str | None:
     return _sha(str(arr.shape).encode() + arr.tobytes())
 
 
-def _source_digest() -> str:
+def _source_digest(sources: Iterable[str] = SLAM_SOURCES) -> str:
+    """SHA-256 of the named package files (paths relative to ``hsmap/``), each with its name."""
     root = Path(__file__).resolve().parent
     h = hashlib.sha256()
-    for rel in SLAM_SOURCES:
+    for rel in sources:
         f = root / rel
         if f.is_file():
             h.update(rel.encode() + b"\0" + f.read_bytes() + b"\0")

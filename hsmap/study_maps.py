@@ -23,7 +23,6 @@ folder is published atomically (written beside, then renamed) with ``meta.json``
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import shutil
@@ -40,7 +39,7 @@ from .config import to_dict
 from .errors import DatasetError, InputError
 from .grid import GridGeometry, OccupancyGrid
 from .io import Trajectory, write_json
-from .study import simulated_dataset
+from .study import _sha, _source_digest, simulated_dataset
 
 __all__ = ["TwoLidarMaps", "two_lidar_maps", "simulated_dataset", "MAP_SOURCES", "default_maps_dir"]
 
@@ -123,20 +122,6 @@ class TwoLidarMaps:
     cached: bool = False
 
 
-def _sha(data: bytes) -> str:
-    return hashlib.sha256(data).hexdigest()
-
-
-def _source_digest() -> str:
-    root = Path(__file__).resolve().parent
-    h = hashlib.sha256()
-    for rel in MAP_SOURCES:
-        f = root / rel
-        if f.is_file():
-            h.update(rel.encode() + b"\0" + f.read_bytes() + b"\0")
-    return h.hexdigest()
-
-
 def _slam_configs(use_odometry: bool = False):
     from .slam import SlamConfig
 
@@ -153,7 +138,7 @@ def _key(dataset, frames: int, seed: int, params: dict) -> tuple[str, dict]:
         "slam3d": to_dict(c3),
         "params": params,
         "hsmap_version": __version__,
-        "sources": _source_digest(),
+        "sources": _source_digest(MAP_SOURCES),
     }
     return _sha(json.dumps(desc, sort_keys=True).encode()), desc
 

@@ -16,6 +16,7 @@ __all__ = [
     "DataFormatError",
     "DatasetError",
     "ScenarioError",
+    "HsmapWarning",
 ]
 
 
@@ -49,3 +50,8 @@ class DatasetError(HsmapError):
 
 class ScenarioError(ConfigError):
     """A simulator scenario file is malformed; the message names the file, the key and the problem."""
+
+
+class HsmapWarning(UserWarning):
+    """Something hsmap worked around (a failed optimisation, a skipped input): the result is usable but the user
+    should know."""

@@ -37,6 +37,10 @@ __all__ = [
     "refine_icp",
     "voxel_downsample",
     "estimate_normals",
+    "alignment_cost",
+    "alignment_information",
+    "adjoint",
+    "drop_degenerate",
 ]
 
 
@@ -192,6 +196,15 @@ class RegistrationResult:
         Why the (last) Harmony Search stage stopped.
     seconds : float
         Wall time of the call.
+    information : ndarray of shape (dof, dof)
+        Information matrix (inverse covariance) of the pose: of a small motion xi = (translation, rotation)
+        applied in the source's own frame, ``transformation @ exp(xi)``, from the point-to-plane (point-to-line)
+        Gauss-Newton matrix of the inlier correspondences at ``pose`` divided by their residual variance
+        (:func:`alignment_information`). Small eigenvalues mark directions the scene does not constrain (a
+        corridor's axis).
+    cost : float
+        Mean truncated point-to-plane residual over all valid source points, as a fraction of ``threshold``
+        (:func:`alignment_cost`; 0 perfect, 1 nothing matched): the measure by which candidate poses are compared.
     """
 
     transformation: NDArray[np.float64]
@@ -206,6 +219,67 @@ class RegistrationResult:
     refined: bool
     stop_reason: str
     seconds: float
+    information: NDArray[np.float64] | None = None
+    cost: float = float("nan")
+
+    @property
+    def covariance(self) -> NDArray[np.float64]:
+        """Covariance of the body-frame perturbation (see ``information``); inf where unconstrained."""
+        return _safe_inverse(self.information)
+
+
+def _safe_inverse(info: NDArray[np.float64] | None) -> NDArray[np.float64]:
+    if info is None:
+        raise InputError("no information matrix was computed for this registration")
+    w, V = np.linalg.eigh(0.5 * (info + info.T))
+    inv = np.where(w > 1e-12 * max(w.max(), 1e-300), 1.0 / np.maximum(w, 1e-300), np.inf)
+    finite = np.isfinite(inv)
+    cov = (V[:, finite] * inv[finite]) @ V[:, finite].T
+    if not finite.all():
+        cov = cov + (V[:, ~finite] * 1e18) @ V[:, ~finite].T
+    return cov
+
+
+def adjoint(T: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Adjoint of a rigid transform (3x3 in 2D, 4x4 in 3D) acting on twists ordered (translation, rotation).
+
+    ``exp(adjoint(T) @ xi) @ T == T @ exp(xi)`` to first order: it maps a motion in T's own (body) frame to the
+    same motion applied in the outer frame.
+    """
+    T = np.asarray(T, dtype=float)
+    if T.shape == (3, 3):
+        R, t = T[:2, :2], T[:2, 2]
+        A = np.eye(3)
+        A[:2, :2] = R
+        A[:2, 2] = [t[1], -t[0]]
+        return A
+    R, t = T[:3, :3], T[:3, 3]
+    tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+    A = np.zeros((6, 6))
+    A[:3, :3] = R
+    A[:3, 3:] = tx @ R
+    A[3:, 3:] = R
+    return A
+
+
+def drop_degenerate(information: NDArray[np.float64], ratio: float = 0.05) -> NDArray[np.float64]:
+    """Information with the translation directions the scene does not constrain removed.
+
+    A translation direction whose eigenvalue (of the translation block) is below ``ratio`` times the largest one
+    is treated as unconstrained (a featureless corridor's axis): normals estimated from a few noisy neighbours
+    are tilted by several degrees, which alone gives every direction a few per cent of the largest eigenvalue
+    (a tilt of 13 degrees gives 0.05), so information below that level cannot be told from noise. Its rows and
+    columns (cross terms with the rotation included) are projected out.
+    """
+    info = np.asarray(information, dtype=float)
+    dim = 2 if info.shape[0] == 3 else 3
+    w, V = np.linalg.eigh(info[:dim, :dim])
+    if w.max() <= 0:
+        return np.zeros_like(info)
+    strong = V[:, w >= ratio * w.max()]
+    M = np.eye(info.shape[0])
+    M[:dim, :dim] = strong @ strong.T
+    return M @ info @ M
 
 
 def voxel_downsample(points: NDArray[np.floating], voxel: float, min_range: float = 0.0,
@@ -452,6 +526,51 @@ def _alignment_cost(pose: NDArray[np.float64], source: NDArray[np.float64], targ
     return float(np.where(ok, np.minimum(d, threshold), threshold).mean() / threshold)
 
 
+def alignment_cost(source: NDArray[np.float64], target: RegistrationTarget, pose: NDArray[np.float64],
+                   threshold: float, plane: bool = True) -> float:
+    """Mean truncated residual of ``source`` moved by ``pose`` against ``target``, as a fraction of ``threshold``.
+
+    Point-to-plane (point-to-line in 2D) distances of the nearest-neighbour correspondences within ``threshold``
+    (``plane=True``) or point distances; a point with no correspondence costs 1. 0 is a perfect alignment.
+    """
+    return _alignment_cost(pose, source, target, threshold, plane)
+
+
+def alignment_information(source: NDArray[np.float64], target: RegistrationTarget, pose: NDArray[np.float64],
+                          threshold: float, robust_kernel: float = 0.0,
+                          min_sigma: float = 1e-3) -> tuple[NDArray[np.float64], float, int]:
+    """Information matrix of ``pose`` from the point-to-plane residuals of ``source`` against ``target``.
+
+    Returns ``(information, sigma, n)``: the Gauss-Newton matrix J^T W J of the correspondences within
+    ``threshold`` (robust weights of scale ``robust_kernel``), expressed for a perturbation in the source's own
+    frame (``T @ exp(xi)``, xi = (translation, rotation)) and divided by the weighted residual variance sigma^2
+    (at least ``min_sigma``^2); and the number n of correspondences. With too few correspondences the matrix is
+    zero (nothing is known).
+    """
+    from . import _kernels
+
+    dim = source.shape[1]
+    dof = dof_of_dim(dim)
+    T = pose_to_matrix(pose)
+    moved = transform_points(T, source)
+    d, idx = target.tree.query(moved, k=1, distance_upper_bound=threshold)
+    ok = np.isfinite(d)
+    n = int(ok.sum())
+    if n < 2 * dim:
+        return np.zeros((dof, dof)), float("nan"), n
+    p, q, nq = moved[ok], target.points[idx[ok]], target.normals[idx[ok]]
+    A, _ = _kernels.point_to_plane_normal_equations(p, q, nq, robust_kernel)
+    r = np.einsum("ij,ij->i", nq, p - q)
+    if robust_kernel > 0:
+        k2 = robust_kernel * robust_kernel
+        w = k2 * k2 / (k2 + r * r) ** 2
+    else:
+        w = np.ones_like(r)
+    sigma = max(float(np.sqrt((w * r * r).sum() / w.sum())), min_sigma)
+    Ad = adjoint(T)
+    return Ad.T @ (A / sigma**2) @ Ad, sigma, n
+
+
 def harmony_icp(
     source: ArrayLike,
     target: ArrayLike | RegistrationTarget,
@@ -573,6 +692,8 @@ def harmony_icp(
     inlier_ratio = float(inl.mean())
     fitness = float(d.mean() / cfg.threshold + cfg.inlier_weight * (1.0 - inlier_ratio))
     rmse = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else float("nan")
+    information, _, _ = alignment_information(full, tgt, pose, cfg.threshold, cfg.robust_kernel)
+    cost = _alignment_cost(pose, full, tgt, cfg.threshold, plane=True)
     return RegistrationResult(
         transformation=pose_to_matrix(pose),
         pose=pose,
@@ -586,4 +707,6 @@ def harmony_icp(
         refined=refined,
         stop_reason=hs.stop_reason.value,
         seconds=time.perf_counter() - t0,
+        information=information,
+        cost=cost,
     )

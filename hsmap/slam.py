@@ -21,14 +21,29 @@ over the local map is rebuilt before the next registration.
 :class:`HsSlam` processes frames one by one; :func:`run_slam` runs a whole dataset and returns a
 :class:`SlamResult`; :func:`write_slam_outputs` writes ``trajectory.tum``, ``map.ply``, ``metrics.json`` and
 ``config.yaml`` atomically.
+
+Loop closure (on by default, :class:`hsmap.loopclosure.LoopClosureConfig`): every keyframe is a node of a pose
+graph (:class:`hsmap.posegraph.PoseGraph`), tied to the previous keyframe by the tracking's relative pose and the
+registration's information. Each new keyframe is matched by Harmony-ICP against older submaps within a search
+window that grows with the graph distance between them; verified matches become loop edges and the graph is
+optimised (GTSAM). The tracking map then holds only the keyframes within ``tracking_path_distance`` of the newest
+one along the graph, at their optimised poses: places whose relative pose is known, so that an old, drifted map
+never pulls the tracking before its loop is closed.
+
+Robust tracking: each registration is checked against the motion prediction (odometry, or a prior trajectory in
+6-DOF, or the constant-velocity model) and its uncertainty. A registration that disagrees is retried in a box
+around the prediction; the candidate the scan aligns with better (point-to-plane cost) wins, the prediction's
+when they align about equally well (a corridor that does not constrain its axis). A frame whose pose is not
+confirmed this way does not become a keyframe.
 """
 
 from __future__ import annotations
 
 import resource
 import time
+import warnings
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -36,15 +51,19 @@ from numpy.typing import NDArray
 
 from .config import dump_config, to_dict
 from .datasets.frames import Dataset, Frame
-from .errors import ConfigError, EmptyInputError, InputError
+from .errors import ConfigError, EmptyInputError, HsmapWarning, InputError
 from .fitness import DistanceField
 from .geometry import compose, pose_to_matrix, relative, transform_points, wrap_angle
 from .harmony import HarmonyConfig, as_rng
 from .io import Trajectory, atomic_path, write_json, write_tum
+from .loopclosure import Keyframe, LoopCloser, LoopClosureConfig
 from .mapping import VoxelMap
+from .posegraph import EdgeKind, PoseGraph, information_with_floor
 from .registration import (
     RegistrationConfig,
+    RegistrationResult,
     RegistrationTarget,
+    drop_degenerate,
     estimate_normals,
     harmony_icp,
     voxel_downsample,
@@ -96,6 +115,18 @@ class SlamConfig:
         A scan becomes a keyframe (added to the map) when the robot moved or turned this much since the last one.
     min_range, max_range : float
         Points of the scans outside [min_range, max_range] from the sensor are ignored.
+    odometry_sigma : tuple of 4 floats
+        Uncertainty of an odometry prediction over one frame: translation sigma = a + b * distance, rotation
+        sigma = c + d * |turn| (+ c per metre travelled), as (a [m], b, c [rad], d).
+    motion_sigma : tuple of 4 floats
+        The same for the constant-velocity prediction (no odometry).
+    degenerate_ratio : float
+        Translation directions whose information is below this fraction of the best constrained one count as
+        unconstrained (:func:`hsmap.registration.drop_degenerate`): the prediction carries the pose along them.
+    verify_sigmas : float
+        A registration further than this many sigmas from the prediction is retried around the prediction.
+    loop_closure : LoopClosureConfig
+        Pose graph and loop-closure parameters.
     """
 
     dof: int = 3
@@ -116,6 +147,11 @@ class SlamConfig:
     keyframe_angle: float = np.deg2rad(15.0)
     min_range: float = 0.1
     max_range: float = 30.0
+    odometry_sigma: tuple[float, float, float, float] = (0.02, 0.05, float(np.deg2rad(1.0)), 0.05)
+    motion_sigma: tuple[float, float, float, float] = (0.1, 0.5, float(np.deg2rad(5.0)), 0.5)
+    verify_sigmas: float = 3.0
+    degenerate_ratio: float = 0.05
+    loop_closure: LoopClosureConfig = field(default_factory=LoopClosureConfig)
 
     def __post_init__(self) -> None:
         if self.dof not in (3, 6):
@@ -124,6 +160,23 @@ class SlamConfig:
             from .config import from_dict
 
             self.registration = from_dict(RegistrationConfig, self.registration, "slam.registration")
+        if isinstance(self.loop_closure, dict):
+            from .config import from_dict
+
+            self.loop_closure = from_dict(LoopClosureConfig, self.loop_closure, "slam.loop_closure")
+        for name in ("odometry_sigma", "motion_sigma"):
+            v = getattr(self, name)
+            try:
+                arr = np.asarray(v, dtype=float)
+            except (TypeError, ValueError):
+                arr = np.array([])
+            if arr.shape != (4,) or not np.all(np.isfinite(arr)) or np.any(arr < 0):
+                raise ConfigError(f"slam.{name} must be 4 finite numbers >= 0, got {v!r}")
+            setattr(self, name, tuple(float(x) for x in arr))
+        for name in ("verify_sigmas", "degenerate_ratio"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise ConfigError(f"slam.{name} must be a finite number > 0, got {v!r}")
         for name in ("translation_range", "yaw_range", "z_range", "roll_pitch_range", "prior_translation_range",
                      "prior_yaw_range", "local_map_radius", "keyframe_distance", "keyframe_angle", "min_range",
                      "max_range"):
@@ -167,6 +220,9 @@ class FrameResult:
     keyframe: bool
     points: int
     map_points: int
+    retried: bool = False
+    verified: bool = True
+    cost: float = float("nan")
 
 
 @dataclass
@@ -181,6 +237,8 @@ class SlamResult:
     peak_memory_mb: float
     input_name: str = ""
     cpu_seconds: float = float("nan")
+    loop_closure: dict = field(default_factory=dict)
+    tracked: Trajectory | None = None
 
     def metrics(self) -> dict:
         """Per-frame and total metrics, JSON-ready."""
@@ -200,6 +258,11 @@ class SlamResult:
             "real_time_factor": duration / self.seconds if self.seconds > 0 else None,
             "peak_memory_mb": self.peak_memory_mb,
             "inlier_ratio_median": float(np.median([f.inlier_ratio for f in self.frames])) if self.frames else None,
+            "frames_retried": int(sum(f.retried for f in self.frames)),
+            "frames_unverified": int(sum(not f.verified for f in self.frames)),
+            "loop_closure": self.loop_closure.get("status", "disabled"),
+            "loops_closed": int(self.loop_closure.get("loops_closed", 0)),
+            "loop_closure_detail": self.loop_closure,
             "per_frame": {
                 "index": [f.index for f in self.frames],
                 "stamp": [f.stamp for f in self.frames],
@@ -210,6 +273,8 @@ class SlamResult:
                 "evaluations": [f.evaluations for f in self.frames],
                 "keyframe": [f.keyframe for f in self.frames],
                 "points": [f.points for f in self.frames],
+                "retried": [f.retried for f in self.frames],
+                "cost": [f.cost for f in self.frames],
             },
         }
 
@@ -250,8 +315,38 @@ def _mean_pose(poses: NDArray[np.float64]) -> NDArray[np.float64]:
     return out
 
 
+def _residuals(scan: NDArray[np.float64], target: RegistrationTarget, pose: NDArray[np.float64],
+               threshold: float) -> NDArray[np.float64]:
+    """Point-to-plane residual of each scan point at ``pose`` (NaN: no target point within ``threshold``)."""
+    moved = transform_points(pose_to_matrix(pose), scan)
+    d, idx = target.tree.query(moved, k=1, distance_upper_bound=threshold)
+    out = np.full(len(scan), np.nan)
+    ok = np.isfinite(d)
+    out[ok] = np.abs(np.einsum("ij,ij->i", target.normals[idx[ok]], moved[ok] - target.points[idx[ok]]))
+    return out
+
+
+def _at_least_as_good(scan: NDArray[np.float64], target: RegistrationTarget, a: NDArray[np.float64],
+                      b: NDArray[np.float64], threshold: float, strict: bool = False) -> bool:
+    """Whether pose ``a`` aligns the scan about as well as pose ``b`` (``strict``: clearly better).
+
+    Judged on the points both poses match (their mean point-to-plane residual) and on how many each matches:
+    a pose further along a featureless corridor sees a little more unmapped wall than one that stayed behind,
+    which must not count against it.
+    """
+    ra, rb = _residuals(scan, target, a, threshold), _residuals(scan, target, b, threshold)
+    both = np.isfinite(ra) & np.isfinite(rb)
+    if both.sum() < 3 * scan.shape[1]:
+        return False
+    ma, mb = float(ra[both].mean()), float(rb[both].mean())
+    fa, fb = float(np.isfinite(ra).mean()), float(np.isfinite(rb).mean())
+    if strict:
+        return ma < 0.8 * mb - 0.002 or fa > fb + 0.1
+    return ma <= 1.2 * mb + 0.002 and fa >= fb - 0.1
+
+
 class HsSlam:
-    """Incremental HS-SLAM: call :meth:`process` with each frame in order.
+    """Incremental HS-SLAM: call :meth:`process` with each frame in order, then :meth:`finish`.
 
     Parameters
     ----------
@@ -262,6 +357,17 @@ class HsSlam:
         Pose of the first frame (default: the origin).
     prior : Trajectory, optional
         6-DOF only: (x, y, yaw) poses from a 2D run, looked up by stamp, used as seeds with a narrower range.
+
+    Attributes
+    ----------
+    poses : list of ndarray
+        The pose of every frame as tracked (before later loop closures moved it); :attr:`trajectory` gives the
+        current estimate of all of them.
+    graph : PoseGraph
+        One node per keyframe.
+    keyframes : list of Keyframe
+    map : VoxelMap
+        The tracking map (keyframes near the newest one along the graph).
     """
 
     def __init__(self, config: SlamConfig | None = None, *, rng: int | np.random.Generator | None = None,
@@ -288,6 +394,22 @@ class HsSlam:
         self._field_centre = np.zeros(self.dim)
         self._last_key: NDArray[np.float64] | None = None
         self._prev_odom: NDArray[np.float64] | None = None
+        # pose graph and loop closure
+        lc = cfg.loop_closure
+        self.graph = PoseGraph(cfg.dof)
+        self.keyframes: list[Keyframe] = []
+        self._anchor: list[int] = []  # per frame: the keyframe its pose is expressed in
+        self._offset: list[NDArray[np.float64]] = []  # per frame: its pose in that keyframe's frame
+        self._odometry_chain: list[NDArray[np.float64]] = []  # per keyframe: the tracking edge's measurement
+        self._closer = LoopCloser(lc, cfg.dof, cfg.effective_map_voxel()) if lc.enabled else None
+        self._path: NDArray[np.float64] | None = None  # graph distances from the newest keyframe
+        self._map_stale = False
+        self._pending = 0  # loop edges added since the last optimisation
+        self._since_optimized = 0
+        self._status = "ok" if lc.enabled else "disabled"
+        self._optimizations = 0
+        self._rejected = 0
+        self._failure = ""
 
     # --------------------------------------------------------------------------------------------- seeds
     def _prior_pose(self, stamp: float) -> NDArray[np.float64] | None:
@@ -300,6 +422,16 @@ class HsSlam:
         prev = self.poses[-1]
         return np.array([poses[k, 0], poses[k, 1], prev[2], prev[3], prev[4], poses[k, 2]])
 
+    def _odometry_step(self, frame: Frame) -> NDArray[np.float64] | None:
+        """The odometry increment since the previous frame, as a pose vector of this run's dof."""
+        odom = None if frame.odometry is None else np.asarray(frame.odometry, dtype=float)
+        if not (self.config.use_odometry and odom is not None and self._prev_odom is not None):
+            return None
+        delta = relative(self._prev_odom, odom)  # (x, y, yaw) increment in the robot frame
+        if self.config.dof == 3:
+            return delta
+        return np.array([delta[0], delta[1], 0.0, 0.0, 0.0, delta[2]])
+
     def seeds(self, frame: Frame) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Initial guesses (K, dof) for ``frame`` and the half-widths (dof,) of the box around them."""
         cfg = self.config
@@ -307,13 +439,9 @@ class HsSlam:
         seeds = [prev]
         if len(self.poses) >= 2:
             seeds.append(compose(prev, relative(self.poses[-2], prev)))
-        odom = None if frame.odometry is None else np.asarray(frame.odometry, dtype=float)
-        if cfg.use_odometry and odom is not None and self._prev_odom is not None:
-            delta = relative(self._prev_odom, odom)  # (x, y, yaw) increment in the robot frame
-            if cfg.dof == 3:
-                seeds.append(compose(prev, delta))
-            else:
-                seeds.append(compose(prev, np.array([delta[0], delta[1], 0.0, 0.0, 0.0, delta[2]])))
+        step = self._odometry_step(frame)
+        if step is not None:
+            seeds.append(compose(prev, step))
         if len(self.poses) >= 2:
             seeds.append(_mean_pose(np.asarray(self.poses[-cfg.recent_poses:])))
         half = self._ranges(prior=False)
@@ -334,9 +462,38 @@ class HsSlam:
             return np.array([t, t, y])
         return np.array([t, t, cfg.z_range, cfg.roll_pitch_range, cfg.roll_pitch_range, y])
 
+    def prediction(self, frame: Frame) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+        """The predicted pose of ``frame`` and the sigmas (translation, yaw) of its x/y and yaw, or None.
+
+        From the odometry increment when there is one, else (6-DOF) the prior trajectory, else the constant-velocity
+        model; None for the first two frames without odometry.
+        """
+        cfg = self.config
+        prev = self.poses[-1]
+        prior = self._prior_pose(frame.stamp)
+        step = self._odometry_step(frame)
+        if step is not None:
+            a, b, c, d = cfg.odometry_sigma
+        elif len(self.poses) >= 2:
+            step = relative(self.poses[-2], prev)
+            a, b, c, d = cfg.motion_sigma
+        elif prior is None:
+            return None
+        if prior is not None:
+            pred = prior
+            sig = np.array([cfg.prior_translation_range / 3, cfg.prior_yaw_range / 3])
+        else:
+            pred = compose(prev, step)
+            dist = float(np.linalg.norm(step[: self.dim]))
+            turn = float(np.abs(wrap_angle(step[self.dim:])).max())
+            sig = np.array([a + b * dist, c + d * turn + c * dist])
+        pred = pred.copy()
+        pred[self.dim:] = prev[self.dim:] + wrap_angle(pred[self.dim:] - prev[self.dim:])
+        return pred, sig
+
     # ---------------------------------------------------------------------------------------------- loop
     def process(self, frame: Frame) -> FrameResult:
-        """Register one frame and update the map; returns what was done."""
+        """Register one frame and update the map (and the pose graph); returns what was done."""
         t0 = time.perf_counter()
         cfg = self.config
         scan = frame_points(frame, cfg.dof, cfg.min_range, cfg.max_range, voxel=cfg.effective_scan_voxel())
@@ -346,6 +503,8 @@ class HsSlam:
         first = not self.poses
         fitness = inlier = rmse = 0.0
         evaluations = 0
+        retried, verified, cost = False, True, 0.0
+        res: RegistrationResult | None = None
         if first:
             pose = self._initial if self._initial is not None else np.zeros(cfg.dof)
             fitness, inlier, rmse = 0.0, 1.0, 0.0
@@ -356,19 +515,86 @@ class HsSlam:
             bounds = np.column_stack([guesses.min(0) - half, guesses.max(0) + half])
             res = harmony_icp(scan, self._target, bounds=bounds, initial_guesses=guesses,
                               config=cfg.registration, rng=self.rng)
-            pose = res.pose
-            fitness, inlier, rmse, evaluations = res.fitness, res.inlier_ratio, res.rmse, res.evaluations
-        keyframe = first or len(self.poses) < cfg.warmup_frames or self._is_keyframe(pose)
-        if keyframe:
-            self._insert(frame, scan, pose)
+            res, retried, verified = self._verify(frame, scan, res)
+            pose, information = self._fuse(frame, res)
+            fitness, inlier, rmse, evaluations, cost = (res.fitness, res.inlier_ratio, res.rmse, res.evaluations,
+                                                        res.cost)
+        keyframe = first or (verified and (len(self.poses) < cfg.warmup_frames or self._is_keyframe(pose)))
         self.poses.append(pose)
         self.stamps.append(float(frame.stamp))
+        if keyframe:
+            self._anchor.append(len(self.keyframes))
+            self._offset.append(np.zeros(cfg.dof))
+            self._add_keyframe(frame, scan, pose, None if first else information)
+        else:
+            k = len(self.keyframes) - 1
+            self._anchor.append(k)
+            self._offset.append(relative(self.graph.poses[k], pose))
         if frame.odometry is not None:
             self._prev_odom = np.asarray(frame.odometry, dtype=float)
         result = FrameResult(frame.index, float(frame.stamp), pose, float(fitness), float(inlier), float(rmse),
-                             int(evaluations), time.perf_counter() - t0, bool(keyframe), len(scan), len(self.map))
+                             int(evaluations), time.perf_counter() - t0, bool(keyframe), len(scan), len(self.map),
+                             retried, verified, float(cost))
         self.results.append(result)
         return result
+
+    def _verify(self, frame: Frame, scan: NDArray[np.float64], res: RegistrationResult
+                ) -> tuple[RegistrationResult, bool, bool]:
+        """Check a registration against the motion prediction; retry around the prediction when they disagree.
+
+        Returns the registration to keep, whether it was retried, and whether its pose is confirmed.
+        """
+        cfg = self.config
+        pred = self.prediction(frame)
+        if pred is None:
+            return res, False, True
+        centre, sig = pred
+        d = relative(centre, res.pose)
+        if (np.linalg.norm(d[:2]) <= cfg.verify_sigmas * sig[0]
+                and abs(wrap_angle(d[-1])) <= cfg.verify_sigmas * sig[1]):
+            return res, False, True
+        # retry in a box of the prediction's uncertainty, from the prediction, with a longer search
+        reg = cfg.registration
+        hs = reg.harmony
+        retry_cfg = replace(reg, refine_seeds=1,
+                            harmony=replace(hs, max_iterations=2 * hs.max_iterations,
+                                            patience=None if hs.patience is None else 2 * hs.patience))
+        half = self._ranges(prior=False)
+        half[:2] = np.minimum(half[:2], cfg.verify_sigmas * sig[0])
+        half[-1] = min(half[-1], cfg.verify_sigmas * sig[1])
+        half[:2] = np.maximum(half[:2], 2 * cfg.effective_scan_voxel())
+        guesses = centre[None]
+        bounds = np.column_stack([centre - half, centre + half])
+        alt = harmony_icp(scan, self._target, bounds=bounds, initial_guesses=guesses, config=retry_cfg,
+                          rng=self.rng)
+        # the prediction wins unless the first registration aligns the scan clearly better
+        if _at_least_as_good(scan, self._target, alt.pose, res.pose, reg.threshold):
+            return alt, True, True
+        return res, True, not _at_least_as_good(scan, self._target, res.pose, alt.pose, reg.threshold, strict=True)
+
+    def _fuse(self, frame: Frame, res: RegistrationResult) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The registration fused with the motion prediction, weighted by their information matrices.
+
+        Where the scene constrains the pose (a room's corners) the registration's information dwarfs the
+        prediction's and the pose is the registration's; along a direction it does not constrain (a featureless
+        corridor's axis) the prediction carries the pose. Returns the pose and its information (body frame).
+        """
+        cfg = self.config
+        info_reg = (drop_degenerate(res.information, cfg.degenerate_ratio) if res.information is not None
+                    else np.zeros((cfg.dof, cfg.dof)))
+        pred = self.prediction(frame)
+        if pred is None:
+            return res.pose, info_reg
+        centre, sig = pred
+        info_pred = np.zeros(cfg.dof)
+        info_pred[:2] = 1.0 / sig[0] ** 2
+        info_pred[-1] = 1.0 / sig[1] ** 2
+        info_pred = np.diag(info_pred)
+        d = relative(res.pose, centre)  # the prediction in the registration's frame
+        d[self.dim:] = wrap_angle(d[self.dim:])
+        total = info_reg + info_pred
+        step = np.linalg.solve(total + 1e-12 * np.eye(cfg.dof), info_pred @ d)
+        return compose(res.pose, step), total
 
     def _is_keyframe(self, pose: NDArray[np.float64]) -> bool:
         cfg = self.config
@@ -376,26 +602,148 @@ class HsSlam:
         return bool(np.linalg.norm(d[: self.dim]) >= cfg.keyframe_distance
                     or np.abs(wrap_angle(d[self.dim:])).max() >= cfg.keyframe_angle)
 
-    def _insert(self, frame: Frame, scan: NDArray[np.float64], pose: NDArray[np.float64]) -> None:
-        """Add a keyframe to the map (with normals from its own neighbourhoods) and to the search field."""
+    def _add_keyframe(self, frame: Frame, scan: NDArray[np.float64], pose: NDArray[np.float64],
+                      information: NDArray[np.float64] | None) -> None:
+        """A new keyframe: a graph node tied to the previous one, points in the tracking map, loop search."""
         cfg = self.config
-        T = pose_to_matrix(pose)
+        lc = cfg.loop_closure
         dense = scan if cfg.dof == 3 else frame_points(frame, cfg.dof, cfg.min_range, cfg.max_range,
                                                        voxel=cfg.effective_map_voxel())
+        normals = estimate_normals(dense)
+        k = self.graph.add_node(pose)
+        if k > 0:
+            z = relative(self.graph.poses[k - 1], pose)
+            info = information if information is not None else np.zeros((cfg.dof,) * 2)
+            self.graph.add_edge(k - 1, k, z, information_with_floor(info, lc.edge_sigma_translation,
+                                                                    lc.edge_sigma_rotation), EdgeKind.ODOMETRY)
+            self._odometry_chain.append(z)
+        self.keyframes.append(Keyframe(len(self.results), float(frame.stamp), dense, normals))
+        T = pose_to_matrix(pose)
         world = transform_points(T, dense)
-        added = self.map.add(world, estimate_normals(world))
+        added = self.map.add(world, normals @ T[: self.dim, : self.dim].T)
         if self._field is not None and len(added):
             self._field.add(added)
         self._last_key = pose
         self._target = None  # the refinement target (KD-tree) is rebuilt before the next registration
+        if self._closer is not None:
+            self._path = self.graph.path_distances(k)
+            self._close_loops(k)
+
+    # ------------------------------------------------------------------------------------- loop closure
+    def _close_loops(self, k: int) -> None:
+        lc = self.config.loop_closure
+        closer = self._closer
+        urgent = False
+        for cand in closer.candidates(self.graph, k, self._path)[: lc.attempts_per_keyframe]:
+            closure = closer.attempt(self.graph, self.keyframes, k, cand, self.rng)
+            if closure is None:
+                continue
+            self.graph.add_edge(closure.i, closure.j, closure.measurement, closure.information, EdgeKind.LOOP)
+            self._pending += 1
+            urgent |= (closure.correction_translation > lc.optimize_threshold_translation
+                       or closure.correction_rotation > lc.optimize_threshold_rotation)
+        self._since_optimized += 1
+        if self._pending and (urgent or self._since_optimized >= lc.optimize_every):
+            self._optimize()
+
+    def _optimize(self) -> None:
+        """Optimise the graph; re-anchor the recent poses and mark the tracking map stale."""
+        if self._status == "failed" or len(self.graph) < 2:
+            return
+        before = np.asarray(self.graph.poses)
+        out = self.graph.optimize()
+        self._optimizations += 1
+        self._pending = 0
+        self._since_optimized = 0
+        if out.status != "ok":
+            self._fail(out.message)
+            return
+        self._rejected += len(out.rejected)
+        after = np.asarray(self.graph.poses)
+        moved = after - before
+        moved[:, self.dim:] = wrap_angle(moved[:, self.dim:])
+        if np.abs(moved).max() < 1e-6:
+            return
+        self._closer.forget()
+        self._reanchor_recent()
+        self._last_key = self.graph.poses[-1]
+        self._path = self.graph.path_distances(len(self.graph) - 1)
+        self._map_stale = True
+        self._target = None
+
+    def _reanchor_recent(self) -> None:
+        """Move the recent tracked poses (the seeds' history) with their keyframes."""
+        for i in range(max(0, len(self.poses) - self.config.recent_poses - 1), len(self.poses)):
+            self.poses[i] = compose(self.graph.poses[self._anchor[i]], self._offset[i])
+
+    def _fail(self, message: str) -> None:
+        """The graph could not be optimised: fall back to the tracking-only poses, stop closing loops."""
+        warnings.warn(f"pose graph optimisation failed ({message}); keeping the tracking-only trajectory and "
+                      f"closing no more loops", HsmapWarning, stacklevel=3)
+        self._status = "failed"
+        self._failure = message
+        self._closer = None
+        chain = [self.graph.poses[0]]
+        for z in self._odometry_chain:
+            chain.append(compose(chain[-1], z))
+        self.graph.poses = [p.copy() for p in chain]
+        for e in self.graph.edges:
+            if e.kind == EdgeKind.LOOP:
+                e.active = False
+        self._reanchor_recent()
+        self._last_key = self.graph.poses[-1]
+        self._path = None
+        self._map_stale = True
+        self._target = None
+
+    def finish(self) -> None:
+        """Optimise the graph once more if closures are pending (call after the last frame)."""
+        if self._closer is not None and self._pending:
+            self._optimize()
+
+    def loop_summary(self) -> dict:
+        """Loop-closure counts for the metrics: status, closures, attempts, rejections, optimisations."""
+        closer = self._closer
+        loops = self.graph.loop_edges(active_only=True)
+        return {
+            "status": self._status,
+            "loops_closed": len(loops),
+            "attempts": 0 if closer is None else closer.attempts,
+            "rejected_by_checks": {} if closer is None else dict(closer.rejections),
+            "rejected_by_graph": self._rejected,
+            "optimizations": self._optimizations,
+            "keyframes": len(self.keyframes),
+            "message": self._failure,
+        }
+
+    # -------------------------------------------------------------------------------------------- maps
+    def _tracking_keyframes(self) -> list[int]:
+        lc = self.config.loop_closure
+        if self._closer is None or self._path is None:
+            return list(range(len(self.keyframes)))
+        near = np.flatnonzero(self._path[: len(self.keyframes)] <= lc.tracking_path_distance)
+        return near.tolist()
+
+    def _rebuild_map(self) -> None:
+        cfg = self.config
+        self.map = VoxelMap(self.dim, cfg.effective_map_voxel())
+        for k in self._tracking_keyframes():
+            T = pose_to_matrix(self.graph.poses[k])
+            kf = self.keyframes[k]
+            self.map.add(transform_points(T, kf.points), kf.normals @ T[: self.dim, : self.dim].T)
+        self._map_stale = False
 
     def _rebuild_target(self) -> None:
         """The registration target: the local map crop (points, normals) and the search field around the robot."""
         cfg = self.config
         reg = cfg.registration
         centre = self.poses[-1][: self.dim]
+        recentre = self._field is None or np.linalg.norm(centre[:2] - self._field_centre[:2]) > cfg.local_map_radius / 2
+        if self._map_stale or (recentre and self._closer is not None):
+            self._rebuild_map()
+            recentre = True
         pts, normals = self.map.crop_with_normals(centre, cfg.local_map_radius)
-        if self._field is None or np.linalg.norm(centre[:2] - self._field_centre[:2]) > cfg.local_map_radius / 2:
+        if recentre:
             half = cfg.local_map_radius + reg.search_threshold
             lo = np.r_[centre[:2] - half, pts[:, 2].min() - 1.0] if self.dim == 3 else centre[:2] - half
             hi = np.r_[centre[:2] + half, pts[:, 2].max() + 1.0] if self.dim == 3 else centre[:2] + half
@@ -405,9 +753,28 @@ class HsSlam:
             self._field_centre = centre.copy()
         self._target = RegistrationTarget(pts, reg, normals=normals, fields={reg.search_threshold: self._field})
 
+    def global_map(self) -> VoxelMap:
+        """The point map of every keyframe at its current (optimised) pose."""
+        vm = VoxelMap(self.dim, self.config.effective_map_voxel())
+        for kf, pose in zip(self.keyframes, self.graph.poses, strict=True):
+            T = pose_to_matrix(pose)
+            vm.add(transform_points(T, kf.points), kf.normals @ T[: self.dim, : self.dim].T)
+        return vm
+
     @property
     def trajectory(self) -> Trajectory:
-        return Trajectory(np.asarray(self.stamps), np.asarray(self.poses).reshape(-1, self.config.dof))
+        """Every frame's pose at the current estimate of its keyframe (loop closures included)."""
+        P = [compose(self.graph.poses[a], o) for a, o in zip(self._anchor, self._offset, strict=True)]
+        return Trajectory(np.asarray(self.stamps), np.asarray(P).reshape(-1, self.config.dof))
+
+    @property
+    def tracked_trajectory(self) -> Trajectory:
+        """Every frame's pose from the tracking alone: the keyframes chained by their tracking edges."""
+        chain = [self.graph.poses[0]] if self.keyframes else []
+        for z in self._odometry_chain:
+            chain.append(compose(chain[-1], z))
+        P = [compose(chain[a], o) for a, o in zip(self._anchor, self._offset, strict=True)]
+        return Trajectory(np.asarray(self.stamps), np.asarray(P).reshape(-1, self.config.dof))
 
 
 def run_slam(
@@ -462,9 +829,11 @@ def run_slam(
         bar.close()
     if not slam.poses:
         raise EmptyInputError("the input has no frames")
+    slam.finish()
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-    return SlamResult(slam.trajectory, slam.map, slam.results, slam.config, time.perf_counter() - t0, peak,
-                      getattr(dataset, "name", ""), time.process_time() - c0)
+    return SlamResult(slam.trajectory, slam.global_map(), slam.results, slam.config, time.perf_counter() - t0,
+                      peak, getattr(dataset, "name", ""), time.process_time() - c0,
+                      loop_closure=slam.loop_summary(), tracked=slam.tracked_trajectory)
 
 
 def write_slam_outputs(result: SlamResult, out_dir: str | Path) -> dict[str, Path]:

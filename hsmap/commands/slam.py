@@ -30,8 +30,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scan-topic", help="bag topic of the 2D LaserScan (auto-detected by default)")
     parser.add_argument("--cloud-topic", help="bag topic of the 3D PointCloud2 (auto-detected by default)")
     parser.add_argument("--odom-topic", help="bag topic of the Odometry (auto-detected by default)")
+    parser.add_argument("--extrinsic2d", metavar="X,Y,YAW",
+                        help="pose of the 2D LiDAR in the robot base frame (metres, radians), overriding the "
+                             "input's (e.g. a TF known to be wrong)")
+    parser.add_argument("--extrinsic3d", metavar="X,Y,Z,ROLL,PITCH,YAW",
+                        help="pose of the 3D LiDAR in the robot base frame (metres, radians), overriding the "
+                             "input's")
+    parser.add_argument("--no-loop-closure", action="store_true",
+                        help="track only: no pose graph, no loop closure (one global tracking map)")
     parser.add_argument("--no-recording", action="store_true", help="do not write slam.rrd")
     parser.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+
+
+def parse_vector(text: str, n: int, flag: str):
+    """``"a,b,c"`` -> n floats; an :class:`hsmap.errors.InputError` naming ``flag`` otherwise."""
+    import numpy as np
+
+    from ..errors import InputError
+
+    parts = [p.strip() for p in str(text).split(",")]
+    try:
+        values = [float(p) for p in parts]
+    except ValueError:
+        raise InputError(f"{flag} must be {n} comma-separated numbers, got {text!r}") from None
+    if len(values) != n or not np.all(np.isfinite(values)):
+        raise InputError(f"{flag} must be {n} comma-separated finite numbers, got {text!r}")
+    return np.asarray(values)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -46,11 +70,15 @@ def run(args: argparse.Namespace) -> int:
         cfg.dof = args.dof
     if args.no_odometry:
         cfg.use_odometry = False
+    if args.no_loop_closure:
+        cfg.loop_closure.enabled = False
     if args.max_frames is not None and args.max_frames < 1:
         raise InputError(f"--max-frames must be >= 1, got {args.max_frames}")
+    ext2 = None if args.extrinsic2d is None else parse_vector(args.extrinsic2d, 3, "--extrinsic2d")
+    ext3 = None if args.extrinsic3d is None else parse_vector(args.extrinsic3d, 6, "--extrinsic3d")
     prior = read_tum(args.prior) if args.prior else None
     dataset = open_dataset(args.input, scan_topic=args.scan_topic, cloud_topic=args.cloud_topic,
-                           odom_topic=args.odom_topic)
+                           odom_topic=args.odom_topic, extrinsic2d=ext2, extrinsic3d=ext3)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "metrics.json").unlink(missing_ok=True)  # the marker of a complete folder goes first
@@ -91,7 +119,8 @@ def run(args: argparse.Namespace) -> int:
     if not args.quiet:
         m = result.metrics()
         summary = {k: m[k] for k in ("input", "dof", "frames", "keyframes", "map_points", "seconds_total",
-                                     "seconds_per_frame_median", "real_time_factor", "peak_memory_mb")}
+                                     "seconds_per_frame_median", "real_time_factor", "peak_memory_mb",
+                                     "loop_closure", "loops_closed", "frames_retried")}
         json.dump(summary, sys.stderr, indent=2)
         sys.stderr.write(f"\nwrote {out}/{{trajectory.tum, map.ply, metrics.json, config.yaml"
                          f"{'' if args.no_recording else ', slam.rrd'}}}\n")

@@ -1,0 +1,339 @@
+"""Loop closure for HS-SLAM: submaps of keyframes, candidate search, Harmony-ICP matching and verification.
+
+A *submap* is a run of ``submap_keyframes`` consecutive keyframes whose points are expressed in the frame of its
+first keyframe (the anchor), at the keyframes' current pose estimates. When a new keyframe arrives, older
+submaps that may overlap it are loop-closure candidates: a submap qualifies when it is at least
+``min_separation`` keyframes older than the newest one (nearer ones are tied to it by tracking already) and one of
+its keyframes lies within ``max_distance`` of the new keyframe's estimate, widened by the search window.
+
+The search window grows with the uncertainty of the two places' relative pose, measured by the length of the
+shortest path between them in the pose graph (:meth:`hsmap.posegraph.PoseGraph.path_distances`): the window's
+half-width is ``window_translation + window_growth * path`` (and the same for the rotation), up to a maximum
+(Cartographer searches 7 m x 7 m x 30 deg). Harmony-ICP needs no initial guess inside that window, which is what
+closing a loop needs; a wide window seeds the harmony memory with a grid of guesses over it.
+
+A match becomes a loop edge only if it passes every check: enough inliers, not pinned against the window's edge
+(the true pose may lie outside), and well constrained in every direction (a corridor's axis is not: the
+registration's covariance along it is large). The pose graph's robust kernel and chi-square gate then remove
+closures that disagree with the rest of the graph.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .errors import ConfigError
+from .geometry import pose_to_matrix, relative, transform_points, wrap_angle
+from .harmony import HarmonyConfig
+from .mapping import VoxelMap
+from .posegraph import PoseGraph, information_with_floor
+from .registration import (
+    RegistrationConfig,
+    RegistrationResult,
+    RegistrationTarget,
+    _safe_inverse,
+    drop_degenerate,
+    harmony_icp,
+)
+
+__all__ = ["LoopClosureConfig", "Keyframe", "LoopCandidate", "LoopClosure", "LoopCloser"]
+
+
+def _loop_registration() -> RegistrationConfig:
+    return RegistrationConfig(
+        harmony=HarmonyConfig(batch_size=16, max_iterations=500, patience=20, convergence_tol=1e-6, init="lhs"),
+        search_threshold=0.5,
+        threshold=0.1,
+        max_points=300,
+        robust_kernel=0.07,
+    )
+
+
+@dataclass
+class LoopClosureConfig:
+    """Loop-closure parameters (lengths in metres, angles in radians).
+
+    Attributes
+    ----------
+    enabled : bool
+        Search for loop closures and optimise the pose graph (off: tracking only, against one global map).
+    submap_keyframes : int
+        Keyframes per submap (the loop-closure targets).
+    source_keyframes : int
+        The newest keyframe and up to this many - 1 before it form the source cloud matched against a submap.
+    min_separation : int
+        A submap is a candidate only if its newest keyframe is at least this many keyframes older than the
+        newest keyframe.
+    max_distance : float
+        A submap is a candidate if one of its keyframes lies within this distance of the newest keyframe (plus
+        the window's half-width).
+    window_translation, window_growth, max_window_translation : float
+        Half-width of the search window in x and y: ``window_translation + window_growth * path``, at most
+        ``max_window_translation``; ``path`` is the graph distance between the two places.
+    window_rotation, window_rotation_growth, max_window_rotation : float
+        The same for yaw (radians, radians per metre of path).
+    window_z, window_roll_pitch : float
+        6-DOF: fixed half-widths in z and in roll/pitch (gravity keeps them small).
+    attempts_per_keyframe : int
+        Submaps matched per new keyframe at most (the nearest ones first).
+    retry_after : int
+        A submap that was matched is not tried again before this many more keyframes.
+    min_inlier_ratio : float
+        A match needs at least this fraction of the source points within the registration threshold.
+    max_sigma_translation, max_sigma_rotation : float
+        A match must constrain every direction: the registration's standard deviation along the worst
+        translation (rotation) direction must not exceed these.
+    degenerate_ratio : float
+        See :func:`hsmap.registration.drop_degenerate`.
+    edge_sigma_translation, edge_sigma_rotation : float
+        Floors added to the covariance of every edge (tracking and loop): registration information treats every
+        point as an independent measurement and is overconfident.
+    tracking_path_distance : float
+        The tracking map holds the keyframes within this graph distance of the newest keyframe: places tied to it
+        by tracking or by closed loops, whose relative pose is known. Older places join it when a loop closes.
+    optimize_threshold_translation, optimize_threshold_rotation : float
+        After a closure whose measurement differs from the graph's current estimate by more than these, the graph
+        is optimised at once; smaller corrections are batched until ``optimize_every`` keyframes have passed.
+    optimize_every : int
+        Optimise at least this often (keyframes) while closures are pending, and at the end.
+    registration : RegistrationConfig
+        Harmony-ICP parameters of the loop matches.
+    """
+
+    enabled: bool = True
+    submap_keyframes: int = 10
+    source_keyframes: int = 3
+    min_separation: int = 20
+    max_distance: float = 3.0
+    window_translation: float = 0.3
+    window_growth: float = 0.05
+    max_window_translation: float = 3.5
+    window_rotation: float = float(np.deg2rad(3.0))
+    window_rotation_growth: float = float(np.deg2rad(0.3))
+    max_window_rotation: float = float(np.deg2rad(30.0))
+    window_z: float = 0.1
+    window_roll_pitch: float = float(np.deg2rad(2.0))
+    attempts_per_keyframe: int = 1
+    retry_after: int = 5
+    min_inlier_ratio: float = 0.6
+    max_sigma_translation: float = 0.05
+    degenerate_ratio: float = 0.05
+    max_sigma_rotation: float = float(np.deg2rad(1.0))
+    edge_sigma_translation: float = 0.002
+    edge_sigma_rotation: float = float(np.deg2rad(0.02))
+    tracking_path_distance: float = 20.0
+    optimize_threshold_translation: float = 0.02
+    optimize_threshold_rotation: float = float(np.deg2rad(0.3))
+    optimize_every: int = 25
+    registration: RegistrationConfig = field(default_factory=_loop_registration)
+
+    def __post_init__(self) -> None:
+        if isinstance(self.registration, dict):
+            from .config import from_dict
+
+            self.registration = from_dict(RegistrationConfig, self.registration, "slam.loop_closure.registration")
+        for name in ("max_distance", "window_translation", "window_growth", "max_window_translation",
+                     "window_rotation", "window_rotation_growth", "max_window_rotation", "window_z",
+                     "window_roll_pitch", "max_sigma_translation", "max_sigma_rotation", "edge_sigma_translation",
+                     "edge_sigma_rotation", "tracking_path_distance", "optimize_threshold_translation",
+                     "optimize_threshold_rotation"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float, np.floating)) and np.isfinite(v) and v >= 0):
+                raise ConfigError(f"slam.loop_closure.{name} must be a finite number >= 0, got {v!r}")
+        for name in ("edge_sigma_translation", "edge_sigma_rotation"):
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"slam.loop_closure.{name} must be > 0, got {getattr(self, name)!r}")
+        if not 0.0 <= self.min_inlier_ratio <= 1.0:
+            raise ConfigError(f"slam.loop_closure.min_inlier_ratio must be in [0, 1], got {self.min_inlier_ratio!r}")
+        for name in ("submap_keyframes", "source_keyframes", "min_separation", "attempts_per_keyframe",
+                     "retry_after", "optimize_every"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
+                raise ConfigError(f"slam.loop_closure.{name} must be an integer >= 1, got {v!r}")
+
+
+@dataclass
+class Keyframe:
+    """A keyframe: its frame, and its points and normals in its own (robot base) frame."""
+
+    frame: int
+    stamp: float
+    points: NDArray[np.float64]
+    normals: NDArray[np.float64]
+
+
+@dataclass
+class LoopCandidate:
+    submap: int
+    distance: float  # predicted distance (m) to the nearest keyframe of the submap
+    path: float  # graph distance (m)
+
+
+@dataclass
+class LoopClosure:
+    """An accepted (verified) loop match: the pose of keyframe ``j`` in the frame of keyframe ``i``."""
+
+    i: int
+    j: int
+    measurement: NDArray[np.float64]
+    information: NDArray[np.float64]
+    correction_translation: float  # how far the measurement is from the graph's estimate
+    correction_rotation: float
+    registration: RegistrationResult
+
+
+class LoopCloser:
+    """Finds and verifies loop closures between the newest keyframe and older submaps.
+
+    Parameters
+    ----------
+    config : LoopClosureConfig
+    dof : int
+        3 or 6.
+    map_voxel : float
+        Voxel size at which submaps thin their points.
+    """
+
+    def __init__(self, config: LoopClosureConfig, dof: int, map_voxel: float, cache_size: int = 48) -> None:
+        self.config = config
+        self.dof = dof
+        self.dim = 2 if dof == 3 else 3
+        self.map_voxel = map_voxel
+        self._cache: OrderedDict[int, tuple[NDArray[np.float64], RegistrationTarget]] = OrderedDict()
+        self._cache_size = cache_size
+        self._last_try: dict[int, int] = {}
+        self.attempts = 0
+        self.accepted = 0
+        self.rejections: dict[str, int] = {}
+
+    # ------------------------------------------------------------------------------------------ candidates
+    def submap_members(self, s: int, n_keyframes: int) -> range:
+        K = self.config.submap_keyframes
+        return range(s * K, min((s + 1) * K, n_keyframes))
+
+    def candidates(self, graph: PoseGraph, newest: int, path: NDArray[np.float64]) -> list[LoopCandidate]:
+        """Submaps worth matching against keyframe ``newest``, nearest first."""
+        cfg = self.config
+        K = cfg.submap_keyframes
+        last_eligible = newest - cfg.min_separation  # newest keyframe a candidate submap may hold
+        n_sub = (last_eligible + 1) // K  # complete submaps only
+        if n_sub <= 0:
+            return []
+        P = np.asarray(graph.poses[: n_sub * K])
+        d = np.linalg.norm(P[:, :2] - graph.poses[newest][:2], axis=1).reshape(n_sub, K)
+        g = path[: n_sub * K].reshape(n_sub, K)
+        g = np.where(np.isfinite(g), g, 1e9)
+        dmin = d.min(axis=1)
+        gmin = g.min(axis=1)
+        reach = cfg.max_distance + self.window(gmin)[0]
+        ok = dmin <= reach
+        out = []
+        for s in np.flatnonzero(ok):
+            if newest - self._last_try.get(int(s), -10**9) < cfg.retry_after:
+                continue
+            out.append(LoopCandidate(int(s), float(dmin[s]), float(gmin[s])))
+        out.sort(key=lambda c: c.distance)
+        return out
+
+    def window(self, path: NDArray[np.float64] | float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Half-widths (translation, yaw) of the search window for places ``path`` metres apart in the graph."""
+        cfg = self.config
+        p = np.asarray(path, dtype=float)
+        t = np.minimum(cfg.window_translation + cfg.window_growth * p, cfg.max_window_translation)
+        r = np.minimum(cfg.window_rotation + cfg.window_rotation_growth * p, cfg.max_window_rotation)
+        return t, r
+
+    # ------------------------------------------------------------------------------------------ matching
+    def _submap_target(self, s: int, graph: PoseGraph, keyframes: list[Keyframe]) -> RegistrationTarget:
+        members = self.submap_members(s, len(keyframes))
+        anchor = graph.poses[members.start]
+        rel = np.array([relative(anchor, graph.poses[k]) for k in members])
+        hit = self._cache.get(s)
+        if hit is not None:
+            old_rel, target = hit
+            diff = np.abs(rel - old_rel)
+            diff[:, self.dim:] = np.abs(wrap_angle(diff[:, self.dim:]))
+            if diff[:, : self.dim].max() < 0.01 and diff[:, self.dim:].max() < 0.002:
+                self._cache.move_to_end(s)
+                return target
+        vm = VoxelMap(self.dim, self.map_voxel)
+        for k, r in zip(members, rel, strict=True):
+            T = pose_to_matrix(r)
+            kf = keyframes[k]
+            vm.add(transform_points(T, kf.points), kf.normals @ T[: self.dim, : self.dim].T)
+        target = RegistrationTarget(vm.points, self.config.registration, normals=vm.normals)
+        self._cache[s] = (rel, target)
+        self._cache.move_to_end(s)
+        while len(self._cache) > self._cache_size:
+            self._cache.popitem(last=False)
+        return target
+
+    def _source(self, graph: PoseGraph, keyframes: list[Keyframe], newest: int) -> NDArray[np.float64]:
+        first = max(0, newest - self.config.source_keyframes + 1)
+        parts = []
+        for k in range(first, newest + 1):
+            T = pose_to_matrix(relative(graph.poses[newest], graph.poses[k]))
+            parts.append(transform_points(T, keyframes[k].points))
+        return np.concatenate(parts)
+
+    def _reject(self, why: str) -> None:
+        self.rejections[why] = self.rejections.get(why, 0) + 1
+
+    def attempt(self, graph: PoseGraph, keyframes: list[Keyframe], newest: int, candidate: LoopCandidate,
+                rng: np.random.Generator) -> LoopClosure | None:
+        """Match keyframe ``newest`` against a candidate submap; the verified closure, or None."""
+        cfg = self.config
+        self.attempts += 1
+        self._last_try[candidate.submap] = newest
+        members = self.submap_members(candidate.submap, len(keyframes))
+        anchor = members.start
+        target = self._submap_target(candidate.submap, graph, keyframes)
+        source = self._source(graph, keyframes, newest)
+        predicted = relative(graph.poses[anchor], graph.poses[newest])
+        wt, wr = (float(v) for v in self.window(candidate.path))
+        if self.dof == 3:
+            half = np.array([wt, wt, wr])
+        else:
+            half = np.array([wt, wt, cfg.window_z, cfg.window_roll_pitch, cfg.window_roll_pitch, wr])
+        bounds = np.column_stack([predicted - half, predicted + half])
+        guesses = [predicted]
+        if wt > 1.0:  # a grid of guesses over a wide window
+            n = min(int(np.ceil(2 * wt / 1.0)), 5)
+            offs = np.linspace(-wt, wt, n + 2)[1:-1]
+            for dx in offs:
+                for dy in offs:
+                    g = predicted.copy()
+                    g[0] += dx
+                    g[1] += dy
+                    guesses.append(g)
+        res = harmony_icp(source, target, bounds=bounds, initial_guesses=np.asarray(guesses),
+                          config=cfg.registration, rng=rng)
+        # checks
+        if res.inlier_ratio < cfg.min_inlier_ratio:
+            self._reject("inliers")
+            return None
+        information = drop_degenerate(res.information, cfg.degenerate_ratio)
+        cov = _safe_inverse(information)
+        st = float(np.sqrt(max(np.linalg.eigvalsh(cov[: self.dim, : self.dim]).max(), 0.0)))
+        sr = float(np.sqrt(max(np.linalg.eigvalsh(cov[self.dim:, self.dim:]).max(), 0.0)))
+        if not (st <= cfg.max_sigma_translation and sr <= cfg.max_sigma_rotation):
+            self._reject("unconstrained")
+            return None
+        off = res.pose - predicted
+        off[self.dim:] = wrap_angle(off[self.dim:])
+        if np.any(np.abs(off) > 0.95 * half):
+            self._reject("window_edge")
+            return None
+        info = information_with_floor(information, cfg.edge_sigma_translation, cfg.edge_sigma_rotation)
+        self.accepted += 1
+        corr = relative(predicted, res.pose)
+        return LoopClosure(anchor, newest, res.pose.copy(), info, float(np.linalg.norm(corr[: self.dim])),
+                           float(np.abs(wrap_angle(corr[self.dim:])).max()), res)
+
+    def forget(self) -> None:
+        """Drop cached submaps (their keyframes moved)."""
+        self._cache.clear()

@@ -1,0 +1,293 @@
+"""Pose graphs in 2D (SE(2), 3-DOF) and 3D (SE(3), 6-DOF), optimised with GTSAM.
+
+Nodes are keyframe poses (pose vectors: (x, y, yaw) or (x, y, z, roll, pitch, yaw)); edges are relative-pose
+measurements ``z_ij`` (the pose of node j in the frame of node i) with an information matrix for a small motion
+``xi = (translation, rotation)`` of node j in its own frame: ``T_i^-1 T_j = Z_ij exp(xi)``. That is the body-frame
+convention of :attr:`hsmap.registration.RegistrationResult.information`, so a registration's information goes
+into an edge as it is.
+
+Edges are of three kinds: ``odometry`` (consecutive keyframes, from tracking), ``loop`` (loop closures: these
+take a robust Cauchy kernel, and :meth:`PoseGraph.optimize` switches off those whose residual stays beyond a
+chi-square gate after optimisation, so that a false closure cannot bend the map) and ``prior`` (absolute
+poses, unary).
+
+GTSAM (``gtsam`` on PyPI) is used for the optimisation: it is the maintained, widely used factor-graph library
+with Python wheels, SE(2) and SE(3) between-factors, robust noise models and Levenberg-Marquardt; g2o's Python
+bindings are not maintained on PyPI.
+"""
+
+from __future__ import annotations
+
+import enum
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy import sparse
+from scipy.sparse import csgraph
+from scipy.stats import chi2
+
+from .errors import HsmapError, InputError, ShapeError
+from .geometry import euler_to_matrix, matrix_to_euler, relative, wrap_angle
+
+__all__ = ["EdgeKind", "Edge", "PoseGraph", "OptimizationResult", "OptimizationError", "information_with_floor"]
+
+
+class OptimizationError(HsmapError):
+    """The pose graph could not be optimised (non-finite values, an indeterminate system)."""
+
+
+class EdgeKind(enum.StrEnum):
+    ODOMETRY = "odometry"
+    LOOP = "loop"
+    PRIOR = "prior"
+
+
+@dataclass
+class Edge:
+    """One measurement: the pose of node ``j`` in the frame of node ``i`` (``i == j`` and kind prior: absolute)."""
+
+    i: int
+    j: int
+    measurement: NDArray[np.float64]
+    information: NDArray[np.float64]
+    kind: EdgeKind
+    active: bool = True
+    chi2: float = float("nan")  # whitened squared residual after the last optimisation
+
+
+@dataclass
+class OptimizationResult:
+    """What :meth:`PoseGraph.optimize` did."""
+
+    status: str  # "ok" or "failed"
+    iterations: int = 0
+    error_before: float = float("nan")
+    error_after: float = float("nan")
+    rejected: list[int] = field(default_factory=list)  # indices of loop edges switched off
+    message: str = ""
+
+
+def information_with_floor(information: ArrayLike, sigma_translation: float, sigma_rotation: float
+                           ) -> NDArray[np.float64]:
+    """Information matrix whose covariance is at least ``diag(sigma_t^2, ..., sigma_r^2, ...)``.
+
+    Adds the floor to the covariance (inf-safe): a registration's Gauss-Newton information treats every point as an
+    independent measurement and is overconfident; the floor bounds it by the map's resolution.
+    """
+    info = np.asarray(information, dtype=float)
+    dof = info.shape[0]
+    dim = 2 if dof == 3 else 3
+    floor = np.r_[np.full(dim, sigma_translation**2), np.full(dof - dim, sigma_rotation**2)]
+    # (I^-1 + F)^-1 = F^-1/2 (F^-1/2 I^-1 F^-1/2 + 1)^-1 F^-1/2, computed from I without inverting it
+    s = 1.0 / np.sqrt(floor)
+    M = info / np.outer(s, s)  # F^1/2 I F^1/2
+    w, V = np.linalg.eigh(0.5 * (M + M.T))
+    w = np.clip(w, 0.0, None)
+    inner = (V * (w / (1.0 + w))) @ V.T  # (F^1/2 I F^1/2)(1 + F^1/2 I F^1/2)^-1 = (F^-1/2 I^-1 F^-1/2 + 1)^-1
+    return inner * np.outer(s, s)
+
+
+class PoseGraph:
+    """A pose graph of 3-DOF or 6-DOF pose vectors.
+
+    Parameters
+    ----------
+    dof : int
+        3 (SE(2)) or 6 (SE(3)).
+    loop_kernel : float
+        Scale of the Cauchy kernel on loop edges, in whitened units (standard deviations).
+    gate_probability : float
+        A loop edge whose chi-square residual after optimisation exceeds this quantile (of the chi-square
+        distribution with ``dof`` degrees of freedom) is switched off and the graph re-optimised.
+    """
+
+    def __init__(self, dof: int, *, loop_kernel: float = 3.0, gate_probability: float = 0.9999) -> None:
+        if dof not in (3, 6):
+            raise ShapeError(f"pose graph dof must be 3 or 6, got {dof!r}")
+        self.dof = dof
+        self.dim = 2 if dof == 3 else 3
+        self.loop_kernel = float(loop_kernel)
+        self.gate = float(chi2.ppf(gate_probability, dof))
+        self.poses: list[NDArray[np.float64]] = []
+        self.edges: list[Edge] = []
+
+    # ------------------------------------------------------------------------------------------ building
+    def __len__(self) -> int:
+        return len(self.poses)
+
+    def add_node(self, pose: ArrayLike) -> int:
+        """Add a node at ``pose`` (its initial estimate); returns its index."""
+        p = np.asarray(pose, dtype=float).copy()
+        if p.shape != (self.dof,) or not np.all(np.isfinite(p)):
+            raise InputError(f"a node pose must be {self.dof} finite values, got {np.asarray(pose).tolist()}")
+        self.poses.append(p)
+        return len(self.poses) - 1
+
+    def add_edge(self, i: int, j: int, measurement: ArrayLike, information: ArrayLike,
+                 kind: EdgeKind | str = EdgeKind.ODOMETRY) -> int:
+        """Add a measurement of node j's pose in node i's frame; returns the edge index."""
+        kind = EdgeKind(kind)
+        n = len(self.poses)
+        if not (0 <= i < n and 0 <= j < n):
+            raise InputError(f"edge ({i}, {j}) names a node that does not exist (the graph has {n})")
+        if (i == j) != (kind == EdgeKind.PRIOR):
+            raise InputError(f"edge ({i}, {j}) of kind {kind.value}: only priors (i == j) are unary")
+        z = np.asarray(measurement, dtype=float).copy()
+        info = np.asarray(information, dtype=float)
+        if z.shape != (self.dof,) or info.shape != (self.dof, self.dof):
+            raise ShapeError(f"edge ({i}, {j}): measurement must be ({self.dof},) and information "
+                             f"({self.dof}, {self.dof}), got {z.shape} and {info.shape}")
+        if not (np.all(np.isfinite(z)) and np.all(np.isfinite(info))):
+            raise InputError(f"edge ({i}, {j}): measurement and information must be finite")
+        self.edges.append(Edge(i, j, z, 0.5 * (info + info.T), kind))
+        return len(self.edges) - 1
+
+    def loop_edges(self, active_only: bool = True) -> list[Edge]:
+        return [e for e in self.edges if e.kind == EdgeKind.LOOP and (e.active or not active_only)]
+
+    # ------------------------------------------------------------------------------------------ distances
+    def path_distances(self, source: int, *, rotation_weight: float = 1.0, limit: float = np.inf
+                       ) -> NDArray[np.float64]:
+        """Shortest-path length from node ``source`` to every node (inf where beyond ``limit``).
+
+        An edge's length is the distance it spans plus ``rotation_weight`` metres per radian it turns, measured
+        on the current estimates; an active loop edge has length 0 (its two ends are the same place, known to
+        the registration's precision). The length bounds how uncertain the two ends' relative pose is.
+        """
+        n = len(self.poses)
+        if n == 0:
+            return np.empty(0)
+        rows, cols, w = [], [], []
+        P = np.asarray(self.poses)
+        for e in self.edges:
+            if not e.active or e.kind == EdgeKind.PRIOR:
+                continue
+            if e.kind == EdgeKind.LOOP:
+                length = 1e-9
+            else:
+                d = P[e.j] - P[e.i]
+                length = float(np.linalg.norm(d[: self.dim])
+                               + rotation_weight * np.abs(wrap_angle(d[self.dim:])).max()) + 1e-9
+            rows.append(e.i)
+            cols.append(e.j)
+            w.append(length)
+        if not rows:
+            out = np.full(n, np.inf)
+            out[source] = 0.0
+            return out
+        G = sparse.csr_matrix((w, (rows, cols)), shape=(n, n))
+        return csgraph.dijkstra(G, directed=False, indices=source, limit=limit)
+
+    # ------------------------------------------------------------------------------------------ optimising
+    def optimize(self, *, max_iterations: int = 50, prune_rounds: int = 3, fixed: int = 0) -> OptimizationResult:
+        """Optimise all node poses (Levenberg-Marquardt), switching off loop edges that fail the gate.
+
+        Node ``fixed`` is held at its current pose (the gauge). On failure (non-finite result, an indeterminate
+        system, a solver exception) the poses are left unchanged and the result's status is ``"failed"``.
+        """
+        if len(self.poses) < 2:
+            return OptimizationResult("ok")
+        import gtsam
+
+        rejected: list[int] = []
+        result = OptimizationResult("ok")
+        for _ in range(max(1, prune_rounds)):
+            try:
+                graph, values = self._build(gtsam, fixed)
+                params = gtsam.LevenbergMarquardtParams()
+                params.setMaxIterations(max_iterations)
+                params.setRelativeErrorTol(1e-6)
+                params.setAbsoluteErrorTol(1e-9)
+                opt = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+                before = graph.error(values)
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    out = opt.optimize()
+                after = graph.error(out)
+                poses = [self._from_gtsam(out, k) for k in range(len(self.poses))]
+            except RuntimeError as exc:  # gtsam raises RuntimeError (IndeterminantLinearSystem, ...)
+                return OptimizationResult("failed", message=f"{type(exc).__name__}: {exc}".splitlines()[0])
+            if not (np.isfinite(after) and all(np.all(np.isfinite(p)) for p in poses)):
+                return OptimizationResult("failed", message="the optimisation gave non-finite poses")
+            result = OptimizationResult("ok", opt.iterations(), float(before), float(after), rejected)
+            self.poses = poses
+            worst = self._update_chi2()
+            if worst is None:
+                break
+            rejected.append(worst)
+            self.edges[worst].active = False
+        result.rejected = rejected
+        return result
+
+    def _update_chi2(self) -> int | None:
+        """Whitened residuals of every edge at the current poses; the worst active loop edge beyond the gate."""
+        worst, worst_chi2 = None, self.gate
+        for k, e in enumerate(self.edges):
+            r = self.residual(e)
+            e.chi2 = float(r @ e.information @ r)
+            if e.kind == EdgeKind.LOOP and e.active and e.chi2 > worst_chi2:
+                worst, worst_chi2 = k, e.chi2
+        return worst
+
+    def residual(self, e: Edge) -> NDArray[np.float64]:
+        """Residual (translation, rotation) of an edge at the current poses, in the measurement's frame."""
+        if e.kind == EdgeKind.PRIOR:
+            actual = self.poses[e.i]
+        else:
+            actual = relative(self.poses[e.i], self.poses[e.j])
+        err = relative(e.measurement, actual)  # Z^-1 (T_i^-1 T_j), as a pose vector
+        if self.dof == 6:
+            # pose vector -> (translation, rotation vector) for small errors
+            from scipy.spatial.transform import Rotation
+
+            R = euler_to_matrix(err[3], err[4], err[5])
+            err = np.r_[err[:3], Rotation.from_matrix(R).as_rotvec()]
+        else:
+            err[2] = wrap_angle(err[2])
+        return err
+
+    # ------------------------------------------------------------------------------------------ gtsam glue
+    def _to_gtsam(self, gtsam, pose: NDArray[np.float64]):
+        if self.dof == 3:
+            return gtsam.Pose2(float(pose[0]), float(pose[1]), float(pose[2]))
+        return gtsam.Pose3(gtsam.Rot3(euler_to_matrix(pose[3], pose[4], pose[5])), gtsam.Point3(*pose[:3]))
+
+    def _from_gtsam(self, values, k: int) -> NDArray[np.float64]:
+        if self.dof == 3:
+            p = values.atPose2(k)
+            return np.array([p.x(), p.y(), p.theta()])
+        p = values.atPose3(k)
+        return np.r_[np.asarray(p.translation()), matrix_to_euler(np.asarray(p.rotation().matrix()))]
+
+    def _noise(self, gtsam, info: NDArray[np.float64], robust: bool):
+        if self.dof == 6:  # gtsam's Pose3 tangent is (rotation, translation)
+            perm = np.r_[3, 4, 5, 0, 1, 2]
+            info = info[np.ix_(perm, perm)]
+        w, V = np.linalg.eigh(info)
+        info = (V * np.maximum(w, 1e-9 * max(w.max(), 1e-9))) @ V.T  # positive definite
+        base = gtsam.noiseModel.Gaussian.Information(info)
+        if robust:
+            return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy.Create(self.loop_kernel), base)
+        return base
+
+    def _build(self, gtsam, fixed: int):
+        graph = gtsam.NonlinearFactorGraph()
+        values = gtsam.Values()
+        for k, p in enumerate(self.poses):
+            values.insert(k, self._to_gtsam(gtsam, p))
+        Between = gtsam.BetweenFactorPose2 if self.dof == 3 else gtsam.BetweenFactorPose3
+        Prior = gtsam.PriorFactorPose2 if self.dof == 3 else gtsam.PriorFactorPose3
+        tight = gtsam.noiseModel.Isotropic.Sigma(self.dof, 1e-6)
+        graph.add(Prior(fixed, self._to_gtsam(gtsam, self.poses[fixed]), tight))
+        for e in self.edges:
+            if not e.active:
+                continue
+            noise = self._noise(gtsam, e.information, robust=e.kind == EdgeKind.LOOP)
+            z = self._to_gtsam(gtsam, e.measurement)
+            if e.kind == EdgeKind.PRIOR:
+                graph.add(Prior(e.i, z, noise))
+            else:
+                graph.add(Between(e.i, e.j, z, noise))
+        return graph, values

@@ -1,0 +1,142 @@
+"""Pose graphs: optimisation in SE(2) and SE(3), false loop edges switched off, failures reported, distances."""
+
+import numpy as np
+import pytest
+
+from hsmap.errors import InputError, ShapeError
+from hsmap.geometry import compose, relative, wrap_angle
+from hsmap.posegraph import EdgeKind, PoseGraph, information_with_floor
+
+INFO2 = np.diag([1e4, 1e4, 1e3])  # 1 cm, 1.8 deg
+INFO3 = np.diag([1e4, 1e4, 1e4, 1e3, 1e3, 1e3])
+
+
+def square_loop(n_side=10, step=1.0):
+    """Ground-truth poses around a square, returning to the start."""
+    poses = [np.zeros(3)]
+    for k in range(4 * n_side):
+        turn = np.pi / 2 if (k + 1) % n_side == 0 else 0.0
+        poses.append(compose(poses[-1], np.array([step, 0.0, turn])))
+    return np.asarray(poses[:-1])
+
+
+def drifting_chain(truth, rng, yaw_bias=np.deg2rad(0.5)):
+    """A graph whose node estimates and odometry edges drift (a yaw bias per step)."""
+    g = PoseGraph(3)
+    est = [truth[0]]
+    for i in range(1, len(truth)):
+        z = relative(truth[i - 1], truth[i]) + np.array([rng.normal(0, 0.005), rng.normal(0, 0.005), yaw_bias])
+        est.append(compose(est[-1], z))
+    for p in est:
+        g.add_node(p)
+    for i in range(1, len(truth)):
+        g.add_edge(i - 1, i, relative(est[i - 1], est[i]), INFO2, EdgeKind.ODOMETRY)
+    return g
+
+
+def test_loop_edge_removes_drift():
+    rng = np.random.default_rng(0)
+    truth = square_loop()
+    g = drifting_chain(truth, rng)
+    n = len(truth)
+    before = np.linalg.norm(relative(g.poses[0], g.poses[-1])[:2] - relative(truth[0], truth[-1])[:2])
+    assert before > 0.5
+    g.add_edge(0, n - 1, relative(truth[0], truth[-1]), INFO2, EdgeKind.LOOP)
+    out = g.optimize()
+    assert out.status == "ok" and not out.rejected
+    after = np.linalg.norm(relative(g.poses[0], g.poses[-1])[:2] - relative(truth[0], truth[-1])[:2])
+    assert after < 0.02
+    assert out.error_after < out.error_before
+    np.testing.assert_allclose(g.poses[0], truth[0], atol=1e-6)  # the gauge stays put
+
+
+def test_false_loop_edge_is_switched_off():
+    rng = np.random.default_rng(1)
+    truth = square_loop()
+    g = drifting_chain(truth, rng, yaw_bias=np.deg2rad(0.05))
+    n = len(truth)
+    good = g.add_edge(0, n - 1, relative(truth[0], truth[-1]), INFO2, EdgeKind.LOOP)
+    # a look-alike place: node 15 claimed to be 1.5 m from node 35 along the same side, in fact 20 m away
+    bad = g.add_edge(15, 35, np.array([1.5, 0.0, np.pi]), INFO2, EdgeKind.LOOP)
+    out = g.optimize()
+    assert out.status == "ok"
+    assert bad in out.rejected and not g.edges[bad].active
+    assert g.edges[good].active
+    err = relative(g.poses[0], g.poses[-1]) - relative(truth[0], truth[-1])
+    assert np.linalg.norm(err[:2]) < 0.05
+    assert len(g.loop_edges()) == 1 and len(g.loop_edges(active_only=False)) == 2
+
+
+def test_se3_graph():
+    rng = np.random.default_rng(2)
+    truth2 = square_loop(6)
+    truth = np.array([[p[0], p[1], 0.1 * np.sin(k / 4), 0.0, 0.0, p[2]] for k, p in enumerate(truth2)])
+    g = PoseGraph(6)
+    est = [truth[0]]
+    for i in range(1, len(truth)):
+        z = relative(truth[i - 1], truth[i]) + np.r_[rng.normal(0, 0.005, 3), 0.002, -0.002, 0.01]
+        est.append(compose(est[-1], z))
+    for p in est:
+        g.add_node(p)
+    for i in range(1, len(truth)):
+        g.add_edge(i - 1, i, relative(est[i - 1], est[i]), INFO3, "odometry")
+    g.add_edge(0, len(truth) - 1, relative(truth[0], truth[-1]), 100 * INFO3, "loop")  # a precise closure
+    out = g.optimize()
+    assert out.status == "ok"
+    err = relative(g.poses[0], g.poses[-1]) - relative(truth[0], truth[-1])
+    err[3:] = wrap_angle(err[3:])
+    assert np.abs(err[:3]).max() < 0.03 and np.rad2deg(np.abs(err[3:]).max()) < 0.5
+
+
+def test_failed_optimisation_leaves_poses(monkeypatch):
+    g = drifting_chain(square_loop(3), np.random.default_rng(3))
+    g.add_edge(0, len(g) - 1, np.zeros(3), INFO2, "loop")
+    before = [p.copy() for p in g.poses]
+    import gtsam
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("Indeterminant linear system detected while working near variable 7")
+
+    monkeypatch.setattr(gtsam, "LevenbergMarquardtOptimizer", broken)
+    out = g.optimize()
+    assert out.status == "failed" and "Indeterminant" in out.message
+    for a, b in zip(before, g.poses, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_path_distances():
+    g = drifting_chain(square_loop(5), np.random.default_rng(4), yaw_bias=0.0)
+    n = len(g)
+    d = g.path_distances(n - 1, rotation_weight=0.0)
+    assert d[n - 1] == 0 and d[0] == pytest.approx(n - 1, rel=0.02)
+    g.add_edge(0, n - 1, np.zeros(3), INFO2, "loop")
+    d = g.path_distances(n - 1, rotation_weight=0.0)
+    assert d[0] < 1e-6 and d[1] == pytest.approx(1.0, rel=0.05)  # through the loop edge
+    assert d[n // 2] == pytest.approx(min(n - 1 - n // 2, n // 2), rel=0.05)
+
+
+def test_information_floor():
+    info = information_with_floor(np.diag([1e8, 1e8, 1e8]), 0.02, np.deg2rad(0.5))
+    cov = np.linalg.inv(info)
+    assert np.sqrt(cov[0, 0]) == pytest.approx(0.02, rel=0.01)
+    assert np.sqrt(cov[2, 2]) == pytest.approx(np.deg2rad(0.5), rel=0.01)
+    weak = information_with_floor(np.diag([0.0, 1e8, 1e8]), 0.02, np.deg2rad(0.5))
+    assert weak[0, 0] == pytest.approx(0.0, abs=1e-9)  # an unconstrained direction stays unconstrained
+
+
+def test_bad_edges():
+    g = PoseGraph(3)
+    g.add_node(np.zeros(3))
+    with pytest.raises(InputError, match="names a node that does not exist"):
+        g.add_edge(0, 1, np.zeros(3), INFO2)
+    g.add_node(np.ones(3))
+    with pytest.raises(ShapeError, match="measurement must be"):
+        g.add_edge(0, 1, np.zeros(6), INFO2)
+    with pytest.raises(InputError, match="must be finite"):
+        g.add_edge(0, 1, np.array([np.nan, 0, 0]), INFO2)
+    with pytest.raises(InputError, match="only priors"):
+        g.add_edge(0, 0, np.zeros(3), INFO2, "loop")
+    with pytest.raises(InputError, match="3 finite values"):
+        g.add_node([0.0, np.inf, 0.0])
+    with pytest.raises(ShapeError, match="dof must be 3 or 6"):
+        PoseGraph(4)

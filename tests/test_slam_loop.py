@@ -1,0 +1,146 @@
+"""HS-SLAM loop closure on a square corridor ring: the loop closes, a look-alike place does not, failures fall back."""
+
+import json
+
+import numpy as np
+import pytest
+
+from hsmap.datasets.frames import Frame, LaserScan2D
+from hsmap.errors import HsmapWarning
+from hsmap.geometry import compose, relative, wrap_angle
+from hsmap.loopclosure import Keyframe, LoopCandidate, LoopCloser, LoopClosureConfig
+from hsmap.posegraph import PoseGraph
+from hsmap.registration import estimate_normals
+from hsmap.slam import SlamConfig, run_slam, write_slam_outputs
+from hsmap.testing import raycast_2d
+
+pytestmark = pytest.mark.slow
+
+
+def _box(x0, y0, x1, y1):
+    return np.array([[[x0, y0], [x1, y0]], [[x1, y0], [x1, y1]], [[x1, y1], [x0, y1]], [[x0, y1], [x0, y0]]],
+                    dtype=float)
+
+
+def ring_world():
+    """A 16 m x 16 m corridor ring 1.6 m wide with pillars along three sides and a featureless fourth side."""
+    outer = _box(0, 0, 16, 16)
+    inner = _box(1.6, 1.6, 14.4, 14.4)
+    pillars = []
+    for k, t in enumerate([2.3, 4.1, 6.8, 8.2, 10.9, 12.6]):  # irregular spacing: no two stretches alike
+        w = 0.2 + 0.05 * (k % 3)
+        pillars.append(_box(t, 0.0, t + w, 0.25))  # east-bound side, on the outer wall
+        pillars.append(_box(15.75, t, 16.0, t + w))  # north-bound side
+        pillars.append(_box(16 - t - w, 14.4, 16 - t, 14.65))  # west-bound side, on the inner block
+    # the south-bound side (x = 0..1.6) has no pillars: the tracking follows the (drifting) odometry there
+    return np.concatenate([outer, inner, *pillars])
+
+
+def ring_route(step=0.2):
+    """Round the ring anticlockwise from the start corner, once, and 3 m beyond the start."""
+    c = 0.8
+    corners = np.array([[c, c], [16 - c, c], [16 - c, 16 - c], [c, 16 - c], [c, c], [c + 3.0, c]])
+    poses = [np.array([c, c, 0.0])]
+    for a, b in zip(corners[:-1], corners[1:], strict=True):
+        yaw = np.arctan2(*(b - a)[::-1])
+        cur = poses[-1][2]
+        d = wrap_angle(yaw - cur)
+        for k in range(1, int(np.ceil(abs(d) / np.deg2rad(10))) + 1):
+            poses.append(np.array([a[0], a[1], cur + d * min(1.0, k * np.deg2rad(10) / abs(d))]))
+        n = int(np.ceil(np.linalg.norm(b - a) / step))
+        poses += [np.array([*(a + (b - a) * k / n), yaw]) for k in range(1, n + 1)]
+    return np.asarray(poses)
+
+
+def ring_frames(route, scale=1.05, seed=0):
+    """Scans (1081 beams, 270 deg, 10 m, 1 cm noise) and odometry that overestimates distance by 5 %."""
+    rng = np.random.default_rng(seed)
+    world = ring_world()
+    frames, odom = [], route[0].copy()
+    for i, pose in enumerate(route):
+        if i > 0:
+            step = relative(route[i - 1], pose)
+            step[:2] *= scale
+            odom = compose(odom, step)
+        r, a = raycast_2d(world, pose, noise=0.01, rng=rng)
+        frames.append(Frame(stamp=10.0 + 0.25 * i, scan2d=LaserScan2D(r, a, 0.05, 10.0), odometry=odom.copy(),
+                            index=i))
+    return frames
+
+
+@pytest.fixture(scope="module")
+def ring():
+    route = ring_route()
+    return route, ring_frames(route)
+
+
+def end_to_start(traj, route):
+    err = relative(traj.poses[0], traj.poses[-1]) - relative(route[0], route[-1])
+    return float(np.linalg.norm(err[:2])), float(np.rad2deg(abs(wrap_angle(err[2]))))
+
+
+def route_error(traj, route):
+    """Largest position error along the route, both trajectories taken relative to their first pose."""
+    err = relative(traj.poses[0], traj.poses) - relative(route[0], route)
+    return float(np.linalg.norm(err[:, :2], axis=1).max())
+
+
+def test_loop_closes_on_the_ring(ring, tmp_path):
+    route, frames = ring
+    closed = run_slam(frames, SlamConfig(), rng=1, progress=False)
+    open_ = run_slam(frames, SlamConfig(loop_closure={"enabled": False}), rng=1, progress=False)
+    m = closed.metrics()
+    assert m["loop_closure"] == "ok" and m["loops_closed"] >= 1
+    # without loop closure the featureless side drifts with the odometry (5 % too long)
+    assert route_error(open_.trajectory, route) > 0.1
+    assert route_error(closed.tracked, route) > 0.1  # the same drift before the graph was optimised
+    t_closed, r_closed = end_to_start(closed.trajectory, route)
+    assert t_closed < 0.02 and r_closed < 0.5, (t_closed, r_closed)
+    assert route_error(closed.trajectory, route) < 0.05
+    assert open_.metrics()["loop_closure"] == "disabled"
+    # trajectory.tum holds the optimised poses, metrics.json the loop-closure counts
+    paths = write_slam_outputs(closed, tmp_path)
+    written = json.loads(paths["metrics"].read_text())
+    assert written["loops_closed"] == m["loops_closed"] and written["loop_closure"] == "ok"
+    assert "frames_retried" in written
+    from hsmap.io import read_tum
+
+    np.testing.assert_allclose(read_tum(paths["trajectory"], dof=3).poses, closed.trajectory.poses, atol=1e-5)
+
+
+def _keyframe(points):
+    return Keyframe(0, 0.0, points, estimate_normals(points))
+
+
+def test_look_alike_place_is_rejected():
+    """Two identical stretches of featureless corridor: a match between them is not constrained along the axis."""
+    world = np.array([[[-20, -0.8], [20, -0.8]], [[-20, 0.8], [20, 0.8]]], dtype=float)
+    scans = []
+    for x in (0.0, 6.0):
+        r, a = raycast_2d(world, np.array([x, 0.0, 0.0]), noise=0.005, rng=1)
+        ok = np.isfinite(r)
+        scans.append(np.column_stack([r[ok] * np.cos(a[ok]), r[ok] * np.sin(a[ok])]))
+    cfg = LoopClosureConfig(submap_keyframes=1, source_keyframes=1, min_separation=1)
+    g = PoseGraph(3)
+    g.add_node(np.zeros(3))
+    g.add_node(np.array([6.0, 0.0, 0.0]))
+    closer = LoopCloser(cfg, 3, 0.05)
+    kfs = [_keyframe(scans[0]), _keyframe(scans[1])]
+    out = closer.attempt(g, kfs, 1, LoopCandidate(0, 6.0, 50.0), np.random.default_rng(0))
+    assert out is None and closer.rejections.get("unconstrained", 0) == 1
+
+
+def test_graph_failure_falls_back(ring, monkeypatch):
+    import gtsam
+
+    route, frames = ring
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("Indeterminant linear system detected")
+
+    monkeypatch.setattr(gtsam, "LevenbergMarquardtOptimizer", broken)
+    with pytest.warns(HsmapWarning, match="pose graph optimisation failed"):
+        res = run_slam(frames, SlamConfig(), rng=1, progress=False)
+    m = res.metrics()
+    assert m["loop_closure"] == "failed"
+    np.testing.assert_allclose(res.trajectory.poses, res.tracked.poses, atol=1e-9)

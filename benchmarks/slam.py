@@ -1,9 +1,14 @@
-"""SLAM benchmark: HS-SLAM on the Freiburg logs and, in 3D, beside KISS-ICP on the simulated route.
+"""SLAM benchmark: HS-SLAM on the Freiburg logs over several seeds and, in 3D, beside KISS-ICP on the simulated route.
 
-1. ``intel`` and ``fr079`` (the ROS1 ``.orig.bag`` files of $HSMAP_DATASETS/slam2d): 2D HS-SLAM without
-   odometry over the whole log: wall time, CPU time, real-time factor (log duration / wall time), peak memory
-   (resident set of this process) and the Freiburg relations error. fr079 uses the laser offset of the CARMEN
-   log's PARAM (-0.04 m), which the relations agree with, instead of the bag's TF (+0.04 m).
+1. ``intel``, ``fr079`` and ``fr-clinic`` (the ROS1 ``.orig.bag`` files of $HSMAP_DATASETS/slam2d): 2D HS-SLAM
+   with the command line's default configuration (odometry from the bag, loop closure on) over the whole log, one
+   run per seed (``--seeds``, default 1-5), each in a fresh process (so that its peak memory is its own). Per
+   seed: the Freiburg relations error (mean and sample sd, translational and rotational; also for relations with
+   dt <= 10 s and dt > 60 s), loops closed, frames retried, wall and CPU time, real-time factor (log duration /
+   wall time), peak memory; and over the seeds the mean, sd and worst of the relations errors. fr079 states its
+   laser offset as the command line would (``--extrinsic2d -0.04,0,0``: the CARMEN log's PARAM, which the
+   relations agree with, instead of the bag's TF, +0.04 m). Published numbers beside them: Kuemmerle et al. 2009
+   (scan matching) and Hess et al. 2016 (Cartographer).
 2. ``slam-office`` (simulated, seed 1): 6-DOF HS-SLAM (seeded by the 2D run's poses, as in the paper) on the
    128 x 1024 clouds, time per cloud beside KISS-ICP (``kiss-icp`` on PyPI) on the same clouds, and both
    methods' errors against ground truth (per-DOF maximum over the route, each trajectory relative to its first
@@ -11,7 +16,8 @@
 
 Times exclude reading the input (frames are loaded first). Writes reports/benchmarks/slam.json (atomically).
 
-    .venv/bin/python benchmarks/slam.py [--only intel fr079 3d] [--max-frames N]
+    .venv/bin/python benchmarks/slam.py [--only intel fr079 fr-clinic 3d] [--seeds 1 2 3 4 5] [--jobs 1]
+        [--max-frames N] [--no-loop-closure]
 """
 
 from __future__ import annotations
@@ -39,12 +45,14 @@ from hsmap.slam import SlamConfig, run_slam  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 FREIBURG = {
-    # published relations errors, mean translational (m) and rotational (deg): Kümmerle et al. 2009 (scan
-    # matching, the baseline the issue names) and Hess et al. 2016 (Cartographer, 179 s wall for intel)
+    # published relations errors, mean translational (m) and rotational (deg): Kuemmerle et al. 2009 (scan
+    # matching) and Hess et al. 2016 (Cartographer; fr-clinic: the local relations)
     "intel": {"bag": "intel/intel.orig.bag", "relations": "intel/intel.relations", "extrinsic2d": None,
-              "published_scan_matching_m": 0.220, "cartographer_m": 0.0229},
+              "published_scan_matching_m": 0.220, "cartographer_m": 0.0229, "cartographer_deg": 0.453},
     "fr079": {"bag": "fr079/fr079.orig.bag", "relations": "fr079/fr079.relations", "extrinsic2d": [-0.04, 0, 0],
-              "published_scan_matching_m": 0.258, "cartographer_m": 0.0452},
+              "published_scan_matching_m": 0.258, "cartographer_m": 0.0452, "cartographer_deg": 0.538},
+    "fr-clinic": {"bag": "fr-clinic/fr-clinic_robotlaser.orig.bag", "relations": "fr-clinic/fr-clinic.relations",
+                  "extrinsic2d": None, "cartographer_m": 0.1078, "cartographer_deg": 0.747},
 }
 
 
@@ -52,20 +60,29 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def bench_freiburg(name: str, datasets: Path, max_frames: int | None) -> dict:
+def _stats(e: np.ndarray) -> dict:
+    return {"mean": float(e.mean()), "sd": float(e.std(ddof=1)) if e.size > 1 else 0.0, "n": int(e.size)}
+
+
+def freiburg_run(name: str, datasets: str, seed: int, max_frames: int | None, loop_closure: bool) -> dict:
+    """One seed on one log, in its own process (see main)."""
     spec = FREIBURG[name]
     t0 = time.perf_counter()
-    ds = open_dataset(datasets / "slam2d" / spec["bag"], extrinsic2d=spec["extrinsic2d"])
+    ds = open_dataset(Path(datasets) / "slam2d" / spec["bag"], extrinsic2d=spec["extrinsic2d"])
     frames = [f for k, f in zip(range(max_frames or len(ds)), ds.frames(clouds=False), strict=False)]
     read_s = time.perf_counter() - t0
-    cfg = SlamConfig(dof=3, use_odometry=False)
-    res = run_slam(frames, cfg, rng=1, progress=False)
-    rel = read_relations(datasets / "slam2d" / spec["relations"])
-    err = relations_error(res.trajectory, rel, skip_unmatched=max_frames is not None).as_dict()
+    cfg = SlamConfig(dof=3)  # the command line's default configuration
+    cfg.loop_closure.enabled = loop_closure
+    res = run_slam(frames, cfg, rng=seed, progress=False)
+    rel = read_relations(Path(datasets) / "slam2d" / spec["relations"])
+    err = relations_error(res.trajectory, rel, skip_unmatched=max_frames is not None)
+    dt = np.abs(rel.t_j - rel.t_i)[err.used]
+    rot = np.degrees(err.rotation)
     stamps = np.array([f.stamp for f in frames])
     duration = float(stamps.max() - stamps.min())
     m = res.metrics()
     out = {
+        "seed": seed,
         "frames": len(frames),
         "log_duration_s": duration,
         "read_seconds": read_s,
@@ -75,15 +92,68 @@ def bench_freiburg(name: str, datasets: Path, max_frames: int | None) -> dict:
         "seconds_per_scan_median": m["seconds_per_frame_median"],
         "peak_memory_mb": peak_rss_mb(),
         "map_points": m["map_points"],
-        "relations": err,
-        "published": {k: v for k, v in spec.items() if k.endswith("_m")},
+        "keyframes": m["keyframes"],
+        "loop_closure": m["loop_closure"],
+        "loops_closed": m["loops_closed"],
+        "loop_closure_detail": m["loop_closure_detail"],
+        "frames_retried": m["frames_retried"],
+        "relations": {
+            "all": {"translation_m": _stats(err.translation), "rotation_deg": _stats(rot)},
+            "dt_le_10s": {"translation_m": _stats(err.translation[dt <= 10]), "rotation_deg": _stats(rot[dt <= 10])},
+            "dt_gt_60s": {"translation_m": _stats(err.translation[dt > 60]), "rotation_deg": _stats(rot[dt > 60])},
+        },
         "config": to_dict(cfg),
     }
-    print(f"{name}: {len(frames)} scans, {res.seconds:.1f} s wall ({res.cpu_seconds:.1f} s CPU), "
-          f"{out['real_time_factor']:.1f}x real time, relations {err['translation_m']['mean']:.4f} +/- "
-          f"{err['translation_m']['std']:.4f} m, {err['rotation_deg']['mean']:.3f} +/- {err['rotation_deg']['std']:.3f}"
-          f" deg (published scan matching {spec['published_scan_matching_m']} m)", flush=True)
+    r = out["relations"]
+    print(f"{name} seed {seed}: {len(frames)} scans, {res.seconds:.1f} s wall ({res.cpu_seconds:.1f} s CPU), "
+          f"{out['real_time_factor']:.1f}x real time, relations {r['all']['translation_m']['mean']:.4f} m / "
+          f"{r['all']['rotation_deg']['mean']:.3f} deg (dt<=10 s {r['dt_le_10s']['translation_m']['mean']:.4f} m, "
+          f"dt>60 s {r['dt_gt_60s']['translation_m']['mean']:.4f} m), loops {m['loops_closed']}, retried "
+          f"{m['frames_retried']}", flush=True)
     return out
+
+
+def summarise_seeds(runs: list[dict], spec: dict) -> dict:
+    """Mean, sd and worst over the seeds of each relations error; the targets of the loop-closure issue."""
+    out = {}
+    for part in ("all", "dt_le_10s", "dt_gt_60s"):
+        for q in ("translation_m", "rotation_deg"):
+            v = np.array([r["relations"][part][q]["mean"] for r in runs])
+            out[f"{part}.{q}"] = {"mean": float(v.mean()), "sd": float(v.std(ddof=1)) if v.size > 1 else 0.0,
+                                  "worst": float(v.max())}
+    for q in ("real_time_factor", "wall_seconds", "cpu_seconds", "peak_memory_mb", "loops_closed", "frames_retried"):
+        v = np.array([r[q] for r in runs], dtype=float)
+        out[q] = {"mean": float(v.mean()), "min": float(v.min()), "max": float(v.max())}
+    t = out["all.translation_m"]
+    car_m, car_deg = spec.get("cartographer_m"), spec.get("cartographer_deg")
+    out["targets"] = {
+        "mean_below_cartographer_m": bool(t["mean"] < car_m),
+        "no_seed_above_1.5x_cartographer_m": bool(t["worst"] <= 1.5 * car_m),
+        "rotation_below_cartographer_deg": bool(out["all.rotation_deg"]["mean"] < car_deg),
+        "long_at_most_twice_short": bool(out["dt_gt_60s.translation_m"]["mean"]
+                                         <= 2 * out["dt_le_10s.translation_m"]["mean"]),
+        "at_least_15x_real_time": bool(out["real_time_factor"]["min"] >= 15),
+    }
+    return out
+
+
+def bench_freiburg(name: str, datasets: Path, seeds: list[int], max_frames: int | None, jobs: int,
+                   loop_closure: bool) -> dict:
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    spec = FREIBURG[name]
+    ctx = mp.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, max_tasks_per_child=1) as pool:
+        futures = [pool.submit(freiburg_run, name, str(datasets), s, max_frames, loop_closure) for s in seeds]
+        runs = [f.result() for f in futures]
+    summary = summarise_seeds(runs, spec)
+    t, r = summary["all.translation_m"], summary["all.rotation_deg"]
+    print(f"{name} over seeds {seeds}: {t['mean']:.4f} +/- {t['sd']:.4f} m (worst {t['worst']:.4f}), "
+          f"{r['mean']:.3f} deg; Cartographer {spec['cartographer_m']} m / {spec['cartographer_deg']} deg; "
+          f"targets {summary['targets']}", flush=True)
+    return {"seeds": runs, "summary": summary, "published": {k: v for k, v in spec.items() if "_m" in k or "_deg" in k},
+            "extrinsic2d": spec["extrinsic2d"], "loop_closure": loop_closure, "jobs": jobs}
 
 
 def bench_3d(max_frames: int | None) -> dict:
@@ -165,8 +235,11 @@ def bench_3d(max_frames: int | None) -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--only", nargs="+", choices=["intel", "fr079", "3d"], default=["intel", "fr079", "3d"])
+    ap.add_argument("--only", nargs="+", choices=[*FREIBURG, "3d"], default=[*FREIBURG, "3d"])
+    ap.add_argument("--seeds", nargs="+", type=int, default=[1, 2, 3, 4, 5])
+    ap.add_argument("--jobs", type=int, default=1, help="runs at once (1: times free of each other's load)")
     ap.add_argument("--max-frames", type=int, default=None, help="cut every input (smoke runs)")
+    ap.add_argument("--no-loop-closure", action="store_true", help="tracking only, for comparison")
     ap.add_argument("--out", default=str(ROOT / "reports/benchmarks/slam.json"))
     args = ap.parse_args(argv)
     datasets = Path(os.environ.get("HSMAP_DATASETS", ROOT.parent / "shared/datasets"))
@@ -180,7 +253,8 @@ def main(argv=None) -> int:
         if name == "3d":
             out["3d_slam_office"] = bench_3d(args.max_frames)
         elif (datasets / "slam2d").is_dir():
-            out[name] = bench_freiburg(name, datasets, args.max_frames)
+            out[name] = bench_freiburg(name, datasets, args.seeds, args.max_frames, args.jobs,
+                                       not args.no_loop_closure)
         else:
             out[name] = {"skipped": f"no Freiburg data at {datasets}/slam2d (set HSMAP_DATASETS)"}
             print(out[name]["skipped"])

@@ -251,7 +251,7 @@ class LoopCloser:
     def _submap_target(self, s: int, graph: PoseGraph, keyframes: list[Keyframe]) -> RegistrationTarget:
         members = self.submap_members(s, len(keyframes))
         anchor = graph.poses[members.start]
-        rel = np.array([relative(anchor, graph.poses[k]) for k in members])
+        rel = relative(anchor, graph.poses[members.start:members.stop])
         hit = self._cache.get(s)
         if hit is not None:
             old_rel, target = hit

@@ -110,26 +110,43 @@ class PoseGraph:
         self.dim = 2 if dof == 3 else 3
         self.loop_kernel = float(loop_kernel)
         self.gate = float(chi2.ppf(gate_probability, dof))
-        self.poses: list[NDArray[np.float64]] = []
+        self._P = np.zeros((64, dof))
+        self._n = 0
         self.edges: list[Edge] = []
+        self._factors: list = []  # one gtsam factor per edge, built on first use
 
     # ------------------------------------------------------------------------------------------ building
     def __len__(self) -> int:
-        return len(self.poses)
+        return self._n
+
+    @property
+    def poses(self) -> NDArray[np.float64]:
+        """Current node poses, (n, dof) (a view: index it, do not keep it across :meth:`add_node`)."""
+        return self._P[: self._n]
+
+    @poses.setter
+    def poses(self, value: ArrayLike) -> None:
+        P = np.asarray(value, dtype=float).reshape(-1, self.dof)
+        if len(P) != self._n:
+            raise ShapeError(f"the graph has {self._n} nodes, got {len(P)} poses")
+        self._P[: self._n] = P
 
     def add_node(self, pose: ArrayLike) -> int:
         """Add a node at ``pose`` (its initial estimate); returns its index."""
-        p = np.asarray(pose, dtype=float).copy()
+        p = np.asarray(pose, dtype=float)
         if p.shape != (self.dof,) or not np.all(np.isfinite(p)):
             raise InputError(f"a node pose must be {self.dof} finite values, got {np.asarray(pose).tolist()}")
-        self.poses.append(p)
-        return len(self.poses) - 1
+        if self._n == len(self._P):
+            self._P = np.concatenate([self._P, np.zeros_like(self._P)])
+        self._P[self._n] = p
+        self._n += 1
+        return self._n - 1
 
     def add_edge(self, i: int, j: int, measurement: ArrayLike, information: ArrayLike,
                  kind: EdgeKind | str = EdgeKind.ODOMETRY) -> int:
         """Add a measurement of node j's pose in node i's frame; returns the edge index."""
         kind = EdgeKind(kind)
-        n = len(self.poses)
+        n = self._n
         if not (0 <= i < n and 0 <= j < n):
             raise InputError(f"edge ({i}, {j}) names a node that does not exist (the graph has {n})")
         if (i == j) != (kind == EdgeKind.PRIOR):
@@ -141,11 +158,21 @@ class PoseGraph:
                              f"({self.dof}, {self.dof}), got {z.shape} and {info.shape}")
         if not (np.all(np.isfinite(z)) and np.all(np.isfinite(info))):
             raise InputError(f"edge ({i}, {j}): measurement and information must be finite")
-        self.edges.append(Edge(i, j, z, 0.5 * (info + info.T), kind))
+        self.edges.append(Edge(int(i), int(j), z, 0.5 * (info + info.T), kind))
+        self._factors.append(None)
         return len(self.edges) - 1
 
     def loop_edges(self, active_only: bool = True) -> list[Edge]:
         return [e for e in self.edges if e.kind == EdgeKind.LOOP and (e.active or not active_only)]
+
+    def _arrays(self, active_only: bool = True):
+        es = [e for e in self.edges if e.active or not active_only]
+        if not es:
+            return es, np.empty(0, int), np.empty(0, int), np.empty(0, bool)
+        ei = np.fromiter((e.i for e in es), int, len(es))
+        ej = np.fromiter((e.j for e in es), int, len(es))
+        kind = np.array([e.kind.value for e in es])
+        return es, ei, ej, kind
 
     # ------------------------------------------------------------------------------------------ distances
     def path_distances(self, source: int, *, rotation_weight: float = 1.0, limit: float = np.inf
@@ -156,28 +183,20 @@ class PoseGraph:
         on the current estimates; an active loop edge has length 0 (its two ends are the same place, known to
         the registration's precision). The length bounds how uncertain the two ends' relative pose is.
         """
-        n = len(self.poses)
-        if n == 0:
-            return np.empty(0)
-        rows, cols, w = [], [], []
-        P = np.asarray(self.poses)
-        for e in self.edges:
-            if not e.active or e.kind == EdgeKind.PRIOR:
-                continue
-            if e.kind == EdgeKind.LOOP:
-                length = 1e-9
-            else:
-                d = P[e.j] - P[e.i]
-                length = float(np.linalg.norm(d[: self.dim])
-                               + rotation_weight * np.abs(wrap_angle(d[self.dim:])).max()) + 1e-9
-            rows.append(e.i)
-            cols.append(e.j)
-            w.append(length)
-        if not rows:
+        n = self._n
+        _, ei, ej, kind = self._arrays()
+        keep = kind != EdgeKind.PRIOR.value
+        ei, ej, kind = ei[keep], ej[keep], kind[keep]
+        if len(ei) == 0:
             out = np.full(n, np.inf)
             out[source] = 0.0
             return out
-        G = sparse.csr_matrix((w, (rows, cols)), shape=(n, n))
+        P = self.poses
+        d = P[ej] - P[ei]
+        length = (np.linalg.norm(d[:, : self.dim], axis=1)
+                  + rotation_weight * np.abs(wrap_angle(d[:, self.dim:])).max(axis=1))
+        length[kind == EdgeKind.LOOP.value] = 0.0
+        G = sparse.csr_matrix((length + 1e-9, (ei, ej)), shape=(n, n))
         return csgraph.dijkstra(G, directed=False, indices=source, limit=limit)
 
     # ------------------------------------------------------------------------------------------ optimising
@@ -187,7 +206,7 @@ class PoseGraph:
         Node ``fixed`` is held at its current pose (the gauge). On failure (non-finite result, an indeterminate
         system, a solver exception) the poses are left unchanged and the result's status is ``"failed"``.
         """
-        if len(self.poses) < 2:
+        if self._n < 2:
             return OptimizationResult("ok")
         import gtsam
 
@@ -206,13 +225,13 @@ class PoseGraph:
                     warnings.simplefilter("ignore")
                     out = opt.optimize()
                 after = graph.error(out)
-                poses = [self._from_gtsam(out, k) for k in range(len(self.poses))]
+                poses = self._from_gtsam(gtsam, out)
             except RuntimeError as exc:  # gtsam raises RuntimeError (IndeterminantLinearSystem, ...)
                 return OptimizationResult("failed", message=f"{type(exc).__name__}: {exc}".splitlines()[0])
-            if not (np.isfinite(after) and all(np.all(np.isfinite(p)) for p in poses)):
+            if not (np.isfinite(after) and np.all(np.isfinite(poses))):
                 return OptimizationResult("failed", message="the optimisation gave non-finite poses")
             result = OptimizationResult("ok", opt.iterations(), float(before), float(after), rejected)
-            self.poses = poses
+            self._P[: self._n] = poses
             worst = self._update_chi2()
             if worst is None:
                 break
@@ -223,30 +242,40 @@ class PoseGraph:
 
     def _update_chi2(self) -> int | None:
         """Whitened residuals of every edge at the current poses; the worst active loop edge beyond the gate."""
+        if not self.edges:
+            return None
+        es = self.edges
+        ei = np.fromiter((e.i for e in es), int, len(es))
+        ej = np.fromiter((e.j for e in es), int, len(es))
+        Z = np.array([e.measurement for e in es])
+        info = np.array([e.information for e in es])
+        r = self._residuals(ei, ej, Z, np.array([e.kind == EdgeKind.PRIOR for e in es]))
+        c2 = np.einsum("ei,eij,ej->e", r, info, r)
         worst, worst_chi2 = None, self.gate
-        for k, e in enumerate(self.edges):
-            r = self.residual(e)
-            e.chi2 = float(r @ e.information @ r)
+        for k, e in enumerate(es):
+            e.chi2 = float(c2[k])
             if e.kind == EdgeKind.LOOP and e.active and e.chi2 > worst_chi2:
                 worst, worst_chi2 = k, e.chi2
         return worst
 
-    def residual(self, e: Edge) -> NDArray[np.float64]:
-        """Residual (translation, rotation) of an edge at the current poses, in the measurement's frame."""
-        if e.kind == EdgeKind.PRIOR:
-            actual = self.poses[e.i]
-        else:
-            actual = relative(self.poses[e.i], self.poses[e.j])
-        err = relative(e.measurement, actual)  # Z^-1 (T_i^-1 T_j), as a pose vector
+    def _residuals(self, ei, ej, Z, prior) -> NDArray[np.float64]:
+        P = self.poses
+        actual = relative(P[ei], P[ej])
+        if prior.any():
+            actual[prior] = P[ei[prior]]
+        err = relative(Z, actual)  # Z^-1 (T_i^-1 T_j), as pose vectors
         if self.dof == 6:
-            # pose vector -> (translation, rotation vector) for small errors
             from scipy.spatial.transform import Rotation
 
-            R = euler_to_matrix(err[3], err[4], err[5])
-            err = np.r_[err[:3], Rotation.from_matrix(R).as_rotvec()]
-        else:
-            err[2] = wrap_angle(err[2])
+            R = euler_to_matrix(err[:, 3], err[:, 4], err[:, 5])
+            return np.concatenate([err[:, :3], Rotation.from_matrix(R).as_rotvec()], axis=1)
+        err[:, 2] = wrap_angle(err[:, 2])
         return err
+
+    def residual(self, e: Edge) -> NDArray[np.float64]:
+        """Residual (translation, rotation) of an edge at the current poses, in the measurement's frame."""
+        return self._residuals(np.array([e.i]), np.array([e.j]), e.measurement[None],
+                               np.array([e.kind == EdgeKind.PRIOR]))[0]
 
     # ------------------------------------------------------------------------------------------ gtsam glue
     def _to_gtsam(self, gtsam, pose: NDArray[np.float64]):
@@ -254,12 +283,15 @@ class PoseGraph:
             return gtsam.Pose2(float(pose[0]), float(pose[1]), float(pose[2]))
         return gtsam.Pose3(gtsam.Rot3(euler_to_matrix(pose[3], pose[4], pose[5])), gtsam.Point3(*pose[:3]))
 
-    def _from_gtsam(self, values, k: int) -> NDArray[np.float64]:
+    def _from_gtsam(self, gtsam, values) -> NDArray[np.float64]:
         if self.dof == 3:
-            p = values.atPose2(k)
-            return np.array([p.x(), p.y(), p.theta()])
-        p = values.atPose3(k)
-        return np.r_[np.asarray(p.translation()), matrix_to_euler(np.asarray(p.rotation().matrix()))]
+            return gtsam.utilities.extractPose2(values)[:, [0, 1, 2]]
+        out = np.empty((self._n, 6))
+        for k in range(self._n):
+            p = values.atPose3(k)
+            out[k, :3] = np.asarray(p.translation())
+            out[k, 3:] = matrix_to_euler(np.asarray(p.rotation().matrix()))
+        return out
 
     def _noise(self, gtsam, info: NDArray[np.float64], robust: bool):
         if self.dof == 6:  # gtsam's Pose3 tangent is (rotation, translation)
@@ -272,22 +304,28 @@ class PoseGraph:
             return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy.Create(self.loop_kernel), base)
         return base
 
-    def _build(self, gtsam, fixed: int):
-        graph = gtsam.NonlinearFactorGraph()
-        values = gtsam.Values()
-        for k, p in enumerate(self.poses):
-            values.insert(k, self._to_gtsam(gtsam, p))
-        Between = gtsam.BetweenFactorPose2 if self.dof == 3 else gtsam.BetweenFactorPose3
-        Prior = gtsam.PriorFactorPose2 if self.dof == 3 else gtsam.PriorFactorPose3
-        tight = gtsam.noiseModel.Isotropic.Sigma(self.dof, 1e-6)
-        graph.add(Prior(fixed, self._to_gtsam(gtsam, self.poses[fixed]), tight))
-        for e in self.edges:
-            if not e.active:
-                continue
+    def _factor(self, gtsam, k: int):
+        f = self._factors[k]
+        if f is None:
+            e = self.edges[k]
             noise = self._noise(gtsam, e.information, robust=e.kind == EdgeKind.LOOP)
             z = self._to_gtsam(gtsam, e.measurement)
             if e.kind == EdgeKind.PRIOR:
-                graph.add(Prior(e.i, z, noise))
+                f = (gtsam.PriorFactorPose2 if self.dof == 3 else gtsam.PriorFactorPose3)(e.i, z, noise)
             else:
-                graph.add(Between(e.i, e.j, z, noise))
+                f = (gtsam.BetweenFactorPose2 if self.dof == 3 else gtsam.BetweenFactorPose3)(e.i, e.j, z, noise)
+            self._factors[k] = f
+        return f
+
+    def _build(self, gtsam, fixed: int):
+        graph = gtsam.NonlinearFactorGraph()
+        values = gtsam.Values()
+        for k in range(self._n):
+            values.insert(k, self._to_gtsam(gtsam, self._P[k]))
+        Prior = gtsam.PriorFactorPose2 if self.dof == 3 else gtsam.PriorFactorPose3
+        tight = gtsam.noiseModel.Isotropic.Sigma(self.dof, 1e-6)
+        graph.add(Prior(fixed, self._to_gtsam(gtsam, self._P[fixed]), tight))
+        for k, e in enumerate(self.edges):
+            if e.active:
+                graph.add(self._factor(gtsam, k))
         return graph, values

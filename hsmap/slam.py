@@ -567,10 +567,12 @@ class HsSlam:
         bounds = np.column_stack([centre - half, centre + half])
         alt = harmony_icp(scan, self._target, bounds=bounds, initial_guesses=guesses, config=retry_cfg,
                           rng=self.rng)
-        # the prediction wins unless the first registration aligns the scan clearly better
-        if _at_least_as_good(scan, self._target, alt.pose, res.pose, reg.threshold):
-            return alt, True, True
-        return res, True, not _at_least_as_good(scan, self._target, res.pose, alt.pose, reg.threshold, strict=True)
+        # the first registration stands only if it aligns the scan clearly better than the one near the
+        # prediction (the odometry slipped); otherwise the prediction's is kept, confirmed if it aligns the scan
+        # about as well (a corridor's axis, a look-alike), unconfirmed (no keyframe) if not
+        if _at_least_as_good(scan, self._target, res.pose, alt.pose, reg.threshold, strict=True):
+            return res, True, True
+        return alt, True, _at_least_as_good(scan, self._target, alt.pose, res.pose, reg.threshold)
 
     def _fuse(self, frame: Frame, res: RegistrationResult) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """The registration fused with the motion prediction, weighted by their information matrices.
@@ -650,7 +652,7 @@ class HsSlam:
         """Optimise the graph; re-anchor the recent poses and mark the tracking map stale."""
         if self._status == "failed" or len(self.graph) < 2:
             return
-        before = np.asarray(self.graph.poses)
+        before = self.graph.poses.copy()
         out = self.graph.optimize()
         self._optimizations += 1
         self._pending = 0
@@ -666,7 +668,7 @@ class HsSlam:
             return
         self._closer.forget()
         self._reanchor_recent()
-        self._last_key = self.graph.poses[-1]
+        self._last_key = self.graph.poses[-1].copy()
         self._path = self.graph.path_distances(len(self.graph) - 1)
         self._map_stale = True
         self._target = None
@@ -683,7 +685,7 @@ class HsSlam:
         self._status = "failed"
         self._failure = message
         self._closer = None
-        chain = [self.graph.poses[0]]
+        chain = [self.graph.poses[0].copy()]
         for z in self._odometry_chain:
             chain.append(compose(chain[-1], z))
         self.graph.poses = [p.copy() for p in chain]
@@ -691,7 +693,7 @@ class HsSlam:
             if e.kind == EdgeKind.LOOP:
                 e.active = False
         self._reanchor_recent()
-        self._last_key = self.graph.poses[-1]
+        self._last_key = self.graph.poses[-1].copy()
         self._path = None
         self._map_stale = True
         self._target = None
@@ -764,7 +766,7 @@ class HsSlam:
     @property
     def trajectory(self) -> Trajectory:
         """Every frame's pose at the current estimate of its keyframe (loop closures included)."""
-        P = [compose(self.graph.poses[a], o) for a, o in zip(self._anchor, self._offset, strict=True)]
+        P = compose(self.graph.poses[np.asarray(self._anchor, dtype=int)], np.asarray(self._offset))
         return Trajectory(np.asarray(self.stamps), np.asarray(P).reshape(-1, self.config.dof))
 
     @property
@@ -773,7 +775,7 @@ class HsSlam:
         chain = [self.graph.poses[0]] if self.keyframes else []
         for z in self._odometry_chain:
             chain.append(compose(chain[-1], z))
-        P = [compose(chain[a], o) for a, o in zip(self._anchor, self._offset, strict=True)]
+        P = compose(np.asarray(chain)[np.asarray(self._anchor, dtype=int)], np.asarray(self._offset))
         return Trajectory(np.asarray(self.stamps), np.asarray(P).reshape(-1, self.config.dof))
 
 

@@ -20,7 +20,7 @@ def square_loop(n_side=10, step=1.0):
     return np.asarray(poses[:-1])
 
 
-def drifting_chain(truth, rng, yaw_bias=np.deg2rad(0.5)):
+def drifting_chain(truth, rng, yaw_bias=0.0087):  # 0.5 deg per step
     """A graph whose node estimates and odometry edges drift (a yaw bias per step)."""
     g = PoseGraph(3)
     est = [truth[0]]

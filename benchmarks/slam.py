@@ -34,7 +34,8 @@ from hsmap.datasets.open import open_dataset  # noqa: E402
 from hsmap.datasets.relations import read_relations  # noqa: E402
 from hsmap.evaluation.trajectory import pose_errors, relations_error  # noqa: E402
 from hsmap.geometry import compose, invert, matrix_to_pose  # noqa: E402
-from hsmap.io import Trajectory, write_json  # noqa: E402
+from hsmap.io import write_json  # noqa: E402
+from hsmap.trajectory import Trajectory  # noqa: E402
 from hsmap.slam import SlamConfig, run_slam  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -40,7 +40,8 @@ from .errors import ConfigError, EmptyInputError, InputError
 from .fitness import DistanceField
 from .geometry import compose, pose_to_matrix, relative, transform_points, wrap_angle
 from .harmony import HarmonyConfig, as_rng
-from .io import Trajectory, atomic_path, write_json, write_tum
+from .io import atomic_path, write_json
+from .trajectory import Trajectory, write_tum
 from .mapping import VoxelMap
 from .registration import (
     RegistrationConfig,
@@ -281,8 +282,7 @@ class HsSlam:
         if prior is not None:
             if cfg.dof != 6:
                 raise InputError("a prior trajectory seeds 6-DOF runs only (dof=6)")
-            p = prior.as_3dof()
-            self._prior = (p.stamps, p.poses)
+            self._prior = prior.as_3dof()
         self._target: RegistrationTarget | None = None
         self._field: DistanceField | None = None
         self._field_centre = np.zeros(self.dim)
@@ -293,12 +293,11 @@ class HsSlam:
     def _prior_pose(self, stamp: float) -> NDArray[np.float64] | None:
         if self._prior is None:
             return None
-        stamps, poses = self._prior
-        k = int(np.argmin(np.abs(stamps - stamp)))
-        if abs(stamps[k] - stamp) > 1e-3:
+        poses, found = self._prior.at([stamp], max_dt=1e-3)
+        if not found[0]:
             return None
-        prev = self.poses[-1]
-        return np.array([poses[k, 0], poses[k, 1], prev[2], prev[3], prev[4], poses[k, 2]])
+        (x, y, yaw), prev = poses[0], self.poses[-1]
+        return np.array([x, y, prev[2], prev[3], prev[4], yaw])
 
     def seeds(self, frame: Frame) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Initial guesses (K, dof) for ``frame`` and the half-widths (dof,) of the box around them."""

@@ -44,7 +44,8 @@ from .config import from_dict, to_dict
 from .datasets.frames import Dataset, Frame
 from .errors import DatasetError, HsmapError, InputError
 from .geometry import compose, pose_to_matrix, transform_points
-from .io import Trajectory, file_lock, read_tum, write_json
+from .io import file_lock, write_json
+from .trajectory import Trajectory, read_tum
 from .mapping import VoxelMap
 
 __all__ = [

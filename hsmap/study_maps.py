@@ -38,7 +38,8 @@ from . import __version__
 from .config import to_dict
 from .errors import DatasetError, InputError
 from .grid import GridGeometry, OccupancyGrid
-from .io import Trajectory, write_json
+from .io import write_json
+from .trajectory import Trajectory
 from .study import _sha, _source_digest, simulated_dataset
 
 __all__ = ["TwoLidarMaps", "two_lidar_maps", "simulated_dataset", "MAP_SOURCES", "default_maps_dir"]

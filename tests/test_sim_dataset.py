@@ -13,7 +13,7 @@ from hsmap.datasets import Frame
 from hsmap.datasets.simulated import SimulatedDataset, is_simulated_dataset
 from hsmap.errors import DatasetError
 from hsmap.geometry import pose_to_matrix, transform_points
-from hsmap.io import read_tum
+from hsmap.trajectory import read_tum
 from hsmap.sim import Lidar3DConfig, load_scenario, simulate
 from hsmap.sim.catalog import resolve_scenario
 from hsmap.sim.writer import ensure_dataset

@@ -7,7 +7,7 @@ import pytest
 
 from hsmap.datasets.simulated import SimulatedDataset
 from hsmap.evaluation import pose_errors
-from hsmap.io import Trajectory
+from hsmap.trajectory import Trajectory
 from hsmap.sim.writer import ensure_dataset
 from hsmap.slam import SlamConfig, run_slam
 

@@ -19,7 +19,7 @@ import hsmap.slam
 from hsmap.datasets.frames import Dataset, Frame, LaserScan2D
 from hsmap.errors import HsmapError, InputError
 from hsmap.geometry import compose, relative
-from hsmap.io import Trajectory
+from hsmap.trajectory import Trajectory
 from hsmap.slam import SlamConfig
 from hsmap.study import (
     cached_slam,

@@ -14,7 +14,7 @@ from hsmap.datasets import Frame, LaserScan2D
 from hsmap.errors import ConfigError, DataFormatError, InputError, ShapeError
 from hsmap.geometry import quaternion_to_matrix
 from hsmap.grid import GridGeometry
-from hsmap.io import Trajectory
+from hsmap.trajectory import Trajectory
 from hsmap.viz import figures
 from hsmap.viz import rerun as hr
 from hsmap.viz.colors import label_color, label_colors

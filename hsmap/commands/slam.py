@@ -38,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
     from ..config import load_config
     from ..datasets.open import open_dataset
     from ..errors import InputError
-    from ..io import read_tum
+    from ..trajectory import read_tum
     from ..slam import SlamConfig, run_slam, write_slam_outputs
 
     cfg = load_config(SlamConfig, args.config) if args.config else SlamConfig()

@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 
 from ..errors import DataFormatError, DatasetError, InputError
 from ..grid import GridGeometry
-from ..io import Trajectory, read_tum
+from ..trajectory import Trajectory, read_tum
 from .frames import Dataset, Frame, LaserScan2D
 
 __all__ = ["SimulatedDataset", "is_simulated_dataset"]

@@ -33,7 +33,8 @@ import yaml
 from .. import __version__
 from ..config import to_dict
 from ..errors import DatasetError, ScenarioError
-from ..io import Trajectory, atomic_path, file_lock, write_json, write_text, write_tum
+from ..io import atomic_path, file_lock, write_json, write_text
+from ..trajectory import Trajectory, write_tum
 from . import layout
 from .catalog import default_output_dir, resolve_scenario
 from .robot import Motion, simulate_motion

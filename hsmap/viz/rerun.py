@@ -547,7 +547,7 @@ def log_trajectory(
 
     Parameters
     ----------
-    trajectory : hsmap.io.Trajectory
+    trajectory : hsmap.trajectory.Trajectory
         Stamps and (N, 3) or (N, 6) poses.
     robot_entity : str or None
         Where the moving pose goes (``world/robot``); None logs the path only.

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .errors import DatasetError, InputError, ShapeError
+from .errors import DataFormatError, DatasetError, InputError, ShapeError
 from .geometry import euler_to_matrix, matrix_to_euler, matrix_to_quaternion, quaternion_to_matrix
 from .io import atomic_open, read_number_rows
 
@@ -155,6 +155,9 @@ def read_tum(path: str | os.PathLike, dof: int = 6) -> Trajectory:
     if not Path(path).is_file():
         raise DatasetError(f"{path}: no such trajectory file")
     arr = read_number_rows(path, "t x y z qx qy qz qw", "poses")
-    rpy = matrix_to_euler(quaternion_to_matrix(arr[:, 4:]))
+    try:
+        rpy = matrix_to_euler(quaternion_to_matrix(arr[:, 4:]))
+    except InputError as exc:
+        raise DataFormatError(f"{path}: {exc}") from None
     traj = Trajectory(arr[:, 0], np.column_stack([arr[:, 1:4], rpy]))
     return traj.as_3dof() if dof == 3 else traj

@@ -75,3 +75,10 @@ def test_tum_bad_line_names_line(tmp_path):
     p.write_text("0 0 0 0 0 0 0 1\n1 0 0 0 0 0\n")
     with pytest.raises(DataFormatError, match=r"bad.tum:2: expected 8 values"):
         read_tum(p)
+
+
+def test_tum_zero_quaternion_names_the_file(tmp_path):
+    p = tmp_path / "zero.tum"
+    p.write_text("0 0 0 0 0 0 0 1\n1 0 0 0 0 0 0 0\n")
+    with pytest.raises(DataFormatError, match=r"zero.tum: quaternion .* zero"):
+        read_tum(p)

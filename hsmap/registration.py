@@ -26,6 +26,7 @@ from .errors import ConfigError, EmptyInputError, InputError, ShapeError
 from .fitness import DistanceField, FieldObjective, KDTreeLookup, score
 from .geometry import dof_of_dim, matrix_to_pose, pose_to_matrix, transform_points, wrap_angle
 from .harmony import HarmonyConfig, HarmonyResult, as_rng, harmony_search
+from .mapping import voxel_downsample
 
 __all__ = [
     "Backend",
@@ -35,7 +36,6 @@ __all__ = [
     "RegistrationTarget",
     "harmony_icp",
     "refine_icp",
-    "voxel_downsample",
     "estimate_normals",
 ]
 
@@ -206,24 +206,6 @@ class RegistrationResult:
     refined: bool
     stop_reason: str
     seconds: float
-
-
-def voxel_downsample(points: NDArray[np.floating], voxel: float, min_range: float = 0.0,
-                     max_range: float = np.inf) -> NDArray[np.float64]:
-    """Centroid of the points in each occupied voxel (cube or square of side ``voxel``), ordered by voxel.
-
-    Points that are not finite, or whose distance from the origin is outside [min_range, max_range], are dropped
-    first. Coordinates must lie within +/- 2^20 voxels of the origin (about +/- 100 km at 0.1 m).
-    """
-    pts = np.asarray(points, dtype=float)
-    if voxel <= 0 or len(pts) == 0:
-        return pts
-    limit = min(max_range, float(np.nanmax(np.abs(pts), initial=0.0)))
-    if limit >= (1 << 20) * voxel:
-        raise InputError(f"points beyond +/-{(1 << 20) * voxel:.0f} m cannot be downsampled at {voxel} m voxels")
-    from . import _kernels
-
-    return _kernels.voxel_centroids(np.ascontiguousarray(pts), float(voxel), float(min_range), float(max_range))
 
 
 def _clean_cloud(points: ArrayLike, name: str, dim: int | None = None) -> tuple[NDArray[np.float64], int]:

@@ -42,13 +42,12 @@ from .geometry import compose, pose_to_matrix, relative, transform_points, wrap_
 from .harmony import HarmonyConfig, as_rng
 from .io import atomic_path, write_json
 from .trajectory import Trajectory, write_tum
-from .mapping import VoxelMap
+from .mapping import VoxelMap, voxel_downsample
 from .registration import (
     RegistrationConfig,
     RegistrationTarget,
     estimate_normals,
     harmony_icp,
-    voxel_downsample,
 )
 
 __all__ = ["SlamConfig", "FrameResult", "SlamResult", "HsSlam", "run_slam", "write_slam_outputs",

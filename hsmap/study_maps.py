@@ -156,7 +156,7 @@ def _grid_from(z, prefix: str) -> OccupancyGrid:
 
 
 def _thin(points: NDArray[np.float64], voxel: float) -> NDArray[np.float64]:
-    from .registration import voxel_downsample
+    from .mapping import voxel_downsample
 
     return voxel_downsample(np.asarray(points, dtype=float), voxel)
 

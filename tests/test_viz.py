@@ -255,11 +255,7 @@ def test_unix_stamps_use_a_timestamp_timeline(tmp_path, monkeypatch):
                      ("scan", {"sequence": 4}), ("time", {"timestamp": 1.7e9})]
 
 
-def test_point_map_blocks_and_voxels():
-    pts = np.array([[0.01, 0.01, 0.0], [0.02, 0.02, 0.0], [0.5, 0.0, 0.0], [0.51, 0.01, 0.0]])
-    np.testing.assert_array_equal(hr.voxel_downsample(pts, 0.1), pts[[0, 2]])
-    with pytest.raises(InputError):
-        hr.voxel_downsample(pts, 0.0)
+def test_point_map_logger_block():
     with pytest.raises(InputError, match="block"):
         hr.PointMapLogger(None, block=0)
 

@@ -50,6 +50,7 @@ from numpy.typing import ArrayLike, NDArray  # noqa: E402
 from ..errors import DataFormatError, HsmapError, InputError, ShapeError  # noqa: E402
 from ..geometry import euler_to_matrix, matrix_to_quaternion  # noqa: E402
 from ..grid import GridGeometry  # noqa: E402
+from ..mapping import first_per_voxel  # noqa: E402
 from .colors import ROOM_PALETTE, SERIES_COLORS, height_colors, label_color, label_colors  # noqa: E402
 from .occupancy import _ros_to_image, occupancy_to_image, occupancy_to_ros  # noqa: E402
 
@@ -338,13 +339,6 @@ def _points(points: ArrayLike, dims: tuple[int, ...], name: str) -> NDArray[np.f
     return p[np.all(np.isfinite(p), axis=1)]
 
 
-def voxel_downsample(points: NDArray[np.float64], voxel: float) -> NDArray[np.float64]:
-    """One point (the first) per cubic voxel of side ``voxel`` metres, in input order (deterministic)."""
-    from ..mapping import first_per_voxel
-
-    return first_per_voxel(points, voxel)
-
-
 def log_points(
     rec: Any,
     entity: str,
@@ -374,7 +368,7 @@ def log_points(
     if p.shape[1] == 2:
         p = np.column_stack([p, np.zeros(len(p))])
     if voxel is not None:
-        p = voxel_downsample(p, voxel)
+        p = first_per_voxel(p, voxel)
         if colors is not None and np.ndim(colors) == 2:
             colors = None
     if color_by_height:

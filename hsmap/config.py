@@ -11,7 +11,7 @@ from typing import Any, TypeVar
 import yaml
 
 from .errors import ConfigError
-from .io import write_text
+from .io import to_plain, write_text
 
 T = TypeVar("T")
 
@@ -20,20 +20,7 @@ __all__ = ["from_dict", "to_dict", "load_config", "dump_config"]
 
 def to_dict(cfg: Any) -> dict[str, Any]:
     """A plain dict (nested for nested dataclasses) of a configuration dataclass."""
-    out = dataclasses.asdict(cfg)
-
-    def clean(v: Any) -> Any:
-        if isinstance(v, dict):
-            return {k: clean(x) for k, x in v.items()}
-        if isinstance(v, (list, tuple)):
-            return [clean(x) for x in v]
-        if hasattr(v, "item"):
-            return v.item()
-        if hasattr(v, "value") and not isinstance(v, (int, float, str)):  # enums
-            return v.value
-        return v
-
-    return clean(out)
+    return to_plain(dataclasses.asdict(cfg))
 
 
 def from_dict(cls: type[T], data: dict[str, Any] | None, where: str = "config") -> T:

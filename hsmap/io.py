@@ -7,11 +7,12 @@ so an interrupted run never leaves a half-written file that looks complete.
 from __future__ import annotations
 
 import contextlib
+import enum
 import json
 import os
 import tempfile
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import IO, Any
 
@@ -25,6 +26,7 @@ __all__ = [
     "atomic_path",
     "atomic_open",
     "write_json",
+    "to_plain",
     "write_text",
     "read_number_rows",
 ]
@@ -105,14 +107,30 @@ def atomic_open(path: str | os.PathLike, mode: str = "w", **kwargs: Any) -> Iter
         yield fh
 
 
+def to_plain(value: Any) -> Any:
+    """``value`` as plain Python data for JSON and YAML: mappings become dicts with string keys, lists and tuples
+    lists, numpy arrays nested lists, numpy scalars Python numbers, enums their value, paths strings; anything
+    else is returned as it is."""
+    if isinstance(value, Mapping):
+        return {str(k): to_plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [to_plain(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, enum.Enum):
+        return value.value
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
 def _json_default(o: Any) -> Any:
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(f"cannot serialise {type(o).__name__} to JSON")
+    plain = to_plain(o)
+    if plain is o:
+        raise TypeError(f"cannot serialise {type(o).__name__} to JSON")
+    return plain
 
 
 def write_json(path: str | os.PathLike, obj: Any) -> None:

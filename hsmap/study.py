@@ -44,7 +44,7 @@ from .config import from_dict, to_dict
 from .datasets.frames import Dataset, Frame
 from .errors import DatasetError, HsmapError, InputError
 from .geometry import compose, pose_to_matrix, transform_points
-from .io import file_lock, write_json
+from .io import file_lock, to_plain, write_json
 from .trajectory import Trajectory, read_tum
 from .mapping import VoxelMap
 
@@ -149,22 +149,6 @@ _READER_OPTIONS = ("scan_topic", "cloud_topic", "odom_topic", "order", "base_fra
                    "odom_tolerance", "sync_tolerance")
 
 
-def _plain(v: Any) -> Any:
-    if isinstance(v, Mapping):
-        return {str(k): _plain(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_plain(x) for x in v]
-    if isinstance(v, np.ndarray):
-        return v.tolist()
-    if hasattr(v, "item"):
-        return v.item()
-    if hasattr(v, "value") and not isinstance(v, (int, float, str, bool)):
-        return v.value
-    if isinstance(v, Path):
-        return str(v)
-    return v
-
-
 def _frames_digest(frames: Iterable[Frame]) -> str:
     h = hashlib.sha256()
     for f in frames:
@@ -191,7 +175,7 @@ def dataset_fingerprint(dataset: Dataset | str | os.PathLike, open_kwargs: Mappi
     if isinstance(dataset, (str, os.PathLike)):
         p = Path(dataset)
         return {"kind": "path", "name": p.name, "content": _path_digest(p),
-                "open_kwargs": _plain(dict(open_kwargs or {}))}
+                "open_kwargs": to_plain(dict(open_kwargs or {}))}
     if not isinstance(dataset, Dataset):
         raise InputError(f"dataset must be a path or an hsmap Dataset, got {type(dataset).__name__}")
     if open_kwargs:
@@ -203,7 +187,7 @@ def dataset_fingerprint(dataset: Dataset | str | os.PathLike, open_kwargs: Mappi
         fp["content"] = _path_digest(path)
     else:
         fp["content"] = _frames_digest(dataset.frames())
-    fp["options"] = {k: _plain(getattr(dataset, k)) for k in _READER_OPTIONS if hasattr(dataset, k)}
+    fp["options"] = {k: to_plain(getattr(dataset, k)) for k in _READER_OPTIONS if hasattr(dataset, k)}
     for k in ("extrinsic2d", "extrinsic3d"):
         if getattr(dataset, k, None) is not None:
             fp[k] = [float(v) for v in np.asarray(getattr(dataset, k), dtype=float).reshape(-1)]

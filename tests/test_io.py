@@ -21,3 +21,28 @@ def test_number_rows_name_the_file_and_line(tmp_path):
         read_number_rows(p, "a b", "rows")
     with pytest.raises(DatasetError, match="no such file"):
         read_number_rows(tmp_path / "none.txt", "a b", "rows")
+
+
+def test_to_plain_is_what_json_and_yaml_take(tmp_path):
+    import enum
+    import json
+    from pathlib import Path
+
+    import numpy as np
+    import yaml
+
+    from hsmap.io import to_plain, write_json
+
+    class Kind(enum.StrEnum):
+        A = "a"
+
+    value = {1: (np.float64(0.5), np.int64(3)), "arr": np.arange(3), "kind": Kind.A, "path": Path("/x"),
+             "nested": [{"b": np.bool_(True)}]}
+    plain = to_plain(value)
+    assert plain == {"1": [0.5, 3], "arr": [0, 1, 2], "kind": "a", "path": "/x", "nested": [{"b": True}]}
+    assert type(plain["kind"]) is str and type(plain["1"][1]) is int
+    yaml.safe_dump(plain)  # no numpy or enum object left for the safe dumper to choke on
+    write_json(tmp_path / "v.json", value)
+    assert json.loads((tmp_path / "v.json").read_text()) == plain
+    with pytest.raises(TypeError, match="cannot serialise object"):
+        write_json(tmp_path / "w.json", {"x": object()})

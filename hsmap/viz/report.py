@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigError, InputError
-from ..io import atomic_path, write_json
+from ..io import atomic_path, to_plain, write_json
 
 __all__ = [
     "Study",
@@ -102,17 +102,6 @@ def format_value(v: Any) -> str:
     if isinstance(v, (list, tuple)):
         return "[" + ", ".join(format_value(x) for x in v) + "]"
     return str(v)
-
-
-def _plain(v: Any) -> Any:
-    """numpy scalars/arrays -> Python values (so metrics compare and print plainly)."""
-    if isinstance(v, Mapping):
-        return {str(k): _plain(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_plain(x) for x in v]
-    if hasattr(v, "tolist"):
-        return v.tolist()
-    return v
 
 
 def headline_rows(doc: Mapping[str, Any], limit: int = 8) -> list[tuple[str, Any, Any, str]]:
@@ -296,8 +285,8 @@ class Study:
         for what, m in (("values", values), ("paper", paper), ("units", units)):
             if m is not None and not isinstance(m, Mapping):
                 raise InputError(f"metrics {what} must be a mapping of name to value, got {type(m).__name__}")
-        self._doc["metrics"].update(_plain(dict(values or {})))
-        self._doc["paper"].update(_plain(dict(paper or {})))
+        self._doc["metrics"].update(to_plain(dict(values or {})))
+        self._doc["paper"].update(to_plain(dict(paper or {})))
         self._doc["units"].update({str(k): str(v) for k, v in (units or {}).items()})
         if headline is not None:
             if isinstance(headline, str):

@@ -643,18 +643,19 @@ def scan_grid(
     if int(every) < 1:
         raise InputError(f"every must be >= 1, got {every}")
     traj = trajectory.as_3dof()
-    scans, poses = [], []
+    scans, poses, extrinsics = [], [], []
     for f in _frames(dataset, clouds=False, every=int(every), max_frames=max_frames):
         if f.scan2d is None:
             raise InputError(f"frame {f.index} has no 2D scan")
-        pose, ok = poses_at(traj, [f.stamp], max_dt=max_dt)
-        if not ok[0]:
-            continue
-        scans.append(f.scan2d)
-        poses.append(compose(pose[0], np.asarray(f.extrinsic2d, dtype=float)))
+        pose, ok = traj.at([f.stamp], max_dt=max_dt)
+        if ok[0]:
+            scans.append(f.scan2d)
+            poses.append(pose[0])
+            extrinsics.append(f.extrinsic2d)
     if not scans:
         raise InputError("no frame of the dataset has a pose in the trajectory (stamps differ?)")
-    return grid_from_scans(scans, np.asarray(poses), resolution, geometry=geometry, config=config)
+    return grid_from_scans(scans, np.asarray(poses), resolution, extrinsic=np.asarray(extrinsics, dtype=float),
+                           geometry=geometry, config=config)
 
 
 def map_distances(points: ArrayLike, reference: ArrayLike) -> NDArray[np.float64]:

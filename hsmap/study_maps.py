@@ -163,7 +163,8 @@ def _thin(points: NDArray[np.float64], voxel: float) -> NDArray[np.float64]:
 
 def _compute(ds, n: int, seed: int, z_range: tuple[float, float], resolution: float, bins: int, poses: str,
              every: int, use_odometry: bool) -> dict:
-    from .fusion import scans_to_points, slice_scans
+    from .fusion import slice_scans
+    from .grid import scans_to_points
     from .grid import grid_from_scans
     from .slam import run_slam
 

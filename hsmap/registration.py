@@ -22,6 +22,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
+from ._blas import blas_limited
 from .errors import ConfigError, EmptyInputError, InputError, ShapeError
 from .fitness import DistanceField, FieldObjective, KDTreeLookup, score
 from .geometry import dof_of_dim, matrix_to_pose, pose_to_matrix, transform_points, wrap_angle
@@ -291,6 +292,7 @@ class RegistrationTarget:
         return self._normals
 
 
+@blas_limited
 def estimate_normals(points: NDArray[np.float64], k: int | None = None,
                      tree: cKDTree | None = None) -> NDArray[np.float64]:
     """Unit normals of points (N, 2) or (N, 3) from the principal axes of their k nearest neighbours.
@@ -434,6 +436,7 @@ def _alignment_cost(pose: NDArray[np.float64], source: NDArray[np.float64], targ
     return float(np.where(ok, np.minimum(d, threshold), threshold).mean() / threshold)
 
 
+@blas_limited
 def harmony_icp(
     source: ArrayLike,
     target: ArrayLike | RegistrationTarget,

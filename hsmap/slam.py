@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from ._blas import blas_limited
 from .config import dump_config, to_dict
 from .datasets.frames import Dataset, Frame
 from .errors import ConfigError, EmptyInputError, InputError
@@ -41,7 +42,6 @@ from .fitness import DistanceField
 from .geometry import compose, pose_to_matrix, relative, transform_points, wrap_angle
 from .harmony import HarmonyConfig, as_rng
 from .io import atomic_path, write_json
-from .trajectory import Trajectory, write_tum
 from .mapping import VoxelMap, voxel_downsample
 from .registration import (
     RegistrationConfig,
@@ -49,6 +49,7 @@ from .registration import (
     estimate_normals,
     harmony_icp,
 )
+from .trajectory import Trajectory, write_tum
 
 __all__ = ["SlamConfig", "FrameResult", "SlamResult", "HsSlam", "run_slam", "write_slam_outputs",
            "frame_points"]
@@ -408,6 +409,7 @@ class HsSlam:
         return Trajectory(np.asarray(self.stamps), np.asarray(self.poses).reshape(-1, self.config.dof))
 
 
+@blas_limited
 def run_slam(
     dataset: Dataset | Iterable[Frame],
     config: SlamConfig | None = None,

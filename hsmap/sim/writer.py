@@ -32,6 +32,7 @@ import yaml
 
 from .. import __version__
 from ..config import to_dict
+from ..datasets.simulated import FORMAT, FORMAT_VERSION, encode_range_image, range_image_to_points
 from ..errors import DatasetError, ScenarioError
 from ..io import atomic_path, file_lock, write_json, write_text
 from ..trajectory import Trajectory, write_tum
@@ -39,13 +40,10 @@ from . import layout
 from .catalog import default_output_dir, resolve_scenario
 from .robot import Motion, simulate_motion
 from .scenario import Scenario, load_scenario
-from .sensors import encode_range_image, range_image_to_points
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "SimulationSummary", "simulate", "ensure_dataset", "folder_lock", "save_npz",
            "motion_for", "noise_rngs"]
 
-FORMAT = "hsmap-simulated-dataset"
-FORMAT_VERSION = 1
 
 FILE_DESCRIPTIONS = {
     "dataset.yaml": "this description; written last, a folder without it is incomplete",

@@ -16,6 +16,7 @@ __all__ = [
     "DataFormatError",
     "DatasetError",
     "ScenarioError",
+    "CacheError",
 ]
 
 
@@ -49,3 +50,8 @@ class DatasetError(HsmapError):
 
 class ScenarioError(ConfigError):
     """A simulator scenario file is malformed; the message names the file, the key and the problem."""
+
+
+class CacheError(HsmapError):
+    """A cached result cannot be looked up or published: its lock is not free in time, or the code digest that
+    keys it cannot be computed (a file it expects is missing)."""

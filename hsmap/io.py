@@ -11,18 +11,16 @@ import enum
 import json
 import os
 import tempfile
-import time
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import IO, Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
-from .errors import DataFormatError, DatasetError, HsmapError, ShapeError
+from .errors import DataFormatError, DatasetError
 
 __all__ = [
-    "file_lock",
     "atomic_path",
     "atomic_open",
     "write_json",
@@ -39,42 +37,6 @@ def _default_file_mode() -> int:
 
 
 _FILE_MODE = _default_file_mode()  # what open() would give a new file (mkstemp makes it private)
-
-
-@contextlib.contextmanager
-def file_lock(path: str | os.PathLike, *, timeout: float | None = None, poll: float = 0.5) -> Iterator[Path]:
-    """Hold an exclusive ``flock`` on the file ``path`` (created when missing) for the ``with`` block.
-
-    The lock belongs to the open file: it is released when the block ends or the process dies, so a crashed
-    holder never blocks the next caller; locks taken through separate ``open`` calls exclude each other even
-    within one process. Where ``fcntl`` is missing (Windows) the block runs unlocked.
-
-    Raises
-    ------
-    HsmapError
-        The lock was not free within ``timeout`` seconds (None: wait for ever).
-    """
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    try:
-        import fcntl
-    except ImportError:  # pragma: no cover - not POSIX
-        yield p
-        return
-    with open(p, "a+b") as fh:
-        t0 = time.monotonic()
-        while True:
-            try:
-                fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-                break
-            except BlockingIOError:
-                if timeout is not None and time.monotonic() - t0 > timeout:
-                    raise HsmapError(f"{p}: still locked by another process after {timeout:g} s") from None
-                time.sleep(poll)
-        try:
-            yield p
-        finally:
-            fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
 
 
 @contextlib.contextmanager

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from hsmap.reproduce import run_study
+from hsmap.study.batch import run_notebooks
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -17,7 +17,7 @@ REPO = Path(__file__).resolve().parent.parent
 @pytest.mark.slow
 def test_notebooks_04_06_quick(tmp_path, monkeypatch):
     monkeypatch.setenv("HSMAP_GENERATED", str(tmp_path / "generated"))  # cold caches: simulate and run SLAM
-    result = run_study(REPO / "notebooks", tmp_path / "reports", only=["04", "06"], quick=True, log=None)
+    result = run_notebooks(REPO / "notebooks", tmp_path / "reports", only=["04", "06"], quick=True, log=None)
     errors = {n: json.loads((tmp_path / "reports" / n / "run.json").read_text()).get("error")
               for n in ("04-map-overlap", "06-topology-doors")}
     assert result.ok, errors

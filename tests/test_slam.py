@@ -8,9 +8,9 @@ import pytest
 from hsmap.datasets.frames import Frame, LaserScan2D
 from hsmap.errors import ConfigError, EmptyInputError, InputError
 from hsmap.geometry import compose, relative, wrap_angle
-from hsmap.trajectory import Trajectory, read_tum
 from hsmap.slam import HsSlam, SlamConfig, run_slam, write_slam_outputs
 from hsmap.testing import office_route, office_segments, raycast_2d, room_cloud_3d, sensor_cloud
+from hsmap.trajectory import Trajectory, read_tum
 
 SEGMENTS = office_segments()
 ROUTE = office_route()

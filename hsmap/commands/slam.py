@@ -38,8 +38,8 @@ def run(args: argparse.Namespace) -> int:
     from ..config import load_config
     from ..datasets.open import open_dataset
     from ..errors import InputError
-    from ..trajectory import read_tum
     from ..slam import SlamConfig, run_slam, write_slam_outputs
+    from ..trajectory import read_tum
 
     cfg = load_config(SlamConfig, args.config) if args.config else SlamConfig()
     if args.dof is not None:

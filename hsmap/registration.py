@@ -77,8 +77,9 @@ class RegistrationConfig:
         Metres. If set, a second Harmony Search stage around the best harmony uses this truncation.
     inlier_weight : float
         Weight ``w`` of the inlier-count term (see :mod:`hsmap.fitness`).
-    backend : str
-        ``"field"`` (distance field, fast) or ``"kdtree"`` (exact).
+    backend : Backend
+        ``Backend.FIELD`` (distance field, fast) or ``Backend.KDTREE`` (exact); the strings ``"field"`` and
+        ``"kdtree"`` are accepted.
     field_resolution : float or None
         Cell size of the distance fields in metres; None picks a tenth of the truncation (at least 0.02 m) in 2D
         and a quarter of it in 3D.
@@ -94,8 +95,9 @@ class RegistrationConfig:
     fine_range_factor : float
         The fine stage searches +/- this many search thresholds (translation) around the first stage's best, and
         the matching angle at the source's radius of gyration.
-    refinement : str
-        ``"point-to-plane"`` (point-to-line in 2D), ``"point-to-point"`` or ``"none"``.
+    refinement : Refinement
+        ``Refinement.POINT_TO_PLANE`` (point-to-line in 2D), ``POINT_TO_POINT`` or ``NONE``; the strings
+        ``"point-to-plane"``, ``"point-to-point"`` and ``"none"`` are accepted.
     refine_iterations : int
         Maximum refinement iterations.
     refine_points : int
@@ -114,7 +116,7 @@ class RegistrationConfig:
     search_threshold: float = 0.5
     fine_threshold: float | None = None
     inlier_weight: float = 1.0
-    backend: str = Backend.FIELD.value
+    backend: Backend = Backend.FIELD
     field_resolution: float | None = None
     max_points: int = 150
     voxel_size: float | None = None
@@ -123,7 +125,7 @@ class RegistrationConfig:
     yaw_range: float = np.deg2rad(60.0)
     roll_pitch_range: float = np.deg2rad(8.0)
     fine_range_factor: float = 1.0
-    refinement: str = Refinement.POINT_TO_PLANE.value
+    refinement: Refinement = Refinement.POINT_TO_PLANE
     refine_iterations: int = 30
     refine_points: int = 2000
     refine_seeds: int = 0
@@ -148,12 +150,12 @@ class RegistrationConfig:
             if not isinstance(v, (int, np.integer)) or v < (0 if name in ("refine_iterations", "refine_seeds") else 1):
                 raise ConfigError(f"registration.{name} must be a positive integer, got {v!r}")
         try:
-            self.backend = Backend(self.backend).value
+            self.backend = Backend(self.backend)
         except ValueError:
             raise ConfigError(f"registration.backend must be one of {[b.value for b in Backend]}, "
                               f"got {self.backend!r}") from None
         try:
-            self.refinement = Refinement(self.refinement).value
+            self.refinement = Refinement(self.refinement)
         except ValueError:
             raise ConfigError(f"registration.refinement must be one of {[r.value for r in Refinement]}, "
                               f"got {self.refinement!r}") from None
@@ -262,7 +264,7 @@ class RegistrationTarget:
         """The distance look-up for a truncation distance (built on first use, then cached)."""
         lk = self._lookups.get(truncation)
         if lk is None:
-            if self.config.backend == Backend.FIELD.value:
+            if self.config.backend is Backend.FIELD:
                 res = self.config.field_resolution
                 if res is None:
                     res = max(0.02, truncation / 10.0) if self.dim == 2 else truncation / 4.0
@@ -368,7 +370,7 @@ def refine_icp(
     max_distance: float,
     start_distance: float | None = None,
     iterations: int = 30,
-    method: str = Refinement.POINT_TO_PLANE.value,
+    method: Refinement | str = Refinement.POINT_TO_PLANE,
     tolerance: float = 1e-5,
     robust_kernel: float = 0.0,
 ) -> NDArray[np.float64]:
@@ -386,7 +388,11 @@ def refine_icp(
     schedule = _trim_schedule(start_distance or max_distance, max_distance)
     per_stage = max(1, iterations // len(schedule))
     T = pose_to_matrix(pose)
-    normals = target.normals if method == Refinement.POINT_TO_PLANE.value else None
+    try:
+        method = Refinement(method)
+    except ValueError:
+        raise InputError(f"method must be one of {[r.value for r in Refinement]}, got {method!r}") from None
+    normals = target.normals if method is Refinement.POINT_TO_PLANE else None
     for dist in schedule:
         for _ in range(per_stage):
             moved = transform_points(T, source)
@@ -537,11 +543,11 @@ def harmony_icp(
                                                                             replace=False))]
     exact = tgt.exact(cfg.threshold)
     refined = False
-    if cfg.refinement != Refinement.NONE.value and cfg.refine_iterations > 0:
+    if cfg.refinement is not Refinement.NONE and cfg.refine_iterations > 0:
         # Keep a refinement unless it made the alignment worse, judged by its own (point-to-plane) metric: the
         # point-to-point fitness is biased towards poses where the scan's sampling pattern (a LiDAR's rings on
         # the floor) repeats the map's, i.e. towards no motion.
-        plane = cfg.refinement == Refinement.POINT_TO_PLANE.value
+        plane = cfg.refinement is Refinement.POINT_TO_PLANE
         best_cost = _alignment_cost(pose, full, tgt, cfg.threshold, plane)
         starts = [pose] + ([] if guesses is None else list(guesses[: cfg.refine_seeds]))
         for start in starts:

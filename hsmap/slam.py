@@ -62,6 +62,10 @@ def _tracking_registration() -> RegistrationConfig:
         threshold=0.1,
         max_points=150,
         robust_kernel=0.07,
+        translation_range=0.4,
+        yaw_range=np.deg2rad(20.0),
+        z_range=0.05,
+        roll_pitch_range=np.deg2rad(2.0),
     )
 
 
@@ -74,13 +78,10 @@ class SlamConfig:
     dof : int
         3 (x, y, yaw from the 2D scans) or 6 (x, y, z, roll, pitch, yaw from the 3D clouds).
     registration : RegistrationConfig
-        Harmony-ICP parameters for tracking.
+        Harmony-ICP parameters for tracking; its ``translation_range``, ``yaw_range``, ``z_range`` and
+        ``roll_pitch_range`` are the half-widths of the search box around the seeds.
     use_odometry : bool
         Seed the memory with the odometry prediction when the input has odometry.
-    translation_range, yaw_range : float
-        Half-width of the search box around the seeds, in x/y and in yaw.
-    z_range, roll_pitch_range : float
-        The same for z and roll/pitch (6-DOF).
     prior_translation_range, prior_yaw_range : float
         Half-widths used instead when a 6-DOF run is seeded by prior (2D) poses.
     recent_poses : int
@@ -102,10 +103,6 @@ class SlamConfig:
     dof: int = 3
     registration: RegistrationConfig = field(default_factory=_tracking_registration)
     use_odometry: bool = True
-    translation_range: float = 0.4
-    yaw_range: float = np.deg2rad(20.0)
-    z_range: float = 0.05
-    roll_pitch_range: float = np.deg2rad(2.0)
     prior_translation_range: float = 0.15
     prior_yaw_range: float = np.deg2rad(4.0)
     recent_poses: int = 5
@@ -125,9 +122,8 @@ class SlamConfig:
             from .config import from_dict
 
             self.registration = from_dict(RegistrationConfig, self.registration, "slam.registration")
-        for name in ("translation_range", "yaw_range", "z_range", "roll_pitch_range", "prior_translation_range",
-                     "prior_yaw_range", "local_map_radius", "keyframe_distance", "keyframe_angle", "min_range",
-                     "max_range"):
+        for name in ("prior_translation_range", "prior_yaw_range", "local_map_radius", "keyframe_distance",
+                     "keyframe_angle", "min_range", "max_range"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
                 raise ConfigError(f"slam.{name} must be a finite number >= 0, got {v!r}")
@@ -326,12 +322,12 @@ class HsSlam:
         return s, half
 
     def _ranges(self, prior: bool) -> NDArray[np.float64]:
-        cfg = self.config
-        t = cfg.prior_translation_range if prior else cfg.translation_range
-        y = cfg.prior_yaw_range if prior else cfg.yaw_range
+        cfg, reg = self.config, self.config.registration
+        t = cfg.prior_translation_range if prior else reg.translation_range
+        y = cfg.prior_yaw_range if prior else reg.yaw_range
         if cfg.dof == 3:
             return np.array([t, t, y])
-        return np.array([t, t, cfg.z_range, cfg.roll_pitch_range, cfg.roll_pitch_range, y])
+        return np.array([t, t, reg.z_range, reg.roll_pitch_range, reg.roll_pitch_range, y])
 
     # ---------------------------------------------------------------------------------------------- loop
     def process(self, frame: Frame) -> FrameResult:

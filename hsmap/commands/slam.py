@@ -35,6 +35,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import dataclasses
+
     from ..config import load_config
     from ..datasets.open import open_dataset
     from ..errors import InputError
@@ -43,9 +45,9 @@ def run(args: argparse.Namespace) -> int:
 
     cfg = load_config(SlamConfig, args.config) if args.config else SlamConfig()
     if args.dof is not None:
-        cfg.dof = args.dof
+        cfg = dataclasses.replace(cfg, dof=args.dof)  # validated like any SlamConfig
     if args.no_odometry:
-        cfg.use_odometry = False
+        cfg = dataclasses.replace(cfg, use_odometry=False)
     if args.max_frames is not None and args.max_frames < 1:
         raise InputError(f"--max-frames must be >= 1, got {args.max_frames}")
     prior = read_tum(args.prior) if args.prior else None

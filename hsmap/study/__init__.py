@@ -25,6 +25,7 @@ from .benchmarks import (
     published_references,
     real_benchmark_metrics,
     room_segmentation_benchmark,
+    segmentation_table,
     summarise_segmentation,
 )
 from .datasets import simulated_dataset
@@ -56,6 +57,7 @@ __all__ = [
     "record_slam_run",
     "room_segmentation_benchmark",
     "scan_grid",
+    "segmentation_table",
     "simulated_dataset",
     "simulated_slam_runs",
     "slam_key",

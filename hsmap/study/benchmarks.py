@@ -35,6 +35,7 @@ __all__ = [
     "BORMANN_BUILDINGS",
     "room_segmentation_benchmark",
     "summarise_segmentation",
+    "segmentation_table",
     "real_benchmark_metrics",
 ]
 
@@ -136,6 +137,15 @@ class FreiburgResults:
         for method, by_log in cells.items():
             lines.append(f"{method:34s}" + "".join(f"{fmt(by_log.get(n, (None, None))[0]):>22s}"
                                                    f"{fmt(by_log.get(n, (None, None))[1]):>20s}" for n in logs))
+        wall = (references or {}).get("freiburg_relations", {}).get("cartographer_wall_clock", {})
+        for (name, mode), run in self.runs.items():
+            line = (f"{name:6s} HS-SLAM {mode:12s}: {run.seconds:6.0f} s for {run.metrics['input_duration_s']:.0f} s "
+                    f"of data ({run.real_time_factor:.1f}x real time, "
+                    f"{1000 * run.metrics['seconds_per_frame_median']:.1f} ms per scan median, 1 core)")
+            if name in wall:
+                d, w = wall[name]["data_s"], wall[name]["wall_s"]
+                line += f"; Cartographer: {w} s for {d} s ({d / w:.1f}x, 6-core Xeon)"
+            lines.append(line)
         return "\n".join(lines)
 
 
@@ -245,6 +255,31 @@ def room_segmentation_benchmark(folder: str | os.PathLike, buildings: Sequence[s
                 log(f"{b + suffix:28s} P={sc.precision:.3f} R={sc.recall:.3f} segs={sc.n_segments:3d}/"
                     f"{sc.n_rooms:3d} t={np.median(times):.2f}s")
     return rows
+
+
+def segmentation_table(rows: Sequence[Mapping[str, Any]], references: Mapping[str, Any] | None = None) -> str:
+    """Ours per map, then our means beside the published methods' (recall / precision in %, seconds per map)."""
+    lines = [f"{'map':30s} {'recall':>7s} {'prec.':>7s} {'rooms':>6s} {'segs':>5s} {'s':>6s}"]
+    lines += [f"{r['map']:30s} {r['recall']:7.3f} {r['precision']:7.3f} {r['rooms']:6d} {r['segments']:5d} "
+              f"{r['seconds']:6.2f}" for r in rows]
+    s = summarise_segmentation(rows)
+    lines += ["", f"{'method':36s} {'plain R/P [%]':>16s} {'furnished R/P [%]':>20s} {'s per map':>10s}"]
+
+    def line(name: str, plain, furnished, seconds: float) -> str:
+        def rp(v) -> str:
+            return "-" if v is None else f"{v[0]:5.1f} / {v[1]:5.1f}"
+
+        return f"{name:36s} {rp(plain):>16s} {rp(furnished):>20s} {seconds:10.2f}"
+
+    ours = {k: (100 * s[k]["recall"], 100 * s[k]["precision"]) if k in s else None for k in ("plain", "furnished")}
+    lines.append(line(f"hsmap (ours, {s.get('plain', {}).get('maps', 0)} maps)", ours["plain"], ours["furnished"],
+                      s.get("all", {}).get("seconds_median", float("nan"))))
+    rs = (references or {}).get("room_segmentation", {})
+    for m in rs.get("methods", []):
+        lines.append(line(f"{m['method']} ({rs.get('maps', '?')} maps)",
+                          (m["plain"]["recall_pct"], m["plain"]["precision_pct"]),
+                          (m["furnished"]["recall_pct"], m["furnished"]["precision_pct"]), m["seconds"]))
+    return "\n".join(lines)
 
 
 def summarise_segmentation(rows: Sequence[Mapping[str, Any]]) -> dict:

@@ -194,15 +194,10 @@ def load_parameters_file(path: str | os.PathLike) -> tuple[dict[str, Any], dict[
 
     Returns (common parameters, per-notebook parameters keyed by selector).
     """
-    import yaml
+    from ..config import read_yaml
 
     path = Path(path)
-    try:
-        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read parameters file: {exc.strerror}") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML: {exc}") from None
+    doc = read_yaml(path, "parameters file")
     if doc is None:
         return {}, {}
     if not isinstance(doc, dict):

@@ -18,8 +18,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
+from ..config import read_yaml
 from ..errors import ConfigError, InputError
 from ..segmentation import SegmentationConfig
 from ..slam import SlamConfig
@@ -61,12 +61,7 @@ def published_references(path: str | os.PathLike | None = None) -> dict:
         (``methods``: recall and precision in percent per map kind, seconds per map).
     """
     p = Path(path) if path is not None else data_dir() / "published.yaml"
-    try:
-        doc = yaml.safe_load(p.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ConfigError(f"{p}: cannot read the published numbers: {exc.strerror}") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{p}: not valid YAML: {exc}") from None
+    doc = read_yaml(p, "published numbers")
     for key in ("freiburg_relations", "room_segmentation"):
         if not isinstance(doc, dict) or not isinstance(doc.get(key), dict) or "methods" not in doc[key]:
             raise ConfigError(f"{p}: {key}.methods: missing")

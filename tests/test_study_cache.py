@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 import pytest
+from _worlds import TINY_SCENARIO
 
 import hsmap
 from hsmap.errors import CacheError, DatasetError
@@ -192,24 +193,6 @@ def test_lock_held_by_another_process(tmp_path):
 
 
 # --- end to end: a simulator change recomputes the dataset, the SLAM runs and the maps ----------------------
-
-TINY_SCENARIO = """
-name: tiny
-frame_rate: 2.0
-walls:
-  - {name: s, from: [0, 0], to: [4, 0]}
-  - {name: e, from: [4, 0], to: [4, 3]}
-  - {name: n, from: [4, 3], to: [0, 3]}
-  - {name: w, from: [0, 3], to: [0, 0]}
-rooms:
-  - {name: room, rect: [0, 0, 4, 3]}
-route:
-  start: [1.0, 1.5, 0]
-  steps:
-    - [2.0, 1.5]
-sensors:
-  lidar3d: {channels: 16, columns: 256}
-"""
 
 PROBE = """
 import json, sys

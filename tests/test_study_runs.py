@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _worlds import TINY_SCENARIO
 
 import hsmap.slam
 from hsmap.datasets.frames import Dataset, Frame, LaserScan2D
@@ -262,25 +263,6 @@ def test_recording_of_a_cached_run_verifies(tmp_path, dataset):
     for entity in ("/world/robot", "/world/robot/lidar2d/scan", "/world/map/points/0000",
                    "/world/trajectory/estimate", "/world/trajectory/groundtruth"):
         assert any(e.rstrip("/") == entity or e == entity.lstrip("/") for e in contents), (entity, list(contents))
-
-
-TINY_SCENARIO = """
-name: tiny
-frame_rate: 2.0
-walls:
-  - {name: s, from: [0, 0], to: [4, 0]}
-  - {name: e, from: [4, 0], to: [4, 3]}
-  - {name: n, from: [4, 3], to: [0, 3]}
-  - {name: w, from: [0, 3], to: [0, 0]}
-rooms:
-  - {name: room, rect: [0, 0, 4, 3]}
-route:
-  start: [1.0, 1.5, 0]
-  steps:
-    - [2.0, 1.5]
-sensors:
-  lidar3d: {channels: 16, columns: 256}
-"""
 
 
 def test_simulated_dataset_is_generated_once(tmp_path, monkeypatch):

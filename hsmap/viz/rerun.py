@@ -36,7 +36,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -77,7 +77,6 @@ __all__ = [
     "log_room_labels",
     "world_to_map2d",
     "log_map2d_path",
-    "log_map2d_points",
     "log_room_graph",
     "rerun_binary",
     "verify_rrd",
@@ -685,17 +684,6 @@ def log_map2d_path(
     _stream(rec).log(f"{MAP2D}/paths/{name}",
                      rr.LineStrips2D([world_to_map2d(geometry, xy)], colors=color, radii=radius,
                                      draw_order=10.0), static=static, strict=True)
-
-
-def log_map2d_points(
-    rec: Any, entity: str, xy: ArrayLike, geometry: GridGeometry, *, colors: ArrayLike | None = None,
-    labels: Sequence[str] | None = None, radius: float = 2.0, static: bool = True,
-) -> None:
-    """World points (N, 2) drawn over the 2D map view at ``map/ENTITY`` (radius in pixels)."""
-    p = _points(xy, (2, 3), "xy")[:, :2]
-    _stream(rec).log(f"{MAP2D}/{entity}",
-                     rr.Points2D(world_to_map2d(geometry, p), colors=colors, radii=radius, labels=labels,
-                                 draw_order=20.0), static=static, strict=True)
 
 
 # --- room graph ----------------------------------------------------------------------------------------

@@ -285,3 +285,17 @@ def test_an_interrupted_run_leaves_no_temporaries_and_says_so(tmp_path, monkeypa
         run_notebooks(nbdir, out, log=None)
     index = json.loads((out / "index.json").read_text())
     assert [e["status"] for e in index["notebooks"]] == ["ok", "interrupted"]
+
+
+def test_kernels_run_blas_on_hsmap_blas_threads_unless_the_caller_chose(monkeypatch):
+    from hsmap.study.batch import _kernel_env
+
+    for var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS", "HSMAP_BLAS_THREADS"):
+        monkeypatch.delenv(var, raising=False)
+    env = _kernel_env("01-x", jobs=1)
+    assert env["OPENBLAS_NUM_THREADS"] == env["MKL_NUM_THREADS"] == "1" and "OMP_NUM_THREADS" not in env
+    monkeypatch.setenv("HSMAP_BLAS_THREADS", "2")
+    assert _kernel_env("01-x", jobs=1)["OPENBLAS_NUM_THREADS"] == "2"
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "4")
+    env = _kernel_env("01-x", jobs=2)
+    assert "OPENBLAS_NUM_THREADS" not in env and env["OMP_NUM_THREADS"] == str(max(1, (os.cpu_count() or 1) // 2))

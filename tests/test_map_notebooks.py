@@ -36,5 +36,5 @@ def test_notebooks_04_06_quick(tmp_path, monkeypatch):
     m6 = json.loads((o6 / "metrics.json").read_text())["metrics"]
     assert m6["rooms"] >= 1 and m6["frames"] == 30
     # one computation of the maps for both notebooks
-    assert len(list((tmp_path / "generated" / "maps").glob("two-rooms-seed1-first30-30f-*/meta.json"))) == 1
+    assert len(list((tmp_path / "generated" / "maps").glob("two-rooms-seed1-30f-*/meta.json"))) == 1
     assert (tmp_path / "generated" / "two-rooms-seed1-first30" / "dataset.yaml").is_file()

@@ -45,6 +45,7 @@ bench: setup
 	$(BIN)/python benchmarks/segmentation.py
 	$(BIN)/python benchmarks/slam.py
 	$(BIN)/python benchmarks/simulate.py
+	$(BIN)/python benchmarks/readers.py
 
 lint: setup
 	$(BIN)/ruff check hsmap tests benchmarks

@@ -26,7 +26,6 @@ import dataclasses
 import os
 import platform
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -35,66 +34,21 @@ os.environ.setdefault("RERUN_ANALYTICS", "0")
 
 import hsmap  # noqa: E402
 from hsmap.config import to_dict  # noqa: E402
-from hsmap.evaluation import segmentation_scores  # noqa: E402
-from hsmap.grid import read_image_gray  # noqa: E402
+from hsmap.grid import FREE, OCCUPIED, OccupancyGrid, read_image_gray  # noqa: E402
 from hsmap.io import atomic_path, write_json  # noqa: E402
 from hsmap.segmentation import SegmentationConfig, segment_rooms  # noqa: E402
+from hsmap.study.benchmarks import BORMANN_BUILDINGS, room_segmentation_benchmark, summarise_segmentation  # noqa: E402
+from hsmap.study.paths import datasets_dir  # noqa: E402
 
-NAMES = ["lab_ipa", "lab_c_scan", "Freiburg52_scan", "Freiburg79_scan", "lab_b_scan", "lab_f_scan", "lab_a_scan",
-         "NLB", "office_a", "office_b", "office_d", "office_e", "office_f", "office_h", "office_i"]
 TARGETS = {"plain": {"recall": 0.90, "precision": 0.90}, "furnished": {"recall": 0.80, "precision": 0.90}}
 RESOLUTION = 0.05
 
 
-def run_method(name: str, cfg: SegmentationConfig, folder: Path, maps: list[str], repeats: int) -> list[dict]:
-    rows = []
-    for n in maps:
-        gt = read_image_gray(folder / f"{n}_gt_segmentation.png")
-        for kind, suffix in (("plain", ""), ("furnished", "_furnitures")):
-            free = read_image_gray(folder / f"{n}{suffix}.png") >= 250
-            times = []
-            for _ in range(repeats):
-                t0 = time.perf_counter()
-                seg = segment_rooms(free, RESOLUTION, config=cfg)
-                times.append(time.perf_counter() - t0)
-            s = segmentation_scores(seg.labels, gt)
-            rows.append({
-                "method": name, "map": n + suffix, "building": n, "kind": kind,
-                "precision": s.precision, "recall": s.recall,
-                "precision_area": s.precision_area, "recall_area": s.recall_area,
-                "n_rooms": s.n_rooms, "n_segments": s.n_segments, "n_doors": len(seg.doors),
-                "time_s": float(np.median(times)), "times_s": times, "pixels": int(free.size),
-            })
-            print(f"  {name:18s} {n + suffix:28s} P={s.precision:.3f} R={s.recall:.3f} "
-                  f"segs={s.n_segments:3d}/{s.n_rooms:3d} t={np.median(times):.2f}s", flush=True)
-    return rows
-
-
-def summarise(rows: list[dict]) -> dict:
-    out = {}
-    for kind in ("plain", "furnished"):
-        r = [x for x in rows if x["kind"] == kind]
-        if not r:
-            continue
-        out[kind] = {
-            "maps": len(r),
-            "precision": float(np.mean([x["precision"] for x in r])),
-            "recall": float(np.mean([x["recall"] for x in r])),
-            "precision_area": float(np.mean([x["precision_area"] for x in r])),
-            "recall_area": float(np.mean([x["recall_area"] for x in r])),
-            "time_median_s": float(np.median([x["time_s"] for x in r])),
-            "time_max_s": float(np.max([x["time_s"] for x in r])),
-        }
-    allt = [x["time_s"] for x in rows]
-    out["all"] = {"time_median_s": float(np.median(allt)), "time_max_s": float(np.max(allt))}
-    return out
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--datasets", default=os.environ.get("HSMAP_DATASETS", "../shared/datasets"))
+    ap.add_argument("--datasets", default=str(datasets_dir()))
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--maps", default=",".join(NAMES), help="comma-separated building names")
+    ap.add_argument("--maps", default=",".join(BORMANN_BUILDINGS), help="comma-separated building names")
     ap.add_argument("--methods", default="critical,paper,critical+furniture")
     ap.add_argument("--figure-map", default="Freiburg52_scan_furnitures",
                     help="map whose step-by-step figure is written ('' for none)")
@@ -125,16 +79,19 @@ def main(argv=None) -> int:
     }
     for m in methods:
         print(f"method {m}:", flush=True)
-        rows = run_method(m, configs[m], folder, maps, args.repeats)
-        result["methods"][m] = {"config": to_dict(configs[m]), "summary": summarise(rows), "maps": rows}
+        rows = room_segmentation_benchmark(folder, maps, config=configs[m], resolution=RESOLUTION,
+                                           repeats=args.repeats, log=lambda line, m=m: print(f"  {m:18s} {line}", flush=True))
+        rows = [{"method": m, **r} for r in rows]
+        result["methods"][m] = {"config": to_dict(configs[m]), "summary": summarise_segmentation(rows), "maps": rows}
 
     if args.figure_map:
-        from hsmap.segmentation_figures import steps_figure
+        from hsmap.viz.map_figures import voronoi_steps_figure
 
         name = args.figure_map
         free = read_image_gray(folder / f"{name}.png") >= 250
         seg = segment_rooms(free, RESOLUTION, config=configs[methods[0]], keep_steps=True)
-        fig = steps_figure(seg, title=f"{name}: segmentation steps ({methods[0]})")
+        grid = OccupancyGrid(np.where(free, FREE, OCCUPIED), seg.geometry)
+        fig = voronoi_steps_figure(grid, seg, title=f"{name}: segmentation steps ({methods[0]})")
         fig_path = Path(args.out).with_name(f"segmentation_steps_{name}.png")
         fig_path.parent.mkdir(parents=True, exist_ok=True)
         with atomic_path(fig_path) as tmp:
@@ -150,8 +107,8 @@ def main(argv=None) -> int:
         for n in maps:
             a = next(x for x in rows if x["map"] == n)
             b = next(x for x in rows if x["map"] == n + "_furnitures")
-            print(f"{n:18s} {a['precision']:8.3f} {a['recall']:8.3f} {a['time_s']:6.2f}   "
-                  f"{b['precision']:7.3f} {b['recall']:7.3f} {b['time_s']:6.2f}")
+            print(f"{n:18s} {a['precision']:8.3f} {a['recall']:8.3f} {a['seconds']:6.2f}   "
+                  f"{b['precision']:7.3f} {b['recall']:7.3f} {b['seconds']:6.2f}")
     print("\nsummary (means over maps; targets plain P,R >= 0.90; furnished R >= 0.80, P >= 0.90)")
     print(f"{'method':18s} {'kind':10s} {'P':>6s} {'R':>6s} {'P_area':>7s} {'R_area':>7s} {'t_med':>6s} {'t_max':>6s}")
     for m in methods:
@@ -159,7 +116,7 @@ def main(argv=None) -> int:
             if kind == "all":
                 continue
             print(f"{m:18s} {kind:10s} {s['precision']:6.3f} {s['recall']:6.3f} {s['precision_area']:7.3f} "
-                  f"{s['recall_area']:7.3f} {s['time_median_s']:6.2f} {s['time_max_s']:6.2f}")
+                  f"{s['recall_area']:7.3f} {s['seconds_median']:6.2f} {s['seconds_max']:6.2f}")
     print(f"\nwrote {args.out}")
     return 0
 

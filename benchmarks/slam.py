@@ -40,8 +40,9 @@ from hsmap.datasets.open import open_dataset  # noqa: E402
 from hsmap.datasets.relations import read_relations  # noqa: E402
 from hsmap.evaluation.trajectory import pose_errors, relations_error  # noqa: E402
 from hsmap.geometry import compose, invert, matrix_to_pose  # noqa: E402
-from hsmap.io import Trajectory, write_json  # noqa: E402
+from hsmap.io import write_json  # noqa: E402
 from hsmap.slam import SlamConfig, run_slam  # noqa: E402
+from hsmap.trajectory import Trajectory  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 FREIBURG = {
@@ -160,10 +161,9 @@ def bench_3d(max_frames: int | None) -> dict:
     from kiss_icp.config import KISSConfig
     from kiss_icp.kiss_icp import KissICP
 
-    from hsmap.sim.writer import ensure_dataset
+    from hsmap.study import simulated_dataset
 
-    folder = ensure_dataset("slam-office", seed=1, out=ROOT / "data/generated/slam-office-seed1")
-    ds = open_dataset(folder)
+    ds = open_dataset(simulated_dataset("slam-office", 1).path)
     n = min(len(ds), max_frames or len(ds))
     t0 = time.perf_counter()
     frames = [f for _, f in zip(range(n), ds.frames(clouds=True), strict=False)]

@@ -13,6 +13,7 @@ import sys
 import warnings
 
 from . import __version__
+from ._blas import limited_blas
 from .commands import COMMANDS
 from .errors import HsmapError
 
@@ -47,7 +48,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        return int(args._run(args) or 0)
+        with limited_blas():  # hsmap's own process: BLAS on $HSMAP_BLAS_THREADS threads throughout
+            return int(args._run(args) or 0)
     except HsmapError as exc:
         print(f"hsmap: error: {exc}", file=sys.stderr)
         return 2

@@ -11,29 +11,16 @@ from typing import Any, TypeVar
 import yaml
 
 from .errors import ConfigError
-from .io import write_text
+from .io import to_plain, write_text
 
 T = TypeVar("T")
 
-__all__ = ["from_dict", "to_dict", "load_config", "dump_config"]
+__all__ = ["from_dict", "to_dict", "read_yaml", "load_config", "dump_config"]
 
 
 def to_dict(cfg: Any) -> dict[str, Any]:
     """A plain dict (nested for nested dataclasses) of a configuration dataclass."""
-    out = dataclasses.asdict(cfg)
-
-    def clean(v: Any) -> Any:
-        if isinstance(v, dict):
-            return {k: clean(x) for k, x in v.items()}
-        if isinstance(v, (list, tuple)):
-            return [clean(x) for x in v]
-        if hasattr(v, "item"):
-            return v.item()
-        if hasattr(v, "value") and not isinstance(v, (int, float, str)):  # enums
-            return v.value
-        return v
-
-    return clean(out)
+    return to_plain(dataclasses.asdict(cfg))
 
 
 def from_dict(cls: type[T], data: dict[str, Any] | None, where: str = "config") -> T:
@@ -60,16 +47,26 @@ def from_dict(cls: type[T], data: dict[str, Any] | None, where: str = "config") 
         raise ConfigError(f"{where}: {exc}") from None
 
 
-def load_config(cls: type[T], path: str | os.PathLike) -> T:
-    """Load dataclass ``cls`` from a YAML file."""
+def read_yaml(path: str | os.PathLike, what: str = "configuration file") -> Any:
+    """The YAML document in ``path`` (None for an empty file).
+
+    Raises
+    ------
+    ConfigError
+        The file cannot be read (``"PATH: cannot read the WHAT: reason"``) or is not valid YAML.
+    """
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such configuration file") from None
+        return yaml.safe_load(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read the {what}: {exc.strerror}") from None
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: not valid YAML: {exc}") from None
-    return from_dict(cls, data, str(path))
+
+
+def load_config(cls: type[T], path: str | os.PathLike) -> T:
+    """Load dataclass ``cls`` from a YAML file."""
+    return from_dict(cls, read_yaml(path), str(path))
 
 
 def dump_config(cfg: Any, path: str | os.PathLike) -> None:

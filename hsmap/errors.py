@@ -17,6 +17,7 @@ __all__ = [
     "DatasetError",
     "ScenarioError",
     "HsmapWarning",
+    "CacheError",
 ]
 
 
@@ -55,3 +56,8 @@ class ScenarioError(ConfigError):
 class HsmapWarning(UserWarning):
     """Something hsmap worked around (a failed optimisation, a skipped input): the result is usable but the user
     should know."""
+
+
+class CacheError(HsmapError):
+    """A cached result cannot be looked up or published: its lock is not free in time, or the code digest that
+    keys it cannot be computed (a file it expects is missing)."""

@@ -49,7 +49,6 @@ __all__ = [
     "overlay_classes",
     "overlay_image",
     "resample_grid",
-    "scans_to_points",
     "slice_grid",
     "slice_points",
     "slice_scan",
@@ -251,24 +250,6 @@ def slice_scans(
     if n != len(P):
         raise ShapeError(f"{n} frames but {len(P)} poses")
     return scans, np.asarray(spos, dtype=float).reshape(-1, 3)
-
-
-def scans_to_points(scans, poses: ArrayLike, extrinsic: ArrayLike | None = None) -> NDArray[np.float64]:
-    """World (x, y) of the end points of 2D scans (arrays (K, 2) or LaserScan2D) at world poses (M, 3), the
-    sensor at ``extrinsic`` (x, y, yaw) in the pose's frame: all points stacked, (N, 2)."""
-    P = np.asarray(poses, dtype=float)
-    scans = list(scans)
-    if P.ndim != 2 or P.shape[1] != 3 or len(P) != len(scans):
-        raise ShapeError(f"poses must have shape ({len(scans)}, 3) for {len(scans)} scans, got {P.shape}")
-    E = np.eye(3) if extrinsic is None else pose_to_matrix(np.asarray(extrinsic, dtype=float).reshape(3))
-    out = []
-    for i, (s, p) in enumerate(zip(scans, P, strict=True)):
-        pts = s.points() if hasattr(s, "points") else np.asarray(s, dtype=float)
-        if pts.ndim != 2 or pts.shape[1] != 2:
-            raise ShapeError(f"scans[{i}] must be (K, 2) points or a LaserScan2D, got shape {pts.shape}")
-        T = pose_to_matrix(p) @ E
-        out.append(pts @ T[:2, :2].T + T[:2, 2])
-    return np.vstack(out) if out else np.empty((0, 2))
 
 
 def slice_grid(

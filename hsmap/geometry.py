@@ -14,8 +14,9 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
 
-from .errors import ShapeError
+from .errors import InputError, ShapeError
 
 __all__ = [
     "wrap_angle",
@@ -33,7 +34,6 @@ __all__ = [
     "quaternion_to_matrix",
     "matrix_to_quaternion",
     "dof_of_dim",
-    "rotation_angle",
 ]
 
 
@@ -157,50 +157,24 @@ def relative(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
     return matrix_to_pose(invert_matrix(pose_to_matrix(a)) @ pose_to_matrix(b))
 
 
-def rotation_angle(R: ArrayLike) -> NDArray[np.float64]:
-    """Angle (radians) of rotation matrices (..., 2, 2) or (..., 3, 3)."""
-    R = np.asarray(R, dtype=float)
-    if R.shape[-1] == 2:
-        return np.abs(np.arctan2(R[..., 1, 0], R[..., 0, 0]))
-    c = (np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0
-    return np.arccos(np.clip(c, -1.0, 1.0))
-
-
 def quaternion_to_matrix(q: ArrayLike) -> NDArray[np.float64]:
-    """Rotation matrices (..., 3, 3) from unit quaternions (..., 4) in (qx, qy, qz, qw) order (TUM, ROS)."""
+    """Rotation matrices (..., 3, 3) from quaternions (..., 4) in (qx, qy, qz, qw) order (TUM, ROS), normalised
+    first (scipy's :class:`~scipy.spatial.transform.Rotation`)."""
     q = np.asarray(q, dtype=float)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
-            np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
-            np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        -2,
-    )
+    if q.shape[-1:] != (4,):
+        raise ShapeError(f"quaternions must have shape (..., 4), got {q.shape}")
+    flat = q.reshape(-1, 4)
+    norm = np.linalg.norm(flat, axis=1)
+    if not np.all(np.isfinite(norm) & (norm > 0)):
+        raise InputError(f"quaternion {flat[~(np.isfinite(norm) & (norm > 0))][0].tolist()} is zero or not finite")
+    return Rotation.from_quat(flat).as_matrix().reshape(q.shape[:-1] + (3, 3))
 
 
 def matrix_to_quaternion(R: ArrayLike) -> NDArray[np.float64]:
-    """Unit quaternions (..., 4) in (qx, qy, qz, qw) order, qw >= 0, from rotation matrices (..., 3, 3)."""
+    """Unit quaternions (..., 4) in (qx, qy, qz, qw) order, qw >= 0, from rotation matrices (..., 3, 3)
+    (scipy's :class:`~scipy.spatial.transform.Rotation`, canonical sign)."""
     R = np.asarray(R, dtype=float)
-    m = R.reshape(-1, 3, 3)
-    out = np.empty((m.shape[0], 4))
-    tr = np.trace(m, axis1=1, axis2=2)
-    for i in range(m.shape[0]):  # Shepperd's method: pick the numerically largest component
-        M = m[i]
-        if tr[i] > 0:
-            s = 2.0 * np.sqrt(tr[i] + 1.0)
-            out[i] = [(M[2, 1] - M[1, 2]) / s, (M[0, 2] - M[2, 0]) / s, (M[1, 0] - M[0, 1]) / s, 0.25 * s]
-        elif M[0, 0] > M[1, 1] and M[0, 0] > M[2, 2]:
-            s = 2.0 * np.sqrt(1.0 + M[0, 0] - M[1, 1] - M[2, 2])
-            out[i] = [0.25 * s, (M[0, 1] + M[1, 0]) / s, (M[0, 2] + M[2, 0]) / s, (M[2, 1] - M[1, 2]) / s]
-        elif M[1, 1] > M[2, 2]:
-            s = 2.0 * np.sqrt(1.0 + M[1, 1] - M[0, 0] - M[2, 2])
-            out[i] = [(M[0, 1] + M[1, 0]) / s, 0.25 * s, (M[1, 2] + M[2, 1]) / s, (M[0, 2] - M[2, 0]) / s]
-        else:
-            s = 2.0 * np.sqrt(1.0 + M[2, 2] - M[0, 0] - M[1, 1])
-            out[i] = [(M[0, 2] + M[2, 0]) / s, (M[1, 2] + M[2, 1]) / s, 0.25 * s, (M[1, 0] - M[0, 1]) / s]
-    out *= np.where(out[:, 3:4] < 0, -1.0, 1.0)
-    out /= np.linalg.norm(out, axis=1, keepdims=True)
-    return out.reshape(R.shape[:-2] + (4,))
+    if R.shape[-2:] != (3, 3):
+        raise ShapeError(f"rotation matrices must have shape (..., 3, 3), got {R.shape}")
+    q = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_quat(canonical=True)
+    return q.reshape(R.shape[:-2] + (4,))

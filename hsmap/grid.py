@@ -35,6 +35,7 @@ __all__ = [
     "read_label_image",
     "write_label_image",
     "grid_from_scans",
+    "scans_to_points",
     "grid_from_point_slice",
 ]
 
@@ -397,6 +398,53 @@ def _as_scan_points(scan, name: str) -> tuple[NDArray[np.float64], NDArray[np.bo
     return pts[ok], np.ones(int(ok.sum()), dtype=bool)
 
 
+def _placed_scans(scans, poses: ArrayLike, extrinsic: ArrayLike | None = None
+                  ) -> list[tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]]:
+    """Each scan's sensor position (2,), its beam end points in the world (K, 2) and its mask of real returns (K,).
+
+    ``poses`` (M, 3) are the robot's; ``extrinsic`` is the sensor's pose in the robot frame, one (3,) for all
+    scans or one per scan (M, 3); default identity.
+    """
+    from .geometry import compose, pose_to_matrix, transform_points
+
+    poses = np.asarray(poses, dtype=float)
+    scans = list(scans)
+    if poses.ndim != 2 or poses.shape[1] != 3 or len(poses) != len(scans):
+        raise ShapeError(f"poses must have shape ({len(scans)}, 3) (x, y, yaw) for {len(scans)} scans, "
+                         f"got {poses.shape}")
+    ext = np.zeros(3) if extrinsic is None else np.asarray(extrinsic, dtype=float)
+    if ext.shape == (3,):
+        ext = np.broadcast_to(ext, poses.shape)
+    if ext.shape != poses.shape:
+        raise ShapeError(f"extrinsic must have shape (3,) or ({len(scans)}, 3), got {ext.shape}")
+    out = []
+    for i, (scan, pose, e) in enumerate(zip(scans, poses, ext, strict=True)):
+        pts, hit = _as_scan_points(scan, f"scans[{i}]")
+        sensor = compose(pose, e)
+        out.append((sensor[:2], transform_points(pose_to_matrix(sensor), pts), hit))
+    return out
+
+
+def scans_to_points(scans, poses: ArrayLike, extrinsic: ArrayLike | None = None) -> NDArray[np.float64]:
+    """World (x, y) of the real returns of 2D scans placed at robot poses, all scans stacked.
+
+    Parameters
+    ----------
+    scans : sequence of (K_i, 2) arrays or LaserScan2D
+        Each scan in its sensor frame.
+    poses : ndarray of shape (M, 3)
+        World pose (x, y, yaw) of the robot at each scan (M = len(scans)).
+    extrinsic : ndarray of shape (3,) or (M, 3), optional
+        Pose of the sensor in the robot frame, one for all scans or one per scan (default identity).
+
+    Returns
+    -------
+    ndarray of shape (N, 2)
+    """
+    placed = _placed_scans(scans, poses, extrinsic)
+    return np.vstack([w[hit] for _, w, hit in placed]) if placed else np.empty((0, 2))
+
+
 def grid_from_scans(
     scans,
     poses: ArrayLike,
@@ -423,8 +471,8 @@ def grid_from_scans(
         World pose (x, y, yaw) of the robot at each scan (M = len(scans)).
     resolution : float
         Metres per cell.
-    extrinsic : ndarray of shape (3,), optional
-        Pose of the sensor in the robot frame (default identity).
+    extrinsic : ndarray of shape (3,) or (M, 3), optional
+        Pose of the sensor in the robot frame, one for all scans or one per scan (default identity).
     geometry : GridGeometry, optional
         The grid to fill; by default the smallest grid covering all beams plus ``margin``.
     config : ScanGridConfig, optional
@@ -437,28 +485,15 @@ def grid_from_scans(
     """
     from PIL import Image, ImageDraw
 
-    from .geometry import compose, pose_to_matrix, transform_points
-
     cfg = config or ScanGridConfig()
-    poses = np.asarray(poses, dtype=float)
-    if poses.ndim != 2 or poses.shape[1] != 3:
-        raise ShapeError(f"poses must have shape (M, 3) (x, y, yaw), got {poses.shape}")
-    scans = list(scans)
-    if len(scans) != len(poses):
-        raise ShapeError(f"{len(scans)} scans but {len(poses)} poses")
     if not (np.isfinite(resolution) and resolution > 0):
         raise InputError(f"resolution must be a positive number of metres per cell, got {resolution}")
-    ext = np.zeros(3) if extrinsic is None else np.asarray(extrinsic, dtype=float).reshape(3)
-    world: list[tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]] = []
-    for i, (scan, pose) in enumerate(zip(scans, poses, strict=True)):
-        pts, hit = _as_scan_points(scan, f"scans[{i}]")
-        sensor = compose(pose, ext)
-        T = pose_to_matrix(sensor)
-        w = transform_points(T, pts)
+    world = []
+    for sensor, w, hit in _placed_scans(scans, poses, extrinsic):
         if not cfg.max_range_free:
-            w[~hit] = sensor[:2]
+            w[~hit] = sensor
         if hit.any() or (cfg.max_range_free and len(w)):
-            world.append((sensor[:2], w, hit))
+            world.append((sensor, w, hit))
     if not world:
         raise EmptyInputError("grid_from_scans: no valid return in any scan")
     if geometry is None:

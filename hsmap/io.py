@@ -1,4 +1,4 @@
-"""File I/O shared by every stage: atomic writes and TUM trajectories.
+"""File I/O shared by every stage: atomic writes, JSON, rows of numbers.
 
 Outputs are written atomically: to a temporary file in the same folder, then renamed over the target,
 so an interrupted run never leaves a half-written file that looks complete.
@@ -7,30 +7,25 @@ so an interrupted run never leaves a half-written file that looks complete.
 from __future__ import annotations
 
 import contextlib
+import enum
 import json
 import os
 import tempfile
-import time
-from collections.abc import Iterator
-from dataclasses import dataclass
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import IO, Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
-from .errors import DataFormatError, DatasetError, HsmapError, ShapeError
-from .geometry import euler_to_matrix, matrix_to_euler, matrix_to_quaternion, quaternion_to_matrix
+from .errors import DataFormatError, DatasetError
 
 __all__ = [
-    "file_lock",
     "atomic_path",
     "atomic_open",
     "write_json",
+    "to_plain",
     "write_text",
-    "Trajectory",
-    "read_tum",
-    "write_tum",
     "read_number_rows",
 ]
 
@@ -42,42 +37,6 @@ def _default_file_mode() -> int:
 
 
 _FILE_MODE = _default_file_mode()  # what open() would give a new file (mkstemp makes it private)
-
-
-@contextlib.contextmanager
-def file_lock(path: str | os.PathLike, *, timeout: float | None = None, poll: float = 0.5) -> Iterator[Path]:
-    """Hold an exclusive ``flock`` on the file ``path`` (created when missing) for the ``with`` block.
-
-    The lock belongs to the open file: it is released when the block ends or the process dies, so a crashed
-    holder never blocks the next caller; locks taken through separate ``open`` calls exclude each other even
-    within one process. Where ``fcntl`` is missing (Windows) the block runs unlocked.
-
-    Raises
-    ------
-    HsmapError
-        The lock was not free within ``timeout`` seconds (None: wait for ever).
-    """
-    p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    try:
-        import fcntl
-    except ImportError:  # pragma: no cover - not POSIX
-        yield p
-        return
-    with open(p, "a+b") as fh:
-        t0 = time.monotonic()
-        while True:
-            try:
-                fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-                break
-            except BlockingIOError:
-                if timeout is not None and time.monotonic() - t0 > timeout:
-                    raise HsmapError(f"{p}: still locked by another process after {timeout:g} s") from None
-                time.sleep(poll)
-        try:
-            yield p
-        finally:
-            fcntl.flock(fh.fileno(), fcntl.LOCK_UN)
 
 
 @contextlib.contextmanager
@@ -110,14 +69,30 @@ def atomic_open(path: str | os.PathLike, mode: str = "w", **kwargs: Any) -> Iter
         yield fh
 
 
+def to_plain(value: Any) -> Any:
+    """``value`` as plain Python data for JSON and YAML: mappings become dicts with string keys, lists and tuples
+    lists, numpy arrays nested lists, numpy scalars Python numbers, enums their value, paths strings; anything
+    else is returned as it is."""
+    if isinstance(value, Mapping):
+        return {str(k): to_plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [to_plain(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, enum.Enum):
+        return value.value
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
 def _json_default(o: Any) -> Any:
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(f"cannot serialise {type(o).__name__} to JSON")
+    plain = to_plain(o)
+    if plain is o:
+        raise TypeError(f"cannot serialise {type(o).__name__} to JSON")
+    return plain
 
 
 def write_json(path: str | os.PathLike, obj: Any) -> None:
@@ -131,67 +106,6 @@ def write_text(path: str | os.PathLike, text: str) -> None:
     """Write text atomically."""
     with atomic_open(path, "w", encoding="utf-8") as fh:
         fh.write(text)
-
-
-@dataclass
-class Trajectory:
-    """Timestamped poses.
-
-    Attributes
-    ----------
-    stamps : ndarray of shape (N,)
-        Seconds.
-    poses : ndarray of shape (N, 3) or (N, 6)
-        (x, y, yaw) or (x, y, z, roll, pitch, yaw), see :mod:`hsmap.geometry`.
-    """
-
-    stamps: NDArray[np.float64]
-    poses: NDArray[np.float64]
-
-    def __post_init__(self) -> None:
-        self.stamps = np.asarray(self.stamps, dtype=float).reshape(-1)
-        self.poses = np.asarray(self.poses, dtype=float)
-        if self.poses.ndim != 2 or self.poses.shape[1] not in (3, 6):
-            raise ShapeError(f"Trajectory.poses must have shape (N, 3) or (N, 6), got {self.poses.shape}")
-        if len(self.stamps) != len(self.poses):
-            raise ShapeError(f"Trajectory has {len(self.stamps)} stamps but {len(self.poses)} poses")
-
-    def __len__(self) -> int:
-        return len(self.stamps)
-
-    @property
-    def dof(self) -> int:
-        return self.poses.shape[1]
-
-    def as_6dof(self) -> Trajectory:
-        """The same trajectory as (x, y, z, roll, pitch, yaw), z = roll = pitch = 0 for 2D input."""
-        if self.dof == 6:
-            return self
-        p = np.zeros((len(self), 6))
-        p[:, :2] = self.poses[:, :2]
-        p[:, 5] = self.poses[:, 2]
-        return Trajectory(self.stamps.copy(), p)
-
-    def as_3dof(self) -> Trajectory:
-        """The planar part (x, y, yaw)."""
-        if self.dof == 3:
-            return self
-        return Trajectory(self.stamps.copy(), self.poses[:, [0, 1, 5]].copy())
-
-    def path_length(self) -> float:
-        """Length of the path through the positions, in metres."""
-        d = 2 if self.dof == 3 else 3
-        return float(np.linalg.norm(np.diff(self.poses[:, :d], axis=0), axis=1).sum())
-
-
-def write_tum(path: str | os.PathLike, traj: Trajectory) -> None:
-    """Write a TUM trajectory (``t x y z qx qy qz qw``, readable by evo), atomically."""
-    p = traj.as_6dof().poses
-    q = matrix_to_quaternion(euler_to_matrix(p[:, 3], p[:, 4], p[:, 5]))
-    rows = np.column_stack([traj.stamps, p[:, :3], q])
-    with atomic_open(path, "w", encoding="utf-8") as fh:
-        fh.write("# timestamp x y z qx qy qz qw\n")
-        np.savetxt(fh, rows, fmt=["%.9f"] + ["%.9g"] * 7)
 
 
 def read_number_rows(path: str | os.PathLike, fields: str, what: str) -> NDArray[np.float64]:
@@ -235,21 +149,3 @@ def read_number_rows(path: str | os.PathLike, fields: str, what: str) -> NDArray
     if not rows:
         raise DataFormatError(f"{path}: no {what} in file")
     return np.asarray(rows)
-
-
-def read_tum(path: str | os.PathLike, dof: int = 6) -> Trajectory:
-    """Read a TUM trajectory file; ``dof=3`` returns (x, y, yaw)."""
-    if not Path(path).is_file():
-        raise DatasetError(f"{path}: no such trajectory file")
-    arr = read_number_rows(path, "t x y z qx qy qz qw", "poses")
-    rpy = matrix_to_euler(quaternion_to_matrix(arr[:, 4:]))
-    traj = Trajectory(arr[:, 0], np.column_stack([arr[:, 1:4], rpy]))
-    return traj.as_3dof() if dof == 3 else traj
-
-
-def as_float_array(x: ArrayLike, name: str) -> NDArray[np.float64]:
-    """``np.asarray(x, float)`` with an error naming the argument when it is not numeric."""
-    try:
-        return np.asarray(x, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ShapeError(f"{name} must be a numeric array, got {type(x).__name__}: {exc}") from None

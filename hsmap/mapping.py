@@ -1,8 +1,12 @@
-"""Point-cloud maps: a voxel-hashed point map (2D or 3D) that keeps one point per voxel.
+"""Voxels: the voxel-hashed point map (2D or 3D) that keeps one point per voxel, and the two ways of thinning a
+cloud by voxels.
 
-Like KISS-ICP's voxel map, the map stores raw points (not voxel centres), at most one per voxel, so the map
-keeps the sensor's precision while its size is bounded by the explored volume. The local map used for
+Like KISS-ICP's voxel map, :class:`VoxelMap` stores raw points (not voxel centres), at most one per voxel, so
+the map keeps the sensor's precision while its size is bounded by the explored volume. The local map used for
 registration is a crop around the robot.
+
+Thinning: :func:`voxel_downsample` keeps the centroid of each voxel (the scans before registration; numba);
+:func:`first_per_voxel` keeps the first point of each voxel, a raw point (maps to draw and to log).
 """
 
 from __future__ import annotations
@@ -12,7 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .errors import InputError, ShapeError
 
-__all__ = ["VoxelMap", "voxel_keys", "first_per_voxel"]
+__all__ = ["VoxelMap", "voxel_keys", "first_per_voxel", "voxel_downsample"]
 
 _BIAS = 1 << 20  # voxel indices in [-2^20, 2^20) per axis fit in 21 bits; 3 axes fit in an int64
 
@@ -40,6 +44,24 @@ def first_per_voxel(points: NDArray[np.floating], voxel: float) -> NDArray[np.fl
     if len(p) == 0:
         return p
     return p[np.sort(np.unique(voxel_keys(p, voxel), return_index=True)[1])]
+
+
+def voxel_downsample(points: NDArray[np.floating], voxel: float, min_range: float = 0.0,
+                     max_range: float = np.inf) -> NDArray[np.float64]:
+    """Centroid of the points in each occupied voxel (cube or square of side ``voxel``), ordered by voxel.
+
+    Points that are not finite, or whose distance from the origin is outside [min_range, max_range], are dropped
+    first. Coordinates must lie within +/- 2^20 voxels of the origin (about +/- 100 km at 0.1 m).
+    """
+    pts = np.asarray(points, dtype=float)
+    if voxel <= 0 or len(pts) == 0:
+        return pts
+    limit = min(max_range, float(np.nanmax(np.abs(pts), initial=0.0)))
+    if limit >= (1 << 20) * voxel:
+        raise InputError(f"points beyond +/-{(1 << 20) * voxel:.0f} m cannot be downsampled at {voxel} m voxels")
+    from . import _kernels  # numba: compiled on first use
+
+    return _kernels.voxel_centroids(np.ascontiguousarray(pts), float(voxel), float(min_range), float(max_range))
 
 
 class VoxelMap:

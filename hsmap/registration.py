@@ -22,10 +22,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
+from ._blas import blas_limited
 from .errors import ConfigError, EmptyInputError, InputError, ShapeError
 from .fitness import DistanceField, FieldObjective, KDTreeLookup, score
 from .geometry import dof_of_dim, matrix_to_pose, pose_to_matrix, transform_points, wrap_angle
 from .harmony import HarmonyConfig, HarmonyResult, as_rng, harmony_search
+from .mapping import voxel_downsample
 
 __all__ = [
     "Backend",
@@ -35,7 +37,6 @@ __all__ = [
     "RegistrationTarget",
     "harmony_icp",
     "refine_icp",
-    "voxel_downsample",
     "estimate_normals",
     "alignment_cost",
     "alignment_information",
@@ -80,8 +81,9 @@ class RegistrationConfig:
         Metres. If set, a second Harmony Search stage around the best harmony uses this truncation.
     inlier_weight : float
         Weight ``w`` of the inlier-count term (see :mod:`hsmap.fitness`).
-    backend : str
-        ``"field"`` (distance field, fast) or ``"kdtree"`` (exact).
+    backend : Backend
+        ``Backend.FIELD`` (distance field, fast) or ``Backend.KDTREE`` (exact); the strings ``"field"`` and
+        ``"kdtree"`` are accepted.
     field_resolution : float or None
         Cell size of the distance fields in metres; None picks a tenth of the truncation (at least 0.02 m) in 2D
         and a quarter of it in 3D.
@@ -97,8 +99,9 @@ class RegistrationConfig:
     fine_range_factor : float
         The fine stage searches +/- this many search thresholds (translation) around the first stage's best, and
         the matching angle at the source's radius of gyration.
-    refinement : str
-        ``"point-to-plane"`` (point-to-line in 2D), ``"point-to-point"`` or ``"none"``.
+    refinement : Refinement
+        ``Refinement.POINT_TO_PLANE`` (point-to-line in 2D), ``POINT_TO_POINT`` or ``NONE``; the strings
+        ``"point-to-plane"``, ``"point-to-point"`` and ``"none"`` are accepted.
     refine_iterations : int
         Maximum refinement iterations.
     refine_points : int
@@ -117,7 +120,7 @@ class RegistrationConfig:
     search_threshold: float = 0.5
     fine_threshold: float | None = None
     inlier_weight: float = 1.0
-    backend: str = Backend.FIELD.value
+    backend: Backend = Backend.FIELD
     field_resolution: float | None = None
     max_points: int = 150
     voxel_size: float | None = None
@@ -126,7 +129,7 @@ class RegistrationConfig:
     yaw_range: float = np.deg2rad(60.0)
     roll_pitch_range: float = np.deg2rad(8.0)
     fine_range_factor: float = 1.0
-    refinement: str = Refinement.POINT_TO_PLANE.value
+    refinement: Refinement = Refinement.POINT_TO_PLANE
     refine_iterations: int = 30
     refine_points: int = 2000
     refine_seeds: int = 0
@@ -151,12 +154,12 @@ class RegistrationConfig:
             if not isinstance(v, (int, np.integer)) or v < (0 if name in ("refine_iterations", "refine_seeds") else 1):
                 raise ConfigError(f"registration.{name} must be a positive integer, got {v!r}")
         try:
-            self.backend = Backend(self.backend).value
+            self.backend = Backend(self.backend)
         except ValueError:
             raise ConfigError(f"registration.backend must be one of {[b.value for b in Backend]}, "
                               f"got {self.backend!r}") from None
         try:
-            self.refinement = Refinement(self.refinement).value
+            self.refinement = Refinement(self.refinement)
         except ValueError:
             raise ConfigError(f"registration.refinement must be one of {[r.value for r in Refinement]}, "
                               f"got {self.refinement!r}") from None
@@ -282,24 +285,6 @@ def drop_degenerate(information: NDArray[np.float64], ratio: float = 0.05) -> ND
     return M @ info @ M
 
 
-def voxel_downsample(points: NDArray[np.floating], voxel: float, min_range: float = 0.0,
-                     max_range: float = np.inf) -> NDArray[np.float64]:
-    """Centroid of the points in each occupied voxel (cube or square of side ``voxel``), ordered by voxel.
-
-    Points that are not finite, or whose distance from the origin is outside [min_range, max_range], are dropped
-    first. Coordinates must lie within +/- 2^20 voxels of the origin (about +/- 100 km at 0.1 m).
-    """
-    pts = np.asarray(points, dtype=float)
-    if voxel <= 0 or len(pts) == 0:
-        return pts
-    limit = min(max_range, float(np.nanmax(np.abs(pts), initial=0.0)))
-    if limit >= (1 << 20) * voxel:
-        raise InputError(f"points beyond +/-{(1 << 20) * voxel:.0f} m cannot be downsampled at {voxel} m voxels")
-    from . import _kernels
-
-    return _kernels.voxel_centroids(np.ascontiguousarray(pts), float(voxel), float(min_range), float(max_range))
-
-
 def _clean_cloud(points: ArrayLike, name: str, dim: int | None = None) -> tuple[NDArray[np.float64], int]:
     try:
         arr = np.asarray(points, dtype=float)
@@ -353,7 +338,7 @@ class RegistrationTarget:
         """The distance look-up for a truncation distance (built on first use, then cached)."""
         lk = self._lookups.get(truncation)
         if lk is None:
-            if self.config.backend == Backend.FIELD.value:
+            if self.config.backend is Backend.FIELD:
                 res = self.config.field_resolution
                 if res is None:
                     res = max(0.02, truncation / 10.0) if self.dim == 2 else truncation / 4.0
@@ -383,6 +368,7 @@ class RegistrationTarget:
         return self._normals
 
 
+@blas_limited
 def estimate_normals(points: NDArray[np.float64], k: int | None = None,
                      tree: cKDTree | None = None) -> NDArray[np.float64]:
     """Unit normals of points (N, 2) or (N, 3) from the principal axes of their k nearest neighbours.
@@ -458,7 +444,7 @@ def refine_icp(
     max_distance: float,
     start_distance: float | None = None,
     iterations: int = 30,
-    method: str = Refinement.POINT_TO_PLANE.value,
+    method: Refinement | str = Refinement.POINT_TO_PLANE,
     tolerance: float = 1e-5,
     robust_kernel: float = 0.0,
 ) -> NDArray[np.float64]:
@@ -476,7 +462,11 @@ def refine_icp(
     schedule = _trim_schedule(start_distance or max_distance, max_distance)
     per_stage = max(1, iterations // len(schedule))
     T = pose_to_matrix(pose)
-    normals = target.normals if method == Refinement.POINT_TO_PLANE.value else None
+    try:
+        method = Refinement(method)
+    except ValueError:
+        raise InputError(f"method must be one of {[r.value for r in Refinement]}, got {method!r}") from None
+    normals = target.normals if method is Refinement.POINT_TO_PLANE else None
     for dist in schedule:
         for _ in range(per_stage):
             moved = transform_points(T, source)
@@ -571,6 +561,7 @@ def alignment_information(source: NDArray[np.float64], target: RegistrationTarge
     return Ad.T @ (A / sigma**2) @ Ad, sigma, n
 
 
+@blas_limited
 def harmony_icp(
     source: ArrayLike,
     target: ArrayLike | RegistrationTarget,
@@ -671,11 +662,11 @@ def harmony_icp(
                                                                             replace=False))]
     exact = tgt.exact(cfg.threshold)
     refined = False
-    if cfg.refinement != Refinement.NONE.value and cfg.refine_iterations > 0:
+    if cfg.refinement is not Refinement.NONE and cfg.refine_iterations > 0:
         # Keep a refinement unless it made the alignment worse, judged by its own (point-to-plane) metric: the
         # point-to-point fitness is biased towards poses where the scan's sampling pattern (a LiDAR's rings on
         # the floor) repeats the map's, i.e. towards no motion.
-        plane = cfg.refinement == Refinement.POINT_TO_PLANE.value
+        plane = cfg.refinement is Refinement.POINT_TO_PLANE
         best_cost = _alignment_cost(pose, full, tgt, cfg.threshold, plane)
         starts = [pose] + ([] if guesses is None else list(guesses[: cfg.refine_seeds]))
         for start in starts:

@@ -31,7 +31,7 @@ Pipeline (images in (row, col), world coordinates through :class:`hsmap.grid.Gri
 
 The result carries the room labels (on the input's free pixels), the door list in world coordinates (only
 doors between two different final rooms, one per passage) and, on request, every intermediate image (for
-the step-by-step figure, :func:`hsmap.segmentation_figures.steps_figure`).
+the step-by-step figure, :func:`hsmap.viz.map_figures.voronoi_steps_figure`).
 
 On the Bormann et al. (2016) benchmark (``benchmarks/segmentation.py``) the paper's band alone finds only
 doors 70-90 cm wide and under-segments (per-room precision about 0.73); the critical-point variant reaches

@@ -49,15 +49,16 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from ._blas import blas_limited
 from .config import dump_config, to_dict
 from .datasets.frames import Dataset, Frame
 from .errors import ConfigError, EmptyInputError, HsmapWarning, InputError
 from .fitness import DistanceField
 from .geometry import compose, pose_to_matrix, relative, transform_points, wrap_angle
 from .harmony import HarmonyConfig, as_rng
-from .io import Trajectory, atomic_path, write_json, write_tum
+from .io import atomic_path, write_json
 from .loopclosure import Keyframe, LoopCloser, LoopClosureConfig
-from .mapping import VoxelMap
+from .mapping import VoxelMap, voxel_downsample
 from .posegraph import EdgeKind, PoseGraph, information_with_floor
 from .registration import (
     RegistrationConfig,
@@ -66,8 +67,8 @@ from .registration import (
     drop_degenerate,
     estimate_normals,
     harmony_icp,
-    voxel_downsample,
 )
+from .trajectory import Trajectory, write_tum
 
 __all__ = ["SlamConfig", "FrameResult", "SlamResult", "HsSlam", "run_slam", "write_slam_outputs",
            "frame_points"]
@@ -80,6 +81,10 @@ def _tracking_registration() -> RegistrationConfig:
         threshold=0.1,
         max_points=150,
         robust_kernel=0.07,
+        translation_range=0.4,
+        yaw_range=np.deg2rad(20.0),
+        z_range=0.05,
+        roll_pitch_range=np.deg2rad(2.0),
     )
 
 
@@ -92,13 +97,10 @@ class SlamConfig:
     dof : int
         3 (x, y, yaw from the 2D scans) or 6 (x, y, z, roll, pitch, yaw from the 3D clouds).
     registration : RegistrationConfig
-        Harmony-ICP parameters for tracking.
+        Harmony-ICP parameters for tracking; its ``translation_range``, ``yaw_range``, ``z_range`` and
+        ``roll_pitch_range`` are the half-widths of the search box around the seeds.
     use_odometry : bool
         Seed the memory with the odometry prediction when the input has odometry.
-    translation_range, yaw_range : float
-        Half-width of the search box around the seeds, in x/y and in yaw.
-    z_range, roll_pitch_range : float
-        The same for z and roll/pitch (6-DOF).
     prior_translation_range, prior_yaw_range : float
         Half-widths used instead when a 6-DOF run is seeded by prior (2D) poses.
     recent_poses : int
@@ -132,10 +134,6 @@ class SlamConfig:
     dof: int = 3
     registration: RegistrationConfig = field(default_factory=_tracking_registration)
     use_odometry: bool = True
-    translation_range: float = 0.4
-    yaw_range: float = np.deg2rad(20.0)
-    z_range: float = 0.05
-    roll_pitch_range: float = np.deg2rad(2.0)
     prior_translation_range: float = 0.15
     prior_yaw_range: float = np.deg2rad(4.0)
     recent_poses: int = 5
@@ -177,9 +175,8 @@ class SlamConfig:
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise ConfigError(f"slam.{name} must be a finite number > 0, got {v!r}")
-        for name in ("translation_range", "yaw_range", "z_range", "roll_pitch_range", "prior_translation_range",
-                     "prior_yaw_range", "local_map_radius", "keyframe_distance", "keyframe_angle", "min_range",
-                     "max_range"):
+        for name in ("prior_translation_range", "prior_yaw_range", "local_map_radius", "keyframe_distance",
+                     "keyframe_angle", "min_range", "max_range"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
                 raise ConfigError(f"slam.{name} must be a finite number >= 0, got {v!r}")
@@ -387,8 +384,7 @@ class HsSlam:
         if prior is not None:
             if cfg.dof != 6:
                 raise InputError("a prior trajectory seeds 6-DOF runs only (dof=6)")
-            p = prior.as_3dof()
-            self._prior = (p.stamps, p.poses)
+            self._prior = prior.as_3dof()
         self._target: RegistrationTarget | None = None
         self._field: DistanceField | None = None
         self._field_centre = np.zeros(self.dim)
@@ -415,12 +411,11 @@ class HsSlam:
     def _prior_pose(self, stamp: float) -> NDArray[np.float64] | None:
         if self._prior is None:
             return None
-        stamps, poses = self._prior
-        k = int(np.argmin(np.abs(stamps - stamp)))
-        if abs(stamps[k] - stamp) > 1e-3:
+        poses, found = self._prior.at([stamp], max_dt=1e-3)
+        if not found[0]:
             return None
-        prev = self.poses[-1]
-        return np.array([poses[k, 0], poses[k, 1], prev[2], prev[3], prev[4], poses[k, 2]])
+        (x, y, yaw), prev = poses[0], self.poses[-1]
+        return np.array([x, y, prev[2], prev[3], prev[4], yaw])
 
     def _odometry_step(self, frame: Frame) -> NDArray[np.float64] | None:
         """The odometry increment since the previous frame, as a pose vector of this run's dof."""
@@ -455,12 +450,12 @@ class HsSlam:
         return s, half
 
     def _ranges(self, prior: bool) -> NDArray[np.float64]:
-        cfg = self.config
-        t = cfg.prior_translation_range if prior else cfg.translation_range
-        y = cfg.prior_yaw_range if prior else cfg.yaw_range
+        cfg, reg = self.config, self.config.registration
+        t = cfg.prior_translation_range if prior else reg.translation_range
+        y = cfg.prior_yaw_range if prior else reg.yaw_range
         if cfg.dof == 3:
             return np.array([t, t, y])
-        return np.array([t, t, cfg.z_range, cfg.roll_pitch_range, cfg.roll_pitch_range, y])
+        return np.array([t, t, reg.z_range, reg.roll_pitch_range, reg.roll_pitch_range, y])
 
     def prediction(self, frame: Frame) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
         """The predicted pose of ``frame`` and the sigmas (translation, yaw) of its x/y and yaw, or None.
@@ -779,6 +774,7 @@ class HsSlam:
         return Trajectory(np.asarray(self.stamps), np.asarray(P).reshape(-1, self.config.dof))
 
 
+@blas_limited
 def run_slam(
     dataset: Dataset | Iterable[Frame],
     config: SlamConfig | None = None,

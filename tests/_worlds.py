@@ -81,3 +81,23 @@ def cast_scans(grid: OccupancyGrid, poses: np.ndarray, n_beams: int = 360, max_r
         r = t[first] + (rng.normal(0, noise, n_beams) if noise else 0.0)
         out[i, any_hit] = r[any_hit]
     return out, angles
+
+
+#: A 4 m x 3 m room and a 1 m route: the smallest scenario the simulator, HS-SLAM and the maps run on.
+TINY_SCENARIO = """
+name: tiny
+frame_rate: 2.0
+walls:
+  - {name: s, from: [0, 0], to: [4, 0]}
+  - {name: e, from: [4, 0], to: [4, 3]}
+  - {name: n, from: [4, 3], to: [0, 3]}
+  - {name: w, from: [0, 3], to: [0, 0]}
+rooms:
+  - {name: room, rect: [0, 0, 4, 3]}
+route:
+  start: [1.0, 1.5, 0]
+  steps:
+    - [2.0, 1.5]
+sensors:
+  lidar3d: {channels: 16, columns: 256}
+"""

@@ -23,7 +23,7 @@ from hsmap.evaluation import (
     umeyama,
 )
 from hsmap.geometry import compose, euler_to_matrix, relative
-from hsmap.io import Trajectory, write_tum
+from hsmap.trajectory import Trajectory, write_tum
 
 WORLD = np.array([10.0, -3.0, 0.7])  # an arbitrary world frame for the estimate
 
@@ -291,7 +291,7 @@ EVO_REFERENCE = {
 
 
 def test_ate_rpe_match_evo(tmp_path):
-    from hsmap.io import read_tum
+    from hsmap.trajectory import read_tum
 
     rng = np.random.default_rng(3)
     n = 300

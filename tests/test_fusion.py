@@ -17,14 +17,13 @@ from hsmap.fusion import (
     overlay_classes,
     overlay_image,
     resample_grid,
-    scans_to_points,
     slice_grid,
     slice_points,
     slice_scan,
     slice_scans,
 )
 from hsmap.geometry import compose, invert, matrix_to_pose, pose_to_matrix
-from hsmap.grid import FREE, OCCUPIED, UNKNOWN, GridGeometry, OccupancyGrid, grid_from_scans
+from hsmap.grid import FREE, OCCUPIED, UNKNOWN, GridGeometry, OccupancyGrid, grid_from_scans, scans_to_points
 
 pytest.importorskip("open3d")
 

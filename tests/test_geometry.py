@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from hsmap import geometry as g
-from hsmap.errors import ShapeError
+from hsmap.errors import InputError, ShapeError
 
 
 def test_se2_roundtrip_and_compose(rng):
@@ -30,6 +30,32 @@ def test_quaternion_roundtrip(rng):
     q = g.matrix_to_quaternion(R)
     np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0)
     np.testing.assert_allclose(g.quaternion_to_matrix(q), R, atol=1e-12)
+    assert g.matrix_to_quaternion(R.reshape(10, 10, 3, 3)).shape == (10, 10, 4)
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+def test_quaternion_of_half_turns_and_near_them(axis):
+    """Rotations by ~180 deg about x, y or z: the trace is near -1, where a conversion must not divide by the
+    small w (Shepperd's method takes the x, y or z branch there)."""
+    for angle in (np.pi, np.pi - 1e-7, np.pi - 0.3, -np.pi + 0.2):
+        rpy = np.zeros(3)
+        rpy[axis] = angle
+        R = g.euler_to_matrix(*rpy)
+        q = g.matrix_to_quaternion(R)
+        assert q[3] >= 0
+        want = np.zeros(4)
+        want[axis], want[3] = np.sin(angle / 2), np.cos(angle / 2)
+        want *= np.sign(want[3]) if want[3] != 0 else 1.0
+        np.testing.assert_allclose(q, want, atol=1e-9)
+        np.testing.assert_allclose(g.quaternion_to_matrix(q), R, atol=1e-12)
+
+
+def test_quaternion_to_matrix_normalises_and_rejects_zero():
+    np.testing.assert_allclose(g.quaternion_to_matrix([0, 0, 0, 2.0]), np.eye(3), atol=1e-15)
+    with pytest.raises(InputError, match="zero"):
+        g.quaternion_to_matrix([0, 0, 0, 0.0])
+    with pytest.raises(ShapeError):
+        g.quaternion_to_matrix([0, 0, 1.0])
 
 
 def test_batch_transform_matches_single(rng):

@@ -189,6 +189,22 @@ def test_grid_from_scans_bad_input():
         grid_from_scans([np.full((3, 2), np.nan)], np.zeros((1, 3)))
     with pytest.raises(InputError, match="resolution"):
         grid_from_scans([np.ones((3, 2))], np.zeros((1, 3)), resolution=0)
+    with pytest.raises(ShapeError, match="extrinsic"):
+        grid_from_scans([np.ones((3, 2))], np.zeros((1, 3)), extrinsic=np.zeros((2, 3)))
+
+
+def test_scans_to_points_with_one_or_per_scan_extrinsics():
+    from hsmap.datasets.frames import LaserScan2D
+    from hsmap.grid import scans_to_points
+
+    scan = LaserScan2D(np.array([1.0, np.nan, 2.0, 50.0]), np.array([0.0, 0.5, np.pi / 2, 1.0]), 0.1, 10.0)
+    poses = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, np.pi / 2]])
+    pts = scans_to_points([scan, scan], poses, [0.5, 0.0, 0.0])
+    # the real returns only (NaN and beyond range_max dropped), sensor 0.5 m ahead of the robot
+    np.testing.assert_allclose(pts, [[2.5, 0.0], [1.5, 2.0], [0.0, 1.5], [-2.0, 0.5]], atol=1e-12)
+    per_scan = scans_to_points([scan, scan], poses, [[0.5, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    np.testing.assert_allclose(per_scan[2:], [[0.0, 1.0], [-2.0, 0.0]], atol=1e-12)
+    assert scans_to_points([], np.zeros((0, 3))).shape == (0, 2)
 
 
 def test_grid_from_point_slice(rng):

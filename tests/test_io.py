@@ -1,30 +1,7 @@
-import numpy as np
 import pytest
 
-from hsmap.errors import DataFormatError
-from hsmap.io import Trajectory, atomic_open, read_tum, write_tum
-
-
-def test_tum_roundtrip(tmp_path, rng):
-    poses = np.column_stack([rng.normal(size=(30, 3)), rng.uniform(-0.5, 0.5, (30, 2)), rng.uniform(-3, 3, 30)])
-    traj = Trajectory(np.arange(30) * 0.1 + 1e9, poses)
-    write_tum(tmp_path / "t.tum", traj)
-    back = read_tum(tmp_path / "t.tum")
-    np.testing.assert_allclose(back.stamps, traj.stamps, atol=1e-9)
-    np.testing.assert_allclose(back.poses, poses, atol=1e-7)
-
-
-def test_tum_2d(tmp_path):
-    traj = Trajectory([0.0, 1.0], [[0, 0, 0], [1, 2, 0.5]])
-    write_tum(tmp_path / "t.tum", traj)
-    np.testing.assert_allclose(read_tum(tmp_path / "t.tum", dof=3).poses, traj.poses, atol=1e-8)
-
-
-def test_tum_bad_line_names_line(tmp_path):
-    p = tmp_path / "bad.tum"
-    p.write_text("0 0 0 0 0 0 0 1\n1 0 0 0 0 0\n")
-    with pytest.raises(DataFormatError, match=r"bad.tum:2: expected 8 values"):
-        read_tum(p)
+from hsmap.errors import DataFormatError, DatasetError
+from hsmap.io import atomic_open, read_number_rows
 
 
 def test_atomic_open_leaves_nothing_on_error(tmp_path):
@@ -33,3 +10,39 @@ def test_atomic_open_leaves_nothing_on_error(tmp_path):
         fh.write("partial")
         raise RuntimeError("boom")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_number_rows_name_the_file_and_line(tmp_path):
+    p = tmp_path / "rows.txt"
+    p.write_text("# a comment\n1 2\n\n3, 4\n")
+    assert read_number_rows(p, "a b", "rows").tolist() == [[1, 2], [3, 4]]
+    p.write_text("1 2\n3 nan\n")
+    with pytest.raises(DataFormatError, match=r"rows.txt:2: NaN"):
+        read_number_rows(p, "a b", "rows")
+    with pytest.raises(DatasetError, match="no such file"):
+        read_number_rows(tmp_path / "none.txt", "a b", "rows")
+
+
+def test_to_plain_is_what_json_and_yaml_take(tmp_path):
+    import enum
+    import json
+    from pathlib import Path
+
+    import numpy as np
+    import yaml
+
+    from hsmap.io import to_plain, write_json
+
+    class Kind(enum.StrEnum):
+        A = "a"
+
+    value = {1: (np.float64(0.5), np.int64(3)), "arr": np.arange(3), "kind": Kind.A, "path": Path("/x"),
+             "nested": [{"b": np.bool_(True)}]}
+    plain = to_plain(value)
+    assert plain == {"1": [0.5, 3], "arr": [0, 1, 2], "kind": "a", "path": "/x", "nested": [{"b": True}]}
+    assert type(plain["kind"]) is str and type(plain["1"][1]) is int
+    yaml.safe_dump(plain)  # no numpy or enum object left for the safe dumper to choke on
+    write_json(tmp_path / "v.json", value)
+    assert json.loads((tmp_path / "v.json").read_text()) == plain
+    with pytest.raises(TypeError, match="cannot serialise object"):
+        write_json(tmp_path / "w.json", {"x": object()})

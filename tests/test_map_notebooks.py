@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from hsmap.reproduce import run_study
+from hsmap.study.batch import run_notebooks
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -17,7 +17,7 @@ REPO = Path(__file__).resolve().parent.parent
 @pytest.mark.slow
 def test_notebooks_04_06_quick(tmp_path, monkeypatch):
     monkeypatch.setenv("HSMAP_GENERATED", str(tmp_path / "generated"))  # cold caches: simulate and run SLAM
-    result = run_study(REPO / "notebooks", tmp_path / "reports", only=["04", "06"], quick=True, log=None)
+    result = run_notebooks(REPO / "notebooks", tmp_path / "reports", only=["04", "06"], quick=True, log=None)
     errors = {n: json.loads((tmp_path / "reports" / n / "run.json").read_text()).get("error")
               for n in ("04-map-overlap", "06-topology-doors")}
     assert result.ok, errors
@@ -36,5 +36,5 @@ def test_notebooks_04_06_quick(tmp_path, monkeypatch):
     m6 = json.loads((o6 / "metrics.json").read_text())["metrics"]
     assert m6["rooms"] >= 1 and m6["frames"] == 30
     # one computation of the maps for both notebooks
-    assert len(list((tmp_path / "generated" / "maps").glob("two-rooms-seed1-first30-30f-*/meta.json"))) == 1
+    assert len(list((tmp_path / "generated" / "maps").glob("two-rooms-seed1-30f-*/meta.json"))) == 1
     assert (tmp_path / "generated" / "two-rooms-seed1-first30" / "dataset.yaml").is_file()

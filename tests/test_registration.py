@@ -209,6 +209,20 @@ def test_bad_config(kwargs, match):
         RegistrationConfig(**kwargs)
 
 
+def test_backend_and_refinement_are_enums_that_dump_as_strings():
+    import yaml
+
+    from hsmap.config import from_dict, to_dict
+    from hsmap.registration import Backend, Refinement
+
+    cfg = RegistrationConfig(backend="kdtree", refinement="none")
+    assert cfg.backend is Backend.KDTREE and cfg.refinement is Refinement.NONE
+    assert RegistrationConfig().backend is Backend.FIELD
+    plain = to_dict(cfg)
+    assert plain["backend"] == "kdtree" and type(plain["backend"]) is str
+    assert from_dict(RegistrationConfig, yaml.safe_load(yaml.safe_dump(plain))) == cfg
+
+
 def test_config_from_yaml_dict():
     from hsmap.config import from_dict
 

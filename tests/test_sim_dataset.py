@@ -13,10 +13,9 @@ from hsmap.datasets import Frame
 from hsmap.datasets.simulated import SimulatedDataset, is_simulated_dataset
 from hsmap.errors import DatasetError
 from hsmap.geometry import pose_to_matrix, transform_points
-from hsmap.io import read_tum
 from hsmap.sim import Lidar3DConfig, load_scenario, simulate
 from hsmap.sim.catalog import resolve_scenario
-from hsmap.sim.writer import ensure_dataset
+from hsmap.trajectory import read_tum
 
 pytest.importorskip("open3d")
 
@@ -158,21 +157,6 @@ def test_incomplete_and_missing_folders(tmp_path, written):
     (folder / "clouds3d" / "000002.npz").unlink()
     with pytest.raises(DatasetError, match="000002.npz: missing"):
         SimulatedDataset(folder).cloud3d(2)
-
-
-def test_ensure_dataset_reuses_an_up_to_date_folder(tmp_path):
-    p = tmp_path / "scn.yaml"
-    data = yaml.safe_load(Path(resolve_scenario("two-rooms")).read_text())
-    data["route"]["steps"] = data["route"]["steps"][:1]  # 2.7 m: a few frames
-    data["sensors"] = {"lidar3d": {"channels": 8, "columns": 64}}
-    p.write_text(yaml.safe_dump(data))
-    out = tmp_path / "ds"
-    assert ensure_dataset(p, out=out) == out
-    stamp = (out / "dataset.yaml").stat().st_mtime_ns
-    ensure_dataset(p, out=out)
-    assert (out / "dataset.yaml").stat().st_mtime_ns == stamp  # reused
-    ensure_dataset(p, seed=3, out=out)
-    assert yaml.safe_load((out / "dataset.yaml").read_text())["seed"] == 3  # regenerated
 
 
 @pytest.mark.slow

@@ -1,5 +1,6 @@
 """HS-SLAM on a synthetic office (exact 2D ray casting): accuracy, seeding, outputs, bad input."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -8,9 +9,9 @@ import pytest
 from hsmap.datasets.frames import Frame, LaserScan2D
 from hsmap.errors import ConfigError, EmptyInputError, InputError
 from hsmap.geometry import compose, relative, wrap_angle
-from hsmap.io import Trajectory, read_tum
 from hsmap.slam import HsSlam, SlamConfig, run_slam, write_slam_outputs
 from hsmap.testing import office_route, office_segments, raycast_2d, room_cloud_3d, sensor_cloud
+from hsmap.trajectory import Trajectory, read_tum
 
 SEGMENTS = office_segments()
 ROUTE = office_route()
@@ -160,6 +161,22 @@ def test_bad_inputs(frames):
 def test_bad_config(kwargs, match):
     with pytest.raises(ConfigError, match=match):
         SlamConfig(**kwargs)
+    with pytest.raises(ConfigError, match=match):  # a changed copy is validated too (hsmap slam --dof)
+        dataclasses.replace(SlamConfig(), **kwargs)
+
+
+def test_one_search_box_knob_the_tracking_registration_config():
+    from hsmap.config import from_dict
+    from hsmap.registration import RegistrationConfig
+
+    cfg = SlamConfig(dof=3)
+    assert cfg.registration.translation_range == 0.4  # the tracking box, not harmony_icp's 1.5 m default
+    slam = HsSlam(SlamConfig(dof=3, registration=RegistrationConfig(translation_range=0.7)))
+    slam.poses.append(np.zeros(3))
+    _, half = slam.seeds(Frame(stamp=0.0, scan2d=None))
+    assert half[0] == half[1] == 0.7
+    with pytest.raises(ConfigError, match=r"unknown key\(s\) \['translation_range'\]"):
+        from_dict(SlamConfig, {"translation_range": 0.5}, "slam")
 
 
 def write_carmen(path, route, odometry_drift=0.0):

@@ -7,16 +7,18 @@ import pytest
 
 from hsmap.datasets.simulated import SimulatedDataset
 from hsmap.evaluation import pose_errors
-from hsmap.io import Trajectory
-from hsmap.sim.writer import ensure_dataset
+from hsmap.sim.writer import simulate
 from hsmap.slam import SlamConfig, run_slam
+from hsmap.trajectory import Trajectory
 
 pytestmark = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")
 def office(tmp_path_factory):
-    return SimulatedDataset(ensure_dataset("slam-office", seed=1, out=tmp_path_factory.mktemp("sim") / "office"))
+    out = tmp_path_factory.mktemp("sim") / "office"
+    simulate("slam-office", out, seed=1)
+    return SimulatedDataset(out)
 
 
 @pytest.fixture(scope="module")

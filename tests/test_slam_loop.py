@@ -103,7 +103,7 @@ def test_loop_closes_on_the_ring(ring, tmp_path):
     written = json.loads(paths["metrics"].read_text())
     assert written["loops_closed"] == m["loops_closed"] and written["loop_closure"] == "ok"
     assert "frames_retried" in written
-    from hsmap.io import read_tum
+    from hsmap.trajectory import read_tum
 
     np.testing.assert_allclose(read_tum(paths["trajectory"], dof=3).poses, closed.trajectory.poses, atol=1e-5)
 

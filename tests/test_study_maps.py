@@ -1,4 +1,4 @@
-"""hsmap.study_maps: the shared 2D/3D maps of a simulated run are computed once, then read back; bad options fail
+"""hsmap.study.maps: the shared 2D/3D maps of a simulated run are computed once, then read back; bad options fail
 with HsmapError. Also the map figures of hsmap.viz.map_figures on those maps."""
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ def generated(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def maps(generated):
-    from hsmap.study_maps import two_lidar_maps
+    from hsmap.study import two_lidar_maps
 
     scn, gen = generated
     mp = pytest.MonkeyPatch()
@@ -75,7 +75,7 @@ def test_slam_maps_lie_on_the_true_world(maps):
 
 
 def test_bad_options(generated, monkeypatch):
-    from hsmap.study_maps import simulated_dataset, two_lidar_maps
+    from hsmap.study import simulated_dataset, two_lidar_maps
 
     scn, gen = generated
     monkeypatch.setenv("HSMAP_GENERATED", str(gen))

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from hsmap.reproduce import run_study
+from hsmap.study.batch import run_notebooks
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -17,7 +17,7 @@ REPO = Path(__file__).resolve().parent.parent
 @pytest.mark.slow
 def test_notebook_01_quick(tmp_path, monkeypatch):
     monkeypatch.setenv("HSMAP_GENERATED", str(tmp_path / "generated"))  # cold caches: simulate and run SLAM
-    result = run_study(REPO / "notebooks", tmp_path / "reports", only=["01"], quick=True, log=None)
+    result = run_notebooks(REPO / "notebooks", tmp_path / "reports", only=["01"], quick=True, log=None)
     run = json.loads((tmp_path / "reports" / "01-odometry-vs-hsslam-2d" / "run.json").read_text())
     assert result.ok, run.get("error")
     out = tmp_path / "reports" / "01-odometry-vs-hsslam-2d"

@@ -1,25 +1,21 @@
 """hsmap.viz: rerun recordings (written atomically, verified by `rerun rrd verify`, holding what they should
-where they should), matplotlib figures in world metres, the Study helper notebooks write through."""
+where they should), matplotlib figures in world metres, the colours they share."""
 
 from __future__ import annotations
-
-import json
-import os
 
 import networkx as nx
 import numpy as np
 import pytest
 
 from hsmap.datasets import Frame, LaserScan2D
-from hsmap.errors import ConfigError, DataFormatError, InputError, ShapeError
+from hsmap.errors import DataFormatError, InputError, ShapeError
 from hsmap.geometry import quaternion_to_matrix
 from hsmap.grid import GridGeometry
-from hsmap.io import Trajectory
+from hsmap.trajectory import Trajectory
 from hsmap.viz import figures
 from hsmap.viz import rerun as hr
 from hsmap.viz.colors import label_color, label_colors
 from hsmap.viz.occupancy import occupancy_to_image, occupancy_to_ros
-from hsmap.viz.report import NOTEBOOK_ENV, Study
 
 needs_rerun_binary = pytest.mark.skipif(hr.rerun_binary() is None,
                                         reason="the rerun command-line tool is not installed")
@@ -255,11 +251,7 @@ def test_unix_stamps_use_a_timestamp_timeline(tmp_path, monkeypatch):
                      ("scan", {"sequence": 4}), ("time", {"timestamp": 1.7e9})]
 
 
-def test_point_map_blocks_and_voxels():
-    pts = np.array([[0.01, 0.01, 0.0], [0.02, 0.02, 0.0], [0.5, 0.0, 0.0], [0.51, 0.01, 0.0]])
-    np.testing.assert_array_equal(hr.voxel_downsample(pts, 0.1), pts[[0, 2]])
-    with pytest.raises(InputError):
-        hr.voxel_downsample(pts, 0.0)
+def test_point_map_logger_block():
     with pytest.raises(InputError, match="block"):
         hr.PointMapLogger(None, block=0)
 
@@ -366,62 +358,20 @@ def test_figure_inputs_are_checked():
         figures.plot_errors({})
 
 
-# --- the Study helper ------------------------------------------------------------------------------------
+def test_label_overlay_uses_the_room_palette():
+    from types import SimpleNamespace
 
+    from hsmap.viz.colors import label_overlay
 
-@pytest.fixture
-def no_notebook_env(monkeypatch):
-    monkeypatch.delenv(NOTEBOOK_ENV, raising=False)
-    monkeypatch.delenv("JPY_SESSION_NAME", raising=False)
-
-
-def test_study_writes_metrics_beside_the_paper(tmp_path, no_notebook_env):
-    study = Study(tmp_path, "07-occlusion")
-    assert study.dir == tmp_path / "07-occlusion" and study.dir.is_dir()
-    table = study.metrics({"precision": np.float64(0.84), "recall": 0.5}, paper={"precision": 0.8453},
-                          units={"precision": ""})
-    study.metrics({"recall": 0.61, "per_map": {"a": [1, 2]}}, paper={"recall": 0.4838}, notes="quick")
-    doc = json.loads((study.dir / "metrics.json").read_text())
-    assert doc["metrics"] == {"precision": 0.84, "recall": 0.61, "per_map": {"a": [1, 2]}}
-    assert doc["paper"] == {"precision": 0.8453, "recall": 0.4838}
-    assert doc["notes"] == "quick" and doc["notebook"] == "07-occlusion"
-    assert "0.8453" in table._repr_html_() and "precision" in repr(table)
-    with pytest.raises(InputError, match="headline"):
-        study.metrics(headline=["nonexistent"])
-    with pytest.raises(InputError, match="JSON"):
-        study.metrics({"bad": object()})
-    assert [p.name for p in study.dir.iterdir()] == ["metrics.json"]  # nothing half-written
-
-
-def test_study_name_comes_from_the_runner_and_must_agree(tmp_path, no_notebook_env, monkeypatch):
-    with pytest.raises(ConfigError, match="name"):
-        Study(tmp_path)
-    monkeypatch.setenv(NOTEBOOK_ENV, "03-slam-6dof")
-    assert Study(tmp_path).name == "03-slam-6dof"
-    assert Study(tmp_path, "03-slam-6dof").name == "03-slam-6dof"
-    with pytest.raises(ConfigError, match="03-slam-6dof"):
-        Study(tmp_path, "03-old-name")
-    monkeypatch.delenv(NOTEBOOK_ENV)
-    monkeypatch.setenv("JPY_SESSION_NAME", "/home/u/notebooks/05-voronoi-steps.ipynb")
-    assert Study(tmp_path).name == "05-voronoi-steps"
-    with pytest.raises(InputError):
-        Study(tmp_path, "../escape")
-
-
-def test_study_savefig_and_recording(tmp_path, no_notebook_env):
-    study = Study(tmp_path, "01-x")
-    fig, ax = figures.new_figure()
-    ax.plot([0, 1], [1, 0])
-    assert study.savefig(fig, "curve") is None
-    assert (study.dir / "curve.png").read_bytes()[:8] == PNG_MAGIC
-    assert study.figures == [study.dir / "curve.png"]
-    with pytest.raises(InputError):
-        study.savefig(fig, "curve.png")
-    rec = study.recording("run")
-    hr.log_robot_pose(rec, [0.0, 0.0, 0.0])
-    assert not (study.dir / "run.rrd").exists()
-    assert study.close() == [study.dir / "run.rrd"]
-    assert (study.dir / "run.rrd").stat().st_size > 0
-    assert rec.application_id == "hsmap_01-x"
-    assert sorted(p.name for p in study.dir.iterdir()) == ["curve.png", "run.rrd"]
-    assert os.access(study.dir / "curve.png", os.R_OK)
+    labels = np.array([[0, 1, 1], [0, 2, 2], [0, 0, 0]])
+    free = np.array([[True, True, True], [False, True, True], [True, True, True]])
+    rgb = label_overlay(labels, free, door_lines=np.eye(3, dtype=bool))
+    assert rgb.shape == (3, 3, 3) and rgb.dtype == np.uint8
+    assert tuple(rgb[0, 1]) == label_color(1) and tuple(rgb[1, 2]) == label_color(2)  # as in figures and rerun
+    assert tuple(rgb[1, 0]) == (60, 60, 60)  # occupied, no room
+    assert tuple(rgb[0, 0]) == (220, 30, 30)  # a door line on a free pixel
+    assert tuple(rgb[2, 0]) == (255, 255, 255)  # free, no room
+    with_door = label_overlay(labels, free, doors=[SimpleNamespace(pixel=(2, 2))])
+    assert (with_door[1:, 1:] == 0).all() and tuple(with_door[0, 1]) == label_color(1)  # a 3x3 square at its centre
+    with pytest.raises(ShapeError):
+        label_overlay(labels, free[:2])

@@ -37,7 +37,7 @@ def _relations(args: argparse.Namespace) -> dict:
     """Freiburg relations metric of a TUM trajectory against a ``.relations`` file."""
     from ..datasets.relations import read_relations
     from ..evaluation.trajectory import relations_error
-    from ..io import read_tum
+    from ..trajectory import read_tum
 
     traj = read_tum(args.trajectory)
     relations = read_relations(args.relations)
@@ -48,7 +48,7 @@ def _relations(args: argparse.Namespace) -> dict:
 def _trajectory(args: argparse.Namespace) -> dict:
     """Per-DOF errors (relative to the first pose), ATE and RPE of a TUM estimate against a TUM ground truth."""
     from ..evaluation.trajectory import evaluate_trajectory
-    from ..io import read_tum
+    from ..trajectory import read_tum
 
     est = read_tum(args.estimate)
     ref = read_tum(args.groundtruth)

@@ -38,19 +38,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _notebooks_dir(arg: str | None):
     from pathlib import Path
 
-    import hsmap
+    from ..study.paths import repository_root
 
     if arg is not None:
         return Path(arg)
     here = Path("notebooks")
     if here.is_dir():
         return here
-    checkout = Path(hsmap.__file__).resolve().parents[1] / "notebooks"
+    checkout = repository_root() / "notebooks"
     return checkout if checkout.is_dir() else here
 
 
 def _list(notebooks_dir, only) -> int:
-    from ..reproduce import discover, inspect_parameters, select
+    from ..study.batch import discover, inspect_parameters, select
 
     specs = select(discover(notebooks_dir), only)
     if not specs:
@@ -71,7 +71,7 @@ def _list(notebooks_dir, only) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..reproduce import load_parameters_file, parse_value, run_study
+    from ..study.batch import load_parameters_file, parse_value, run_notebooks
 
     notebooks_dir = _notebooks_dir(args.notebooks)
     if args.list:
@@ -85,11 +85,11 @@ def run(args: argparse.Namespace) -> int:
     def log(line: str) -> None:
         print(line, flush=True)
 
-    result = run_study(
+    result = run_notebooks(
         notebooks_dir, args.out, only=args.only, quick=args.quick, jobs=args.jobs, parameters=common,
         notebook_parameters=per, timeout=args.timeout, verify_recordings=not args.no_verify, log=log,
     )
-    from ..viz.report import format_duration
+    from ..study.report import format_duration
 
     n = len(result.runs)
     print(f"{n - len(result.failed)} of {n} notebooks ok in {format_duration(result.duration_s)}; "

@@ -39,8 +39,8 @@ def run(args: argparse.Namespace) -> int:
     from ..grid import read_map, write_label_image
     from ..io import atomic_path, write_json
     from ..segmentation import SegmentationConfig, segment_rooms
-    from ..segmentation_figures import label_overlay, steps_figure
     from ..topology import room_graph, topology_listing, write_topology
+    from ..viz.colors import label_overlay
 
     if args.resolution is not None and not args.resolution > 0:
         raise InputError(f"--resolution must be > 0 metres per pixel, got {args.resolution}")
@@ -67,7 +67,9 @@ def run(args: argparse.Namespace) -> int:
         Image.fromarray(label_overlay(seg.labels, grid.free, doors=seg.doors)).save(tmp, format="PNG")
     dump_config(cfg, out / "segmentation_config.yaml")
     if args.steps:
-        fig = steps_figure(seg, title=Path(args.map).name)
+        from ..viz.map_figures import voronoi_steps_figure
+
+        fig = voronoi_steps_figure(grid, seg, title=Path(args.map).name)
         with atomic_path(out / "steps.png") as tmp:
             fig.savefig(tmp, dpi=110)
     print(topology_listing(g), end="")

@@ -55,6 +55,10 @@ def run(args: argparse.Namespace) -> int:
                           "odometry_end_error_m": round(float(
                               ((m.odometry[-1, :2] - m.groundtruth[-1, :2]) ** 2).sum() ** 0.5), 4)}))
         return 0
+    if args.out is None:  # the repository's data/generated/SCENARIO, as the study uses it
+        from ..study.paths import generated_dir
+
+        args.out = generated_dir() / scn.name
     summary = simulate(scn, args.out, args.seed, max_frames=args.max_frames,
                        label_resolution=args.label_resolution, figures=args.figures)
     print(json.dumps(summary.as_dict(), indent=2))

@@ -59,19 +59,21 @@ def parse_vector(text: str, n: int, flag: str):
 
 
 def run(args: argparse.Namespace) -> int:
+    import dataclasses
+
     from ..config import load_config
     from ..datasets.open import open_dataset
     from ..errors import InputError
-    from ..io import read_tum
     from ..slam import SlamConfig, run_slam, write_slam_outputs
+    from ..trajectory import read_tum
 
     cfg = load_config(SlamConfig, args.config) if args.config else SlamConfig()
     if args.dof is not None:
-        cfg.dof = args.dof
+        cfg = dataclasses.replace(cfg, dof=args.dof)  # validated like any SlamConfig
     if args.no_odometry:
-        cfg.use_odometry = False
+        cfg = dataclasses.replace(cfg, use_odometry=False)
     if args.no_loop_closure:
-        cfg.loop_closure.enabled = False
+        cfg = dataclasses.replace(cfg, loop_closure=dataclasses.replace(cfg.loop_closure, enabled=False))
     if args.max_frames is not None and args.max_frames < 1:
         raise InputError(f"--max-frames must be >= 1, got {args.max_frames}")
     ext2 = None if args.extrinsic2d is None else parse_vector(args.extrinsic2d, 3, "--extrinsic2d")

@@ -49,7 +49,7 @@ from numpy.typing import NDArray
 
 from ..errors import DataFormatError, DatasetError
 from ..geometry import relative
-from ..io import Trajectory
+from ..trajectory import Trajectory
 from .frames import Dataset, Frame, LaserScan2D
 from .rosbag import DEFAULT_NO_RETURN, no_return_threshold
 

@@ -63,7 +63,7 @@ from numpy.typing import NDArray
 
 from ..errors import DataFormatError, DatasetError
 from ..geometry import invert_matrix, matrix_to_pose, quaternion_to_matrix, wrap_angle
-from ..io import Trajectory
+from ..trajectory import Trajectory, nearest_index
 from .frames import Dataset, Frame, LaserScan2D
 
 __all__ = [
@@ -551,7 +551,7 @@ class RosbagDataset(Dataset):
             self._scan_index = idx
             self.stamps = prim_stamps[idx]
             if self.cloud_topic:
-                self._cloud_index = self._nearest(np.asarray(self._clouds["stamp"]), self.stamps)
+                self._cloud_index = nearest_index(self._clouds["stamp"], self.stamps, self.sync_tolerance)
             else:
                 self._cloud_index = None
         else:
@@ -564,17 +564,6 @@ class RosbagDataset(Dataset):
         ok = ~np.isnan(self._odometry[:, 0])
         self.odometry = Trajectory(self.stamps[ok], self._odometry[ok]) if ok.any() else None
         self._angle_cache: dict = {}
-
-    def _nearest(self, stamps: NDArray[np.float64], query: NDArray[np.float64]) -> NDArray[np.intp]:
-        """Index into ``stamps`` of the nearest stamp to each query within sync_tolerance, -1 where none."""
-        o = np.argsort(stamps, kind="stable")
-        s = stamps[o]
-        i = np.clip(np.searchsorted(s, query), 1, len(s) - 1) if len(s) > 1 else np.zeros(len(query), int)
-        lo = np.clip(i - 1, 0, len(s) - 1)
-        pick = np.where(np.abs(s[lo] - query) <= np.abs(s[i] - query), lo, i)
-        res = o[pick]
-        res[np.abs(s[pick] - query) > self.sync_tolerance] = -1
-        return res
 
     def _interpolate_odometry(self, t: NDArray[np.float64]) -> NDArray[np.float64]:
         out = np.full((len(t), 3), np.nan)

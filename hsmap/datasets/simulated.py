@@ -1,4 +1,8 @@
-"""Reader of the dataset folders written by ``hsmap simulate`` (see :mod:`hsmap.sim.writer`)."""
+"""Reader of the dataset folders written by ``hsmap simulate`` (see :mod:`hsmap.sim.writer`), and the format's
+range-image codec (the writer encodes with it).
+
+The simulator writes this format and the reader owns it: :mod:`hsmap.sim` imports from here, never the other
+way round."""
 
 from __future__ import annotations
 
@@ -9,17 +13,21 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from ..errors import DataFormatError, DatasetError, InputError
 from ..grid import GridGeometry
-from ..io import Trajectory, read_tum
+from ..trajectory import Trajectory, read_tum
 from .frames import Dataset, Frame, LaserScan2D
 
-__all__ = ["SimulatedDataset", "is_simulated_dataset"]
+__all__ = ["SimulatedDataset", "is_simulated_dataset", "FORMAT", "FORMAT_VERSION", "RANGE_UNIT", "beam_directions",
+           "encode_range_image", "decode_range_image", "range_image_to_points"]
 
 FORMAT = "hsmap-simulated-dataset"
+#: The version :mod:`hsmap.sim.writer` writes.
+FORMAT_VERSION = 1
 SUPPORTED_VERSIONS = (1,)
+RANGE_UNIT = 0.001  # metres per count in stored 3D range images
 
 
 def is_simulated_dataset(path: str | os.PathLike) -> bool:
@@ -126,8 +134,6 @@ class SimulatedDataset(Dataset):
     def beam_directions(self) -> NDArray[np.float64]:
         """Unit directions (channels, columns, 3) of the 3D LiDAR's pixels in its frame."""
         if self._dirs is None:
-            from ..sim.sensors import beam_directions
-
             s = self.sensors["lidar3d"]
             el = np.deg2rad(np.asarray(s["vertical_angles_deg"], dtype=float))
             az = float(s["azimuth_min"]) + float(s["azimuth_increment"]) * np.arange(int(s["columns"]))
@@ -149,8 +155,6 @@ class SimulatedDataset(Dataset):
 
     def cloud3d(self, index: int) -> NDArray[np.float64]:
         """The 3D cloud (K, 3) of frame ``index`` in the 3D sensor frame (no-return pixels dropped)."""
-        from ..sim.sensors import range_image_to_points
-
         return range_image_to_points(self.range_image(index), self.beam_directions())
 
     # ------------------------------------------------------------------ frames
@@ -216,3 +220,38 @@ class SimulatedDataset(Dataset):
         if which not in ("groundtruth", "odometry"):
             raise InputError(f"which must be 'groundtruth' or 'odometry', got {which!r}")
         return self.groundtruth if which == "groundtruth" else self.odometry
+
+
+def beam_directions(elevations: ArrayLike, azimuths: ArrayLike) -> NDArray[np.float64]:
+    """Unit vectors (C, W, 3) for elevations (C,) and azimuths (W,) in radians."""
+    el = np.asarray(elevations, dtype=float)[:, None]
+    az = np.asarray(azimuths, dtype=float)[None, :]
+    return np.stack(
+        [np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.broadcast_to(np.sin(el), (el.shape[0], az.shape[1]))],
+        -1,
+    )
+
+
+def encode_range_image(ranges: ArrayLike) -> NDArray[np.uint16]:
+    """Metres (NaN = no return) -> uint16 counts of :data:`RANGE_UNIT` (0 = no return)."""
+    r = np.asarray(ranges, dtype=float)
+    counts = np.where(np.isfinite(r), np.rint(r / RANGE_UNIT), 0.0)
+    return np.clip(counts, 0, np.iinfo(np.uint16).max).astype(np.uint16)
+
+
+def decode_range_image(counts: ArrayLike) -> NDArray[np.float64]:
+    """uint16 counts -> metres, NaN where there is no return."""
+    c = np.asarray(counts)
+    return np.where(c > 0, c.astype(float) * RANGE_UNIT, np.nan)
+
+
+def range_image_to_points(range_image: ArrayLike, directions: ArrayLike) -> NDArray[np.float64]:
+    """Points (K, 3) in the sensor frame from a range image (C, W) and beam directions (C, W, 3).
+
+    ``range_image`` is either uint16 counts of :data:`RANGE_UNIT` (0 = no return) or float metres
+    (NaN = no return). Points come out in row-major order of the image, invalid pixels dropped.
+    """
+    img = np.asarray(range_image)
+    r = decode_range_image(img) if np.issubdtype(img.dtype, np.integer) else img.astype(float)
+    ok = np.isfinite(r) & (r > 0)
+    return np.asarray(directions, dtype=float)[ok] * r[ok][:, None]

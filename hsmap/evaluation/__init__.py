@@ -1,6 +1,6 @@
 """Evaluation: pose errors, ATE/RPE, the Freiburg relations metric, Bormann room-segmentation precision/recall.
 
-Pure functions on arrays and small dataclasses; file reading lives in :mod:`hsmap.io` and the readers.
+Pure functions on arrays and small dataclasses; file reading lives in :mod:`hsmap.io`, :mod:`hsmap.trajectory` and the readers.
 """
 
 from .segmentation import SegmentationScores, ground_truth_rooms, segmentation_scores

@@ -1,7 +1,7 @@
 """Trajectory metrics: per-DOF pose errors (the paper's Table 1), ATE and RPE (evo's definitions) and the
 Freiburg relations metric (Kümmerle et al. 2009).
 
-Every function takes :class:`hsmap.io.Trajectory` objects (3-DOF ``(x, y, yaw)`` or 6-DOF
+Every function takes :class:`hsmap.trajectory.Trajectory` objects (3-DOF ``(x, y, yaw)`` or 6-DOF
 ``(x, y, z, roll, pitch, yaw)``) and returns a small result object with an ``as_dict()`` for JSON. Poses are
 handled as SE(3) matrices internally (a 3-DOF trajectory is the planar special case), so 2D and 3D share one
 code path.
@@ -41,7 +41,7 @@ from numpy.typing import NDArray
 from ..datasets.relations import Relations
 from ..errors import EmptyInputError, InputError
 from ..geometry import invert_matrix, matrix_to_pose, pose_to_matrix, wrap_angle
-from ..io import Trajectory
+from ..trajectory import Trajectory, nearest_index
 
 __all__ = [
     "DEFAULT_MAX_DT",
@@ -262,20 +262,11 @@ def _matrices(traj: Trajectory) -> NDArray[np.float64]:
 
 def _check(traj: Trajectory, name: str) -> None:
     if not isinstance(traj, Trajectory):
-        raise InputError(f"{name} must be a hsmap.io.Trajectory, got {type(traj).__name__}")
+        raise InputError(f"{name} must be a hsmap.trajectory.Trajectory, got {type(traj).__name__}")
     if len(traj) == 0:
         raise EmptyInputError(f"{name} has no poses")
     if not (np.all(np.isfinite(traj.stamps)) and np.all(np.isfinite(traj.poses))):
         raise InputError(f"{name} has NaN or infinite stamps or poses")
-
-
-def _nearest(sorted_stamps: NDArray[np.float64], query: NDArray[np.float64]) -> tuple[NDArray[np.intp], NDArray]:
-    """Index of the nearest sorted stamp to each query, and the absolute difference."""
-    n = len(sorted_stamps)
-    i = np.clip(np.searchsorted(sorted_stamps, query), 0, n - 1)
-    lo = np.clip(i - 1, 0, n - 1)
-    pick = np.where(np.abs(sorted_stamps[lo] - query) <= np.abs(sorted_stamps[i] - query), lo, i)
-    return pick, np.abs(sorted_stamps[pick] - query)
 
 
 def associate(
@@ -296,20 +287,17 @@ def associate(
     """
     _check(est, "estimate")
     _check(ref, "reference")
-    o = np.argsort(ref.stamps, kind="stable")
-    rs = ref.stamps[o]
-    pick, dt = _nearest(rs, est.stamps)
-    bad = dt > max_dt
+    idx = nearest_index(ref.stamps, est.stamps, max_dt)
+    bad = idx < 0
     if bad.any():
         first = est.stamps[np.argmax(bad)]
         raise InputError(
             f"{int(bad.sum())} of {len(est)} estimated stamps have no reference stamp within {max_dt} s "
             f"(first: {first:.6f}); estimate spans [{est.stamps.min():.6f}, {est.stamps.max():.6f}], "
-            f"reference spans [{rs[0]:.6f}, {rs[-1]:.6f}]"
+            f"reference spans [{ref.stamps.min():.6f}, {ref.stamps.max():.6f}]"
         )
-    if len(np.unique(pick)) != len(pick):
+    if len(np.unique(idx)) != len(idx):
         raise InputError("several estimated poses match the same reference stamp: the estimate has duplicate stamps")
-    idx = o[pick]
     return est, Trajectory(ref.stamps[idx], ref.poses[idx])
 
 
@@ -520,8 +508,8 @@ def _interpolate(
     """Poses (K, 4, 4) at ``t`` from sorted ``stamps``; returns (poses, matched, interpolated)."""
     from scipy.spatial.transform import Rotation
 
-    pick, dt = _nearest(stamps, t)
-    exact = dt <= max_dt
+    pick = nearest_index(stamps, t, max_dt)
+    exact = pick >= 0
     inside = (t > stamps[0]) & (t < stamps[-1]) & ~exact
     out = np.full((len(t), 4, 4), np.nan)
     out[exact] = M[pick[exact]]

@@ -10,11 +10,11 @@ Typical use::
 Heavy modules (open3d, matplotlib) are imported only where they are used.
 """
 
-from .catalog import default_output_dir, list_scenarios, resolve_scenario, scenario_dir
+from .catalog import list_scenarios, resolve_scenario, scenario_dir
 from .robot import Motion, OdometryConfig, RobotConfig, RouteStep, integrate_odometry, simulate_motion
 from .scenario import FURNITURE_TYPES, Scenario, load_scenario, parse_scenario
 from .sensors import Lidar2DConfig, Lidar3DConfig, range_image_to_points
-from .writer import SimulationSummary, ensure_dataset, motion_for, simulate
+from .writer import SimulationSummary, motion_for, simulate
 
 
 def __getattr__(name):  # lazy: World needs open3d, the figures need matplotlib
@@ -31,7 +31,7 @@ def __getattr__(name):  # lazy: World needs open3d, the figures need matplotlib
 
 __all__ = [
     "FURNITURE_TYPES", "Lidar2DConfig", "Lidar3DConfig", "Motion", "OdometryConfig", "RobotConfig", "RouteStep",
-    "Scenario", "SimulationSummary", "World", "default_output_dir", "ensure_dataset", "integrate_odometry",
+    "Scenario", "SimulationSummary", "World", "integrate_odometry",
     "list_scenarios", "load_scenario", "motion_for", "parse_scenario", "plot_cloud", "plot_odometry_map",
     "plot_world", "preview_dataset", "range_image_to_points", "resolve_scenario", "scenario_dir", "simulate", "simulate_motion",
     "write_previews",

@@ -1,36 +1,25 @@
-"""Where the shipped scenarios and the generated datasets live.
-
-Scenarios are the YAML files in ``data/scenarios/`` of the repository (``$HSMAP_SCENARIOS`` overrides the
-folder); datasets generated without an explicit output folder go to ``data/generated/<scenario>/``
-(``$HSMAP_GENERATED`` overrides the folder).
-"""
+"""The shipped scenarios: the YAML files of the package folder ``hsmap/sim/scenarios/`` (package data), found
+through :mod:`importlib.resources`, so they come with any installation of hsmap, not with a repository."""
 
 from __future__ import annotations
 
 import os
+from importlib import resources
 from pathlib import Path
 
 from ..errors import ScenarioError
 
-__all__ = ["repository_root", "scenario_dir", "list_scenarios", "resolve_scenario", "generated_dir",
-           "default_output_dir"]
-
-
-def repository_root() -> Path:
-    """The folder holding ``hsmap/`` and ``data/`` (the package is installed editable)."""
-    return Path(__file__).resolve().parents[2]
+__all__ = ["scenario_dir", "list_scenarios", "resolve_scenario"]
 
 
 def scenario_dir() -> Path:
-    """The folder of the shipped scenario files."""
-    env = os.environ.get("HSMAP_SCENARIOS")
-    return Path(env) if env else repository_root() / "data" / "scenarios"
+    """The folder of the shipped scenario files (inside the installed package)."""
+    return Path(str(resources.files(__package__).joinpath("scenarios")))
 
 
 def list_scenarios() -> list[str]:
     """Names of the shipped scenarios (file stems in :func:`scenario_dir`)."""
-    d = scenario_dir()
-    return sorted(p.stem for p in d.glob("*.yaml")) if d.is_dir() else []
+    return sorted(p.stem for p in scenario_dir().glob("*.yaml"))
 
 
 def resolve_scenario(name_or_path: str | os.PathLike) -> Path:
@@ -44,15 +33,4 @@ def resolve_scenario(name_or_path: str | os.PathLike) -> Path:
     if cand.is_file():
         return cand
     raise ScenarioError(f"unknown scenario {str(name_or_path)!r}: not a file, and not one of the shipped "
-                        f"scenarios {list_scenarios()} in {scenario_dir()}")
-
-
-def generated_dir() -> Path:
-    """Where generated datasets go by default."""
-    env = os.environ.get("HSMAP_GENERATED")
-    return Path(env) if env else repository_root() / "data" / "generated"
-
-
-def default_output_dir(scenario_name: str) -> Path:
-    """``data/generated/<scenario_name>``."""
-    return generated_dir() / scenario_name
+                        f"scenarios {list_scenarios()}")

@@ -23,7 +23,7 @@ from .scenario import Scenario
 from .shapes import box_corners
 
 __all__ = ["plot_world", "plot_cloud", "plot_odometry_map", "write_previews", "preview_dataset", "draw_floorplan",
-           "scans_to_world", "FURNITURE_COLOURS"]
+           "FURNITURE_COLOURS"]
 
 FURNITURE_COLOURS = {
     "table": "#b07a3b", "desk": "#8c5a2b", "chair": "#d9a441", "shelf": "#5b7fa6", "cabinet": "#6d8f5e",
@@ -203,21 +203,15 @@ def plot_cloud(scn: Scenario, base_pose: ArrayLike, cloud_world: ArrayLike, scan
     return fig
 
 
-def scans_to_world(ranges: ArrayLike, angles: ArrayLike, poses: ArrayLike, extrinsic2d: ArrayLike,
-                   step: int = 1) -> np.ndarray:
-    """All valid 2D returns (P, 2) in the world, for scans (N, M) taken at base poses (N, 3)."""
-    r = np.asarray(ranges, dtype=float)[:, ::step]
+def _scans_to_world(ranges: ArrayLike, angles: ArrayLike, poses: ArrayLike, extrinsic2d: ArrayLike,
+                    step: int = 1) -> np.ndarray:
+    """All valid 2D returns (P, 2) in the world, for scans (N, M) taken at base poses (N, 3); every ``step``-th
+    beam."""
+    from ..grid import scans_to_points
+
     a = np.asarray(angles, dtype=float)[::step]
-    p = np.asarray(poses, dtype=float)
-    e = np.asarray(extrinsic2d, dtype=float)
-    c, s = np.cos(p[:, 2]), np.sin(p[:, 2])
-    sx = p[:, 0] + c * e[0] - s * e[1]
-    sy = p[:, 1] + s * e[0] + c * e[1]
-    th = p[:, 2:3] + e[2] + a[None, :]
-    x = sx[:, None] + r * np.cos(th)
-    y = sy[:, None] + r * np.sin(th)
-    ok = np.isfinite(r)
-    return np.column_stack([x[ok], y[ok]])
+    scans = [np.column_stack([r * np.cos(a), r * np.sin(a)]) for r in np.asarray(ranges, dtype=float)[:, ::step]]
+    return scans_to_points(scans, poses, extrinsic2d)
 
 
 def plot_odometry_map(ranges: ArrayLike, angles: ArrayLike, extrinsic2d: ArrayLike, groundtruth: ArrayLike,
@@ -236,7 +230,7 @@ def plot_odometry_map(ranges: ArrayLike, angles: ArrayLike, extrinsic2d: ArrayLi
     """
     gt = np.asarray(groundtruth, dtype=float)
     odo = np.asarray(odometry, dtype=float)
-    maps = [scans_to_world(ranges, angles, poses, extrinsic2d, step) for poses in (gt, odo)]
+    maps = [_scans_to_world(ranges, angles, poses, extrinsic2d, step) for poses in (gt, odo)]
     allp = np.concatenate(maps + [gt[:, :2], odo[:, :2]])
     lo, hi = np.percentile(allp, 0.2, axis=0) - 0.5, np.percentile(allp, 99.8, axis=0) + 0.5
     span = hi - lo
@@ -293,7 +287,7 @@ def write_previews(folder: str | os.PathLike, scn: Scenario, groundtruth: ArrayL
     k = int(cloud_frame)
     cloud_w = transform_points(sensor_poses_3d(gt[k:k + 1], scn.lidar3d)[0], cloud_sensor)
     ext = scn.lidar2d.extrinsic()
-    scan_w = scans_to_world(np.asarray(ranges2d)[k:k + 1], scn.lidar2d.angles(), gt[k:k + 1], ext)
+    scan_w = _scans_to_world(np.asarray(ranges2d)[k:k + 1], scn.lidar2d.angles(), gt[k:k + 1], ext)
     when = f" (t = {float(np.asarray(stamps)[k]):.1f} s)" if stamps is not None else ""
     plot_cloud(scn, gt[k], cloud_w, scan_w, out / "cloud.png", title=f"{scn.name}, frame {k}{when}")
     plot_odometry_map(ranges2d, scn.lidar2d.angles(), ext, gt, odo, out / "odometry.png",

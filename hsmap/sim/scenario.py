@@ -1,6 +1,6 @@
 """Scenario files: the YAML description of a simulated world, its route and its sensors.
 
-A scenario file (see ``data/scenarios/*.yaml`` and ``data/scenarios/README.md``) has these top-level keys::
+A scenario file (see ``hsmap/sim/scenarios/*.yaml`` and ``hsmap/sim/scenarios/README.md``) has these top-level keys::
 
     name, description, seed, frame_rate, start_time,
     wall_height, wall_thickness, door_width, door_height, ceiling_height, label_resolution,
@@ -160,8 +160,7 @@ class Scenario:
     def replace(self, **changes: Any) -> Scenario:
         """A copy with some fields changed (e.g. smaller sensors for a quick run); not re-validated.
 
-        The copy no longer matches its file, so its ``sha256`` is cleared (datasets made from it are never
-        taken for up to date by :func:`hsmap.sim.ensure_dataset`).
+        The copy no longer matches its file, so its ``sha256`` is cleared.
         """
         changes.setdefault("sha256", "")
         return dataclasses.replace(self, **changes)

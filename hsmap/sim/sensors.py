@@ -8,9 +8,10 @@ than ``range_min`` is no return.
 The 3D scanner's range image has shape (channels, columns): row ``i`` looks at elevation
 ``vertical_angles[i]`` (listed from the top beam down, as in an image), column ``j`` at azimuth
 ``-pi + j * 2 pi / columns`` (counter-clockwise from the sensor's x axis). Datasets store it as uint16
-millimetres with 0 = no return; :func:`range_image_to_points` turns it back into a cloud.
+millimetres with 0 = no return; the codec (:func:`encode_range_image`, :func:`range_image_to_points`) belongs to
+the dataset format and lives with its reader, :mod:`hsmap.datasets.simulated`.
 
-This module is numpy-only (the dataset reader uses it); ray casting lives in :mod:`hsmap.sim.world`.
+This module is numpy-only; ray casting lives in :mod:`hsmap.sim.world`.
 """
 
 from __future__ import annotations
@@ -18,20 +19,26 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
+from ..datasets.simulated import (  # the stored format is the reader's; the simulator writes it
+    RANGE_UNIT,
+    beam_directions,
+    decode_range_image,
+    encode_range_image,
+    range_image_to_points,
+)
 from ..errors import ConfigError
 
 __all__ = [
     "Lidar2DConfig",
     "Lidar3DConfig",
     "RANGE_UNIT",
+    "beam_directions",
     "range_image_to_points",
     "encode_range_image",
     "decode_range_image",
 ]
-
-RANGE_UNIT = 0.001  # metres per count in stored 3D range images
 
 
 def _check_positive(name: str, value: float, allow_zero: bool = False) -> None:
@@ -236,38 +243,3 @@ class Lidar3DConfig:
             "extrinsic_convention": "x y z roll pitch yaw (m, rad; R = Rz(yaw) Ry(pitch) Rx(roll)) of the sensor "
             "in the robot base frame (z = 0 is the floor)",
         }
-
-
-def beam_directions(elevations: ArrayLike, azimuths: ArrayLike) -> NDArray[np.float64]:
-    """Unit vectors (C, W, 3) for elevations (C,) and azimuths (W,) in radians."""
-    el = np.asarray(elevations, dtype=float)[:, None]
-    az = np.asarray(azimuths, dtype=float)[None, :]
-    return np.stack(
-        [np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.broadcast_to(np.sin(el), (el.shape[0], az.shape[1]))],
-        -1,
-    )
-
-
-def encode_range_image(ranges: ArrayLike) -> NDArray[np.uint16]:
-    """Metres (NaN = no return) -> uint16 counts of :data:`RANGE_UNIT` (0 = no return)."""
-    r = np.asarray(ranges, dtype=float)
-    counts = np.where(np.isfinite(r), np.rint(r / RANGE_UNIT), 0.0)
-    return np.clip(counts, 0, np.iinfo(np.uint16).max).astype(np.uint16)
-
-
-def decode_range_image(counts: ArrayLike) -> NDArray[np.float64]:
-    """uint16 counts -> metres, NaN where there is no return."""
-    c = np.asarray(counts)
-    return np.where(c > 0, c.astype(float) * RANGE_UNIT, np.nan)
-
-
-def range_image_to_points(range_image: ArrayLike, directions: ArrayLike) -> NDArray[np.float64]:
-    """Points (K, 3) in the sensor frame from a range image (C, W) and beam directions (C, W, 3).
-
-    ``range_image`` is either uint16 counts of :data:`RANGE_UNIT` (0 = no return) or float metres
-    (NaN = no return). Points come out in row-major order of the image, invalid pixels dropped.
-    """
-    img = np.asarray(range_image)
-    r = decode_range_image(img) if np.issubdtype(img.dtype, np.integer) else img.astype(float)
-    ok = np.isfinite(r) & (r > 0)
-    return np.asarray(directions, dtype=float)[ok] * r[ok][:, None]

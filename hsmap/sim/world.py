@@ -64,15 +64,6 @@ class World:
         mesh.triangle.indices = o3d.core.Tensor(self.triangles.astype(np.uint32))
         self.scene.add_triangles(mesh)
 
-    def legacy_mesh(self):
-        """The world as an ``open3d.geometry.TriangleMesh`` (for saving or viewing)."""
-        import open3d as o3d
-
-        m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(self.vertices),
-                                      o3d.utility.Vector3iVector(self.triangles.astype(np.int32)))
-        m.compute_vertex_normals()
-        return m
-
     def cast(self, origins: ArrayLike, directions: ArrayLike, return_kinds: bool = False):
         """Distances (R,) from ray origins (R, 3) along unit directions (R, 3) to the first hit; inf if none.
 

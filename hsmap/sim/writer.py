@@ -21,9 +21,7 @@ import os
 import shutil
 import time
 import zipfile
-from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -32,19 +30,17 @@ import yaml
 
 from .. import __version__
 from ..config import to_dict
+from ..datasets.simulated import FORMAT, FORMAT_VERSION, encode_range_image, range_image_to_points
 from ..errors import DatasetError, ScenarioError
-from ..io import Trajectory, atomic_path, file_lock, write_json, write_text, write_tum
+from ..io import atomic_path, write_json, write_text
+from ..trajectory import Trajectory, write_tum
 from . import layout
-from .catalog import default_output_dir, resolve_scenario
+from .catalog import resolve_scenario
 from .robot import Motion, simulate_motion
 from .scenario import Scenario, load_scenario
-from .sensors import encode_range_image, range_image_to_points
 
-__all__ = ["FORMAT", "FORMAT_VERSION", "SimulationSummary", "simulate", "ensure_dataset", "folder_lock", "save_npz",
-           "motion_for", "noise_rngs"]
+__all__ = ["FORMAT", "FORMAT_VERSION", "SimulationSummary", "simulate", "save_npz", "motion_for", "noise_rngs"]
 
-FORMAT = "hsmap-simulated-dataset"
-FORMAT_VERSION = 1
 
 FILE_DESCRIPTIONS = {
     "dataset.yaml": "this description; written last, a folder without it is incomplete",
@@ -126,8 +122,8 @@ def _as_scenario(scenario: Scenario | str | os.PathLike) -> Scenario:
     return load_scenario(resolve_scenario(scenario))
 
 
-def simulate(scenario: Scenario | str | os.PathLike, out: str | os.PathLike | None = None,
-             seed: int | None = None, *, max_frames: int | None = None, label_resolution: float | None = None,
+def simulate(scenario: Scenario | str | os.PathLike, out: str | os.PathLike, seed: int | None = None, *,
+             max_frames: int | None = None, label_resolution: float | None = None,
              batch_frames: int = 8, compresslevel: int = 1, figures: bool = False) -> SimulationSummary:
     """Simulate a scenario and write its dataset folder.
 
@@ -135,9 +131,8 @@ def simulate(scenario: Scenario | str | os.PathLike, out: str | os.PathLike | No
     ----------
     scenario : Scenario, str or path
         A parsed scenario, a shipped scenario name (``slam-office``, ``two-rooms``) or a YAML file.
-    out : path, optional
-        Output folder; default ``data/generated/<scenario name>``. Existing files of a previous dataset
-        are replaced (its ``dataset.yaml`` is removed first, so the folder reads as incomplete meanwhile).
+    out : path
+        Output folder. Existing files of a previous dataset are replaced (its ``dataset.yaml`` is removed first, so the folder reads as incomplete meanwhile).
     seed : int, optional
         Seed of all random choices (odometry slip, range noise); default the scenario's ``seed``.
     max_frames : int, optional
@@ -162,7 +157,7 @@ def simulate(scenario: Scenario | str | os.PathLike, out: str | os.PathLike | No
     seed = scn.seed if seed is None else int(seed)
     if seed < 0:
         raise ScenarioError(f"seed must be >= 0, got {seed}")
-    out = Path(out) if out is not None else default_output_dir(scn.name)
+    out = Path(out)
     if out.exists() and not out.is_dir():
         raise DatasetError(f"{out}: exists and is not a folder")
     out.mkdir(parents=True, exist_ok=True)
@@ -292,51 +287,6 @@ def _write_png16(path: Path, labels: np.ndarray) -> None:
 
     with atomic_path(path) as tmp:
         Image.fromarray(np.ascontiguousarray(labels.astype(np.uint16))).save(tmp, format="PNG")
-
-
-@contextmanager
-def folder_lock(folder: str | os.PathLike) -> Iterator[None]:
-    """Hold an exclusive lock on ``folder`` (a ``.<name>.lock`` file beside it) while the block runs.
-
-    Processes that generate or read the same dataset (two notebooks of ``hsmap reproduce --jobs 2``) take it in
-    turn: the second waits until the first has finished writing, then finds the folder complete
-    (:func:`hsmap.io.file_lock`).
-    """
-    folder = Path(folder)
-    with file_lock(folder.parent / f".{folder.name}.lock"):
-        yield
-
-
-def ensure_dataset(scenario: str | os.PathLike = "slam-office", seed: int | None = None,
-                   out: str | os.PathLike | None = None, **kwargs) -> Path:
-    """The folder of a simulated dataset, generated first when missing, incomplete or out of date.
-
-    A folder is reused when its ``dataset.yaml`` has the same format version, scenario file hash, seed and
-    frame count (all frames, or the first ``max_frames`` when that keyword is given); otherwise
-    :func:`simulate` (re)writes it. The check and the writing happen under :func:`folder_lock`, so parallel
-    callers never read a half-written folder nor write it twice.
-    """
-    scn = _as_scenario(scenario)
-    seed = scn.seed if seed is None else int(seed)
-    out = Path(out) if out is not None else default_output_dir(scn.name)
-    with folder_lock(out):
-        if not _is_current(out, scn, seed, kwargs.get("max_frames")):
-            simulate(scn, out, seed, **kwargs)
-    return out
-
-
-def _is_current(out: Path, scn: Scenario, seed: int, max_frames: int | None) -> bool:
-    meta_path = out / "dataset.yaml"
-    if not meta_path.is_file() or not scn.sha256:
-        return False
-    try:
-        meta = yaml.safe_load(meta_path.read_text(encoding="utf-8")) or {}
-    except (yaml.YAMLError, OSError, UnicodeDecodeError):
-        return False
-    if not isinstance(meta, dict):
-        return False
-    return (meta.get("format_version") == FORMAT_VERSION and meta.get("scenario_sha256") == scn.sha256
-            and meta.get("seed") == seed and meta.get("frames") == len(motion_for(scn, seed, max_frames or None)))
 
 
 def _readme(scn: Scenario, s: SimulationSummary, grid) -> str:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["ROOM_PALETTE", "label_colors", "label_color", "SERIES_COLORS", "height_colors"]
+__all__ = ["ROOM_PALETTE", "label_colors", "label_color", "label_overlay", "SERIES_COLORS", "height_colors"]
 
 # matplotlib's tab20, dark shades first then light ones, so that consecutive labels contrast.
 _TAB20 = [
@@ -61,6 +61,32 @@ def label_colors(labels: ArrayLike, alpha_background: bool = True) -> NDArray[np
     if not alpha_background:
         out[~fg, 3] = 255
     return out
+
+
+def label_overlay(labels: ArrayLike, free: ArrayLike, door_lines: ArrayLike | None = None,
+                  doors=None) -> NDArray[np.uint8]:
+    """(H, W, 3) uint8 picture of a segmentation, in the pixels of its map (row 0 at the top).
+
+    Rooms in their palette colours (:data:`ROOM_PALETTE`, as in the figures and the recordings), free pixels
+    without a room white, the rest dark gray; the free pixels of ``door_lines`` (a mask) red, and the centre
+    of each door (``segmentation.doors``) a small black square.
+    """
+    lab = np.asarray(labels)
+    free = np.asarray(free, dtype=bool)
+    if lab.ndim != 2 or free.shape != lab.shape:
+        from ..errors import ShapeError
+
+        raise ShapeError(f"labels and free must be (H, W) images of one shape, got {lab.shape} and {free.shape}")
+    rgb = label_colors(lab, alpha_background=False)[..., :3].copy()
+    rgb[(lab == 0) & free] = 255
+    rgb[(lab == 0) & ~free] = 60
+    if door_lines is not None:
+        rgb[np.asarray(door_lines, dtype=bool) & free] = (220, 30, 30)
+    H, W = lab.shape
+    for d in doors or ():
+        r, c = d.pixel
+        rgb[max(r - 1, 0):min(r + 2, H), max(c - 1, 0):min(c + 2, W)] = (0, 0, 0)
+    return rgb
 
 
 def height_colors(z: ArrayLike, z_range: tuple[float, float] | None = None) -> NDArray[np.uint8]:

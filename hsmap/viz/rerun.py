@@ -36,7 +36,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -50,6 +50,7 @@ from numpy.typing import ArrayLike, NDArray  # noqa: E402
 from ..errors import DataFormatError, HsmapError, InputError, ShapeError  # noqa: E402
 from ..geometry import euler_to_matrix, matrix_to_quaternion  # noqa: E402
 from ..grid import GridGeometry  # noqa: E402
+from ..mapping import first_per_voxel  # noqa: E402
 from .colors import ROOM_PALETTE, SERIES_COLORS, height_colors, label_color, label_colors  # noqa: E402
 from .occupancy import _ros_to_image, occupancy_to_image, occupancy_to_ros  # noqa: E402
 
@@ -76,7 +77,6 @@ __all__ = [
     "log_room_labels",
     "world_to_map2d",
     "log_map2d_path",
-    "log_map2d_points",
     "log_room_graph",
     "rerun_binary",
     "verify_rrd",
@@ -338,13 +338,6 @@ def _points(points: ArrayLike, dims: tuple[int, ...], name: str) -> NDArray[np.f
     return p[np.all(np.isfinite(p), axis=1)]
 
 
-def voxel_downsample(points: NDArray[np.float64], voxel: float) -> NDArray[np.float64]:
-    """One point (the first) per cubic voxel of side ``voxel`` metres, in input order (deterministic)."""
-    from ..mapping import first_per_voxel
-
-    return first_per_voxel(points, voxel)
-
-
 def log_points(
     rec: Any,
     entity: str,
@@ -374,7 +367,7 @@ def log_points(
     if p.shape[1] == 2:
         p = np.column_stack([p, np.zeros(len(p))])
     if voxel is not None:
-        p = voxel_downsample(p, voxel)
+        p = first_per_voxel(p, voxel)
         if colors is not None and np.ndim(colors) == 2:
             colors = None
     if color_by_height:
@@ -547,7 +540,7 @@ def log_trajectory(
 
     Parameters
     ----------
-    trajectory : hsmap.io.Trajectory
+    trajectory : hsmap.trajectory.Trajectory
         Stamps and (N, 3) or (N, 6) poses.
     robot_entity : str or None
         Where the moving pose goes (``world/robot``); None logs the path only.
@@ -691,17 +684,6 @@ def log_map2d_path(
     _stream(rec).log(f"{MAP2D}/paths/{name}",
                      rr.LineStrips2D([world_to_map2d(geometry, xy)], colors=color, radii=radius,
                                      draw_order=10.0), static=static, strict=True)
-
-
-def log_map2d_points(
-    rec: Any, entity: str, xy: ArrayLike, geometry: GridGeometry, *, colors: ArrayLike | None = None,
-    labels: Sequence[str] | None = None, radius: float = 2.0, static: bool = True,
-) -> None:
-    """World points (N, 2) drawn over the 2D map view at ``map/ENTITY`` (radius in pixels)."""
-    p = _points(xy, (2, 3), "xy")[:, :2]
-    _stream(rec).log(f"{MAP2D}/{entity}",
-                     rr.Points2D(world_to_map2d(geometry, p), colors=colors, radii=radius, labels=labels,
-                                 draw_order=20.0), static=static, strict=True)
 
 
 # --- room graph ----------------------------------------------------------------------------------------

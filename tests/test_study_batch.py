@@ -1,4 +1,4 @@
-"""hsmap reproduce: a batch of small notebooks (tests/data/notebooks: two good, one that raises, one whose
+"""hsmap reproduce (hsmap.study.batch): a batch of small notebooks (tests/data/notebooks: two good, one that raises, one whose
 recording is broken, plus the notebook template) run through the real machinery (papermill, kernels,
 nbconvert, rerun rrd verify) into a temporary reports folder; and the conventions of notebooks/."""
 
@@ -15,8 +15,8 @@ import pytest
 
 from hsmap.cli import main
 from hsmap.errors import ConfigError, InputError
-from hsmap.reproduce import discover, load_parameters_file, parse_value, run_study, select
-from hsmap.viz.report import format_duration, format_value, headline_rows, render_index
+from hsmap.study.batch import discover, load_parameters_file, parse_value, run_notebooks, select
+from hsmap.study.report import format_duration, format_value, headline_rows, render_index
 
 HERE = Path(__file__).parent
 DATA = HERE / "data" / "notebooks"
@@ -134,9 +134,9 @@ def test_only_runs_the_chosen_and_keeps_the_others_last_results(tmp_path):
         shutil.copy(DATA / name, nbdir / name)
     out = tmp_path / "reports"
     lines = []
-    first = run_study(nbdir, out, only=["fails"], quick=True, log=lines.append)
+    first = run_notebooks(nbdir, out, only=["fails"], quick=True, log=lines.append)
     assert not first.ok and [r.name for r in first.failed] == ["02-fails"]
-    second = run_study(nbdir, out, only=["03-second"], log=lines.append)
+    second = run_notebooks(nbdir, out, only=["03-second"], log=lines.append)
     assert second.ok  # only what ran now decides the outcome
     assert lines[-1].startswith("[1/1] 03-second: ok")
     index = json.loads((out / "index.json").read_text())
@@ -223,7 +223,8 @@ def test_index_escapes_errors_and_shows_states():
     running = render_index(entries[:1], {"final": False, "ran": ["01-a"]})
     assert "in progress" in running and "http-equiv='refresh'" in running
     assert format_duration(None) == "-" and format_value(None) == "-" and format_value(1e-5) == "1.000e-05"
-    assert headline_rows({"metrics": {"a": 1, "b": {"x": 1}}, "paper": {}}) == [("a", 1, None, "")]
+    (row,) = headline_rows({"metrics": {"a": 1, "b": {"x": 1}}, "paper": {}})
+    assert (row.key, row.ours, row.paper, row.reference, row.unit) == ("a", 1, None, None, "")
 
 
 # --- the study notebooks' conventions --------------------------------------------------------------------
@@ -249,7 +250,7 @@ def test_study_notebooks_are_committed_clean_with_one_parameters_cell(path):
 def test_an_interrupted_run_leaves_no_temporaries_and_says_so(tmp_path, monkeypatch):
     import papermill
 
-    import hsmap.reproduce as rp
+    import hsmap.study.batch as rp
 
     nbdir = tmp_path / "notebooks"
     nbdir.mkdir()
@@ -264,7 +265,7 @@ def test_an_interrupted_run_leaves_no_temporaries_and_says_so(tmp_path, monkeypa
 
     monkeypatch.setattr(papermill, "execute_notebook", interrupted)
     with pytest.raises(KeyboardInterrupt):
-        run_study(nbdir, out, log=None)
+        run_notebooks(nbdir, out, log=None)
     index = json.loads((out / "index.json").read_text())
     assert index["final"] is True
     assert [e["status"] for e in index["notebooks"]] == ["interrupted", "interrupted"]
@@ -281,6 +282,20 @@ def test_an_interrupted_run_leaves_no_temporaries_and_says_so(tmp_path, monkeypa
 
     monkeypatch.setattr(rp, "_worker", fake_worker)
     with pytest.raises(KeyboardInterrupt):
-        run_study(nbdir, out, log=None)
+        run_notebooks(nbdir, out, log=None)
     index = json.loads((out / "index.json").read_text())
     assert [e["status"] for e in index["notebooks"]] == ["ok", "interrupted"]
+
+
+def test_kernels_run_blas_on_hsmap_blas_threads_unless_the_caller_chose(monkeypatch):
+    from hsmap.study.batch import _kernel_env
+
+    for var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS", "HSMAP_BLAS_THREADS"):
+        monkeypatch.delenv(var, raising=False)
+    env = _kernel_env("01-x", jobs=1)
+    assert env["OPENBLAS_NUM_THREADS"] == env["MKL_NUM_THREADS"] == "1" and "OMP_NUM_THREADS" not in env
+    monkeypatch.setenv("HSMAP_BLAS_THREADS", "2")
+    assert _kernel_env("01-x", jobs=1)["OPENBLAS_NUM_THREADS"] == "2"
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "4")
+    env = _kernel_env("01-x", jobs=2)
+    assert "OPENBLAS_NUM_THREADS" not in env and env["OMP_NUM_THREADS"] == str(max(1, (os.cpu_count() or 1) // 2))

@@ -1,23 +1,27 @@
-"""What a study notebook writes, and the HTML index of a batch run.
+"""What a study notebook writes (its :class:`NotebookReport`), and the HTML index of a batch run.
 
-A notebook (see ``notebooks/README.md``) makes one :class:`Study` and writes everything through it, into its
-own folder ``out_dir/NAME/``::
+A notebook (see ``notebooks/README.md``) makes one :class:`NotebookReport` and writes everything through it,
+into its own folder ``out_dir/NAME/``::
 
-    study = Study(out_dir, "01-odometry-vs-slam")
-    study.savefig(fig, "maps")                       # NAME/maps.png (and shown inline)
-    study.metrics({"ate_m": 0.021}, paper={"ate_m": 0.03})   # NAME/metrics.json
-    with study.recording("slam") as rec:             # NAME/slam.rrd (a rerun recording)
+    report = NotebookReport(out_dir, "01-odometry-vs-slam")
+    report.savefig(fig, "maps")                       # NAME/maps.png (and shown inline)
+    report.metrics({"ate_m": 0.021}, paper={"ate_m": 0.03}, units={"ate_m": "m"},
+                   labels={"ate_m": "ATE of HS-SLAM"})  # NAME/metrics.json
+    with report.recording("slam") as rec:             # NAME/slam.rrd (a rerun recording)
         ...
 
-``hsmap reproduce`` (:mod:`hsmap.reproduce`) sets ``$HSMAP_NOTEBOOK`` to the notebook's name, so the name
+``hsmap reproduce`` (:mod:`hsmap.study.batch`) sets ``$HSMAP_NOTEBOOK`` to the notebook's name, so the name
 can be left out there; when both are given they must agree. Every file is written atomically.
 
 ``metrics.json`` holds one JSON object::
 
-    {"notebook": NAME, "metrics": {key: value}, "paper": {key: value}, "headline": [key, ...],
-     "units": {key: unit}, "notes": "..."}
+    {"notebook": NAME, "metrics": {key: value}, "paper": {key: value},
+     "reference": {key: {"value": v, "source": "who published it"}}, "headline": [key, ...],
+     "units": {key: unit}, "labels": {key: "what it is"}, "notes": "..."}
 
-``headline`` lists the keys the index shows, ours beside the paper's; by default the keys the paper has.
+``paper`` holds the paper's own numbers; ``reference`` other published numbers, each with its source (the
+paper has no result on the public benchmarks). ``headline`` lists the keys the index shows, ours beside the
+paper's or the reference's, under their label and unit; by default the keys the paper has.
 """
 
 from __future__ import annotations
@@ -28,14 +32,16 @@ import math
 import os
 import re
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigError, InputError
-from ..io import atomic_path, write_json
+from ..io import atomic_path, to_plain, write_json
 
 __all__ = [
-    "Study",
+    "NotebookReport",
+    "HeadlineRow",
     "MetricsTable",
     "NOTEBOOK_ENV",
     "format_value",
@@ -104,32 +110,70 @@ def format_value(v: Any) -> str:
     return str(v)
 
 
-def _plain(v: Any) -> Any:
-    """numpy scalars/arrays -> Python values (so metrics compare and print plainly)."""
-    if isinstance(v, Mapping):
-        return {str(k): _plain(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_plain(x) for x in v]
-    if hasattr(v, "tolist"):
-        return v.tolist()
-    return v
+@dataclass(frozen=True)
+class HeadlineRow:
+    """One number of a metrics document as the index shows it.
+
+    Attributes
+    ----------
+    key : str
+    label : str
+        What it is, for a reader (the document's ``labels``, else the key made readable).
+    ours, paper, reference : object
+        Our value, the paper's, another published one (None where there is none).
+    source : str
+        Who published ``reference``.
+    unit : str
+    """
+
+    key: str
+    label: str
+    ours: Any
+    paper: Any
+    reference: Any
+    source: str
+    unit: str
 
 
-def headline_rows(doc: Mapping[str, Any], limit: int = 8) -> list[tuple[str, Any, Any, str]]:
-    """(key, ours, paper, unit) for the keys a metrics document puts forward (see module docstring).
+_UNIT_SUFFIXES = ("_m", "_deg", "_s", "_ms", "_m2")
+
+
+def readable_label(key: str) -> str:
+    """A key as words: ``hsslam_final_error_m`` -> ``HS-SLAM final error`` (the unit goes in its own column)."""
+    k = key
+    for suffix in _UNIT_SUFFIXES:
+        if k.endswith(suffix) and len(k) > len(suffix):
+            k = k[: -len(suffix)]
+            break
+    words = []
+    for w in k.split("_"):
+        words.append({"hsslam": "HS-SLAM", "hs3": "HS-SLAM 3-DOF", "hs6": "HS-SLAM 6-DOF", "p95": "95th percentile",
+                      "seg": "segmentation", "rot": "rotation", "trans": "translation"}.get(w, w))
+    return " ".join(words)
+
+
+def headline_rows(doc: Mapping[str, Any], limit: int = 8) -> list[HeadlineRow]:
+    """The numbers a metrics document puts forward (see module docstring).
 
     Keys named in ``headline`` come first; without one, the keys the paper has, then (when the paper has
     none) the first scalar metrics, up to ``limit`` rows.
     """
     metrics = doc.get("metrics") or {}
     paper = doc.get("paper") or {}
+    reference = doc.get("reference") or {}
     units = doc.get("units") or {}
+    labels = doc.get("labels") or {}
     keys = list(doc.get("headline") or [])
     if not keys:
         keys = [k for k in paper]
         if not keys:
             keys = [k for k, v in metrics.items() if not isinstance(v, (Mapping, list))]
-    return [(k, metrics.get(k), paper.get(k), units.get(k, "")) for k in keys[:limit]]
+    rows = []
+    for k in keys[:limit]:
+        ref = reference.get(k) or {}
+        rows.append(HeadlineRow(k, labels.get(k) or readable_label(k), metrics.get(k), paper.get(k),
+                                ref.get("value"), str(ref.get("source") or ""), units.get(k, "")))
+    return rows
 
 
 def read_metrics(path: str | os.PathLike) -> dict[str, Any] | None:
@@ -142,36 +186,42 @@ def read_metrics(path: str | os.PathLike) -> dict[str, Any] | None:
 
 
 class MetricsTable:
-    """Our numbers beside the paper's; shows as a table in a notebook (``_repr_html_``) and as text."""
+    """Our numbers beside the paper's (and other published ones); shows as a table in a notebook
+    (``_repr_html_``) and as text."""
 
     def __init__(self, doc: Mapping[str, Any]):
         self.doc = dict(doc)
 
-    def rows(self) -> list[tuple[str, Any, Any, str]]:
-        metrics = self.doc.get("metrics") or {}
-        paper = self.doc.get("paper") or {}
-        units = self.doc.get("units") or {}
-        keys = list(metrics) + [k for k in paper if k not in metrics]
-        return [(k, metrics.get(k), paper.get(k), units.get(k, "")) for k in keys]
+    def rows(self) -> list[HeadlineRow]:
+        """Every key of the document: ours first, then those only the paper or a reference has."""
+        keys = list(dict.fromkeys([*(self.doc.get("metrics") or {}), *(self.doc.get("paper") or {}),
+                                   *(self.doc.get("reference") or {})]))
+        return headline_rows({**self.doc, "headline": keys}, limit=len(keys))
+
+    def _columns(self) -> tuple[list[str], list[list[str]]]:
+        rows = self.rows()
+        has_ref = any(r.reference is not None for r in rows)
+        head = ["metric", "ours", "paper"] + (["reference"] if has_ref else []) + ["unit"]
+        body = []
+        for r in rows:
+            ref = [f"{format_value(r.reference)} ({r.source})" if r.reference is not None else "-"] if has_ref else []
+            body.append([r.key, format_value(r.ours), format_value(r.paper), *ref, r.unit])
+        return head, body
 
     def __repr__(self) -> str:
-        rows = [("metric", "ours", "paper", "unit")] + [
-            (k, format_value(o), format_value(p), u) for k, o, p, u in self.rows()
-        ]
-        w = [max(len(str(r[i])) for r in rows) for i in range(4)]
-        return "\n".join("  ".join(str(c).ljust(w[i]) for i, c in enumerate(r)).rstrip() for r in rows)
+        head, body = self._columns()
+        table = [head, *body]
+        w = [max(len(str(r[i])) for r in table) for i in range(len(head))]
+        return "\n".join("  ".join(str(c).ljust(w[i]) for i, c in enumerate(r)).rstrip() for r in table)
 
     def _repr_html_(self) -> str:
-        head = "<tr><th>metric</th><th>ours</th><th>paper</th><th>unit</th></tr>"
-        body = "".join(
-            f"<tr><td>{html.escape(k)}</td><td>{html.escape(format_value(o))}</td>"
-            f"<td>{html.escape(format_value(p))}</td><td>{html.escape(u)}</td></tr>"
-            for k, o, p, u in self.rows()
-        )
-        return f"<table class='hsmap-metrics'>{head}{body}</table>"
+        head, body = self._columns()
+        th = "".join(f"<th>{html.escape(h)}</th>" for h in head)
+        trs = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in body)
+        return f"<table class='hsmap-metrics'><tr>{th}</tr>{trs}</table>"
 
 
-class Study:
+class NotebookReport:
     """Where one study notebook writes its figures, metrics and recordings: ``out_dir/NAME/``.
 
     Parameters
@@ -197,25 +247,27 @@ class Study:
             name = env or _notebook_file_stem()
             if name is None:
                 raise ConfigError(
-                    "Study cannot tell the notebook's name here: pass it, Study(out_dir, 'NN-name'), or run "
+                    "NotebookReport cannot tell the notebook's name here: pass it, NotebookReport(out_dir, 'NN-name'), "
+                    "or run "
                     f"the notebook with 'hsmap reproduce', which sets ${NOTEBOOK_ENV}"
                 )
-        _check_name(name, "Study name")
+        _check_name(name, "NotebookReport name")
         if env is not None and env != name:
             raise ConfigError(
                 f"this notebook calls itself {name!r} but 'hsmap reproduce' runs it as {env!r}: "
-                "make the name in Study(...) match the file name"
+                "make the name in NotebookReport(...) match the file name"
             )
         self.name = name
         self.out_dir = Path(out_dir)
         self.dir = self.out_dir / name
         self.dir.mkdir(parents=True, exist_ok=True)
-        self._doc: dict[str, Any] = {"notebook": name, "metrics": {}, "paper": {}, "headline": [], "units": {}}
+        self._doc: dict[str, Any] = {"notebook": name, "metrics": {}, "paper": {}, "reference": {}, "headline": [],
+                                     "units": {}, "labels": {}}
         self._recordings: list[Any] = []
         self.figures: list[Path] = []
 
     def __repr__(self) -> str:
-        return f"Study({self.name!r}, dir={str(self.dir)!r})"
+        return f"NotebookReport({self.name!r}, dir={str(self.dir)!r})"
 
     def path(self, filename: str) -> Path:
         """A path inside the notebook's folder (for files the notebook writes itself, atomically)."""
@@ -268,11 +320,14 @@ class Study:
         values: Mapping[str, Any] | None = None,
         paper: Mapping[str, Any] | None = None,
         *,
+        reference: Mapping[str, Mapping[str, Any]] | None = None,
         headline: Sequence[str] | None = None,
         units: Mapping[str, str] | None = None,
+        labels: Mapping[str, str] | None = None,
         notes: str | None = None,
     ) -> MetricsTable:
-        """Record metrics (ours, and the paper's for the same keys) into ``NAME/metrics.json``.
+        """Record metrics (ours, the paper's and other published ones for the same keys) into
+        ``NAME/metrics.json``.
 
         Calls accumulate: later values update earlier ones key by key, and the file is rewritten each time.
 
@@ -282,9 +337,14 @@ class Study:
             Our numbers. Scalars are shown in the index; nested values (per-map tables) are kept in the file.
         paper : mapping of str to value, optional
             The paper's number for the same key, where the paper gives one.
+        reference : mapping of str to mapping, optional
+            Another published number for the same key, ``{"value": v, "source": "who"}``, where the paper has
+            none (the public benchmarks).
         headline : sequence of str, optional
             Keys the index shows (default: the keys the paper has).
         units : mapping of str to str, optional
+        labels : mapping of str to str, optional
+            What a key is, in words (the index shows the label, not the key).
         notes : str, optional
             One line for the reader (e.g. "quick run: 40 scans").
 
@@ -293,18 +353,25 @@ class Study:
         MetricsTable
             Displays as ours-beside-paper table when it is a cell's last expression.
         """
-        for what, m in (("values", values), ("paper", paper), ("units", units)):
+        for what, m in (("values", values), ("paper", paper), ("reference", reference), ("units", units),
+                        ("labels", labels)):
             if m is not None and not isinstance(m, Mapping):
                 raise InputError(f"metrics {what} must be a mapping of name to value, got {type(m).__name__}")
-        self._doc["metrics"].update(_plain(dict(values or {})))
-        self._doc["paper"].update(_plain(dict(paper or {})))
+        for k, ref in (reference or {}).items():
+            if not isinstance(ref, Mapping) or "value" not in ref or not ref.get("source"):
+                raise InputError(f"metrics reference {k!r} must be a mapping with 'value' and 'source', got {ref!r}")
+        self._doc["metrics"].update(to_plain(dict(values or {})))
+        self._doc["paper"].update(to_plain(dict(paper or {})))
+        self._doc["reference"].update(to_plain(dict(reference or {})))
         self._doc["units"].update({str(k): str(v) for k, v in (units or {}).items()})
+        self._doc["labels"].update({str(k): str(v) for k, v in (labels or {}).items()})
         if headline is not None:
             if isinstance(headline, str):
                 headline = [headline]
-            missing = [k for k in headline if k not in self._doc["metrics"] and k not in self._doc["paper"]]
+            known = (self._doc["metrics"], self._doc["paper"], self._doc["reference"])
+            missing = [k for k in headline if not any(k in m for m in known)]
             if missing:
-                raise InputError(f"headline key(s) {missing} are neither among the metrics nor the paper's")
+                raise InputError(f"headline key(s) {missing} are neither among the metrics nor the references")
             self._doc["headline"] = list(headline)
         if notes is not None:
             self._doc["notes"] = str(notes)
@@ -331,7 +398,7 @@ class Study:
         -------
         hsmap.viz.rerun.Recording
         """
-        from .rerun import Recording, default_blueprint
+        from ..viz.rerun import Recording, default_blueprint
 
         _check_name(name, "recording name")
         rec = Recording(
@@ -374,7 +441,8 @@ pre.error { white-space: pre-wrap; color: #c62828; font-size: 12px; max-width: 3
 table.headline { border-collapse: collapse; font-size: 13px; }
 table.headline th { font-weight: normal; color: #666; text-align: left; padding: 0 0.8em 0 0; }
 table.headline td { padding: 0 0.8em 0 0; font-variant-numeric: tabular-nums; }
-table.headline td.key { font-family: monospace; }
+table.headline td.label { color: #333; max-width: 22em; }
+.source { color: #888; font-size: 11px; }
 .thumbs img { height: 64px; border: 1px solid #ccc; margin: 2px; }
 .small { font-size: 12px; color: #666; }
 table.env td { padding: 0 1.5em 0 0; font-size: 13px; }
@@ -399,14 +467,21 @@ def _headline_html(metrics: Mapping[str, Any] | None, notes: str | None = None) 
     rows = headline_rows(metrics)
     if not rows:
         return "<span class='small'>no headline numbers</span>"
-    has_paper = any(p is not None for _, _, p, _ in rows)
-    head = "<tr><th></th><th>ours</th>" + ("<th>paper</th>" if has_paper else "") + "</tr>"
+    has_paper = any(r.paper is not None for r in rows)
+    has_ref = any(r.reference is not None for r in rows)
+    head = ("<tr><th></th><th>ours</th>" + ("<th>paper</th>" if has_paper else "")
+            + ("<th>reference</th>" if has_ref else "") + "</tr>")
     body = ""
-    for k, o, p, u in rows:
-        unit = f" {html.escape(u)}" if u else ""
-        body += (f"<tr><td class='key'>{html.escape(k)}</td><td>{html.escape(format_value(o))}{unit}</td>"
-                 + (f"<td>{html.escape(format_value(p))}{unit if p is not None else ''}</td>" if has_paper else "")
-                 + "</tr>")
+    for r in rows:
+        unit = f" {html.escape(r.unit)}" if r.unit else ""
+        cells = f"<td class='label' title='{html.escape(r.key)}'>{html.escape(r.label)}</td>"
+        cells += f"<td>{html.escape(format_value(r.ours))}{unit}</td>"
+        if has_paper:
+            cells += f"<td>{html.escape(format_value(r.paper))}{unit if r.paper is not None else ''}</td>"
+        if has_ref:
+            src = f" <span class='source'>{html.escape(r.source)}</span>" if r.reference is not None else ""
+            cells += f"<td>{html.escape(format_value(r.reference))}{unit if r.reference is not None else ''}{src}</td>"
+        body += f"<tr>{cells}</tr>"
     note = f"<div class='small'>{html.escape(notes)}</div>" if notes else ""
     return f"<table class='headline'>{head}{body}</table>{note}"
 
@@ -417,7 +492,7 @@ def render_index(entries: Sequence[Mapping[str, Any]], meta: Mapping[str, Any]) 
     Parameters
     ----------
     entries : sequence of mappings
-        One per notebook, the fields of :class:`hsmap.reproduce.NotebookRun`.
+        One per notebook, the fields of :class:`hsmap.study.batch.NotebookRun`.
     meta : mapping
         ``started`` (ISO date), ``duration_s``, ``quick``, ``jobs``, ``final`` (False while running),
         ``versions`` (name -> version), ``ran`` (names run now).

@@ -1,39 +1,34 @@
-"""hsmap.study: the cached SLAM runner (hit, miss, key, lock, damaged folders), maps from a dataset and a
-trajectory, the replayed rerun recording, the shared simulated dataset."""
+"""hsmap.study runs, datasets, maps and recording: the cached SLAM runner (hit, miss, key, lock, damaged
+folders), maps from a dataset and a trajectory, the replayed rerun recording, the shared simulated dataset."""
 
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
-import textwrap
+import shutil
 import threading
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from _worlds import TINY_SCENARIO
 
 import hsmap.slam
 from hsmap.datasets.frames import Dataset, Frame, LaserScan2D
 from hsmap.errors import HsmapError, InputError
 from hsmap.geometry import compose, relative
-from hsmap.io import Trajectory
 from hsmap.slam import SlamConfig
 from hsmap.study import (
     cached_slam,
     dataset_fingerprint,
-    file_lock,
     point_map,
     point_maps,
-    poses_at,
     record_slam_run,
     scan_grid,
     simulated_dataset,
     slam_key,
 )
 from hsmap.testing import office_route, office_segments, raycast_2d
+from hsmap.trajectory import Trajectory
 
 SEGMENTS = office_segments()
 ROUTE = office_route()[:60]  # room A and the door: enough for a real run, a few seconds
@@ -96,7 +91,7 @@ CFG = SlamConfig(dof=3, use_odometry=False)
 def test_miss_then_hit_reads_the_same_run(tmp_path, dataset, count_runs):
     a = cached_slam(dataset, CFG, seed=3, max_frames=40, initial_pose=ROUTE[0], cache_dir=tmp_path)
     assert not a.cached and len(count_runs) == 1
-    for name in ("trajectory.tum", "map.ply", "metrics.json", "config.yaml", "key.json"):
+    for name in ("trajectory.tum", "map.ply", "metrics.json", "config.yaml", "cache.json"):
         assert (a.folder / name).is_file(), name
     # the run is real: it tracks the route within centimetres, in the world frame of the initial pose
     assert len(a.trajectory) == 40 and a.trajectory.dof == 3
@@ -110,7 +105,7 @@ def test_miss_then_hit_reads_the_same_run(tmp_path, dataset, count_runs):
     assert b.metrics["seconds_total"] == a.metrics["seconds_total"]  # the stored run's time, not a new one
     assert b.config == CFG
     assert b.keyframes.sum() >= 3 and b.frame_indices.tolist() == list(range(40))
-    assert json.loads((a.folder / "key.json").read_text())["key"] == a.key
+    assert json.loads((a.folder / "cache.json").read_text())["key"] == a.key
 
 
 def test_every_input_of_the_run_changes_the_key(dataset):
@@ -119,7 +114,7 @@ def test_every_input_of_the_run_changes_the_key(dataset):
     variants = [
         slam_key(dataset, CFG, 2)[0],
         slam_key(dataset, SlamConfig(dof=3, use_odometry=True), 1)[0],
-        slam_key(dataset, SlamConfig(dof=3, use_odometry=False, translation_range=0.5), 1)[0],
+        slam_key(dataset, SlamConfig(dof=3, use_odometry=False, keyframe_distance=0.6), 1)[0],
         slam_key(dataset, CFG, 1, max_frames=10)[0],
         slam_key(dataset, CFG, 1, initial_pose=[1.0, 0.0, 0.0])[0],
         slam_key(dataset, SlamConfig(dof=6), 1, prior=prior)[0],
@@ -166,7 +161,7 @@ def test_damaged_folder_is_computed_again(tmp_path, dataset, count_runs, damage)
     elif damage == "no_map":
         (a.folder / "map.ply").unlink()
     elif damage == "wrong_key":
-        (a.folder / "key.json").write_text(json.dumps({"key": "0" * 64}))
+        (a.folder / "cache.json").write_text(json.dumps({"key": "0" * 64}))
     b = cached_slam(dataset, CFG, seed=1, max_frames=12, cache_dir=tmp_path)
     assert not b.cached and len(count_runs) == 2
     np.testing.assert_allclose(b.trajectory.poses, ref, atol=1e-7)  # same seed: the same run again
@@ -186,12 +181,14 @@ def test_interrupted_run_publishes_nothing(tmp_path, dataset, monkeypatch):
 
 
 def test_stale_temporary_folder_is_swept(tmp_path, dataset):
-    key = slam_key(dataset, CFG, 1, max_frames=5)[0]
-    stale = tmp_path / f".office-3dof-{key[:16]}.tmp-99999"
+    first = cached_slam(dataset, CFG, seed=1, max_frames=5, cache_dir=tmp_path)
+    assert first.folder.name.startswith("office-3dof-")
+    shutil.rmtree(first.folder)
+    stale = tmp_path / f".{first.folder.name}.tmp-99999"
     stale.mkdir(parents=True)
     (stale / "trajectory.tum").write_text("left by a killed run")
     run = cached_slam(dataset, CFG, seed=1, max_frames=5, cache_dir=tmp_path)
-    assert not stale.exists() and run.folder.name == f"office-3dof-{key[:16]}"
+    assert not stale.exists() and run.folder == first.folder and not run.cached
 
 
 def test_two_callers_at_once_compute_once(tmp_path, dataset, count_runs):
@@ -213,36 +210,6 @@ def test_two_callers_at_once_compute_once(tmp_path, dataset, count_runs):
     assert sorted(r.cached for r in results) == [False, True]
     assert results[0].folder == results[1].folder
     np.testing.assert_allclose(results[0].trajectory.poses, results[1].trajectory.poses)
-
-
-def test_lock_held_by_another_process(tmp_path):
-    lock = tmp_path / "x.lock"
-    code = textwrap.dedent(f"""
-        import sys, time
-        from hsmap.study import file_lock
-        with file_lock({str(lock)!r}):
-            print("held", flush=True)
-            time.sleep(1.5)
-    """)
-    with subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True,
-                          env={**os.environ, "RERUN_ANALYTICS": "0"}) as child:
-        assert child.stdout.readline().strip() == "held"
-        with pytest.raises(HsmapError, match="still locked"):
-            with file_lock(lock, timeout=0.2, poll=0.05):
-                pass
-        t0 = time.monotonic()
-        with file_lock(lock, timeout=30, poll=0.05):  # waits for the child to let go
-            waited = time.monotonic() - t0
-        assert waited > 0.3
-        child.wait(timeout=30)
-    assert child.returncode == 0
-
-
-def test_poses_at_matches_stamps():
-    tr = Trajectory([0.0, 1.0, 2.0, 3.0], np.arange(12.0).reshape(4, 3))
-    poses, found = poses_at(tr, [2.0, 0.0004, 1.5, 5.0, 3.0])
-    assert found.tolist() == [True, True, False, False, True]
-    np.testing.assert_array_equal(poses, tr.poses[[2, 0, 3]])
 
 
 def _distance_to_segments(points, segments):
@@ -296,25 +263,6 @@ def test_recording_of_a_cached_run_verifies(tmp_path, dataset):
     for entity in ("/world/robot", "/world/robot/lidar2d/scan", "/world/map/points/0000",
                    "/world/trajectory/estimate", "/world/trajectory/groundtruth"):
         assert any(e.rstrip("/") == entity or e == entity.lstrip("/") for e in contents), (entity, list(contents))
-
-
-TINY_SCENARIO = """
-name: tiny
-frame_rate: 2.0
-walls:
-  - {name: s, from: [0, 0], to: [4, 0]}
-  - {name: e, from: [4, 0], to: [4, 3]}
-  - {name: n, from: [4, 3], to: [0, 3]}
-  - {name: w, from: [0, 3], to: [0, 0]}
-rooms:
-  - {name: room, rect: [0, 0, 4, 3]}
-route:
-  start: [1.0, 1.5, 0]
-  steps:
-    - [2.0, 1.5]
-sensors:
-  lidar3d: {channels: 16, columns: 256}
-"""
 
 
 def test_simulated_dataset_is_generated_once(tmp_path, monkeypatch):

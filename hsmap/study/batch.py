@@ -4,7 +4,7 @@ For each ``notebooks/NN-name.ipynb`` (NAME = its file stem) a run writes:
 
 - ``reports/NAME.ipynb``: the executed notebook (papermill marks a failure in it);
 - ``reports/NAME.html``: the same as HTML, code cells folded, figures inline, a banner with the run's status;
-- ``reports/NAME/``: what the notebook writes itself through :class:`hsmap.viz.report.Study` (figures as
+- ``reports/NAME/``: what the notebook writes itself through :class:`hsmap.study.report.NotebookReport` (figures as
   PNG, ``metrics.json``, rerun recordings ``*.rrd``), plus ``run.json`` (status, error, duration, parameters);
 - ``reports/index.html`` and ``index.json``: every notebook with its status, headline numbers beside the
   paper's, duration and date, the versions, the total duration.
@@ -12,7 +12,7 @@ For each ``notebooks/NN-name.ipynb`` (NAME = its file stem) a run writes:
 Each notebook gets the parameters ``quick`` (bool) and ``out_dir`` (the reports folder, absolute) plus any
 overrides, runs in a fresh kernel of the current interpreter (with ``RERUN_ANALYTICS=0`` and
 ``$HSMAP_NOTEBOOK`` = NAME) with the notebook's folder as working directory. A notebook that fails does not
-stop the others; :func:`run_study` reports it and the command exits non-zero at the end. Every file is
+stop the others; :func:`run_notebooks` reports it and the command exits non-zero at the end. Every file is
 written atomically, and a notebook's previous outputs are removed before it runs, so nothing stale or
 half-written can pass for a result. Recordings are checked with ``rerun rrd verify``.
 """
@@ -38,21 +38,20 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from . import __version__
-from .errors import ConfigError, InputError
-from .io import write_json, write_text
-from .viz.report import NOTEBOOK_ENV, Study, read_metrics
+from .. import __version__
+from ..errors import ConfigError, InputError
+from ..io import write_json, write_text
+from .report import NOTEBOOK_ENV, read_metrics
 
 __all__ = [
-    "Study",
     "NotebookSpec",
     "NotebookRun",
-    "StudyResult",
+    "BatchResult",
     "discover",
     "select",
     "inspect_parameters",
     "load_parameters_file",
-    "run_study",
+    "run_notebooks",
     "execute_notebook",
     "notebook_to_html",
     "environment_info",
@@ -63,7 +62,7 @@ NOTEBOOK_RE = re.compile(r"^(\d{2})-([a-z0-9][a-z0-9_-]*)\.ipynb$")
 KERNEL_NAME = "hsmap-python"
 #: Parameters every notebook receives.
 STANDARD_PARAMETERS = ("quick", "out_dir")
-_THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+_BLAS_VARS = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 def _lighten_jupyter_imports() -> None:
@@ -195,15 +194,10 @@ def load_parameters_file(path: str | os.PathLike) -> tuple[dict[str, Any], dict[
 
     Returns (common parameters, per-notebook parameters keyed by selector).
     """
-    import yaml
+    from ..config import read_yaml
 
     path = Path(path)
-    try:
-        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read parameters file: {exc.strerror}") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML: {exc}") from None
+    doc = read_yaml(path, "parameters file")
     if doc is None:
         return {}, {}
     if not isinstance(doc, dict):
@@ -359,12 +353,19 @@ def notebook_to_html(nb: Any, run: NotebookRun, versions: Mapping[str, str] | No
 
 
 def _kernel_env(name: str, jobs: int) -> dict[str, str]:
+    """The environment of a notebook's kernel (hsmap's own process): BLAS on ``$HSMAP_BLAS_THREADS`` threads
+    (default 1, see :mod:`hsmap._blas`) and, for parallel kernels, one share of the cores each for the other
+    native thread pools; a variable the caller set is left alone."""
+    from .._blas import blas_threads
+
     env = {NOTEBOOK_ENV: name, "RERUN_ANALYTICS": "0", "PYTHONHASHSEED": os.environ.get("PYTHONHASHSEED", "0")}
+    for var in _BLAS_VARS:
+        if var not in os.environ:
+            env[var] = str(blas_threads())
     if jobs > 1:  # parallel kernels share the cores: one native thread pool each
         per = str(max(1, (os.cpu_count() or 1) // jobs))
-        for var in _THREAD_VARS:
-            if var not in os.environ:
-                env[var] = per
+        if "OMP_NUM_THREADS" not in os.environ:
+            env["OMP_NUM_THREADS"] = per
     return env
 
 
@@ -406,7 +407,7 @@ def execute_notebook(
     """Execute one notebook with papermill into ``out_dir`` and collect its outputs (see module docstring).
 
     The caller provides the kernel (``kernel_name`` must be findable by jupyter) and the environment
-    (``$HSMAP_NOTEBOOK``); :func:`run_study` does both. Never raises for a failing notebook: the returned
+    (``$HSMAP_NOTEBOOK``); :func:`run_notebooks` does both. Never raises for a failing notebook: the returned
     run says ``failed`` with the error.
     """
     _lighten_jupyter_imports()
@@ -447,7 +448,7 @@ def execute_notebook(
         if run.ok and run.metrics is None:
             run.warnings.append("the notebook wrote no metrics.json (study.metrics(...))")
         if run.recordings and verify_recordings:
-            from .viz.rerun import rerun_binary, verify_rrd
+            from ..viz.rerun import rerun_binary, verify_rrd
 
             if rerun_binary() is None:
                 run.warnings.append("rerun binary not found: recordings not verified")
@@ -565,7 +566,7 @@ def environment_info(repo_dir: str | os.PathLike | None = None) -> dict[str, str
 
 
 @dataclass
-class StudyResult:
+class BatchResult:
     """A batch run: the notebooks run now (``runs``) and every notebook's latest state (``entries``)."""
 
     runs: list[NotebookRun]
@@ -593,7 +594,7 @@ def _previous_run(out_dir: Path, spec: NotebookSpec) -> NotebookRun | None:
         return None
 
 
-def run_study(
+def run_notebooks(
     notebooks_dir: str | os.PathLike = "notebooks",
     out_dir: str | os.PathLike = "reports",
     *,
@@ -605,7 +606,7 @@ def run_study(
     timeout: float | None = None,
     verify_recordings: bool = True,
     log: Callable[[str], None] | None = print,
-) -> StudyResult:
+) -> BatchResult:
     """Execute the study notebooks and write ``out_dir/index.html`` (see module docstring).
 
     Parameters
@@ -629,7 +630,7 @@ def run_study(
 
     Returns
     -------
-    StudyResult
+    BatchResult
         ``.ok`` is False when any notebook run now failed.
     """
     if int(jobs) < 1:
@@ -671,7 +672,7 @@ def run_study(
     index_path = out / "index.html"
 
     def write_index(final: bool) -> None:
-        from .viz.report import render_index
+        from .report import render_index
 
         meta = {"started": started, "duration_s": time.perf_counter() - t0, "quick": quick, "jobs": jobs,
                 "final": final, "versions": versions, "ran": [s.name for s in chosen]}
@@ -721,7 +722,7 @@ def run_study(
         raise
 
     write_index(final=True)
-    return StudyResult(
+    return BatchResult(
         runs=[runs[s.name] for s in chosen],
         entries=[entries[s.name] for s in specs],
         started=started,

@@ -1,0 +1,66 @@
+"""The reproduction layer: everything the study notebooks, ``hsmap reproduce`` and the benchmark scripts chain
+together, kept apart from the core library (which knows nothing of the repository, its ``data/`` or its
+caches).
+
+- :mod:`~hsmap.study.cache`: the one cache (a folder per result, a lock, a key over the whole core package,
+  validated on load, published atomically);
+- :mod:`~hsmap.study.datasets`, :mod:`~hsmap.study.runs`, :mod:`~hsmap.study.maps`: simulated datasets, cached
+  HS-SLAM runs, the maps made from them;
+- :mod:`~hsmap.study.recording`: a cached run replayed into a rerun recording;
+- :mod:`~hsmap.study.benchmarks`: the Freiburg and IPA benchmarks beside the published numbers
+  (``data/published.yaml``);
+- :mod:`~hsmap.study.report`: what a notebook writes (:class:`NotebookReport`) and the batch's HTML index;
+- :mod:`~hsmap.study.batch`: the notebooks run by papermill (``hsmap reproduce``);
+- :mod:`~hsmap.study.paths`: where the repository keeps things.
+
+Notebooks use it as ``from hsmap import study as hs``.
+"""
+
+from .benchmarks import (
+    BORMANN_BUILDINGS,
+    FREIBURG_LOGS,
+    FreiburgResults,
+    freiburg_relations,
+    open_freiburg,
+    published_references,
+    real_benchmark_metrics,
+    room_segmentation_benchmark,
+    segmentation_table,
+    summarise_segmentation,
+)
+from .datasets import simulated_dataset
+from .maps import TwoLidarMaps, map_distances, point_map, point_maps, scan_grid, two_lidar_maps
+from .paths import datasets_dir, generated_dir
+from .recording import record_slam_run
+from .report import NotebookReport
+from .runs import SimulatedRuns, SlamRun, cached_slam, dataset_fingerprint, simulated_slam_runs, slam_key
+
+__all__ = [
+    "BORMANN_BUILDINGS",
+    "FREIBURG_LOGS",
+    "FreiburgResults",
+    "NotebookReport",
+    "SimulatedRuns",
+    "SlamRun",
+    "TwoLidarMaps",
+    "cached_slam",
+    "dataset_fingerprint",
+    "datasets_dir",
+    "freiburg_relations",
+    "generated_dir",
+    "map_distances",
+    "open_freiburg",
+    "point_map",
+    "point_maps",
+    "published_references",
+    "real_benchmark_metrics",
+    "record_slam_run",
+    "room_segmentation_benchmark",
+    "scan_grid",
+    "segmentation_table",
+    "simulated_dataset",
+    "simulated_slam_runs",
+    "slam_key",
+    "summarise_segmentation",
+    "two_lidar_maps",
+]

@@ -123,8 +123,8 @@ class LoopClosureConfig:
     max_sigma_translation: float = 0.05
     degenerate_ratio: float = 0.05
     max_sigma_rotation: float = float(np.deg2rad(1.0))
-    edge_sigma_translation: float = 0.002
-    edge_sigma_rotation: float = float(np.deg2rad(0.02))
+    edge_sigma_translation: float = 0.01
+    edge_sigma_rotation: float = float(np.deg2rad(0.1))
     tracking_path_distance: float = 20.0
     optimize_threshold_translation: float = 0.02
     optimize_threshold_rotation: float = float(np.deg2rad(0.3))

@@ -80,6 +80,7 @@ def _tracking_registration() -> RegistrationConfig:
         search_threshold=0.3,
         threshold=0.1,
         max_points=150,
+        refine_points=4000,  # 3D: every point of a 0.15 m-voxel cloud; half of them gave 1 cm z errors
         robust_kernel=0.07,
         translation_range=0.4,
         yaw_range=np.deg2rad(20.0),

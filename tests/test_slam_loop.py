@@ -92,11 +92,14 @@ def test_loop_closes_on_the_ring(ring, tmp_path):
     m = closed.metrics()
     assert m["loop_closure"] == "ok" and m["loops_closed"] >= 1
     # without loop closure the featureless side drifts with the odometry (5 % too long)
-    assert route_error(open_.trajectory, route) > 0.1
+    drift = route_error(open_.trajectory, route)
+    assert drift > 0.1
     assert route_error(closed.tracked, route) > 0.1  # the same drift before the graph was optimised
     t_closed, r_closed = end_to_start(closed.trajectory, route)
     assert t_closed < 0.02 and r_closed < 0.5, (t_closed, r_closed)
-    assert route_error(closed.trajectory, route) < 0.05
+    # the graph spreads the misclosure over the loop by the edges' uncertainties (each tracking edge at least
+    # 1 cm / 0.1 deg): the largest error along the route shrinks, it does not vanish
+    assert route_error(closed.trajectory, route) < 0.6 * drift
     assert open_.metrics()["loop_closure"] == "disabled"
     # trajectory.tum holds the optimised poses, metrics.json the loop-closure counts
     paths = write_slam_outputs(closed, tmp_path)

@@ -35,7 +35,6 @@ import re
 import shutil
 import subprocess
 import sys
-import tempfile
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
@@ -50,6 +49,7 @@ from numpy.typing import ArrayLike, NDArray  # noqa: E402
 from ..errors import DataFormatError, HsmapError, InputError, ShapeError  # noqa: E402
 from ..geometry import euler_to_matrix, matrix_to_quaternion  # noqa: E402
 from ..grid import GridGeometry  # noqa: E402
+from ..io import locked_temporary, publish_file  # noqa: E402
 from ..mapping import first_per_voxel  # noqa: E402
 from .colors import ROOM_PALETTE, SERIES_COLORS, height_colors, label_color, label_colors  # noqa: E402
 from .occupancy import _ros_to_image, occupancy_to_image, occupancy_to_ros  # noqa: E402
@@ -96,13 +96,6 @@ GRAPH = "graph"
 _UNIX_TIME_THRESHOLD = 1e8  # seconds: stamps above this (after 1973) are taken as Unix times
 
 
-def _default_file_mode() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return 0o666 & ~mask
-
-
-_FILE_MODE = _default_file_mode()
 
 
 def _stream(rec: Any) -> rr.RecordingStream:
@@ -152,10 +145,7 @@ class Recording:
         self.path = Path(path)
         if self.path.suffix != ".rrd":
             raise InputError(f"a rerun recording file must end in .rrd, got {self.path}")
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp.rrd", dir=self.path.parent)
-        os.close(fd)
-        self._tmp = Path(tmp)
+        self._fd, self._tmp = locked_temporary(self.path, ".tmp.rrd")  # locked: a rerun can tell it from a leftover
         self.closed = False
         self.rig_logged = False
         # rerun wants application ids that are entry names: letters, digits, '-' and '_'
@@ -185,14 +175,27 @@ class Recording:
             self.abort()
 
     def close(self) -> Path:
-        """Flush, close the file and move it to :attr:`path`; returns the path. Idempotent."""
+        """Flush, close the file and move it to :attr:`path` once it checks out complete (synced, rerun's footer
+        present: :func:`hsmap.io.verify_output`); returns the path. Idempotent.
+
+        Raises
+        ------
+        OutputError
+            The recording could not be written completely (e.g. no space left); the temporary file is deleted
+            and :attr:`path` is left as it was.
+        """
         if not self.closed:
             self.closed = True
             atexit.unregister(self.close)
-            self.stream.flush()
-            self.stream.disconnect()
-            os.chmod(self._tmp, _FILE_MODE)  # mkstemp makes it private; a report is for reading
-            os.replace(self._tmp, self.path)
+            try:
+                self.stream.flush()
+                self.stream.disconnect()
+                publish_file(self._tmp, self.path)
+            except BaseException:
+                self._tmp.unlink(missing_ok=True)
+                raise
+            finally:
+                os.close(self._fd)
         return self.path
 
     def abort(self) -> None:
@@ -204,6 +207,7 @@ class Recording:
                 self.stream.disconnect()
             finally:
                 self._tmp.unlink(missing_ok=True)
+                os.close(self._fd)
 
 
 def open_recording(path: str | os.PathLike, **kwargs: Any) -> Recording:

@@ -203,6 +203,33 @@ def _ros1_odom(raw) -> tuple[int, float, str, tuple[float, float, float]]:
     return seq, stamp, child, (x, y, yaw)
 
 
+def _check_scan_geometry(geom: tuple[float, float, float, float], n: int, where: str) -> None:
+    """Reject LaserScan geometry that cannot be right: it would put the beams at wrong angles or keep impossible
+    (negative) ranges, giving a wrong map without any other sign.
+
+    Raises
+    ------
+    DataFormatError
+        Naming ``where`` (file, topic, message), the field and what was expected.
+    """
+    amin, inc, rmin, rmax = geom
+
+    def bad(field: str, value: float, expected: str) -> DataFormatError:
+        return DataFormatError(f"{where}: LaserScan {field} is {value!r}; expected {expected}")
+
+    if not math.isfinite(amin):
+        raise bad("angle_min", amin, "a finite angle (radians)")
+    if not math.isfinite(inc) or inc == 0.0:
+        raise bad("angle_increment", inc, "a finite, non-zero angle step (radians) between beams")
+    if n > 1 and abs(inc) * (n - 1) > 2 * math.pi + 1e-3:
+        raise bad("angle_increment", inc, f"at most 2 pi / {n - 1} rad: its {n} beams would span "
+                                          f"{abs(inc) * (n - 1):.3f} rad, more than a full turn")
+    if not math.isfinite(rmin) or rmin < 0:
+        raise bad("range_min", rmin, "a finite distance >= 0 (metres): ranges are never negative")
+    if math.isnan(rmax) or rmax <= rmin:
+        raise bad("range_max", rmax, f"a distance (metres) above range_min ({rmin!r})")
+
+
 def _stamp(header) -> float:
     return float(header.stamp.sec) + float(header.stamp.nanosec) * 1e-9
 
@@ -433,6 +460,7 @@ class RosbagDataset(Dataset):
         odom: list[tuple[float, float, float, float]] = []
         self._odom_child = None
         fast = {id(c) for c in scan_c + odom_c if c.digest in (_ROS1_SCAN_MD5, _ROS1_ODOM_MD5)}
+        checked: set = set()  # scan geometries found sound
         for c, _, raw in self._messages(reader, scan_c + cloud_c + odom_c):
             is_scan = id(c) in scan_ids
             if id(c) in fast:
@@ -459,6 +487,10 @@ class RosbagDataset(Dataset):
                     pose = (p.x, p.y, yaw)
                     frame = msg.child_frame_id
             if is_scan:
+                if (geom, len(ranges)) not in checked:
+                    _check_scan_geometry(geom, len(ranges), f"{self.path}: {c.topic} message {len(scans['stamp'])} "
+                                                            f"(stamp {stamp:.6f})")
+                    checked.add((geom, len(ranges)))
                 scans["stamp"].append(stamp)
                 scans["seq"].append(seq)
                 scans["frame"].append(frame)

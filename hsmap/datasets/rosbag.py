@@ -61,7 +61,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import DataFormatError, DatasetError
+from ..errors import DataFormatError, DatasetError, HsmapWarning, InputError
 from ..geometry import invert_matrix, matrix_to_pose, quaternion_to_matrix, wrap_angle
 from ..trajectory import Trajectory, nearest_index
 from .frames import Dataset, Frame, LaserScan2D
@@ -238,11 +238,16 @@ def _frame_id(name: str) -> str:
     return name.lstrip("/")
 
 
-def _transform_matrix(tf) -> NDArray[np.float64]:
+def _transform_matrix(tf, where: str = "transform") -> NDArray[np.float64]:
     t, q = tf.translation, tf.rotation
     T = np.eye(4)
-    T[:3, :3] = quaternion_to_matrix([q.x, q.y, q.z, q.w])
+    try:
+        T[:3, :3] = quaternion_to_matrix([q.x, q.y, q.z, q.w])
+    except InputError as exc:
+        raise DataFormatError(f"{where}: rotation {exc}") from None
     T[:3, 3] = [t.x, t.y, t.z]
+    if not np.all(np.isfinite(T)):
+        raise DataFormatError(f"{where}: translation {[t.x, t.y, t.z]} is not finite")
     return T
 
 
@@ -446,7 +451,8 @@ class RosbagDataset(Dataset):
         if conns:
             for c, _, raw in self._messages(reader, conns):
                 for t in self._deserialize(reader, raw, c).transforms:
-                    tf.add(t.header.frame_id, t.child_frame_id, _transform_matrix(t.transform))
+                    where = f"{self.path}: {c.topic} transform {t.header.frame_id} -> {t.child_frame_id}"
+                    tf.add(t.header.frame_id, t.child_frame_id, _transform_matrix(t.transform, where))
         return tf
 
     def _read(self, reader) -> None:
@@ -461,6 +467,7 @@ class RosbagDataset(Dataset):
         self._odom_child = None
         fast = {id(c) for c in scan_c + odom_c if c.digest in (_ROS1_SCAN_MD5, _ROS1_ODOM_MD5)}
         checked: set = set()  # scan geometries found sound
+        bad_odom = 0
         for c, _, raw in self._messages(reader, scan_c + cloud_c + odom_c):
             is_scan = id(c) in scan_ids
             if id(c) in fast:
@@ -501,9 +508,17 @@ class RosbagDataset(Dataset):
                 clouds["seq"].append(seq)
                 clouds["frame"].append(frame)
             else:
+                if not all(math.isfinite(v) for v in (stamp, *pose)):
+                    bad_odom += 1
+                    continue
                 odom.append((stamp, *pose))
                 if self._odom_child is None:
                     self._odom_child = frame
+        if bad_odom:
+            import warnings
+
+            warnings.warn(f"{self.path}: {bad_odom} {self.odom_topic} message(s) have a non-finite pose or stamp and "
+                          "are ignored", HsmapWarning, stacklevel=3)
         if self.scan_topic and not scans["stamp"]:
             raise DatasetError(f"{self.path}: topic {self.scan_topic!r} has no messages")
         if self.cloud_topic and not clouds["stamp"]:
@@ -555,7 +570,8 @@ class RosbagDataset(Dataset):
             for t in self._deserialize(reader, raw, c).transforms:
                 child = _frame_id(t.child_frame_id)
                 if child != base and child not in tf.parent:
-                    tf.add(t.header.frame_id, child, _transform_matrix(t.transform))
+                    where = f"{self.path}: {c.topic} transform {t.header.frame_id} -> {t.child_frame_id}"
+                    tf.add(t.header.frame_id, child, _transform_matrix(t.transform, where))
                     added = True
             if added and all(f == base or tf.lookup(base, f) is not None for f in sensors):
                 return

@@ -451,6 +451,12 @@ def _check_bounds(bounds: ArrayLike, dof: int) -> NDArray[np.float64]:
     if bad.size:
         i = int(bad[0])
         raise InputError(f"bounds[{i}] is inverted: lower {b[i, 0]} > upper {b[i, 1]}")
+    with np.errstate(over="ignore"):
+        wide = np.flatnonzero(~np.isfinite(b[:, 1] - b[:, 0]))
+    if wide.size:
+        i = int(wide[0])
+        raise InputError(f"bounds[{i}] spans {b[i, 0]:g}..{b[i, 1]:g}, wider than a float can hold; expected a "
+                         "search box of finite width")
     return b
 
 
@@ -662,7 +668,10 @@ def harmony_icp(
         b = _check_bounds(bounds, dof)
 
     voxel = cfg.voxel_size or (0.05 if dim == 2 else 0.1)
-    sample = _subsample(src, voxel, cfg.max_points, gen)
+    try:
+        sample = _subsample(src, voxel, cfg.max_points, gen)
+    except InputError as exc:
+        raise type(exc)(f"source: {exc}") from None
     radius = float(np.sqrt(((sample - sample.mean(0)) ** 2).sum(1).mean())) + 1e-9
     iterations = evaluations = 0
     hs: HarmonyResult | None = None

@@ -61,6 +61,8 @@ def _check_type(value: Any, hint: Any, where: str) -> None:
           isinstance(value, (int, float)) and not isinstance(value, bool))
     if not ok:
         raise ConfigError(f"{where} must be {expected}{' or null' if type(None) in options else ''}, got {value!r}")
+    if kind is float and value != value:
+        raise ConfigError(f"{where} must be a number, got NaN")
 
 
 def from_dict(cls: type[T], data: dict[str, Any] | None, where: str = "config") -> T:
@@ -84,10 +86,9 @@ def from_dict(cls: type[T], data: dict[str, Any] | None, where: str = "config") 
         kwargs[k] = from_dict(sub, v, f"{where}.{k}") if nested else v  # type: ignore[arg-type]
     try:
         return cls(**kwargs)
-    except (TypeError, ValueError) as exc:
-        if isinstance(exc, ConfigError):
-            raise
-        raise ConfigError(f"{where}: {exc}") from None
+    except (TypeError, ValueError) as exc:  # the dataclass's own checks; the message gets the file (or key) in front
+        text = " ".join(str(exc).split())
+        raise ConfigError(text if text.startswith(where) else f"{where}: {text}") from None
 
 
 def read_yaml(path: str | os.PathLike, what: str = "configuration file") -> Any:

@@ -21,7 +21,7 @@ import warnings
 from . import __version__
 from ._blas import limited_blas
 from .commands import COMMANDS
-from .errors import HsmapError
+from .errors import HsmapError, HsmapWarning
 
 
 class _Parser(argparse.ArgumentParser):
@@ -65,8 +65,16 @@ def _one_line(text: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the ``hsmap`` command line; returns the exit status. hsmap's warnings are printed, one line each,
+    whatever the caller's warning filters (restored on return)."""
+    with warnings.catch_warnings():
+        warnings.showwarning = _show_warning
+        warnings.simplefilter("default", HsmapWarning)
+        return _main(argv)
+
+
+def _main(argv: list[str] | None) -> int:
     os.environ.setdefault("RERUN_ANALYTICS", "0")
-    warnings.showwarning = _show_warning
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "_run", None):

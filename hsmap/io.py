@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import enum
+import errno
 import json
 import os
 import shutil
@@ -49,6 +50,8 @@ __all__ = [
     "sweep_stale_temporaries",
     "prepare_output_dir",
     "folder_lock",
+    "native_stderr_captured",
+    "write_failure_reason",
     "write_json",
     "to_plain",
     "write_text",
@@ -70,6 +73,59 @@ _FILE_MODE = _default_file_mode()  # what open() would give a new file (mkstemp 
 
 def _why(exc: OSError) -> str:
     return exc.strerror or str(exc) or type(exc).__name__
+
+
+def write_failure_reason(folder: str | os.PathLike, detail: str) -> str:
+    """Why a library's write into ``folder`` failed, when it does not say: the device's state (no space left,
+    read-only) if that explains it, else ``detail``."""
+    try:
+        st = os.statvfs(folder)
+    except (OSError, AttributeError):
+        return detail
+    if st.f_flag & getattr(os, "ST_RDONLY", 1):
+        return os.strerror(errno.EROFS)
+    if st.f_bavail == 0 or st.f_favail == 0:
+        return os.strerror(errno.ENOSPC)
+    return detail
+
+
+@contextlib.contextmanager
+def native_stderr_captured() -> Iterator[list[str]]:
+    """Hold back what native libraries print on the process's stderr (file descriptor 2) during the ``with``
+    block: Open3D's PLY writer prints ``RPly: Error closing up`` (and a line per value it fails to write) on a full
+    disk, before hsmap reports the failure on one line. When the block ends with an :class:`OutputError` the
+    text is dropped (the error says it all); otherwise it is written back to stderr, so nothing else is lost.
+    Yields a list that receives the captured text."""
+    import sys
+
+    captured: list[str] = []
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError, AttributeError):  # no real stderr (embedded): nothing to capture
+        yield captured
+        return
+    replay = True
+    with tempfile.TemporaryFile() as buf:
+        os.dup2(buf.fileno(), 2)
+        try:
+            yield captured
+        except OutputError:
+            replay = False
+            raise
+        finally:
+            try:
+                sys.stderr.flush()
+            except (OSError, ValueError):
+                pass
+            os.dup2(saved, 2)
+            os.close(saved)
+            buf.seek(0)
+            captured.append(buf.read().decode("utf-8", "replace"))
+            if replay and captured[0]:
+                with contextlib.suppress(OSError, ValueError):
+                    sys.stderr.write(captured[0])
+                    sys.stderr.flush()
 
 
 def _lock(fd: int) -> bool:
@@ -155,10 +211,14 @@ def publish_file(tmp: str | os.PathLike, path: str | os.PathLike, *,
             os.fsync(fd)
         finally:
             os.close(fd)
-        if verify is not None:
-            verify(tmp)
-        else:
-            verify_output(tmp, name=path)
+        try:
+            if verify is not None:
+                verify(tmp)
+            else:
+                verify_output(tmp, name=path)
+        except OutputError as exc:  # a library wrote it short without a word: say why, when the device tells
+            why = write_failure_reason(path.parent, "")
+            raise OutputError(f"{exc}: {why}" if why else str(exc)) from None
         os.chmod(tmp, _FILE_MODE)
         os.replace(tmp, path)
     except OutputError:
@@ -484,6 +544,9 @@ def staged_outputs(out: str | os.PathLike, *, last: str | None = None) -> Iterat
     try:
         try:
             yield stage
+        except OutputError as exc:  # name the output where it was to appear, not its staging copy
+            shutil.rmtree(stage, ignore_errors=True)
+            raise OutputError(str(exc).replace(str(stage), str(out))) from None
         except BaseException:
             shutil.rmtree(stage, ignore_errors=True)
             raise

@@ -56,7 +56,7 @@ from .errors import ConfigError, EmptyInputError, HsmapWarning, InputError, Unus
 from .fitness import DistanceField
 from .geometry import compose, pose_to_matrix, relative, transform_points, wrap_angle
 from .harmony import HarmonyConfig, as_rng
-from .io import atomic_path, write_json
+from .io import atomic_path, native_stderr_captured, write_json
 from .loopclosure import Keyframe, LoopCloser, LoopClosureConfig
 from .mapping import VoxelMap, voxel_downsample
 from .posegraph import EdgeKind, PoseGraph, information_with_floor
@@ -902,7 +902,8 @@ def write_slam_outputs(result: SlamResult, out_dir: str | Path) -> dict[str, Pat
     pts = result.map.points
     if pts.shape[1] == 2:
         pts = np.column_stack([pts, np.zeros(len(pts))])
-    with atomic_path(paths["map"]) as tmp:
+    # Open3D prints on stderr when the disk fills, and returns True: the writer's check reports it on one line
+    with native_stderr_captured(), atomic_path(paths["map"]) as tmp:
         if not o3d.io.write_point_cloud(str(tmp), o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))):
             raise OSError(f"open3d could not write {paths['map']}")
     dump_config(result.config, paths["config"])

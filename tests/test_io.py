@@ -46,3 +46,25 @@ def test_to_plain_is_what_json_and_yaml_take(tmp_path):
     assert json.loads((tmp_path / "v.json").read_text()) == plain
     with pytest.raises(TypeError, match="cannot serialise object"):
         write_json(tmp_path / "w.json", {"x": object()})
+
+
+def test_native_stderr_is_held_back_only_when_the_output_fails(capfd):
+    """What a native library prints on file descriptor 2 inside the block (Open3D's 'RPly: Error closing up' on
+    a full disk) is dropped when the block ends with an OutputError (its one line says it all), and written back
+    otherwise."""
+    import os
+
+    from hsmap.errors import OutputError
+    from hsmap.io import native_stderr_captured
+
+    with native_stderr_captured() as said:
+        os.write(2, b"native: fine\n")
+    assert said == ["native: fine\n"] and capfd.readouterr().err == "native: fine\n"
+    with pytest.raises(OutputError), native_stderr_captured() as said:
+        os.write(2, b"RPly: Error closing up\n")
+        raise OutputError("x.ply: incomplete PLY file")
+    assert said == ["RPly: Error closing up\n"] and capfd.readouterr().err == ""
+    with pytest.raises(KeyboardInterrupt), native_stderr_captured():
+        os.write(2, b"native: interrupted\n")
+        raise KeyboardInterrupt
+    assert capfd.readouterr().err == "native: interrupted\n"

@@ -38,7 +38,7 @@ def _load_npz(path: Path, names: tuple[str, ...]) -> dict[str, np.ndarray]:
     if not path.is_file():
         raise DatasetError(f"{path}: missing (the dataset folder is damaged)")
     try:
-        with np.load(path, allow_pickle=False) as z:
+        with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:  # our handle: closed if np.load fails
             missing = [n for n in names if n not in z.files]
             if missing:
                 raise DataFormatError(f"{path}: missing array(s) {missing} (the file is damaged)")

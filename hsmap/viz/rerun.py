@@ -1,7 +1,7 @@
 """rerun recordings of hsmap runs (rerun-sdk 0.41, pinned: its API moves between releases).
 
 One recording per run, written to one ``.rrd`` file through a file sink (no viewer, no network; analytics
-off). Open one with ``.venv/bin/rerun FILE.rrd``. Entity layout::
+off); hsmap writes the bytes into the file itself (see :class:`Recording`). Open one with ``.venv/bin/rerun FILE.rrd``. Entity layout::
 
     world/                      ViewCoordinates RIGHT_HAND_Z_UP (x forward/east, y left/north, z up), metres
       robot                     Transform3D: the robot base pose, on the timelines
@@ -35,6 +35,7 @@ import re
 import shutil
 import subprocess
 import sys
+import threading
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
@@ -46,10 +47,10 @@ import rerun as rr  # noqa: E402
 import rerun.blueprint as rrb  # noqa: E402
 from numpy.typing import ArrayLike, NDArray  # noqa: E402
 
-from ..errors import DataFormatError, HsmapError, InputError, ShapeError  # noqa: E402
+from ..errors import DataFormatError, HsmapError, InputError, OutputError, ShapeError  # noqa: E402
 from ..geometry import euler_to_matrix, matrix_to_quaternion  # noqa: E402
 from ..grid import GridGeometry  # noqa: E402
-from ..io import locked_temporary, publish_file  # noqa: E402
+from ..io import locked_temporary, publish_file, write_failure_reason  # noqa: E402
 from ..mapping import first_per_voxel  # noqa: E402
 from .colors import ROOM_PALETTE, SERIES_COLORS, height_colors, label_color, label_colors  # noqa: E402
 from .occupancy import _ros_to_image, occupancy_to_image, occupancy_to_ros  # noqa: E402
@@ -108,6 +109,58 @@ def _stream(rec: Any) -> rr.RecordingStream:
     raise InputError(f"expected an hsmap Recording or a rerun.RecordingStream, got {type(rec).__name__}")
 
 
+class _FileFeed:
+    """The bytes of a rerun file sink, written into an open file descriptor by a thread of ours.
+
+    rerun's file sink writes from a background thread of its own and, when the write fails (a full disk), only
+    logs it, and sometimes (rerun-sdk 0.41) never wakes the ``flush`` or ``disconnect`` that waits for it: the
+    run, and then the interpreter's exit, hang. So the sink writes into a pipe (``/dev/fd/N``), which cannot fail;
+    this thread copies the pipe into the file, remembers the first ``OSError`` and keeps draining the pipe after
+    it, so rerun always finishes. :meth:`close` returns the error, if any.
+    """
+
+    def __init__(self, fd: int):
+        self._out = fd
+        self.error: Exception | None = None
+        self._read, self._write = os.pipe()
+        try:
+            import fcntl
+
+            fcntl.fcntl(self._write, fcntl.F_SETPIPE_SZ, 1 << 20)  # fewer wake-ups; the default 64 KiB works too
+        except (ImportError, AttributeError, OSError):
+            pass
+        self.sink_path = f"/dev/fd/{self._write}"
+        self._thread = threading.Thread(target=self._copy, name="hsmap-rrd-writer", daemon=True)
+        self._thread.start()
+
+    @staticmethod
+    def available() -> bool:
+        return sys.platform.startswith("linux") and os.path.isdir("/dev/fd")
+
+    def _copy(self) -> None:
+        while True:
+            data = os.read(self._read, 1 << 20)
+            if not data:
+                return
+            if self.error is None:
+                try:
+                    self._put(data)
+                except Exception as exc:  # OSError (a full disk); whatever it is, keep draining the pipe
+                    self.error = exc
+
+    def _put(self, data: bytes) -> None:
+        view = memoryview(data)
+        while view:
+            view = view[os.write(self._out, view):]
+
+    def close(self) -> Exception | None:
+        """After rerun has closed its end (``disconnect``): wait for the last bytes; the write error, if any."""
+        os.close(self._write)
+        self._thread.join()
+        os.close(self._read)
+        return self.error
+
+
 class Recording:
     """A rerun recording written to one ``.rrd`` file, atomically.
 
@@ -153,7 +206,9 @@ class Recording:
         self.stream = rr.RecordingStream(self.application_id, recording_id=recording_id)
         self.stream.set_log_time_enabled(False)  # only our timelines: scan and time
         self.stream.set_log_tick_enabled(False)
-        self.stream.set_sinks(rr.FileSink(str(self._tmp)), default_blueprint=blueprint)
+        self._feed = _FileFeed(self._fd) if _FileFeed.available() else None
+        sink = self._feed.sink_path if self._feed is not None else str(self._tmp)
+        self.stream.set_sinks(rr.FileSink(sink), default_blueprint=blueprint)
         self.stream.log(WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True, strict=True)
         atexit.register(self.close)
 
@@ -188,8 +243,18 @@ class Recording:
             self.closed = True
             atexit.unregister(self.close)
             try:
-                self.stream.flush()
-                self.stream.disconnect()
+                try:
+                    try:
+                        self.stream.flush()
+                    finally:
+                        self.stream.disconnect()
+                except RuntimeError as exc:  # rerun's own file writer stopped (no feed): it only logs why
+                    why = write_failure_reason(self.path.parent, f"rerun: {exc}")
+                    raise OutputError(f"{self.path}: cannot write it ({why})") from None
+                finally:
+                    error = self._feed.close() if self._feed is not None else None
+                if error is not None:
+                    raise OutputError(f"{self.path}: cannot write it ({getattr(error, 'strerror', None) or error})")
                 publish_file(self._tmp, self.path)
             except BaseException:
                 self._tmp.unlink(missing_ok=True)
@@ -206,6 +271,8 @@ class Recording:
             try:
                 self.stream.disconnect()
             finally:
+                if self._feed is not None:
+                    self._feed.close()
                 self._tmp.unlink(missing_ok=True)
                 os.close(self._fd)
 

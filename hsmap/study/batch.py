@@ -47,7 +47,7 @@ from pathlib import Path
 from typing import Any
 
 from .. import __version__
-from ..errors import ConfigError, InputError
+from ..errors import ConfigError, InputError, OutputError
 from ..io import atomic_open, write_json, write_text
 from .report import NOTEBOOK_ENV, read_metrics
 
@@ -555,11 +555,16 @@ def execute_notebook(
         nb.metadata["hsmap"]["status"] = run.status
         nb.metadata["hsmap"]["error"] = run.error
         run.ipynb, run.html = f"{spec.name}.ipynb", f"{spec.name}.html"
-        with atomic_open(tmp_ipynb, "w", encoding="utf-8") as fh:
-            nbformat.write(nb, fh)
-        write_text(stage / f"{spec.name}.html", html)
-        write_json(folder / "run.json", run.to_dict())
-        _publish(stage, out_dir, spec.name)
+        try:
+            with atomic_open(tmp_ipynb, "w", encoding="utf-8") as fh:
+                nbformat.write(nb, fh)
+            write_text(stage / f"{spec.name}.html", html)
+            write_json(folder / "run.json", run.to_dict())
+            _publish(stage, out_dir, spec.name)
+        except OSError as exc:  # name the report where it was to appear, not its staging copy
+            if not isinstance(exc, OutputError):
+                exc = OutputError(f"{out_dir / spec.name}: cannot publish the report ({exc.strerror or exc})")
+            raise OutputError(str(exc).replace(str(stage), str(out_dir))) from None
         return run
     finally:  # published, or interrupted (Ctrl-C) or the machinery failed: no temporary is left behind
         shutil.rmtree(stage, ignore_errors=True)
@@ -572,8 +577,13 @@ def _escape(s: str) -> str:
     return html.escape(s)
 
 
+_busy = False  # a batch worker is running a notebook
+
+
 def _on_sigterm(signum, frame) -> None:
-    raise KeyboardInterrupt
+    if _busy:
+        raise KeyboardInterrupt  # execute_notebook shuts the kernel down and removes its staging folder
+    os._exit(128 + signum)  # idle: nothing to clean up, and no traceback from the pool's queue
 
 
 def _worker_signals() -> None:
@@ -610,7 +620,9 @@ def _stop_workers(pool: cf.ProcessPoolExecutor) -> None:
 def _worker(spec: NotebookSpec, out_dir: str, parameters: dict[str, Any], env: dict[str, str],
             timeout: float | None, verify: bool, versions: dict[str, str]) -> dict[str, Any]:
     """Process-pool entry point: one notebook in this worker's environment."""
+    global _busy
     with _environ(env):
+        _busy = True
         try:
             run = execute_notebook(spec, out_dir, parameters, timeout=timeout, verify_recordings=verify,
                                    versions=versions)
@@ -618,6 +630,8 @@ def _worker(spec: NotebookSpec, out_dir: str, parameters: dict[str, Any], env: d
             run = NotebookRun(name=spec.name, notebook=str(spec.path), title=spec.title(), status="failed",
                               error=f"hsmap reproduce: {type(exc).__name__}: {exc}", started=_now(),
                               parameters=parameters)
+        finally:
+            _busy = False
     return run.to_dict()
 
 

@@ -281,3 +281,32 @@ def point_to_plane_normal_equations(p, q, n, kernel):  # pragma: no cover - JIT
         for b in range(a):
             A[a, b] = A[b, a]
     return A, g
+
+
+@nb.njit(cache=True, nogil=True)
+def point_to_plane_step(p, q, n, kernel):  # pragma: no cover - JIT
+    """One Gauss-Newton step of point-to-plane ICP: the update transform (d+1, d+1) and the step's largest entry.
+
+    Solves the normal equations of :func:`point_to_plane_normal_equations` (a 1e-9 ridge keeps them regular) and
+    turns the increment (translation, rotation) into a rigid transform (Rodrigues' formula in 3D).
+    """
+    d = p.shape[1]
+    A, g = point_to_plane_normal_equations(p, q, n, kernel)
+    k = A.shape[0]
+    for a in range(k):
+        A[a, a] += 1e-9
+    delta = -np.linalg.solve(A, g)
+    dT = np.eye(d + 1)
+    if d == 2:
+        c, s = np.cos(delta[2]), np.sin(delta[2])
+        dT[0, 0], dT[0, 1], dT[1, 0], dT[1, 1] = c, -s, s, c
+    else:
+        wx, wy, wz = delta[3], delta[4], delta[5]
+        theta = np.sqrt(wx * wx + wy * wy + wz * wz)
+        if theta > 1e-12:
+            K = np.array([[0.0, -wz, wy], [wz, 0.0, -wx], [-wy, wx, 0.0]]) / theta
+            R = np.eye(3) + np.sin(theta) * K + (1.0 - np.cos(theta)) * (K @ K)
+            dT[:3, :3] = R
+    for a in range(d):
+        dT[a, d] = delta[a]
+    return dT, np.abs(delta).max()

@@ -261,10 +261,12 @@ class LoopCloser:
                 self._cache.move_to_end(s)
                 return target
         vm = VoxelMap(self.dim, self.map_voxel)
+        pts, nrm = [], []
         for k, r in zip(members, rel, strict=True):
             T = pose_to_matrix(r)
-            kf = keyframes[k]
-            vm.add(transform_points(T, kf.points), kf.normals @ T[: self.dim, : self.dim].T)
+            pts.append(transform_points(T, keyframes[k].points))
+            nrm.append(keyframes[k].normals @ T[: self.dim, : self.dim].T)
+        vm.add(np.concatenate(pts), np.concatenate(nrm))
         target = RegistrationTarget(vm.points, self.config.registration, normals=vm.normals)
         self._cache[s] = (rel, target)
         self._cache.move_to_end(s)

@@ -485,19 +485,7 @@ def refine_icp(
                 dT[:dim, dim] = mq - dT[:dim, :dim] @ mp
                 step = max(np.abs(dT[:dim, dim]).max(), np.abs(dT[:dim, :dim] - np.eye(dim)).max())
             else:
-                A, g = _kernels.point_to_plane_normal_equations(p, q, normals[idx[ok]], robust_kernel)
-                delta = -np.linalg.solve(A + 1e-9 * np.eye(len(g)), g)
-                if dim == 2:
-                    c, s_ = np.cos(delta[2]), np.sin(delta[2])
-                    dT[:2, :2] = [[c, -s_], [s_, c]]
-                else:
-                    w = delta[3:]
-                    theta = np.linalg.norm(w)
-                    if theta > 1e-12:
-                        K = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]]) / theta
-                        dT[:3, :3] = np.eye(3) + np.sin(theta) * K + (1 - np.cos(theta)) * K @ K
-                dT[:dim, dim] = delta[:dim]
-                step = np.abs(delta).max()
+                dT, step = _kernels.point_to_plane_step(p, q, normals[idx[ok]], robust_kernel)
             T = dT @ T
             if step < tolerance:
                 break
@@ -537,6 +525,12 @@ def alignment_information(source: NDArray[np.float64], target: RegistrationTarge
     (at least ``min_sigma``^2); and the number n of correspondences. With too few correspondences the matrix is
     zero (nothing is known).
     """
+    info, sigma, n, _ = _information_and_cost(source, target, pose, threshold, robust_kernel, min_sigma)
+    return info, sigma, n
+
+
+def _information_and_cost(source, target, pose, threshold, robust_kernel=0.0, min_sigma=1e-3):
+    """:func:`alignment_information` and :func:`alignment_cost` (point-to-plane) from one correspondence search."""
     from . import _kernels
 
     dim = source.shape[1]
@@ -547,10 +541,11 @@ def alignment_information(source: NDArray[np.float64], target: RegistrationTarge
     ok = np.isfinite(d)
     n = int(ok.sum())
     if n < 2 * dim:
-        return np.zeros((dof, dof)), float("nan"), n
+        return np.zeros((dof, dof)), float("nan"), n, 1.0 - n / max(len(source), 1)
     p, q, nq = moved[ok], target.points[idx[ok]], target.normals[idx[ok]]
     A, _ = _kernels.point_to_plane_normal_equations(p, q, nq, robust_kernel)
     r = np.einsum("ij,ij->i", nq, p - q)
+    cost = float((np.minimum(np.abs(r), threshold).sum() + threshold * (len(source) - n)) / (threshold * len(source)))
     if robust_kernel > 0:
         k2 = robust_kernel * robust_kernel
         w = k2 * k2 / (k2 + r * r) ** 2
@@ -558,7 +553,7 @@ def alignment_information(source: NDArray[np.float64], target: RegistrationTarge
         w = np.ones_like(r)
     sigma = max(float(np.sqrt((w * r * r).sum() / w.sum())), min_sigma)
     Ad = adjoint(T)
-    return Ad.T @ (A / sigma**2) @ Ad, sigma, n
+    return Ad.T @ (A / sigma**2) @ Ad, sigma, n, cost
 
 
 @blas_limited
@@ -683,8 +678,7 @@ def harmony_icp(
     inlier_ratio = float(inl.mean())
     fitness = float(d.mean() / cfg.threshold + cfg.inlier_weight * (1.0 - inlier_ratio))
     rmse = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else float("nan")
-    information, _, _ = alignment_information(full, tgt, pose, cfg.threshold, cfg.robust_kernel)
-    cost = _alignment_cost(pose, full, tgt, cfg.threshold, plane=True)
+    information, _, _, cost = _information_and_cost(full, tgt, pose, cfg.threshold, cfg.robust_kernel)
     return RegistrationResult(
         transformation=pose_to_matrix(pose),
         pose=pose,

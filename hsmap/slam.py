@@ -723,13 +723,21 @@ class HsSlam:
         return near.tolist()
 
     def _rebuild_map(self) -> None:
-        cfg = self.config
-        self.map = VoxelMap(self.dim, cfg.effective_map_voxel())
-        for k in self._tracking_keyframes():
+        self.map = self._keyframe_map(self._tracking_keyframes())
+        self._map_stale = False
+
+    def _keyframe_map(self, which) -> VoxelMap:
+        """A voxel map of the given keyframes at their current poses (the earliest point of a voxel kept)."""
+        vm = VoxelMap(self.dim, self.config.effective_map_voxel())
+        pts, nrm = [], []
+        for k in which:
             T = pose_to_matrix(self.graph.poses[k])
             kf = self.keyframes[k]
-            self.map.add(transform_points(T, kf.points), kf.normals @ T[: self.dim, : self.dim].T)
-        self._map_stale = False
+            pts.append(transform_points(T, kf.points))
+            nrm.append(kf.normals @ T[: self.dim, : self.dim].T)
+        if pts:
+            vm.add(np.concatenate(pts), np.concatenate(nrm))  # one insertion: first occurrence wins, in order
+        return vm
 
     def _rebuild_target(self) -> None:
         """The registration target: the local map crop (points, normals) and the search field around the robot."""
@@ -753,11 +761,7 @@ class HsSlam:
 
     def global_map(self) -> VoxelMap:
         """The point map of every keyframe at its current (optimised) pose."""
-        vm = VoxelMap(self.dim, self.config.effective_map_voxel())
-        for kf, pose in zip(self.keyframes, self.graph.poses, strict=True):
-            T = pose_to_matrix(pose)
-            vm.add(transform_points(T, kf.points), kf.normals @ T[: self.dim, : self.dim].T)
-        return vm
+        return self._keyframe_map(range(len(self.keyframes)))
 
     @property
     def trajectory(self) -> Trajectory:

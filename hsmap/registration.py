@@ -342,11 +342,22 @@ class RegistrationTarget:
                 res = self.config.field_resolution
                 if res is None:
                     res = max(0.02, truncation / 10.0) if self.dim == 2 else truncation / 4.0
-                lk = DistanceField(self.points, res, truncation)
+                # 2D: keep nearest points too, for the point-to-line refinement's correspondences
+                plane = self.dim == 2 and self.config.refinement is Refinement.POINT_TO_PLANE
+                lk = DistanceField(self.points, res, truncation, normals=self.normals if plane else None)
             else:
                 lk = KDTreeLookup(self.points, truncation)
             self._lookups[truncation] = lk
         return lk
+
+    def nearest_field(self, reach: float) -> DistanceField | None:
+        """A 2D field of this target that keeps nearest points and reaches at least ``reach`` metres, if any."""
+        best = None
+        for lk in self._lookups.values():
+            if (isinstance(lk, DistanceField) and lk.nearest is not None and lk.truncation >= reach
+                    and (best is None or lk.resolution < best.resolution)):
+                best = lk
+        return best
 
     def exact(self, truncation: float) -> KDTreeLookup:
         """Exact (KD-tree) truncated distances, sharing this target's tree."""
@@ -467,6 +478,14 @@ def refine_icp(
     except ValueError:
         raise InputError(f"method must be one of {[r.value for r in Refinement]}, got {method!r}") from None
     normals = target.normals if method is Refinement.POINT_TO_PLANE else None
+    field = target.nearest_field(schedule[0]) if normals is not None and dim == 2 else None
+    if field is not None:
+        # correspondences from the field's nearest points (one look-up each, compiled); then a few iterations
+        # with exact nearest neighbours at the final distance polish what the field's cells rounded
+        T = _kernels.refine_on_field_2d(np.ascontiguousarray(source, dtype=float), T, field.nearest,
+                                        field.origin, field.resolution, np.asarray(schedule, dtype=float),
+                                        per_stage, tolerance, robust_kernel)
+        schedule, per_stage = schedule[-1:], min(per_stage, 3)
     for dist in schedule:
         for _ in range(per_stage):
             moved = transform_points(T, source)

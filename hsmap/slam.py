@@ -61,6 +61,7 @@ from .loopclosure import Keyframe, LoopCloser, LoopClosureConfig
 from .mapping import VoxelMap, voxel_downsample
 from .posegraph import EdgeKind, PoseGraph, information_with_floor
 from .registration import (
+    Refinement,
     RegistrationConfig,
     RegistrationResult,
     RegistrationTarget,
@@ -618,9 +619,9 @@ class HsSlam:
         self.keyframes.append(Keyframe(len(self.results), float(frame.stamp), dense, normals))
         T = pose_to_matrix(pose)
         world = transform_points(T, dense)
-        added = self.map.add(world, normals @ T[: self.dim, : self.dim].T)
+        added, added_normals = self.map.add(world, normals @ T[: self.dim, : self.dim].T, return_normals=True)
         if self._field is not None and len(added):
-            self._field.add(added)
+            self._field.add(added, added_normals if self._field.nearest is not None else None)
         self._last_key = pose
         self._target = None  # the refinement target (KD-tree) is rebuilt before the next registration
         if self._closer is not None:
@@ -632,7 +633,8 @@ class HsSlam:
         lc = self.config.loop_closure
         closer = self._closer
         urgent = False
-        for cand in closer.candidates(self.graph, k, self._path)[: lc.attempts_per_keyframe]:
+        search = k % lc.search_every == 0
+        for cand in closer.candidates(self.graph, k, self._path)[: lc.attempts_per_keyframe if search else 0]:
             closure = closer.attempt(self.graph, self.keyframes, k, cand, self.rng)
             if closure is None:
                 continue
@@ -755,7 +757,9 @@ class HsSlam:
             hi = np.r_[centre[:2] + half, pts[:, 2].max() + 1.0] if self.dim == 3 else centre[:2] + half
             res = reg.field_resolution or (max(0.02, reg.search_threshold / 10) if self.dim == 2
                                            else reg.search_threshold / 3)
-            self._field = DistanceField(pts, res, reg.search_threshold, bounds=[lo, hi])
+            plane = self.dim == 2 and reg.refinement is Refinement.POINT_TO_PLANE
+            self._field = DistanceField(pts, res, reg.search_threshold, bounds=[lo, hi],
+                                        normals=normals if plane else None)
             self._field_centre = centre.copy()
         self._target = RegistrationTarget(pts, reg, normals=normals, fields={reg.search_threshold: self._field})
 

@@ -119,10 +119,11 @@ class SlamConfig:
         A scan becomes a keyframe (added to the map) when the robot moved or turned this much since the last one.
     min_range, max_range : float
         Points of the scans outside [min_range, max_range] from the sensor are ignored.
-    odometry_sigma : tuple of 4 floats
-        Uncertainty of an odometry prediction over one frame: translation sigma = a + b * distance, rotation
-        sigma = c + d * |turn| (+ c per metre travelled), as (a [m], b, c [rad], d).
-    motion_sigma : tuple of 4 floats
+    odometry_sigma : tuple of 5 floats
+        Uncertainty of a wheel-odometry prediction over one frame: translation sigma = a + b * distance, rotation
+        sigma = c + d * |turn| + e * distance, as (a [m], b, c [rad], d, e [rad/m]); the default is loose
+        (2 cm + 5 % of the distance, 1 deg + 5 % of the turn + 1 deg per metre): wheel odometry varies.
+    motion_sigma : tuple of 5 floats
         The same for the constant-velocity prediction (no odometry).
     degenerate_ratio : float
         Translation directions whose information is below this fraction of the best constrained one count as
@@ -147,8 +148,8 @@ class SlamConfig:
     keyframe_angle: float = np.deg2rad(15.0)
     min_range: float = 0.1
     max_range: float = 30.0
-    odometry_sigma: tuple[float, float, float, float] = (0.02, 0.05, float(np.deg2rad(1.0)), 0.05)
-    motion_sigma: tuple[float, float, float, float] = (0.1, 0.5, float(np.deg2rad(5.0)), 0.5)
+    odometry_sigma: tuple[float, ...] = (0.02, 0.05, float(np.deg2rad(1.0)), 0.05, float(np.deg2rad(1.0)))
+    motion_sigma: tuple[float, ...] = (0.1, 0.5, float(np.deg2rad(5.0)), 0.5, float(np.deg2rad(5.0)))
     verify_sigmas: float = 3.0
     degenerate_ratio: float = 0.05
     loop_closure: LoopClosureConfig = field(default_factory=LoopClosureConfig)
@@ -170,8 +171,8 @@ class SlamConfig:
                 arr = np.asarray(v, dtype=float)
             except (TypeError, ValueError):
                 arr = np.array([])
-            if arr.shape != (4,) or not np.all(np.isfinite(arr)) or np.any(arr < 0):
-                raise ConfigError(f"slam.{name} must be 4 finite numbers >= 0, got {v!r}")
+            if arr.shape != (5,) or not np.all(np.isfinite(arr)) or np.any(arr < 0):
+                raise ConfigError(f"slam.{name} must be 5 finite numbers >= 0, got {v!r}")
             setattr(self, name, tuple(float(x) for x in arr))
         for name in ("verify_sigmas", "degenerate_ratio"):
             v = getattr(self, name)
@@ -470,10 +471,10 @@ class HsSlam:
         prior = self._prior_pose(frame.stamp)
         step = self._odometry_step(frame)
         if step is not None:
-            a, b, c, d = cfg.odometry_sigma
+            a, b, c, d, e = cfg.odometry_sigma
         elif len(self.poses) >= 2:
             step = relative(self.poses[-2], prev)
-            a, b, c, d = cfg.motion_sigma
+            a, b, c, d, e = cfg.motion_sigma
         elif prior is None:
             return None
         if prior is not None:
@@ -483,7 +484,7 @@ class HsSlam:
             pred = compose(prev, step)
             dist = float(np.linalg.norm(step[: self.dim]))
             turn = float(np.abs(wrap_angle(step[self.dim:])).max())
-            sig = np.array([a + b * dist, c + d * turn + c * dist])
+            sig = np.array([a + b * dist, c + d * turn + e * dist])
         pred = pred.copy()
         pred[self.dim:] = prev[self.dim:] + wrap_angle(pred[self.dim:] - prev[self.dim:])
         return pred, sig
@@ -579,8 +580,10 @@ class HsSlam:
         corridor's axis) the prediction carries the pose. Returns the pose and its information (body frame).
         """
         cfg = self.config
-        info_reg = (drop_degenerate(res.information, cfg.degenerate_ratio) if res.information is not None
-                    else np.zeros((cfg.dof, cfg.dof)))
+        lc = cfg.loop_closure
+        info_reg = (information_with_floor(drop_degenerate(res.information, cfg.degenerate_ratio),
+                                           lc.edge_sigma_translation, lc.edge_sigma_rotation)
+                    if res.information is not None else np.zeros((cfg.dof, cfg.dof)))
         pred = self.prediction(frame)
         if pred is None:
             return res.pose, info_reg
@@ -605,7 +608,6 @@ class HsSlam:
                       information: NDArray[np.float64] | None) -> None:
         """A new keyframe: a graph node tied to the previous one, points in the tracking map, loop search."""
         cfg = self.config
-        lc = cfg.loop_closure
         dense = scan if cfg.dof == 3 else frame_points(frame, cfg.dof, cfg.min_range, cfg.max_range,
                                                        voxel=cfg.effective_map_voxel())
         normals = estimate_normals(dense)
@@ -613,8 +615,7 @@ class HsSlam:
         if k > 0:
             z = relative(self.graph.poses[k - 1], pose)
             info = information if information is not None else np.zeros((cfg.dof,) * 2)
-            self.graph.add_edge(k - 1, k, z, information_with_floor(info, lc.edge_sigma_translation,
-                                                                    lc.edge_sigma_rotation), EdgeKind.ODOMETRY)
+            self.graph.add_edge(k - 1, k, z, info, EdgeKind.ODOMETRY)  # floored in _fuse
             self._odometry_chain.append(z)
         self.keyframes.append(Keyframe(len(self.results), float(frame.stamp), dense, normals))
         T = pose_to_matrix(pose)

@@ -108,9 +108,14 @@ class SegmentationConfig:
     door_half_width: float = 0.40
     door_half_width_tolerance: float = 0.05
     min_door_half_width: float = 0.15
-    max_door_half_width: float = 0.75
+    max_door_half_width: float = 1.5
     critical_radius: float = 0.5
     narrowing_ratio: float = 0.7
+    wall_gaps: bool = True
+    max_gap_width: float = 4.0
+    gap_ratio: float = 0.85
+    corner_angle: float = 70.0
+    wall_continuation: float = 0.3
     min_room_area: float = 1.5
     min_isolated_area: float = 0.25
     assign_furniture: bool = False
@@ -341,6 +346,169 @@ def _region_borders(labels: NDArray[np.int64]) -> dict[tuple[int, int], int]:
 
 
 # ----------------------------------------------------------------------------------------------------------
+# wall gaps: lines between two obstacle corners that close a gap in a wall
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _corner_angles(filtered: NDArray[np.bool_], dist_px: NDArray[np.float64], feat: NDArray[np.int64],
+                   res: float, r_min: float, r_max: float, nbins: int = 32) -> NDArray[np.float64]:
+    """Angle (degrees) of the widest wedge of free space an obstacle pixel is the nearest obstacle to.
+
+    Every free pixel at ``r_min``..``r_max`` metres from the obstacles votes, for its nearest obstacle pixel
+    (``feat``, flat indices), for the direction it lies in (``nbins`` sectors); the votes of the 3x3
+    neighbourhood are pooled (a corner's wedge is shared by the few pixels that round it) and the longest
+    circular run of sectors is the wedge. A straight wall face sees one direction (a thin wall two opposite
+    ones), a convex corner of a thick wall about 90 degrees, the end of a thin wall about 180.
+    """
+    H, W = filtered.shape
+    m = filtered & (dist_px >= r_min / res) & (dist_px <= r_max / res)
+    flat = np.flatnonzero(m)
+    owner = feat.ravel()[flat]
+    pr, pc = np.divmod(flat, W)
+    orr, occ = np.divmod(owner, W)
+    sector = (((np.arctan2(pr - orr, pc - occ) + np.pi) / (2 * np.pi) * nbins).astype(np.int64)) % nbins
+    key = np.unique(owner * nbins + sector)
+    mask = np.zeros(H * W, dtype=np.uint64)
+    np.bitwise_or.at(mask, key // nbins, np.left_shift(np.uint64(1), (key % nbins).astype(np.uint64)))
+    mask = mask.reshape(H, W)
+    pad = np.pad(mask, 1)
+    pooled = np.zeros_like(mask)
+    for dr in (0, 1, 2):
+        for dc in (0, 1, 2):
+            pooled |= pad[dr:dr + H, dc:dc + W]
+    pooled[filtered] = 0
+    full = np.uint64((1 << nbins) - 1)
+    run = np.zeros((H, W), dtype=np.int16)
+    cur = pooled
+    one, back = np.uint64(1), np.uint64(nbins - 1)
+    for _ in range(nbins):
+        nz = cur != 0
+        if not nz.any():
+            break
+        run[nz] += 1
+        cur = cur & (((cur << one) | (cur >> back)) & full)
+    return run * (360.0 / nbins)
+
+
+def _corner_points(angles: NDArray[np.float64], min_angle: float) -> NDArray[np.int64]:
+    """(K, 2) rows and columns of the corners: one pixel (the widest wedge) per 8-connected group of obstacle
+    pixels whose wedge is at least ``min_angle`` degrees."""
+    mask = angles >= min_angle
+    lab, n = ndi.label(mask, structure=_EIGHT)
+    if n == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    return np.array(ndi.maximum_position(angles, lab, np.arange(1, n + 1)), dtype=np.int64).reshape(-1, 2)
+
+
+def _runs_along_wall(filtered: NDArray[np.bool_], a: NDArray[np.float64], u: NDArray[np.float64],
+                     steps: int) -> bool:
+    """Whether a wall runs on from obstacle pixel ``a`` in direction ``u`` for ``steps`` pixels: the line
+    (shifted by at most one pixel across) stays on obstacle pixels while free space lies two pixels to one
+    side of it (a wall face or a thin wall, not the inside of a thick wall entered at an angle)."""
+    H, W = filtered.shape
+    v = np.array([-u[1], u[0]])
+    t = np.arange(1, steps + 1, dtype=float)[:, None]
+
+    def free_at(p):
+        idx = np.rint(p).astype(np.int64)
+        ok = (idx[:, 0] >= 0) & (idx[:, 0] < H) & (idx[:, 1] >= 0) & (idx[:, 1] < W)
+        out = np.ones(len(idx), dtype=bool)
+        out[ok] = filtered[idx[ok, 0], idx[ok, 1]]
+        return out
+
+    need = 0.8 * steps
+    for s in (0.0, -1.0, 1.0):
+        line = a + t * u + s * v
+        on_wall = ~free_at(line)
+        if on_wall.sum() < need:
+            continue
+        for side in (-2.0, 2.0):
+            if (on_wall & free_at(line + side * v)).sum() >= need:
+                return True
+    return False
+
+
+def _free_width(filtered: NDArray[np.bool_], mid: NDArray[np.float64], u: NDArray[np.float64],
+                n: NDArray[np.float64], depths: NDArray[np.float64], reach: int) -> float:
+    """Largest free chord (pixels) parallel to ``u`` through ``mid + t n`` over the depths ``t``, each side
+    of the centre followed up to ``reach`` pixels."""
+    H, W = filtered.shape
+    k = np.arange(0, reach + 1, dtype=float)
+    for sign in (1.0, -1.0):
+        pts = mid[None, None, :] + depths[:, None, None] * n[None, None, :] + sign * k[None, :, None] * u[None, None, :]
+        idx = np.rint(pts).astype(np.int64)
+        ok = (idx[..., 0] >= 0) & (idx[..., 0] < H) & (idx[..., 1] >= 0) & (idx[..., 1] < W)
+        fr = np.zeros(ok.shape, dtype=bool)
+        fr[ok] = filtered[idx[ok][:, 0], idx[ok][:, 1]]
+        # free run from the centre: index of the first obstacle (reach + 1 when none)
+        blocked = ~fr
+        first = np.where(blocked.any(1), blocked.argmax(1), reach + 1)
+        if sign > 0:
+            run = first.astype(float)
+        else:
+            run = run + first - 1.0  # the centre pixel counted twice
+    return float(np.median(np.maximum(run, 0.0)))
+
+
+def _wall_gap_lines(filtered: NDArray[np.bool_], dist_px: NDArray[np.float64], corners: NDArray[np.int64],
+                    res: float, cfg: SegmentationConfig) -> list[tuple[NDArray[np.int64], NDArray[np.int64], float]]:
+    """Lines across gaps in walls: between two corners (obstacle pixels with a wide wedge of free space)
+    at most ``max_gap_width`` apart, along a free straight line, with no obstacle in the disc it is the
+    diameter of (the corners face each other), continuing a wall beyond at least one end, and narrow
+    relative to the free space on both sides: at most ``gap_ratio`` times the widest free chord parallel
+    to it within its own length on either side. Returns (a, b, width in metres) per line."""
+    from scipy.spatial import cKDTree
+
+    if len(corners) < 2:
+        return []
+    pairs = cKDTree(corners).query_pairs(cfg.max_gap_width / res + 1.0, output_type="ndarray")
+    if not len(pairs):
+        return []
+    a_all = corners[pairs[:, 0]].astype(float)
+    b_all = corners[pairs[:, 1]].astype(float)
+    length = np.hypot(*(b_all - a_all).T)
+    mid = np.rint((a_all + b_all) / 2).astype(np.int64)
+    # Gabriel: the midpoint's clearance is half the length (nothing nearer than the two corners)
+    ok = (length >= 3.0) & filtered[mid[:, 0], mid[:, 1]]
+    ok &= dist_px[mid[:, 0], mid[:, 1]] >= 0.9 * length / 2 - 1.0
+    steps = max(2, int(round(cfg.wall_continuation / res)))
+    cands = []
+    for i in np.nonzero(ok)[0]:
+        a, b, L = a_all[i], b_all[i], float(length[i])
+        n_s = int(np.ceil(L)) * 2
+        t = np.linspace(0.0, 1.0, n_s + 1)[1:-1, None]
+        pts = a + t * (b - a)
+        far = (np.hypot(*(pts - a).T) > 1.5) & (np.hypot(*(pts - b).T) > 1.5)
+        idx = np.rint(pts[far]).astype(np.int64)
+        if not filtered[idx[:, 0], idx[:, 1]].all():
+            continue
+        u = (b - a) / L
+        if not (_runs_along_wall(filtered, a, -u, steps) or _runs_along_wall(filtered, b, u, steps)):
+            continue
+        cands.append(i)
+    if not cands:
+        return []
+    # the free space with every candidate line drawn in as a wall: a line across a corridor then sees the
+    # corridor's width on both sides even where rooms open onto the corridor through other candidates
+    walls = filtered.copy()
+    for i in cands:
+        lr, lc = _line_pixels(corners[pairs[i, 0]], corners[pairs[i, 1]])
+        walls[lr, lc] = False
+    out = []
+    for i in cands:
+        a, b, L = a_all[i], b_all[i], float(length[i])
+        u = (b - a) / L
+        nrm = np.array([-u[1], u[0]])
+        depths = np.arange(2.0, max(L, 3.0) + 1.0)
+        reach = int(np.ceil(L / cfg.gap_ratio)) + 2
+        centre = (a + b) / 2
+        if all(L - 1.0 <= cfg.gap_ratio * _free_width(walls, centre, u, side * nrm, depths, reach)
+               for side in (1.0, -1.0)):
+            out.append((corners[pairs[i, 0]], corners[pairs[i, 1]], max(L - 1.0, 0.0) * res))
+    return out
+
+
+# ----------------------------------------------------------------------------------------------------------
 # the algorithm
 # ----------------------------------------------------------------------------------------------------------
 
@@ -428,7 +596,11 @@ def segment_rooms(
     # 2. skeleton x distance transform
     from skimage.morphology import skeletonize
 
-    dist_px = ndi.distance_transform_edt(filtered)
+    if cfg.method == "critical" and cfg.wall_gaps:
+        dist_px, feat = ndi.distance_transform_edt(filtered, return_indices=True)
+        feat = feat[0].astype(np.int64) * filtered.shape[1] + feat[1]
+    else:
+        dist_px = ndi.distance_transform_edt(filtered)
     skel = skeletonize(filtered)
     product = np.where(skel, dist_px * res, 0.0)
 
@@ -462,33 +634,38 @@ def segment_rooms(
         lr, lc = _line_pixels(a, b)
         cut[lr, lc] = True
         door_px.append((np.array([r, c]), a, b, np.stack([lr, lc], 1), width))
+    n_critical = len(door_px)
+    gap_cut = np.zeros_like(free)
+    if cfg.method == "critical" and cfg.wall_gaps:
+        angles = _corner_angles(filtered, dist_px, feat, res, 0.15, 0.5)
+        corners = _corner_points(angles, cfg.corner_angle)
+        for a, b, width in _wall_gap_lines(filtered, dist_px, corners, res, cfg):
+            lr, lc = _line_pixels(a, b)
+            cut[lr, lc] = True
+            gap_cut[lr, lc] = True
+            door_px.append((np.rint((a + b) / 2).astype(np.int64), a, b, np.stack([lr, lc], 1), width))
 
-    # 5. regions
+    # 5. regions: every line cuts; the critical lines are then judged by the narrowing test, each piece of a
+    # line between the wall-gap lines it crosses on its own
     lab, n = ndi.label(filtered & ~cut, structure=_FOUR)
-    regions0 = lab.copy()
-    peak = np.zeros(n + 1)
-    if n:
-        # largest clearance of each region: it lies on a local maximum of the distance transform
-        top = (dist_px >= ndi.maximum_filter(dist_px, size=3)) & (lab > 0)
-        np.maximum.at(peak, lab[top], dist_px[top] * res)
-        peak[0] = 0.0
     uf = _UnionFind(n + 1)
-    # which regions does each door line separate?
-    door_regions: list[tuple[int, int]] = []
-    for _, _, _, px, _ in door_px:
-        nb = (px[:, None, :] + _OFFSETS[None, :, :]).reshape(-1, 2)
-        ok = (nb[:, 0] >= 0) & (nb[:, 0] < lab.shape[0]) & (nb[:, 1] >= 0) & (nb[:, 1] < lab.shape[1])
-        v = lab[nb[ok, 0], nb[ok, 1]]
-        v = v[v > 0]
-        if not len(v):
-            door_regions.append((0, 0))
-            continue
-        u, cnt = np.unique(v, return_counts=True)
-        o = np.argsort(-cnt)
-        door_regions.append((int(u[o[0]]), int(u[o[1]])) if len(u) > 1 else (int(u[0]), int(u[0])))
+    if cfg.method == "critical" and n_critical:
+        peak = np.zeros(n + 1)
+        # largest clearance of each region (the wall-gap lines are walls): it lies on a local maximum of the
+        # distance transform
+        clear = ndi.distance_transform_edt(filtered & ~gap_cut) if gap_cut.any() else dist_px
+        top = (clear >= ndi.maximum_filter(clear, size=3)) & (lab > 0)
+        np.maximum.at(peak, lab[top], clear[top] * res)
+        peak[0] = 0.0
+        near_gap = ndi.binary_dilation(gap_cut, structure=_EIGHT) if gap_cut.any() else gap_cut
+        pieces, regions = [], []
+        for _, a, b, px, width in door_px[:n_critical]:
+            for run in _pieces_between(px, a, b, near_gap):
+                pieces.append((None, a, b, run, width))
+                regions.append(_separated_regions(lab, run))
+        _merge_by_narrowing(pieces, regions, peak, uf, cfg)
+    regions0 = lab.copy()
 
-    if cfg.method == "critical":
-        _merge_by_narrowing(door_px, door_regions, peak, uf, cfg)
     # 6. fold the cut pixels into regions, then merge small regions
     lab = _relabel(lab, uf)
     lab = _fill_from_neighbours(lab, free)
@@ -541,6 +718,7 @@ def segment_rooms(
             "product": full(product),
             "candidates": full(cand),
             "door_lines": full(cut),
+            "gap_lines": full(gap_cut),
             "regions": full(regions0.astype(np.int32)),
         }
     return Segmentation(full_labels, doors, geometry, cfg, steps)
@@ -627,6 +805,39 @@ def _plateau_centre(i: int, rr, cc, nbr: NDArray[np.int64], dvals: NDArray[np.fl
     pr, pc = rr[m].astype(float), cc[m].astype(float)
     k = int(np.argmin((pr - pr.mean()) ** 2 + (pc - pc.mean()) ** 2))
     return int(m[k])
+
+
+def _pieces_between(px: NDArray[np.int64], a: NDArray[np.int64], b: NDArray[np.int64],
+                    block: NDArray[np.bool_]) -> list[NDArray[np.int64]]:
+    """The runs of a line's pixels ``px`` (from ``a`` to ``b``) outside ``block``, in order along the line."""
+    if not block[px[:, 0], px[:, 1]].any():
+        return [px]
+    d = (b - a).astype(float)
+    order = np.argsort((px - a) @ d, kind="stable")
+    p = px[order]
+    out = block[p[:, 0], p[:, 1]]
+    runs, start = [], None
+    for i, o in enumerate(np.append(out, True)):
+        if not o and start is None:
+            start = i
+        elif o and start is not None:
+            if i - start >= 2:
+                runs.append(p[start:i])
+            start = None
+    return runs
+
+
+def _separated_regions(lab: NDArray[np.int64], px: NDArray[np.int64]) -> tuple[int, int]:
+    """The two regions a door line (pixels ``px``) separates: the two most frequent labels around it."""
+    nb = (px[:, None, :] + _OFFSETS[None, :, :]).reshape(-1, 2)
+    ok = (nb[:, 0] >= 0) & (nb[:, 0] < lab.shape[0]) & (nb[:, 1] >= 0) & (nb[:, 1] < lab.shape[1])
+    v = lab[nb[ok, 0], nb[ok, 1]]
+    v = v[v > 0]
+    if not len(v):
+        return (0, 0)
+    u, cnt = np.unique(v, return_counts=True)
+    o = np.argsort(-cnt)
+    return (int(u[o[0]]), int(u[o[1]])) if len(u) > 1 else (int(u[0]), int(u[0]))
 
 
 def _merge_by_narrowing(door_px, door_regions, peak, uf, cfg) -> None:

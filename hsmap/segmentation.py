@@ -46,6 +46,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage as ndi
 
+from ._seg_kernels import corner_wedges, edt, label_max, thin
 from .errors import ConfigError, EmptyInputError, InputError, ShapeError
 from .grid import GridGeometry, OccupancyGrid
 
@@ -350,61 +351,31 @@ def _region_borders(labels: NDArray[np.int64]) -> dict[tuple[int, int], int]:
 # ----------------------------------------------------------------------------------------------------------
 
 
-def _corner_angles(filtered: NDArray[np.bool_], dist_px: NDArray[np.float64], feat: NDArray[np.int64],
-                   res: float, r_min: float, r_max: float, nbins: int = 32) -> NDArray[np.float64]:
-    """Angle (degrees) of the widest wedge of free space an obstacle pixel is the nearest obstacle to.
-
-    Every free pixel at ``r_min``..``r_max`` metres from the obstacles votes, for its nearest obstacle pixel
-    (``feat``, flat indices), for the direction it lies in (``nbins`` sectors); the votes of the 3x3
-    neighbourhood are pooled (a corner's wedge is shared by the few pixels that round it) and the longest
-    circular run of sectors is the wedge. A straight wall face sees one direction (a thin wall two opposite
-    ones), a convex corner of a thick wall about 90 degrees, the end of a thin wall about 180.
-    """
-    H, W = filtered.shape
-    m = filtered & (dist_px >= r_min / res) & (dist_px <= r_max / res)
-    flat = np.flatnonzero(m)
-    owner = feat.ravel()[flat]
-    pr, pc = np.divmod(flat, W)
-    orr, occ = np.divmod(owner, W)
-    sector = (((np.arctan2(pr - orr, pc - occ) + np.pi) / (2 * np.pi) * nbins).astype(np.int64)) % nbins
-    key = np.unique(owner * nbins + sector)
-    mask = np.zeros(H * W, dtype=np.uint64)
-    np.bitwise_or.at(mask, key // nbins, np.left_shift(np.uint64(1), (key % nbins).astype(np.uint64)))
-    mask = mask.reshape(H, W)
-    pad = np.pad(mask, 1)
-    pooled = np.zeros_like(mask)
-    for dr in (0, 1, 2):
-        for dc in (0, 1, 2):
-            pooled |= pad[dr:dr + H, dc:dc + W]
-    pooled[filtered] = 0
-    full = np.uint64((1 << nbins) - 1)
-    run = np.zeros((H, W), dtype=np.int16)
-    cur = pooled
-    one, back = np.uint64(1), np.uint64(nbins - 1)
-    for _ in range(nbins):
-        nz = cur != 0
-        if not nz.any():
-            break
-        run[nz] += 1
-        cur = cur & (((cur << one) | (cur >> back)) & full)
-    return run * (360.0 / nbins)
-
-
 def _corner_points(angles: NDArray[np.float64], min_angle: float) -> NDArray[np.int64]:
-    """(K, 2) rows and columns of the corners: one pixel (the widest wedge) per 8-connected group of obstacle
-    pixels whose wedge is at least ``min_angle`` degrees."""
-    mask = angles >= min_angle
-    lab, n = ndi.label(mask, structure=_EIGHT)
+    """(K, 2) rows and columns of the corners: per 8-connected group of obstacle pixels whose wedge is at
+    least ``min_angle`` degrees, the pixel of the group nearest to its centroid (the first in scan order
+    among equals)."""
+    lab, n = ndi.label(angles >= min_angle, structure=_EIGHT)
     if n == 0:
         return np.zeros((0, 2), dtype=np.int64)
-    return np.array(ndi.maximum_position(angles, lab, np.arange(1, n + 1)), dtype=np.int64).reshape(-1, 2)
+    flat = np.flatnonzero(lab)
+    g = lab.ravel()[flat]
+    r, c = np.divmod(flat, lab.shape[1])
+    cnt = np.bincount(g, minlength=n + 1).astype(float)
+    mr = np.bincount(g, r, minlength=n + 1) / np.maximum(cnt, 1)
+    mc = np.bincount(g, c, minlength=n + 1) / np.maximum(cnt, 1)
+    d2 = (r - mr[g]) ** 2 + (c - mc[g]) ** 2
+    order = np.lexsort((flat, d2, g))
+    first = np.r_[True, g[order][1:] != g[order][:-1]]
+    return np.stack([r[order][first], c[order][first]], 1).astype(np.int64)
 
 
 def _runs_along_wall(filtered: NDArray[np.bool_], a: NDArray[np.float64], u: NDArray[np.float64],
-                     steps: int) -> bool:
+                     steps: int, side: int = 2) -> bool:
     """Whether a wall runs on from obstacle pixel ``a`` in direction ``u`` for ``steps`` pixels: the line
-    (shifted by at most one pixel across) stays on obstacle pixels while free space lies two pixels to one
-    side of it (a wall face or a thin wall, not the inside of a thick wall entered at an angle)."""
+    (shifted by at most one pixel across) stays on obstacle pixels while free space lies 2 to ``side`` pixels
+    to one side of it (a wall's face, a thin wall, or the middle of a wall at most 2 ``side`` pixels thick;
+    not the inside of a thick wall or of a pillar entered at an angle)."""
     H, W = filtered.shape
     v = np.array([-u[1], u[0]])
     t = np.arange(1, steps + 1, dtype=float)[:, None]
@@ -422,10 +393,40 @@ def _runs_along_wall(filtered: NDArray[np.bool_], a: NDArray[np.float64], u: NDA
         on_wall = ~free_at(line)
         if on_wall.sum() < need:
             continue
-        for side in (-2.0, 2.0):
-            if (on_wall & free_at(line + side * v)).sum() >= need:
+        for sgn in (-1.0, 1.0):
+            near = np.zeros(steps, dtype=bool)
+            for k in range(2, max(side, 2) + 1):
+                near |= free_at(line + sgn * k * v)
+            if (on_wall & near).sum() >= need:
                 return True
     return False
+
+
+def _wall_run(filtered: NDArray[np.bool_], a: NDArray[np.float64], u: NDArray[np.float64], max_steps: int) -> int:
+    """How many pixels a wall runs on from obstacle pixel ``a`` in direction ``u`` (at most ``max_steps``):
+    the line (shifted by at most one pixel across) on obstacle pixels with free space two pixels to one side,
+    until three steps in a row fail."""
+    H, W = filtered.shape
+    v = np.array([-u[1], u[0]])
+    t = np.arange(1, max_steps + 1, dtype=float)[:, None]
+
+    def free_at(p):
+        idx = np.rint(p).astype(np.int64)
+        ok = (idx[:, 0] >= 0) & (idx[:, 0] < H) & (idx[:, 1] >= 0) & (idx[:, 1] < W)
+        out = np.ones(len(idx), dtype=bool)
+        out[ok] = filtered[idx[ok, 0], idx[ok, 1]]
+        return out
+
+    best = 0
+    for s in (0.0, -1.0, 1.0):
+        line = a + t * u + s * v
+        on_wall = ~free_at(line)
+        for sgn in (-1.0, 1.0):
+            good = on_wall & free_at(line + sgn * 2.0 * v)
+            bad = np.convolve(~good, np.ones(3), mode="valid") >= 3
+            run = int(np.argmax(bad)) if bad.any() else max_steps
+            best = max(best, run)
+    return best
 
 
 def _free_width(filtered: NDArray[np.bool_], mid: NDArray[np.float64], u: NDArray[np.float64],
@@ -450,61 +451,123 @@ def _free_width(filtered: NDArray[np.bool_], mid: NDArray[np.float64], u: NDArra
     return float(np.median(np.maximum(run, 0.0)))
 
 
+def _free_run(filtered: NDArray[np.bool_], a: NDArray[np.float64], b: NDArray[np.float64], end_px: float) -> bool:
+    """Whether the straight line from obstacle pixel ``a`` to obstacle pixel ``b`` is free from the first free
+    pixel after ``a`` to the last before ``b``, and these lie within ``end_px`` of the ends (a corner is the
+    middle of the wall end it rounds)."""
+    L = float(np.hypot(*(b - a)))
+    n_s = max(int(np.ceil(L)) * 2, 2)
+    t = np.linspace(0.0, 1.0, n_s + 1)
+    idx = np.rint(a + t[:, None] * (b - a)).astype(np.int64)
+    on = filtered[idx[:, 0], idx[:, 1]]
+    if not on.any():
+        return False
+    i0, i1 = int(np.argmax(on)), n_s - int(np.argmax(on[::-1]))
+    return bool(on[i0:i1 + 1].all() and t[i0] * L <= end_px and (1.0 - t[i1]) * L <= end_px)
+
+
+def _extension(filtered: NDArray[np.bool_], a: NDArray[np.int64], e: NDArray[np.float64], max_px: float,
+               end_px: float) -> NDArray[np.int64] | None:
+    """The first obstacle pixel met by the ray from corner ``a`` along ``e`` once it has left the corner's
+    obstacle (within ``end_px``), at most ``max_px`` away; None if there is none."""
+    H, W = filtered.shape
+    t = np.arange(0.5, max_px + end_px + 1.0, 0.5)
+    idx = np.rint(a + t[:, None] * e).astype(np.int64)
+    inside = (idx[:, 0] >= 0) & (idx[:, 0] < H) & (idx[:, 1] >= 0) & (idx[:, 1] < W)
+    if not inside.all():
+        idx, t = idx[: int(np.argmin(inside))], t[: int(np.argmin(inside))]
+    on = filtered[idx[:, 0], idx[:, 1]]
+    if not on.any() or t[int(np.argmax(on))] > end_px:
+        return None
+    i0 = int(np.argmax(on))
+    rest = ~on[i0:]
+    if not rest.any():
+        return None
+    b = idx[i0 + int(np.argmax(rest))]
+    return b if np.hypot(*(b - a)) <= max_px else None
+
+
 def _wall_gap_lines(filtered: NDArray[np.bool_], dist_px: NDArray[np.float64], corners: NDArray[np.int64],
-                    res: float, cfg: SegmentationConfig) -> list[tuple[NDArray[np.int64], NDArray[np.int64], float]]:
-    """Lines across gaps in walls: between two corners (obstacle pixels with a wide wedge of free space)
-    at most ``max_gap_width`` apart, along a free straight line, with no obstacle in the disc it is the
-    diameter of (the corners face each other), continuing a wall beyond at least one end, and narrow
-    relative to the free space on both sides: at most ``gap_ratio`` times the widest free chord parallel
-    to it within its own length on either side. Returns (a, b, width in metres) per line."""
+                    angles: NDArray[np.float64], starts: NDArray[np.int64], nbins: int, res: float,
+                    cfg: SegmentationConfig) -> list[tuple[NDArray[np.int64], NDArray[np.int64], float]]:
+    """Lines across gaps in walls, at most ``max_gap_width`` long, along a free straight line with no obstacle
+    in the disc it is the diameter of:
+
+    * between two corners (obstacle pixels with a wide wedge of free space) when a wall runs on beyond one
+      end at least;
+    * from a corner along the wall it ends (a face of the wall, continued) to the first obstacle.
+
+    A line is a room border where it is at most ``gap_ratio`` times the free chord parallel to it (the median
+    over depths up to half its length) on both sides, every other candidate drawn in as a wall (so that a line
+    across a corridor sees the corridor's width even where rooms open onto it). Returns (a, b, width in metres)
+    per border.
+    """
     from scipy.spatial import cKDTree
 
-    if len(corners) < 2:
+    if not len(corners):
         return []
-    pairs = cKDTree(corners).query_pairs(cfg.max_gap_width / res + 1.0, output_type="ndarray")
-    if not len(pairs):
-        return []
-    a_all = corners[pairs[:, 0]].astype(float)
-    b_all = corners[pairs[:, 1]].astype(float)
-    length = np.hypot(*(b_all - a_all).T)
-    mid = np.rint((a_all + b_all) / 2).astype(np.int64)
-    # Gabriel: the midpoint's clearance is half the length (nothing nearer than the two corners)
-    ok = (length >= 3.0) & filtered[mid[:, 0], mid[:, 1]]
-    ok &= dist_px[mid[:, 0], mid[:, 1]] >= 0.9 * length / 2 - 1.0
     steps = max(2, int(round(cfg.wall_continuation / res)))
-    cands = []
-    for i in np.nonzero(ok)[0]:
-        a, b, L = a_all[i], b_all[i], float(length[i])
-        n_s = int(np.ceil(L)) * 2
-        t = np.linspace(0.0, 1.0, n_s + 1)[1:-1, None]
-        pts = a + t * (b - a)
-        far = (np.hypot(*(pts - a).T) > 1.5) & (np.hypot(*(pts - b).T) > 1.5)
-        idx = np.rint(pts[far]).astype(np.int64)
-        if not filtered[idx[:, 0], idx[:, 1]].all():
+    end_px = max(2.0, 0.15 / res)
+    max_px = cfg.max_gap_width / res
+    segs: list[tuple[NDArray[np.int64], NDArray[np.int64]]] = []
+    # corner pairs
+    pairs = cKDTree(corners).query_pairs(max_px + 1.0, output_type="ndarray") if len(corners) > 1 else []
+    for i, j in pairs:
+        a, b = corners[i], corners[j]
+        af, bf = a.astype(float), b.astype(float)
+        L = float(np.hypot(*(bf - af)))
+        if L < 3.0:
             continue
-        u = (b - a) / L
-        if not (_runs_along_wall(filtered, a, -u, steps) or _runs_along_wall(filtered, b, u, steps)):
+        u = (bf - af) / L
+        if _free_run(filtered, af, bf, end_px) and (_runs_along_wall(filtered, af, -u, steps)
+                                                    or _runs_along_wall(filtered, bf, u, steps)):
+            segs.append((a, b))
+    # walls continued from their ends: the free wedge of a corner is bounded by the faces that meet there, so
+    # a face continued runs along an edge of the wedge
+    sector = 2.0 * np.pi / nbins
+    ext_steps = max(steps, int(round(1.0 / res)))
+    for a in corners:
+        s0 = int(starts[a[0], a[1]])
+        if s0 < 0:
             continue
-        cands.append(i)
-    if not cands:
+        lo = s0 * sector - np.pi
+        hi = lo + np.deg2rad(angles[a[0], a[1]])
+        for th in (lo + np.pi / 2, hi - np.pi / 2):
+            e = np.array([np.sin(th), np.cos(th)])
+            if not _runs_along_wall(filtered, a.astype(float), -e, ext_steps):
+                continue
+            b = _extension(filtered, a, e, max_px, end_px)
+            # a gap no longer than the wall it continues
+            if b is not None and 3.0 <= np.hypot(*(b - a)) <= _wall_run(filtered, a.astype(float), -e,
+                                                                       int(max_px) + 1):
+                segs.append((a, b))
+    if not segs:
         return []
-    # the free space with every candidate line drawn in as a wall: a line across a corridor then sees the
-    # corridor's width on both sides even where rooms open onto the corridor through other candidates
+    # nothing nearer to the middle than the two ends (the Gabriel condition)
+    keep = []
+    for a, b in segs:
+        L = float(np.hypot(*(b - a)))
+        mid = np.rint((a + b) / 2.0).astype(np.int64)
+        if filtered[mid[0], mid[1]] and dist_px[mid[0], mid[1]] >= 0.9 * L / 2 - 1.0:
+            keep.append((a, b))
+    if not keep:
+        return []
     walls = filtered.copy()
-    for i in cands:
-        lr, lc = _line_pixels(corners[pairs[i, 0]], corners[pairs[i, 1]])
+    for a, b in keep:
+        lr, lc = _line_pixels(a, b)
         walls[lr, lc] = False
     out = []
-    for i in cands:
-        a, b, L = a_all[i], b_all[i], float(length[i])
-        u = (b - a) / L
+    for a, b in keep:
+        af, bf = a.astype(float), b.astype(float)
+        L = float(np.hypot(*(bf - af)))
+        u = (bf - af) / L
         nrm = np.array([-u[1], u[0]])
-        depths = np.arange(2.0, max(L, 3.0) + 1.0)
+        depths = np.arange(2.0, max(L / 2, 3.0) + 1.0)
         reach = int(np.ceil(L / cfg.gap_ratio)) + 2
-        centre = (a + b) / 2
+        centre = (af + bf) / 2
         if all(L - 1.0 <= cfg.gap_ratio * _free_width(walls, centre, u, side * nrm, depths, reach)
                for side in (1.0, -1.0)):
-            out.append((corners[pairs[i, 0]], corners[pairs[i, 1]], max(L - 1.0, 0.0) * res))
+            out.append((a, b, max(L - 1.0, 0.0) * res))
     return out
 
 
@@ -575,7 +638,9 @@ def segment_rooms(
 
     # 1. median filter
     if cfg.median_size > 1:
-        filtered = ndi.median_filter(free.astype(np.uint8), size=cfg.median_size).astype(bool)
+        # the median of binary values is the majority
+        k = cfg.median_size
+        filtered = ndi.correlate(free.astype(np.uint8), np.ones((k, k), np.uint8), mode="reflect") > (k * k) // 2
         if cfg.median_keeps_walls:
             filtered &= free
     else:
@@ -594,14 +659,11 @@ def segment_rooms(
                 small[k] = False
         filtered |= small[occ]
     # 2. skeleton x distance transform
-    from skimage.morphology import skeletonize
-
+    dist_px, feat_r, feat_c = edt(filtered)
+    nbins = 32
     if cfg.method == "critical" and cfg.wall_gaps:
-        dist_px, feat = ndi.distance_transform_edt(filtered, return_indices=True)
-        feat = feat[0].astype(np.int64) * filtered.shape[1] + feat[1]
-    else:
-        dist_px = ndi.distance_transform_edt(filtered)
-    skel = skeletonize(filtered)
+        angles, starts = corner_wedges(filtered, dist_px, feat_r, feat_c, 0.15 / res, 0.5 / res, nbins)
+    skel = thin(filtered)
     product = np.where(skel, dist_px * res, 0.0)
 
     # 3. candidates
@@ -618,6 +680,8 @@ def segment_rooms(
     max_len = 2.0 * (cfg.max_door_half_width if cfg.method == "critical"
                      else cfg.door_half_width + cfg.door_half_width_tolerance)
     max_steps = int(np.ceil(1.5 * max_len / res)) + 2
+    wall_steps = max(2, int(round(cfg.wall_continuation / res)))
+    rejected = np.zeros_like(free)
     for (r, c), u in zip(centres, directions, strict=True):
         p = np.array([r, c], dtype=float)
         if cfg.method == "paper":
@@ -627,6 +691,16 @@ def segment_rooms(
             a, b = _basis_points(filtered, np.array([r, c]), max_steps)
         if a is None or b is None:
             continue
+        if cfg.method == "critical" and cfg.wall_gaps:
+            # a door runs on from a wall at one end at least (a frame, a partition's end): a bulge of a wall or
+            # a pillar narrowing a corridor does not
+            d = (b - a) / max(float(np.hypot(*(b - a))), 1e-9)
+            side = int(round(0.25 / res))
+            if not (_runs_along_wall(filtered, a.astype(float), -d, wall_steps, side)
+                    or _runs_along_wall(filtered, b.astype(float), d, wall_steps, side)):
+                lr, lc = _line_pixels(a, b)
+                rejected[lr, lc] = True
+                continue
         # the free span: between the facing edges of the two end pixels
         width = max(float(np.hypot(*(a - b))) - 1.0, 0.0) * res
         if width > 1.5 * max_len:
@@ -637,33 +711,34 @@ def segment_rooms(
     n_critical = len(door_px)
     gap_cut = np.zeros_like(free)
     if cfg.method == "critical" and cfg.wall_gaps:
-        angles = _corner_angles(filtered, dist_px, feat, res, 0.15, 0.5)
         corners = _corner_points(angles, cfg.corner_angle)
-        for a, b, width in _wall_gap_lines(filtered, dist_px, corners, res, cfg):
+        for a, b, width in _wall_gap_lines(filtered, dist_px, corners, angles, starts, nbins, res, cfg):
             lr, lc = _line_pixels(a, b)
             cut[lr, lc] = True
             gap_cut[lr, lc] = True
             door_px.append((np.rint((a + b) / 2).astype(np.int64), a, b, np.stack([lr, lc], 1), width))
 
-    # 5. regions: every line cuts; the critical lines are then judged by the narrowing test, each piece of a
-    # line between the wall-gap lines it crosses on its own
+    # 5. regions: every line cuts; the wall-gap lines stay, the regions facing each other across a critical
+    # line are merged unless it is a narrowing between them (``narrowing_ratio``); a critical line crossing
+    # wall-gap lines is judged piece by piece
     lab, n = ndi.label(filtered & ~cut, structure=_FOUR)
     uf = _UnionFind(n + 1)
     if cfg.method == "critical" and n_critical:
-        peak = np.zeros(n + 1)
-        # largest clearance of each region (the wall-gap lines are walls): it lies on a local maximum of the
-        # distance transform
-        clear = ndi.distance_transform_edt(filtered & ~gap_cut) if gap_cut.any() else dist_px
-        top = (clear >= ndi.maximum_filter(clear, size=3)) & (lab > 0)
-        np.maximum.at(peak, lab[top], clear[top] * res)
+        # largest clearance of each region, the wall-gap lines being walls
+        clear = edt(filtered & ~gap_cut)[0] if gap_cut.any() else dist_px
+        peak = np.maximum(label_max(lab, clear, n), 0.0) * res
         peak[0] = 0.0
-        near_gap = ndi.binary_dilation(gap_cut, structure=_EIGHT) if gap_cut.any() else gap_cut
-        pieces, regions = [], []
+        near_gap = gap_cut.copy()
+        gr, gc = np.nonzero(gap_cut)
+        for dr, dc in _OFFSETS:
+            near_gap[gr + dr, gc + dc] = True
+        edges = []
         for _, a, b, px, width in door_px[:n_critical]:
             for run in _pieces_between(px, a, b, near_gap):
-                pieces.append((None, a, b, run, width))
-                regions.append(_separated_regions(lab, run))
-        _merge_by_narrowing(pieces, regions, peak, uf, cfg)
+                edges.append((*_separated_regions(lab, run), width / 2.0))
+        if edges:
+            e = np.array(edges)
+            _merge_by_narrowing(e[:, 2], e[:, :2].astype(np.int64), peak, uf, cfg)
     regions0 = lab.copy()
 
     # 6. fold the cut pixels into regions, then merge small regions
@@ -679,7 +754,7 @@ def segment_rooms(
     full_labels = np.zeros(free_full.shape, dtype=np.int32)
     full_labels[r0:r1, c0:c1] = lab[pad:-pad, pad:-pad]
     found = []
-    for centre, a, b, px, width in door_px:
+    for k, (centre, a, b, px, width) in enumerate(door_px):
         nb = (px[:, None, :] + _OFFSETS[None, :, :]).reshape(-1, 2)
         ok = (nb[:, 0] >= 0) & (nb[:, 0] < lab.shape[0]) & (nb[:, 1] >= 0) & (nb[:, 1] < lab.shape[1])
         v = lab[nb[ok, 0], nb[ok, 1]]
@@ -687,14 +762,15 @@ def segment_rooms(
         if len(u) < 2:
             continue
         o = np.argsort(-cnt)
-        found.append((width, tuple(sorted((int(u[o[0]]), int(u[o[1]])))), centre, a, b))
-    # one door per passage: of several lines between the same rooms closer than a door width, keep the
-    # narrowest
+        found.append((width, tuple(sorted((int(u[o[0]]), int(u[o[1]])))), centre, a, b, k >= n_critical))
+    # one door per passage: of several lines between the same rooms closer than a door width, keep a critical
+    # line (the middle of a passage through a thick wall) before a wall-gap line (its ends), the narrowest first
     kept: list[tuple] = []
-    for width, pair, centre, a, b in sorted(found, key=lambda t: t[0]):
+    for width, pair, centre, a, b, _ in sorted(found, key=lambda t: (t[5], t[0])):
         if any(k[1] == pair and np.hypot(*(k[2] - centre)) * res < max(width, k[0]) for k in kept):
             continue
         kept.append((width, pair, centre, a, b))
+    kept = [(w, pair, *_middle_of_wall(filtered, c, a, b)) for w, pair, c, a, b in kept]
     kept.sort(key=lambda t: (t[2][0], t[2][1]))
     for width, pair, centre, a, b in kept:
         ends = geometry.pixel_to_world(np.stack([a, b]) + off)
@@ -719,9 +795,35 @@ def segment_rooms(
             "candidates": full(cand),
             "door_lines": full(cut),
             "gap_lines": full(gap_cut),
+            "rejected_lines": full(rejected),
             "regions": full(regions0.astype(np.int32)),
         }
     return Segmentation(full_labels, doors, geometry, cfg, steps)
+
+
+def _middle_of_wall(free: NDArray[np.bool_], centre: NDArray[np.int64], a: NDArray[np.int64],
+                    b: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+    """A door line (obstacle end pixels ``a``, ``b``) moved across itself to the middle of the wall it passes
+    through: the stretch along its normal over which both ends stay on obstacle pixels."""
+    d = (b - a).astype(float)
+    L = float(np.hypot(*d))
+    if L == 0:
+        return centre, a, b
+    nrm = np.array([-d[1], d[0]]) / L
+    H, W = free.shape
+
+    def on_obstacle(p):
+        q = np.rint(p).astype(np.int64)
+        return 0 <= q[0] < H and 0 <= q[1] < W and not free[q[0], q[1]]
+
+    ext = []
+    for sgn in (1.0, -1.0):
+        t = 0
+        while t < 20 and on_obstacle(a + (t + 1) * sgn * nrm) and on_obstacle(b + (t + 1) * sgn * nrm):
+            t += 1
+        ext.append(t)
+    shift = np.rint((ext[0] - ext[1]) / 2.0 * nrm).astype(np.int64)
+    return centre + shift, a + shift, b + shift
 
 
 def _paper_candidates(skel, product, rr, cc, nbr, dvals, cfg, res):
@@ -840,13 +942,16 @@ def _separated_regions(lab: NDArray[np.int64], px: NDArray[np.int64]) -> tuple[i
     return (int(u[o[0]]), int(u[o[1]])) if len(u) > 1 else (int(u[0]), int(u[0]))
 
 
-def _merge_by_narrowing(door_px, door_regions, peak, uf, cfg) -> None:
-    """Remove doors that are not narrowings (half width > ratio x geometric mean of the two regions' largest
-    clearances), least door-like first; merged regions take the larger clearance."""
-    if not door_px:
+
+
+def _merge_by_narrowing(half: NDArray[np.float64], pairs: NDArray[np.int64], peak: NDArray[np.float64],
+                        uf: _UnionFind, cfg) -> None:
+    """Merge the regions of each pair (``pairs`` (K, 2), across an opening of half width ``half`` (K,), in
+    metres) unless the opening is a narrowing: half width at most ``narrowing_ratio`` times the geometric mean
+    of the two regions' largest clearances ``peak``; least door-like first, a merged region takes the larger
+    clearance."""
+    if not len(half):
         return
-    half = np.array([d[4] / 2.0 for d in door_px])
-    pairs = np.array(door_regions, dtype=np.int64)
     root = np.arange(len(peak))
     pk = peak.copy()
     while True:
@@ -877,12 +982,18 @@ def _fill_from_neighbours(lab: NDArray[np.int64], free: NDArray[np.bool_]) -> ND
     """Give unlabelled free pixels (door lines, filtered-out specks) the label of a labelled neighbour within
     three pixels; free specks further away stay unlabelled."""
     out = lab.copy()
+    H, W = out.shape
     for _ in range(3):
-        hole = free & (out == 0)
-        if not hole.any():
+        hr, hc = np.nonzero(free & (out == 0))
+        if not len(hr):
             return out
-        grown = ndi.maximum_filter(out, size=3)
-        out[hole] = grown[hole]
+        grown = np.zeros(len(hr), dtype=out.dtype)
+        for dr in (-1, 0, 1):
+            for dc in (-1, 0, 1):
+                r = np.clip(hr + dr, 0, H - 1)
+                c = np.clip(hc + dc, 0, W - 1)
+                np.maximum(grown, out[r, c], out=grown)
+        out[hr, hc] = grown
     return out
 
 

@@ -1,0 +1,292 @@
+"""Numba kernels of the room segmentation: Zhang-Suen thinning on a border work list, and the wedge of free space
+each obstacle pixel is the nearest obstacle to (the corner detector).
+
+Images are (row, col) arrays; callers pad them so that no kernel reads outside.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+__all__ = ["thin", "corner_wedges"]
+
+# Zhang & Suen (1984) as scikit-image implements it (skimage.morphology.skeletonize, method "zhang"): for each of
+# the 256 neighbourhoods (bit 0 = north-west, clockwise: 1 N, 2 NE, 3 E, 4 SE, 5 S, 6 SW, 7 W) 1 = removable in
+# the first sub-iteration, 2 = in the second, 3 = in both.
+_LUT = np.array([
+    0, 0, 0, 1, 0, 0, 1, 3, 0, 0, 3, 1, 1, 0, 1, 3, 0, 0, 0, 0, 0, 0,
+    0, 0, 2, 0, 2, 0, 3, 0, 3, 3, 0, 0, 0, 0, 0, 0, 0, 0, 3, 0, 0, 0,
+    0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 2, 0, 0, 0, 3, 0, 2, 2, 0, 0,
+    0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0,
+    0, 0, 0, 0, 0, 0, 0, 0, 2, 0, 0, 0, 0, 0, 0, 0, 2, 0, 0, 0, 2, 0,
+    0, 0, 3, 0, 0, 0, 0, 0, 0, 0, 3, 0, 0, 0, 3, 0, 2, 0, 0, 0, 3, 1,
+    0, 0, 1, 3, 0, 0, 0, 0, 0, 0, 0, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0,
+    0, 0, 0, 0, 0, 1, 3, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0,
+    2, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 2, 3, 1, 3, 0, 0,
+    1, 3, 0, 0, 0, 0, 0, 0, 0, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0,
+    0, 0, 0, 0, 2, 3, 0, 1, 0, 0, 0, 1, 0, 0, 0, 0, 0, 0, 0, 0, 3, 3,
+    0, 1, 0, 0, 0, 0, 2, 2, 0, 0, 2, 0, 0, 0], dtype=np.uint8)
+
+_DR = np.array([-1, -1, -1, 0, 1, 1, 1, 0], dtype=np.int64)
+_DC = np.array([-1, 0, 1, 1, 1, 0, -1, -1], dtype=np.int64)
+
+
+@nb.njit(cache=True, nogil=True)
+def _thin(img, lut, dr, dc):  # pragma: no cover - JIT
+    """Zhang-Suen thinning in place. Only pixels whose neighbourhood changed within the last two
+    sub-iterations are looked at: any other one was already judged, by both sub-iterations' rules, on the
+    neighbourhood it still has."""
+    H, W = img.shape
+    pending = np.zeros((H, W), dtype=np.uint8)
+    cap = 1024
+    lr = np.empty(cap, dtype=np.int64)
+    lc = np.empty(cap, dtype=np.int64)
+    n = 0
+    for r in range(1, H - 1):
+        for c in range(1, W - 1):
+            if img[r, c]:
+                for k in range(8):
+                    if not img[r + dr[k], c + dc[k]]:
+                        if n == cap:
+                            cap *= 2
+                            lr2 = np.empty(cap, dtype=np.int64)
+                            lc2 = np.empty(cap, dtype=np.int64)
+                            lr2[:n] = lr[:n]
+                            lc2[:n] = lc[:n]
+                            lr, lc = lr2, lc2
+                        lr[n] = r
+                        lc[n] = c
+                        pending[r, c] = 2
+                        n += 1
+                        break
+    rem_r = np.empty(cap, dtype=np.int64)
+    rem_c = np.empty(cap, dtype=np.int64)
+    sub = 0
+    while n > 0:
+        # decide on the image as it stands (parallel thinning), then remove
+        if len(rem_r) < n:
+            rem_r = np.empty(n, dtype=np.int64)
+            rem_c = np.empty(n, dtype=np.int64)
+        m = 0
+        for i in range(n):
+            r = lr[i]
+            c = lc[i]
+            pending[r, c] -= 1
+            code = 0
+            for k in range(8):
+                if img[r + dr[k], c + dc[k]]:
+                    code |= 1 << k
+            v = lut[code]
+            if v == 3 or (v == 1 and sub == 0) or (v == 2 and sub == 1):
+                rem_r[m] = r
+                rem_c[m] = c
+                m += 1
+        for j in range(m):
+            img[rem_r[j], rem_c[j]] = 0
+            pending[rem_r[j], rem_c[j]] = 0
+        # keep the pixels still to be judged, add the set neighbours of the removed ones
+        k2 = 0
+        for i in range(n):
+            r = lr[i]
+            c = lc[i]
+            if img[r, c] and pending[r, c] > 0:
+                lr[k2] = r
+                lc[k2] = c
+                k2 += 1
+        n = k2
+        for j in range(m):
+            for k in range(8):
+                r = rem_r[j] + dr[k]
+                c = rem_c[j] + dc[k]
+                if img[r, c]:
+                    if pending[r, c] == 0:
+                        if n == cap:
+                            cap *= 2
+                            lr2 = np.empty(cap, dtype=np.int64)
+                            lc2 = np.empty(cap, dtype=np.int64)
+                            lr2[:n] = lr[:n]
+                            lc2[:n] = lc[:n]
+                            lr, lc = lr2, lc2
+                        lr[n] = r
+                        lc[n] = c
+                        n += 1
+                    pending[r, c] = 2
+        sub = 1 - sub
+    return img
+
+
+def thin(mask: np.ndarray) -> np.ndarray:
+    """Skeleton of a 2D boolean mask by Zhang-Suen thinning, the same pixels as
+    ``skimage.morphology.skeletonize(mask)`` but working only on the shrinking border.
+
+    Parameters
+    ----------
+    mask : ndarray of shape (H, W), bool
+
+    Returns
+    -------
+    ndarray of shape (H, W), bool
+    """
+    img = np.zeros((mask.shape[0] + 2, mask.shape[1] + 2), dtype=np.uint8)
+    img[1:-1, 1:-1] = mask
+    return _thin(img, _LUT, _DR, _DC)[1:-1, 1:-1].astype(bool)
+
+
+@nb.njit(cache=True, nogil=True)
+def corner_wedges(free, dist, feat_r, feat_c, r_min, r_max, nbins):  # pragma: no cover - JIT
+    """Angle (degrees) of the widest wedge of free space around each obstacle pixel (0 elsewhere) and the
+    first of its sectors (-1 elsewhere); sector s spans directions (row, col) = (sin t, cos t) for t in
+    [2 pi s / nbins - pi, 2 pi (s + 1) / nbins - pi).
+
+    Every free pixel at ``r_min``..``r_max`` pixels from the obstacles votes, for its nearest obstacle pixel
+    (``feat_r``, ``feat_c``), for the sector of ``nbins`` it lies in as seen from there; the votes of the 3x3
+    neighbourhood of an obstacle pixel are pooled and the longest circular run of voted sectors is its wedge.
+    ``free`` must have a free-less border of one pixel.
+    """
+    H, W = free.shape
+    votes = np.zeros((H, W), dtype=np.uint64)
+    two_pi = 2.0 * np.pi
+    for r in range(H):
+        for c in range(W):
+            if free[r, c]:
+                d = dist[r, c]
+                if d >= r_min and d <= r_max:
+                    orr = feat_r[r, c]
+                    occ = feat_c[r, c]
+                    a = np.arctan2(r - orr, c - occ) + np.pi
+                    s = int(a / two_pi * nbins) % nbins
+                    votes[orr, occ] |= np.uint64(1) << np.uint64(s)
+    out = np.zeros((H, W), dtype=np.float64)
+    start = np.full((H, W), -1, dtype=np.int64)
+    for r in range(1, H - 1):
+        for c in range(1, W - 1):
+            if free[r, c]:
+                continue
+            m = np.uint64(0)
+            for dr in range(-1, 2):
+                for dc in range(-1, 2):
+                    m |= votes[r + dr, c + dc]
+            if m == 0:
+                continue
+            # longest circular run of set sectors and its first sector
+            best = 0
+            best_s = 0
+            cur = 0
+            cur_s = 0
+            for i in range(2 * nbins):
+                if (m >> np.uint64(i % nbins)) & np.uint64(1):
+                    if cur == 0:
+                        cur_s = i % nbins
+                    cur += 1
+                    if cur > best:
+                        best = min(cur, nbins)
+                        best_s = cur_s
+                else:
+                    cur = 0
+            out[r, c] = best * 360.0 / nbins
+            start[r, c] = best_s
+    return out, start
+
+
+@nb.njit(cache=True, nogil=True)
+def _edt_1d(f, idx_in, n, d, idx_out, v, z):  # pragma: no cover - JIT
+    """Lower envelope of the parabolas (q, f[q]) (Felzenszwalb & Huttenlocher 2012): d[p] = min_q (p - q)^2
+    + f[q] and the q attaining it (``idx_out`` takes ``idx_in[q]``)."""
+    k = 0
+    first = -1
+    for q in range(n):
+        if f[q] < np.inf:
+            first = q
+            break
+    if first < 0:
+        for p in range(n):
+            d[p] = np.inf
+            idx_out[p] = -1
+        return
+    v[0] = first
+    z[0] = -np.inf
+    z[1] = np.inf
+    for q in range(first + 1, n):
+        if f[q] == np.inf:
+            continue
+        while True:
+            vk = v[k]
+            s = ((f[q] + q * q) - (f[vk] + vk * vk)) / (2.0 * (q - vk))
+            if s <= z[k]:
+                k -= 1
+                if k < 0:
+                    break
+            else:
+                break
+        k += 1
+        v[k] = q
+        z[k] = s if k > 0 else -np.inf
+        z[k + 1] = np.inf
+    k = 0
+    for p in range(n):
+        while z[k + 1] < p:
+            k += 1
+        q = v[k]
+        d[p] = (p - q) * (p - q) + f[q]
+        idx_out[p] = idx_in[q]
+
+
+@nb.njit(cache=True, nogil=True)
+def _edt_rows(f0, free_in, rows_in):  # pragma: no cover - JIT
+    """One separable pass along the rows of ``f0`` (squared distances, inf where unknown; ``free_in`` True:
+    build them from a mask instead), returning squared distances and the column of the minimiser."""
+    H, W = f0.shape
+    d2 = np.empty((H, W), dtype=np.float64)
+    arg = np.empty((H, W), dtype=np.int64)
+    f = np.empty(W, dtype=np.float64)
+    ii = np.arange(W)
+    d = np.empty(W, dtype=np.float64)
+    io = np.empty(W, dtype=np.int64)
+    v = np.empty(W, dtype=np.int64)
+    z = np.empty(W + 1, dtype=np.float64)
+    for r in range(H):
+        for c in range(W):
+            f[c] = f0[r, c]
+        _edt_1d(f, ii, W, d, io, v, z)
+        for c in range(W):
+            d2[r, c] = d[c]
+            arg[r, c] = io[c]
+    return d2, arg
+
+
+def edt(free: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Euclidean distance transform with its feature transform, like
+    ``scipy.ndimage.distance_transform_edt(free, return_indices=True)``.
+
+    Parameters
+    ----------
+    free : ndarray of shape (H, W), bool
+        True where the distance is wanted; it must contain a False pixel.
+
+    Returns
+    -------
+    dist : ndarray of shape (H, W), float64
+        Distance (pixels) from each True pixel to the nearest False one, 0 on False pixels.
+    rows, cols : ndarray of shape (H, W), int64
+        Row and column of that nearest False pixel.
+    """
+    f0 = np.where(free, np.inf, 0.0).T.copy()
+    g, grow_t = _edt_rows(f0, True, True)  # along the columns of the image
+    d2, col = _edt_rows(np.ascontiguousarray(g.T), True, True)  # along its rows
+    grow = np.ascontiguousarray(grow_t.T)
+    rows = np.take_along_axis(grow, col, axis=1)
+    return np.sqrt(d2), rows, col
+
+
+@nb.njit(cache=True, nogil=True)
+def label_max(labels, values, n):  # pragma: no cover - JIT
+    """Largest value per label 0..n (labels (H, W) int, values (H, W) float); -inf for labels without pixels."""
+    out = np.full(n + 1, -np.inf)
+    H, W = labels.shape
+    for r in range(H):
+        for c in range(W):
+            k = labels[r, c]
+            if values[r, c] > out[k]:
+                out[k] = values[r, c]
+    return out

@@ -290,3 +290,108 @@ def label_max(labels, values, n):  # pragma: no cover - JIT
             if values[r, c] > out[k]:
                 out[k] = values[r, c]
     return out
+
+
+@nb.njit(cache=True, nogil=True)
+def _free_or(free, r, c, outside):  # pragma: no cover - JIT
+    H, W = free.shape
+    if r < 0 or r >= H or c < 0 or c >= W:
+        return outside
+    return free[r, c]
+
+
+@nb.njit(cache=True, nogil=True)
+def wall_steps(free, ar, ac, ur, uc, steps, side):  # pragma: no cover - JIT
+    """For the line from obstacle pixel (ar, ac) along the unit vector (ur, uc), shifted across by -1, 0 or 1
+    pixel and watched from either side: per step 1..steps, whether it lies on an obstacle pixel with free space
+    2 to ``side`` pixels to that side (outside the image counts as free). Returns the (6, steps) table, in the
+    order shift 0, -1, 1 times side -1, 1."""
+    vr, vc = -uc, ur
+    out = np.zeros((6, steps), dtype=np.bool_)
+    row = 0
+    for s in (0.0, -1.0, 1.0):
+        for sgn in (-1.0, 1.0):
+            for i in range(steps):
+                t = i + 1.0
+                pr = ar + t * ur + s * vr
+                pc = ac + t * uc + s * vc
+                if _free_or(free, int(np.rint(pr)), int(np.rint(pc)), True):
+                    continue
+                near = False
+                for k in range(2, max(side, 2) + 1):
+                    if _free_or(free, int(np.rint(pr + sgn * k * vr)), int(np.rint(pc + sgn * k * vc)), True):
+                        near = True
+                        break
+                out[row, i] = near
+            row += 1
+    return out
+
+
+@nb.njit(cache=True, nogil=True)
+def chord_median(free, mr, mc, ur, uc, nr, nc, depths, reach):  # pragma: no cover - JIT
+    """Median over the depths t of the free chord (pixels) parallel to (ur, uc) through (mr, mc) + t (nr, nc),
+    followed up to ``reach`` pixels each side of the centre (outside the image is blocked; 0 where the centre
+    itself is blocked)."""
+    n = len(depths)
+    runs = np.empty(n, dtype=np.float64)
+    for j in range(n):
+        cr = mr + depths[j] * nr
+        cc = mc + depths[j] * nc
+        total = -1.0
+        for sign in (1.0, -1.0):
+            first = reach + 1
+            for k in range(reach + 1):
+                if not _free_or(free, int(np.rint(cr + sign * k * ur)), int(np.rint(cc + sign * k * uc)), False):
+                    first = k
+                    break
+            total += first
+        runs[j] = max(total, 0.0)
+    return np.median(runs)
+
+
+@nb.njit(cache=True, nogil=True)
+def free_between(free, ar, ac, br, bc, end_px):  # pragma: no cover - JIT
+    """Whether the line from obstacle pixel a to obstacle pixel b (half-pixel samples) is free from its first
+    free sample to its last, and these lie within ``end_px`` of the ends."""
+    L = np.hypot(br - ar, bc - ac)
+    n_s = max(int(np.ceil(L)) * 2, 2)
+    i0 = -1
+    i1 = -1
+    for i in range(n_s + 1):
+        t = i / n_s
+        if free[int(np.rint(ar + t * (br - ar))), int(np.rint(ac + t * (bc - ac)))]:
+            if i0 < 0:
+                i0 = i
+            i1 = i
+    if i0 < 0:
+        return False
+    for i in range(i0, i1 + 1):
+        t = i / n_s
+        if not free[int(np.rint(ar + t * (br - ar))), int(np.rint(ac + t * (bc - ac)))]:
+            return False
+    return i0 / n_s * L <= end_px and (1.0 - i1 / n_s) * L <= end_px
+
+
+@nb.njit(cache=True, nogil=True)
+def ray_hit(free, ar, ac, er, ec, max_px, end_px):  # pragma: no cover - JIT
+    """The first obstacle pixel met by the ray from obstacle pixel a along (er, ec) (half-pixel steps) after
+    it has left a's obstacle within ``end_px``, at most ``max_px`` from a; (-1, -1) if none."""
+    H, W = free.shape
+    left = False
+    t = 0.5
+    while t < max_px + end_px + 1.0:
+        r = int(np.rint(ar + t * er))
+        c = int(np.rint(ac + t * ec))
+        if r < 0 or r >= H or c < 0 or c >= W:
+            return -1, -1
+        if not left:
+            if free[r, c]:
+                left = True
+            elif t > end_px:
+                return -1, -1
+        elif not free[r, c]:
+            if np.hypot(r - ar, c - ac) <= max_px:
+                return r, c
+            return -1, -1
+        t += 0.5
+    return -1, -1

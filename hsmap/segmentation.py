@@ -46,7 +46,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage as ndi
 
-from ._seg_kernels import corner_wedges, edt, label_max, thin
+from ._seg_kernels import chord_median, corner_wedges, edt, free_between, label_max, ray_hit, thin, wall_steps
 from .errors import ConfigError, EmptyInputError, InputError, ShapeError
 from .grid import GridGeometry, OccupancyGrid
 
@@ -375,116 +375,43 @@ def _runs_along_wall(filtered: NDArray[np.bool_], a: NDArray[np.float64], u: NDA
     """Whether a wall runs on from obstacle pixel ``a`` in direction ``u`` for ``steps`` pixels: the line
     (shifted by at most one pixel across) stays on obstacle pixels while free space lies 2 to ``side`` pixels
     to one side of it (a wall's face, a thin wall, or the middle of a wall at most 2 ``side`` pixels thick;
-    not the inside of a thick wall or of a pillar entered at an angle)."""
-    H, W = filtered.shape
-    v = np.array([-u[1], u[0]])
-    t = np.arange(1, steps + 1, dtype=float)[:, None]
-
-    def free_at(p):
-        idx = np.rint(p).astype(np.int64)
-        ok = (idx[:, 0] >= 0) & (idx[:, 0] < H) & (idx[:, 1] >= 0) & (idx[:, 1] < W)
-        out = np.ones(len(idx), dtype=bool)
-        out[ok] = filtered[idx[ok, 0], idx[ok, 1]]
-        return out
-
-    need = 0.8 * steps
-    for s in (0.0, -1.0, 1.0):
-        line = a + t * u + s * v
-        on_wall = ~free_at(line)
-        if on_wall.sum() < need:
-            continue
-        for sgn in (-1.0, 1.0):
-            near = np.zeros(steps, dtype=bool)
-            for k in range(2, max(side, 2) + 1):
-                near |= free_at(line + sgn * k * v)
-            if (on_wall & near).sum() >= need:
-                return True
-    return False
+    not the inside of a thick wall or of a pillar entered at an angle), for 80 % of the steps."""
+    table = wall_steps(filtered, float(a[0]), float(a[1]), float(u[0]), float(u[1]), steps, side)
+    return bool((table.sum(1) >= 0.8 * steps).any())
 
 
 def _wall_run(filtered: NDArray[np.bool_], a: NDArray[np.float64], u: NDArray[np.float64], max_steps: int) -> int:
-    """How many pixels a wall runs on from obstacle pixel ``a`` in direction ``u`` (at most ``max_steps``):
-    the line (shifted by at most one pixel across) on obstacle pixels with free space two pixels to one side,
-    until three steps in a row fail."""
-    H, W = filtered.shape
-    v = np.array([-u[1], u[0]])
-    t = np.arange(1, max_steps + 1, dtype=float)[:, None]
-
-    def free_at(p):
-        idx = np.rint(p).astype(np.int64)
-        ok = (idx[:, 0] >= 0) & (idx[:, 0] < H) & (idx[:, 1] >= 0) & (idx[:, 1] < W)
-        out = np.ones(len(idx), dtype=bool)
-        out[ok] = filtered[idx[ok, 0], idx[ok, 1]]
-        return out
-
+    """How many pixels a wall runs on from obstacle pixel ``a`` in direction ``u`` (at most ``max_steps``), as
+    :func:`_runs_along_wall` sees it, until three steps in a row fail."""
+    table = wall_steps(filtered, float(a[0]), float(a[1]), float(u[0]), float(u[1]), max_steps, 2)
     best = 0
-    for s in (0.0, -1.0, 1.0):
-        line = a + t * u + s * v
-        on_wall = ~free_at(line)
-        for sgn in (-1.0, 1.0):
-            good = on_wall & free_at(line + sgn * 2.0 * v)
-            bad = np.convolve(~good, np.ones(3), mode="valid") >= 3
-            run = int(np.argmax(bad)) if bad.any() else max_steps
-            best = max(best, run)
+    for good in table:
+        bad = np.convolve(~good, np.ones(3), mode="valid") >= 3
+        best = max(best, int(np.argmax(bad)) if bad.any() else max_steps)
     return best
 
 
 def _free_width(filtered: NDArray[np.bool_], mid: NDArray[np.float64], u: NDArray[np.float64],
                 n: NDArray[np.float64], depths: NDArray[np.float64], reach: int) -> float:
-    """Largest free chord (pixels) parallel to ``u`` through ``mid + t n`` over the depths ``t``, each side
-    of the centre followed up to ``reach`` pixels."""
-    H, W = filtered.shape
-    k = np.arange(0, reach + 1, dtype=float)
-    for sign in (1.0, -1.0):
-        pts = mid[None, None, :] + depths[:, None, None] * n[None, None, :] + sign * k[None, :, None] * u[None, None, :]
-        idx = np.rint(pts).astype(np.int64)
-        ok = (idx[..., 0] >= 0) & (idx[..., 0] < H) & (idx[..., 1] >= 0) & (idx[..., 1] < W)
-        fr = np.zeros(ok.shape, dtype=bool)
-        fr[ok] = filtered[idx[ok][:, 0], idx[ok][:, 1]]
-        # free run from the centre: index of the first obstacle (reach + 1 when none)
-        blocked = ~fr
-        first = np.where(blocked.any(1), blocked.argmax(1), reach + 1)
-        if sign > 0:
-            run = first.astype(float)
-        else:
-            run = run + first - 1.0  # the centre pixel counted twice
-    return float(np.median(np.maximum(run, 0.0)))
+    """Median over the depths ``t`` of the free chord (pixels) parallel to ``u`` through ``mid + t n``, each
+    side of the centre followed up to ``reach`` pixels."""
+    return float(chord_median(filtered, float(mid[0]), float(mid[1]), float(u[0]), float(u[1]), float(n[0]),
+                              float(n[1]), depths.astype(np.float64), int(reach)))
 
 
 def _free_run(filtered: NDArray[np.bool_], a: NDArray[np.float64], b: NDArray[np.float64], end_px: float) -> bool:
     """Whether the straight line from obstacle pixel ``a`` to obstacle pixel ``b`` is free from the first free
     pixel after ``a`` to the last before ``b``, and these lie within ``end_px`` of the ends (a corner is the
     middle of the wall end it rounds)."""
-    L = float(np.hypot(*(b - a)))
-    n_s = max(int(np.ceil(L)) * 2, 2)
-    t = np.linspace(0.0, 1.0, n_s + 1)
-    idx = np.rint(a + t[:, None] * (b - a)).astype(np.int64)
-    on = filtered[idx[:, 0], idx[:, 1]]
-    if not on.any():
-        return False
-    i0, i1 = int(np.argmax(on)), n_s - int(np.argmax(on[::-1]))
-    return bool(on[i0:i1 + 1].all() and t[i0] * L <= end_px and (1.0 - t[i1]) * L <= end_px)
+    return bool(free_between(filtered, float(a[0]), float(a[1]), float(b[0]), float(b[1]), float(end_px)))
 
 
 def _extension(filtered: NDArray[np.bool_], a: NDArray[np.int64], e: NDArray[np.float64], max_px: float,
                end_px: float) -> NDArray[np.int64] | None:
     """The first obstacle pixel met by the ray from corner ``a`` along ``e`` once it has left the corner's
     obstacle (within ``end_px``), at most ``max_px`` away; None if there is none."""
-    H, W = filtered.shape
-    t = np.arange(0.5, max_px + end_px + 1.0, 0.5)
-    idx = np.rint(a + t[:, None] * e).astype(np.int64)
-    inside = (idx[:, 0] >= 0) & (idx[:, 0] < H) & (idx[:, 1] >= 0) & (idx[:, 1] < W)
-    if not inside.all():
-        idx, t = idx[: int(np.argmin(inside))], t[: int(np.argmin(inside))]
-    on = filtered[idx[:, 0], idx[:, 1]]
-    if not on.any() or t[int(np.argmax(on))] > end_px:
-        return None
-    i0 = int(np.argmax(on))
-    rest = ~on[i0:]
-    if not rest.any():
-        return None
-    b = idx[i0 + int(np.argmax(rest))]
-    return b if np.hypot(*(b - a)) <= max_px else None
+    r, c = ray_hit(filtered, float(a[0]), float(a[1]), float(e[0]), float(e[1]), float(max_px), float(end_px))
+    return None if r < 0 else np.array([r, c], dtype=np.int64)
 
 
 def _wall_gap_lines(filtered: NDArray[np.bool_], dist_px: NDArray[np.float64], corners: NDArray[np.int64],

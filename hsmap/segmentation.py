@@ -111,7 +111,7 @@ class SegmentationConfig:
     min_door_half_width: float = 0.15
     max_door_half_width: float = 1.5
     critical_radius: float = 0.5
-    narrowing_ratio: float = 0.7
+    narrowing_ratio: float = 0.65
     wall_gaps: bool = True
     max_gap_width: float = 4.0
     gap_ratio: float = 0.85
@@ -158,6 +158,9 @@ class Door:
         Labels of the two rooms it connects (0 where not known).
     pixel : tuple of int
         (row, col) of the centre in the map image.
+    kind : str
+        ``"door"``: a narrowing of the free space (a critical point, or the paper's band); ``"opening"``: a
+        gap in a wall, closed between two wall ends or a wall end and the face of another wall.
     """
 
     centre: NDArray[np.float64]
@@ -165,6 +168,7 @@ class Door:
     width: float
     rooms: tuple[int, int] = (0, 0)
     pixel: tuple[int, int] = (0, 0)
+    kind: str = "door"
 
     def as_dict(self) -> dict:
         return {
@@ -173,6 +177,7 @@ class Door:
             "width": float(self.width),
             "rooms": [int(r) for r in self.rooms],
             "pixel": [int(v) for v in self.pixel],
+            "kind": self.kind,
         }
 
 
@@ -416,7 +421,7 @@ def _extension(filtered: NDArray[np.bool_], a: NDArray[np.int64], e: NDArray[np.
 
 def _wall_gap_lines(filtered: NDArray[np.bool_], dist_px: NDArray[np.float64], corners: NDArray[np.int64],
                     angles: NDArray[np.float64], starts: NDArray[np.int64], nbins: int, res: float,
-                    cfg: SegmentationConfig) -> list[tuple[NDArray[np.int64], NDArray[np.int64], float]]:
+                    cfg: SegmentationConfig) -> list[tuple[NDArray[np.int64], NDArray[np.int64], float, bool]]:
     """Lines across gaps in walls, at most ``max_gap_width`` long, along a free straight line with no obstacle
     in the disc it is the diameter of:
 
@@ -424,10 +429,11 @@ def _wall_gap_lines(filtered: NDArray[np.bool_], dist_px: NDArray[np.float64], c
       end at least;
     * from a corner along the wall it ends (a face of the wall, continued) to the first obstacle.
 
-    A line is a room border where it is at most ``gap_ratio`` times the free chord parallel to it (the median
-    over depths up to half its length) on both sides, every other candidate drawn in as a wall (so that a line
-    across a corridor sees the corridor's width even where rooms open onto it). Returns (a, b, width in metres)
-    per border.
+    A line is narrow on a side where it is at most ``gap_ratio`` times the free chord parallel to it there (the
+    median over depths up to half its length), every other candidate drawn in as a wall (so that a line across
+    a corridor sees the corridor's width even where rooms open onto it). Narrow on both sides, it is a room
+    border (firm); on one side only (the mouth of a corridor, into a room or into another corridor), the
+    narrowing test decides. Returns (a, b, width in metres, firm) per line narrow on a side at least.
     """
     from scipy.spatial import cKDTree
 
@@ -492,9 +498,10 @@ def _wall_gap_lines(filtered: NDArray[np.bool_], dist_px: NDArray[np.float64], c
         depths = np.arange(2.0, max(L / 2, 3.0) + 1.0)
         reach = int(np.ceil(L / cfg.gap_ratio)) + 2
         centre = (af + bf) / 2
-        if all(L - 1.0 <= cfg.gap_ratio * _free_width(walls, centre, u, side * nrm, depths, reach)
-               for side in (1.0, -1.0)):
-            out.append((a, b, max(L - 1.0, 0.0) * res))
+        narrow = [L - 1.0 <= cfg.gap_ratio * _free_width(walls, centre, u, side * nrm, depths, reach)
+                  for side in (1.0, -1.0)]
+        if any(narrow):
+            out.append((a, b, max(L - 1.0, 0.0) * res, all(narrow)))
     return out
 
 
@@ -623,8 +630,9 @@ def segment_rooms(
             # a pillar narrowing a corridor does not
             d = (b - a) / max(float(np.hypot(*(b - a))), 1e-9)
             side = int(round(0.25 / res))
-            if not (_runs_along_wall(filtered, a.astype(float), -d, wall_steps, side)
-                    or _runs_along_wall(filtered, b.astype(float), d, wall_steps, side)):
+            ca = _runs_along_wall(filtered, a.astype(float), -d, wall_steps, side)
+            cb = _runs_along_wall(filtered, b.astype(float), d, wall_steps, side)
+            if not (ca or cb):
                 lr, lc = _line_pixels(a, b)
                 rejected[lr, lc] = True
                 continue
@@ -636,21 +644,23 @@ def segment_rooms(
         cut[lr, lc] = True
         door_px.append((np.array([r, c]), a, b, np.stack([lr, lc], 1), width))
     n_critical = len(door_px)
+    soft = [True] * n_critical
     gap_cut = np.zeros_like(free)
     if cfg.method == "critical" and cfg.wall_gaps:
         corners = _corner_points(angles, cfg.corner_angle)
-        for a, b, width in _wall_gap_lines(filtered, dist_px, corners, angles, starts, nbins, res, cfg):
+        for a, b, width, firm in _wall_gap_lines(filtered, dist_px, corners, angles, starts, nbins, res, cfg):
             lr, lc = _line_pixels(a, b)
             cut[lr, lc] = True
-            gap_cut[lr, lc] = True
+            gap_cut[lr, lc] |= firm
             door_px.append((np.rint((a + b) / 2).astype(np.int64), a, b, np.stack([lr, lc], 1), width))
+            soft.append(not firm)
 
     # 5. regions: every line cuts; the wall-gap lines stay, the regions facing each other across a critical
     # line are merged unless it is a narrowing between them (``narrowing_ratio``); a critical line crossing
     # wall-gap lines is judged piece by piece
     lab, n = ndi.label(filtered & ~cut, structure=_FOUR)
     uf = _UnionFind(n + 1)
-    if cfg.method == "critical" and n_critical:
+    if cfg.method == "critical" and any(soft):
         # largest clearance of each region, the wall-gap lines being walls
         clear = edt(filtered & ~gap_cut)[0] if gap_cut.any() else dist_px
         peak = np.maximum(label_max(lab, clear, n), 0.0) * res
@@ -660,7 +670,9 @@ def segment_rooms(
         for dr, dc in _OFFSETS:
             near_gap[gr + dr, gc + dc] = True
         edges = []
-        for _, a, b, px, width in door_px[:n_critical]:
+        for (_, a, b, px, width), sft in zip(door_px, soft, strict=True):
+            if not sft:
+                continue
             for run in _pieces_between(px, a, b, near_gap):
                 edges.append((*_separated_regions(lab, run), width / 2.0))
         if edges:
@@ -693,16 +705,17 @@ def segment_rooms(
     # one door per passage: of several lines between the same rooms closer than a door width, keep a critical
     # line (the middle of a passage through a thick wall) before a wall-gap line (its ends), the narrowest first
     kept: list[tuple] = []
-    for width, pair, centre, a, b, _ in sorted(found, key=lambda t: (t[5], t[0])):
+    for width, pair, centre, a, b, gap in sorted(found, key=lambda t: (t[5], t[0])):
         if any(k[1] == pair and np.hypot(*(k[2] - centre)) * res < max(width, k[0]) for k in kept):
             continue
-        kept.append((width, pair, centre, a, b))
-    kept = [(w, pair, *_middle_of_wall(filtered, c, a, b)) for w, pair, c, a, b in kept]
+        kept.append((width, pair, centre, a, b, gap))
+    thick = int(np.ceil(0.5 / res))  # the thickest wall a door passes through
+    kept = [(w, pair, *_middle_of_wall(filtered, c, a, b, thick), gap) for w, pair, c, a, b, gap in kept]
     kept.sort(key=lambda t: (t[2][0], t[2][1]))
-    for width, pair, centre, a, b in kept:
+    for width, pair, centre, a, b, gap in kept:
         ends = geometry.pixel_to_world(np.stack([a, b]) + off)
         doors.append(Door(geometry.pixel_to_world(centre + off), ends, width, pair,
-                          (int(centre[0] + off[0]), int(centre[1] + off[1]))))
+                          (int(centre[0] + off[0]), int(centre[1] + off[1])), "opening" if gap else "door"))
 
     if keep_steps:
         def full(img: NDArray, fill=0) -> NDArray:
@@ -729,9 +742,10 @@ def segment_rooms(
 
 
 def _middle_of_wall(free: NDArray[np.bool_], centre: NDArray[np.int64], a: NDArray[np.int64],
-                    b: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+                    b: NDArray[np.int64], max_px: int) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
     """A door line (obstacle end pixels ``a``, ``b``) moved across itself to the middle of the wall it passes
-    through: the stretch along its normal over which both ends stay on obstacle pixels."""
+    through: the stretch along its normal over which both ends stay on obstacle pixels, if at most ``max_px``
+    to either side."""
     d = (b - a).astype(float)
     L = float(np.hypot(*d))
     if L == 0:
@@ -746,9 +760,11 @@ def _middle_of_wall(free: NDArray[np.bool_], centre: NDArray[np.int64], a: NDArr
     ext = []
     for sgn in (1.0, -1.0):
         t = 0
-        while t < 20 and on_obstacle(a + (t + 1) * sgn * nrm) and on_obstacle(b + (t + 1) * sgn * nrm):
+        while t <= max_px and on_obstacle(a + (t + 1) * sgn * nrm) and on_obstacle(b + (t + 1) * sgn * nrm):
             t += 1
         ext.append(t)
+    if max(ext) > max_px:  # not a wall but a passage (a corridor's mouth): leave it
+        return centre, a, b
     shift = np.rint((ext[0] - ext[1]) / 2.0 * nrm).astype(np.int64)
     return centre + shift, a + shift, b + shift
 

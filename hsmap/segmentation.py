@@ -5,8 +5,8 @@ Pipeline (images in (row, col), world coordinates through :class:`hsmap.grid.Gri
 1. binary free-space image, median filtered (by default the filter may clear free speckle but never erase
    an occupied pixel: a plain 3x3 median erases walls one pixel thick); occupied blobs smaller than
    ``min_obstacle_area`` (chairs, table legs, specks) are ignored by the door detection;
-2. skeleton of the free space and its Euclidean distance transform (clearance, metres); their product is
-   the clearance along the skeleton;
+2. skeleton of the free space (Zhang-Suen thinning) and its Euclidean distance transform (clearance,
+   metres); their product is the clearance along the skeleton;
 3. door candidates on the skeleton:
 
    * ``method="paper"``: the skeleton pixels whose clearance lies in the band of half door widths
@@ -19,23 +19,44 @@ Pipeline (images in (row, col), world coordinates through :class:`hsmap.grid.Gri
 
 4. at each centre a line is drawn out to the nearest occupied cells on both sides, perpendicular to the
    skeleton (``paper``) or through the two nearest obstacle points on opposite sides (``critical``; this also
-   closes gaps between free-standing wall ends); the lines cut the free space, whose 4-connected components
-   are the first regions;
-5. (``critical`` only) a door is kept only where it is a real narrowing: its half width is at most
-   ``narrowing_ratio`` times the geometric mean of the largest clearances of the two regions it separates
-   (a door from a narrow corridor into a room narrows the room much more than the corridor); the other
-   doors are removed and their regions merged, least door-like first;
-6. regions under ``min_room_area`` (1.5 m^2) are merged into the neighbour they share the longest border
+   closes gaps between free-standing wall ends). With ``critical`` a line is kept only if a wall runs on
+   from one of its ends at least (a door frame, a partition's end; not a column or a bulge of a wall that
+   narrows a corridor);
+5. (``critical`` with ``wall_gaps``) openings that are no narrowing of the clearance (a room open to a
+   corridor over most of its width, a cubicle, a ring corridor's side rooms) are found as gaps in walls,
+   relative to the spaces they join:
+
+   * corners: obstacle pixels that are the nearest obstacle to a wedge of free space at least
+     ``corner_angle`` wide (a wall's end, the convex corner of a thick wall);
+   * candidate lines, at most ``max_gap_width`` long, free, with no obstacle in the disc they are the
+     diameter of: from corner to corner where a wall runs on beyond one end (over ``wall_continuation``),
+     and from a corner along the wall it ends to the first obstacle, where that wall is at least 1 m and
+     at least as long as the gap;
+   * a line is narrow on a side if it is at most ``gap_ratio`` times the free chord parallel to it there
+     (median over depths up to half its length), every other candidate drawn in as a wall: a line across a
+     corridor then sees the corridor's width on both sides, a line closing a room off the corridor sees the
+     room's width and the corridor's length. Narrow on both sides: a room border; on one side only (the
+     mouth of a corridor, into a room or into another corridor): judged with the critical lines below;
+
+6. the lines cut the free space, whose 4-connected components are the first regions; (``critical``) the
+   regions on either side of a critical line, or of a wall-gap line narrow on one side, stay apart only where
+   the line is a real narrowing: half its width at most ``narrowing_ratio`` times the geometric mean of the
+   largest clearances of the two regions (the room borders being walls); the others are merged, least
+   door-like first, each piece of a line between the room borders it crosses on its own;
+7. regions under ``min_room_area`` (1.5 m^2) are merged into the neighbour they share the longest border
    with (isolated ones under ``min_isolated_area``, free specks, are dropped);
-7. optionally (``assign_furniture``) occupied blobs enclosed by a single room are given its label.
+8. optionally (``assign_furniture``) occupied blobs enclosed by a single room are given its label.
 
 The result carries the room labels (on the input's free pixels), the door list in world coordinates (only
-doors between two different final rooms, one per passage) and, on request, every intermediate image (for
-the step-by-step figure, :func:`hsmap.segmentation_figures.steps_figure`).
+doors between two different final rooms, one per passage, in the middle of the wall it crosses; ``kind``
+"door" for a narrowing, "opening" for a wall gap) and, on request, every intermediate image (for the
+step-by-step figure, :func:`hsmap.segmentation_figures.steps_figure`).
 
-On the Bormann et al. (2016) benchmark (``benchmarks/segmentation.py``) the paper's band alone finds only
-doors 70-90 cm wide and under-segments (per-room precision about 0.73); the critical-point variant reaches
-about 0.94 precision and 0.98 (plain) / 0.92 (furnished) recall with the defaults below.
+On the Bormann et al. (2016) benchmark (``benchmarks/segmentation.py``, 15 buildings, one configuration) the
+paper's band alone finds only doors 70-90 cm wide and under-segments (per-room precision about 0.73);
+critical points with the narrowing test alone reach 0.95 precision, 0.99 (plain) / 0.92 (furnished) recall,
+but merge rooms that open onto corridors (area-weighted precision 0.87); with the wall gaps (the defaults
+below) precision is 0.98 plain and furnished (area-weighted 0.96) at the same recall.
 """
 
 from __future__ import annotations
@@ -72,7 +93,7 @@ class SegmentationConfig:
     ----------
     method : str
         ``"paper"``: Algorithm 2 as published (band of half door widths); ``"critical"``: critical points
-        on the skeleton plus the narrowing test (the default, see the module docstring).
+        on the skeleton with the narrowing test, and gaps in walls (the default, see the module docstring).
     median_size : int
         Side of the median filter on the free-space image (paper: yes; 0 or 1 disables).
     median_keeps_walls : bool
@@ -92,6 +113,19 @@ class SegmentationConfig:
     narrowing_ratio : float
         A door is kept only if its half width is at most this fraction of the geometric mean of the largest
         clearances of the two regions it separates.
+    wall_gaps : bool
+        (``critical``) Also close gaps in walls that are narrow relative to the spaces they join (step 5 of
+        the module docstring); False gives the critical points and the narrowing test alone.
+    max_gap_width : float
+        Longest wall gap (metres) closed.
+    gap_ratio : float
+        A wall gap is narrow on a side if its length is at most this fraction of the free chord parallel to
+        it on that side.
+    corner_angle : float
+        Degrees of free space an obstacle pixel must be the nearest obstacle to, to be a corner (a wall's
+        end: 180; a thick wall's convex corner: 90; a straight wall: about 0).
+    wall_continuation : float
+        Metres a wall must run on beyond a door line's or a wall gap's end.
     min_room_area : float
         Regions smaller than this (m^2) are merged into a neighbour (paper: 1.5).
     min_isolated_area : float
@@ -139,6 +173,13 @@ class SegmentationConfig:
             raise ConfigError("min_obstacle_area and min_obstacle_length must be >= 0")
         if self.median_size < 0:
             raise ConfigError(f"median_size must be >= 0, got {self.median_size}")
+        for name in ("max_gap_width", "wall_continuation"):
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"{name} must be > 0 metres, got {getattr(self, name)}")
+        if not 0 < self.gap_ratio <= 1:
+            raise ConfigError(f"gap_ratio must lie in (0, 1], got {self.gap_ratio}")
+        if not 0 < self.corner_angle <= 360:
+            raise ConfigError(f"corner_angle must lie in (0, 360] degrees, got {self.corner_angle}")
 
 
 @dataclass
@@ -203,7 +244,8 @@ class Segmentation:
     config : SegmentationConfig
     steps : dict of str to ndarray
         Intermediate (H, W) images when asked for (``keep_steps=True``): ``free``, ``filtered``,
-        ``distance``, ``skeleton``, ``product``, ``candidates``, ``door_lines``, ``regions``.
+        ``distance``, ``skeleton``, ``product``, ``candidates``, ``door_lines`` (every line drawn),
+        ``gap_lines`` (the wall gaps that are room borders), ``regions``.
     """
 
     labels: NDArray[np.int32]
@@ -615,7 +657,6 @@ def segment_rooms(
                      else cfg.door_half_width + cfg.door_half_width_tolerance)
     max_steps = int(np.ceil(1.5 * max_len / res)) + 2
     wall_steps = max(2, int(round(cfg.wall_continuation / res)))
-    rejected = np.zeros_like(free)
     for (r, c), u in zip(centres, directions, strict=True):
         p = np.array([r, c], dtype=float)
         if cfg.method == "paper":
@@ -633,8 +674,6 @@ def segment_rooms(
             ca = _runs_along_wall(filtered, a.astype(float), -d, wall_steps, side)
             cb = _runs_along_wall(filtered, b.astype(float), d, wall_steps, side)
             if not (ca or cb):
-                lr, lc = _line_pixels(a, b)
-                rejected[lr, lc] = True
                 continue
         # the free span: between the facing edges of the two end pixels
         width = max(float(np.hypot(*(a - b))) - 1.0, 0.0) * res
@@ -735,7 +774,6 @@ def segment_rooms(
             "candidates": full(cand),
             "door_lines": full(cut),
             "gap_lines": full(gap_cut),
-            "rejected_lines": full(rejected),
             "regions": full(regions0.astype(np.int32)),
         }
     return Segmentation(full_labels, doors, geometry, cfg, steps)

@@ -216,6 +216,12 @@ def test_bad_input():
         SegmentationConfig(method="voronoi")
     with pytest.raises(ConfigError):
         SegmentationConfig(min_door_half_width=1.0, max_door_half_width=0.5)
+    with pytest.raises(ConfigError, match="gap_ratio"):
+        SegmentationConfig(gap_ratio=1.5)
+    with pytest.raises(ConfigError, match="max_gap_width"):
+        SegmentationConfig(max_gap_width=0.0)
+    with pytest.raises(ConfigError, match="corner_angle"):
+        SegmentationConfig(corner_angle=-10.0)
     with pytest.raises(ConfigError, match="unknown"):
         from_dict(SegmentationConfig, {"door_width": 0.9})
     # free cells with unknown all around (no wall) still make a room; an isolated free speck under

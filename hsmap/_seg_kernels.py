@@ -1,5 +1,6 @@
-"""Numba kernels of the room segmentation: Zhang-Suen thinning on a border work list, and the wedge of free space
-each obstacle pixel is the nearest obstacle to (the corner detector).
+"""Numba kernels of the room segmentation: Zhang-Suen thinning on a border work list, the exact Euclidean distance
+transform with its feature transform, the wedge of free space each obstacle pixel is the nearest obstacle to
+(the corner detector), and the ray marches of the door and wall-gap lines.
 
 Images are (row, col) arrays; callers pad them so that no kernel reads outside.
 """
@@ -9,7 +10,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-__all__ = ["thin", "corner_wedges"]
+__all__ = ["basis_points", "chord_median", "corner_wedges", "edt", "free_between", "label_max", "line_pixels",
+           "ray_hit", "thin", "wall_steps"]
 
 # Zhang & Suen (1984) as scikit-image implements it (skimage.morphology.skeletonize, method "zhang"): for each of
 # the 256 neighbourhoods (bit 0 = north-west, clockwise: 1 N, 2 NE, 3 E, 4 SE, 5 S, 6 SW, 7 W) 1 = removable in
@@ -395,3 +397,86 @@ def ray_hit(free, ar, ac, er, ec, max_px, end_px):  # pragma: no cover - JIT
             return -1, -1
         t += 0.5
     return -1, -1
+
+
+@nb.njit(cache=True, nogil=True)
+def _nearest_two(free, pr, pc, half, radius, cos_min):  # pragma: no cover - JIT
+    H, W = free.shape
+    r0 = max(pr - half, 0)
+    r1 = min(pr + half + 1, H)
+    c0 = max(pc - half, 0)
+    c1 = min(pc + half + 1, W)
+    best = np.inf
+    ir = -1
+    ic = -1
+    for r in range(r0, r1):
+        for c in range(c0, c1):
+            if not free[r, c]:
+                d = np.hypot(float(r - pr), float(c - pc))
+                if d < best:
+                    best = d
+                    ir = r
+                    ic = c
+    if ir < 0 or best < 1e-9:
+        return -1, -1, -1, -1, best, np.inf
+    vr = float(ir - pr)
+    vc = float(ic - pc)
+    best2 = np.inf
+    jr = -1
+    jc = -1
+    for r in range(r0, r1):
+        for c in range(c0, c1):
+            if not free[r, c]:
+                wr = float(r - pr)
+                wc = float(c - pc)
+                d = np.hypot(wr, wc)
+                if d <= radius and d < best2 and (wr * vr + wc * vc) / max(d * best, 1e-9) <= cos_min:
+                    best2 = d
+                    jr = r
+                    jc = c
+    return ir, ic, jr, jc, best, best2
+
+
+@nb.njit(cache=True, nogil=True)
+def basis_points(free, pr, pc, radius, cos_min, clearance):  # pragma: no cover - JIT
+    """The obstacle pixel nearest to (pr, pc) within the square of half side ``radius``, and the nearest one
+    whose direction from (pr, pc) makes an angle with the first's of cosine at most ``cos_min`` (within
+    ``radius``); the first in row-major order among equals. Returns (r1, c1, r2, c2), -1s where absent.
+    ``clearance`` (the pixel's distance to the nearest obstacle) lets the search start in a small square,
+    widened to the whole one only where the answer could lie outside it."""
+    half = min(radius, int(np.ceil(2.0 * clearance)) + 3)
+    ir, ic, jr, jc, d1, d2 = _nearest_two(free, pr, pc, half, radius, cos_min)
+    if half < radius and (ir < 0 or d1 > half or jr < 0 or d2 > half):
+        ir, ic, jr, jc, d1, d2 = _nearest_two(free, pr, pc, radius, radius, cos_min)
+    if ir < 0 or jr < 0:
+        return -1, -1, -1, -1
+    return ir, ic, jr, jc
+
+
+@nb.njit(cache=True, nogil=True)
+def line_pixels(ar, ac, br, bc):  # pragma: no cover - JIT
+    """4-connected pixel line from (ar, ac) to (br, bc): samples at half-pixel steps rounded to pixels, then
+    at each diagonal step the pixel (previous row, next column) appended."""
+    n = max(abs(br - ar), abs(bc - ac)) * 2 + 1
+    r = np.empty(n, dtype=np.int64)
+    c = np.empty(n, dtype=np.int64)
+    step = 1.0 / (n - 1) if n > 1 else 0.0
+    for i in range(n):
+        t = i * step if i < n - 1 else 1.0  # as numpy.linspace(0, 1, n)
+        r[i] = int(np.rint(ar + t * (br - ar)))
+        c[i] = int(np.rint(ac + t * (bc - ac)))
+    m = 0
+    for i in range(n - 1):
+        if r[i + 1] != r[i] and c[i + 1] != c[i]:
+            m += 1
+    rr = np.empty(n + m, dtype=np.int64)
+    cc = np.empty(n + m, dtype=np.int64)
+    rr[:n] = r
+    cc[:n] = c
+    k = n
+    for i in range(n - 1):
+        if r[i + 1] != r[i] and c[i + 1] != c[i]:
+            rr[k] = r[i]
+            cc[k] = c[i + 1]
+            k += 1
+    return rr, cc

@@ -67,7 +67,18 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage as ndi
 
-from ._seg_kernels import chord_median, corner_wedges, edt, free_between, label_max, ray_hit, thin, wall_steps
+from ._seg_kernels import (
+    basis_points,
+    chord_median,
+    corner_wedges,
+    edt,
+    free_between,
+    label_max,
+    line_pixels,
+    ray_hit,
+    thin,
+    wall_steps,
+)
 from .errors import ConfigError, EmptyInputError, InputError, ShapeError
 from .grid import GridGeometry, OccupancyGrid
 
@@ -319,43 +330,22 @@ def _march(free: NDArray[np.bool_], start: NDArray[np.float64], direction: NDArr
     return idx[int(np.argmax(hit))]
 
 
-def _basis_points(free: NDArray[np.bool_], p: NDArray[np.int64], radius: int,
+def _basis_points(free: NDArray[np.bool_], p: NDArray[np.int64], radius: int, clearance: float = np.inf,
                   min_angle: float = np.deg2rad(110)) -> tuple[NDArray[np.int64] | None, NDArray[np.int64] | None]:
     """The two obstacle pixels a critical line joins: the nearest one to ``p`` and the nearest one seen from
     ``p`` at least ``min_angle`` away from the first (on the other side of the passage); None if absent
-    within ``radius`` pixels."""
-    H, W = free.shape
-    r0, r1 = max(p[0] - radius, 0), min(p[0] + radius + 1, H)
-    c0, c1 = max(p[1] - radius, 0), min(p[1] + radius + 1, W)
-    orr, occ = np.nonzero(~free[r0:r1, c0:c1])
-    if not len(orr):
+    within ``radius`` pixels. ``clearance``, the distance from ``p`` to the nearest obstacle if known, only
+    speeds the search up."""
+    ir, ic, jr, jc = basis_points(free, int(p[0]), int(p[1]), int(radius), float(np.cos(min_angle)),
+                                  float(min(clearance, radius)))
+    if ir < 0:
         return None, None
-    v = np.stack([orr + r0 - p[0], occ + c0 - p[1]], 1).astype(float)
-    d = np.hypot(v[:, 0], v[:, 1])
-    i = int(np.argmin(d))
-    if d[i] < 1e-9:
-        return None, None
-    cosang = (v @ v[i]) / np.maximum(d * d[i], 1e-9)
-    ok = (cosang <= np.cos(min_angle)) & (d <= radius)
-    if not ok.any():
-        return None, None
-    j = np.nonzero(ok)[0][np.argmin(d[ok])]
-    return np.array([orr[i] + r0, occ[i] + c0], dtype=np.int64), np.array([orr[j] + r0, occ[j] + c0], dtype=np.int64)
+    return np.array([ir, ic], dtype=np.int64), np.array([jr, jc], dtype=np.int64)
 
 
 def _line_pixels(a: NDArray[np.int64], b: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """4-connected pixel line from a to b (rows, cols), so that 4-connected regions cannot leak through."""
-    n = int(max(abs(b[0] - a[0]), abs(b[1] - a[1]))) * 2 + 1
-    t = np.linspace(0.0, 1.0, n)
-    r = np.rint(a[0] + t * (b[0] - a[0])).astype(np.int64)
-    c = np.rint(a[1] + t * (b[1] - a[1])).astype(np.int64)
-    # close diagonal steps: add the pixel (r_prev, c_next) at each diagonal move
-    dr = np.diff(r) != 0
-    dc = np.diff(c) != 0
-    diag = np.nonzero(dr & dc)[0]
-    r = np.concatenate([r, r[diag]])
-    c = np.concatenate([c, c[diag + 1]])
-    return r, c
+    return line_pixels(int(a[0]), int(a[1]), int(b[0]), int(b[1]))
 
 
 class _UnionFind:
@@ -663,7 +653,7 @@ def segment_rooms(
             a = _march(filtered, p, u, max_steps)
             b = _march(filtered, p, -u, max_steps)
         else:
-            a, b = _basis_points(filtered, np.array([r, c]), max_steps)
+            a, b = _basis_points(filtered, np.array([r, c]), max_steps, float(dist_px[r, c]))
         if a is None or b is None:
             continue
         if cfg.method == "critical" and cfg.wall_gaps:

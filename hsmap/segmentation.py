@@ -1027,8 +1027,8 @@ def _assign_furniture(lab: NDArray[np.int64], free: NDArray[np.bool_]) -> NDArra
         return lab
     # labels of the pixels bordering each occupied blob
     ring = ndi.binary_dilation(~free, structure=_EIGHT) & free
-    _, ind = ndi.distance_transform_edt(free, return_indices=True)
-    owner = occ[ind[0][ring], ind[1][ring]]
+    _, ind_r, ind_c = edt(free)
+    owner = occ[ind_r[ring], ind_c[ring]]
     room = lab[ring]
     out = lab.copy()
     touches_edge = np.zeros(n + 1, dtype=bool)

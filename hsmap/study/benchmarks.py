@@ -323,7 +323,7 @@ def segmentation_table(rows: Sequence[Mapping[str, Any]], references: Mapping[st
 
 def summarise_segmentation(rows: Sequence[Mapping[str, Any]]) -> dict:
     """Means over the maps of each kind (precision, recall, both area-weighted, seconds) with the median and the
-    largest time per map; ``all``: the times over every map."""
+    largest time per map, segments and ground-truth rooms summed; ``all``: the times over every map."""
     out: dict[str, dict] = {}
     for kind in ("plain", "furnished"):
         r = [x for x in rows if x["kind"] == kind]
@@ -331,7 +331,9 @@ def summarise_segmentation(rows: Sequence[Mapping[str, Any]]) -> dict:
             out[kind] = {"maps": len(r), **{k: float(np.mean([x[k] for x in r])) for k in
                                             ("precision", "recall", "precision_area", "recall_area", "seconds")},
                          "seconds_median": float(np.median([x["seconds"] for x in r])),
-                         "seconds_max": float(np.max([x["seconds"] for x in r]))}
+                         "seconds_max": float(np.max([x["seconds"] for x in r])),
+                         "segments": int(sum(x["segments"] for x in r)), "rooms": int(sum(x["rooms"] for x in r)),
+                         "maps_with_fewer_segments_than_rooms": int(sum(x["segments"] < x["rooms"] for x in r))}
     if rows:
         t = [x["seconds"] for x in rows]
         out["all"] = {"seconds_median": float(np.median(t)), "seconds_max": float(np.max(t))}

@@ -220,6 +220,39 @@ def test_cli_slam_on_a_carmen_log(tmp_path):
     assert len(r.stderr.strip().splitlines()) == 1
 
 
+@pytest.mark.parametrize("flag, value, match", [
+    ("--extrinsic2d", "0.1,0", "--extrinsic2d must be 3 comma-separated"),
+    ("--extrinsic2d", "a,b,c", "--extrinsic2d must be 3 comma-separated numbers"),
+    ("--extrinsic2d", "0,nan,0", "--extrinsic2d must be 3 comma-separated finite numbers"),
+    ("--extrinsic3d", "0,0,1.6", "--extrinsic3d must be 6 comma-separated"),
+])
+def test_cli_slam_bad_extrinsic(tmp_path, flag, value, match):
+    from hsmap.cli import main
+
+    log = tmp_path / "office.log"
+    write_carmen(log, ROUTE[:3])
+    import contextlib
+    import io
+
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        assert main(["slam", str(log), "--out", str(tmp_path / "o"), flag, value, "--quiet"]) == 2
+    assert match in err.getvalue() and len(err.getvalue().strip().splitlines()) == 1
+
+
+def test_cli_slam_extrinsic_and_no_loop_closure(tmp_path):
+    from hsmap.cli import main
+
+    log = tmp_path / "office.log"
+    write_carmen(log, ROUTE[:25])
+    out = tmp_path / "o"
+    assert main(["slam", str(log), "--out", str(out), "--extrinsic2d", "0.1,0,0", "--no-loop-closure",
+                 "--no-recording", "--quiet"]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["loop_closure"] == "disabled" and m["config"]["loop_closure"]["enabled"] is False
+    assert "frames_retried" in m and m["loops_closed"] == 0
+
+
 def test_interrupted_cli_run_leaves_no_complete_looking_output(tmp_path, monkeypatch):
     """A run stopped half-way (here: an error in the middle of the frames) writes no metrics.json, the marker of a
     complete output folder, and leaves no temporary files; an older complete run's marker is removed first."""

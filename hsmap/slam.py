@@ -125,6 +125,9 @@ class SlamConfig:
         (2 cm + 5 % of the distance, 1 deg + 5 % of the turn + 1 deg per metre): wheel odometry varies.
     motion_sigma : tuple of 5 floats
         The same for the constant-velocity prediction (no odometry).
+    prior_sigma : tuple of 5 floats
+        The same for the motion of a prior trajectory (6-DOF seeded by a 2D run: scan matching, far more precise
+        than wheel odometry).
     degenerate_ratio : float
         Translation directions whose information is below this fraction of the best constrained one count as
         unconstrained (:func:`hsmap.registration.drop_degenerate`): the prediction carries the pose along them.
@@ -150,6 +153,7 @@ class SlamConfig:
     max_range: float = 30.0
     odometry_sigma: tuple[float, ...] = (0.02, 0.05, float(np.deg2rad(1.0)), 0.05, float(np.deg2rad(1.0)))
     motion_sigma: tuple[float, ...] = (0.1, 0.5, float(np.deg2rad(5.0)), 0.5, float(np.deg2rad(5.0)))
+    prior_sigma: tuple[float, ...] = (0.01, 0.02, float(np.deg2rad(0.2)), 0.02, float(np.deg2rad(0.5)))
     verify_sigmas: float = 3.0
     degenerate_ratio: float = 0.05
     loop_closure: LoopClosureConfig = field(default_factory=LoopClosureConfig)
@@ -165,7 +169,7 @@ class SlamConfig:
             from .config import from_dict
 
             self.loop_closure = from_dict(LoopClosureConfig, self.loop_closure, "slam.loop_closure")
-        for name in ("odometry_sigma", "motion_sigma"):
+        for name in ("odometry_sigma", "motion_sigma", "prior_sigma"):
             v = getattr(self, name)
             try:
                 arr = np.asarray(v, dtype=float)
@@ -463,28 +467,29 @@ class HsSlam:
     def prediction(self, frame: Frame) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
         """The predicted pose of ``frame`` and the sigmas (translation, yaw) of its x/y and yaw, or None.
 
-        From the odometry increment when there is one, else (6-DOF) the prior trajectory, else the constant-velocity
-        model; None for the first two frames without odometry.
+        The previous pose moved by: (6-DOF) the prior trajectory's motion between the two stamps, a 2D run being
+        odometry of high quality (``prior_sigma``); else the odometry increment (``odometry_sigma``); else the
+        last motion repeated (``motion_sigma``). None for the first two frames with none of these.
         """
         cfg = self.config
         prev = self.poses[-1]
-        prior = self._prior_pose(frame.stamp)
-        step = self._odometry_step(frame)
-        if step is not None:
-            a, b, c, d, e = cfg.odometry_sigma
+        step, model = None, None
+        prior_now = self._prior_pose(frame.stamp)
+        prior_prev = self._prior_pose(self.stamps[-1]) if prior_now is not None else None
+        if prior_now is not None and prior_prev is not None:
+            step, model = relative(prior_prev, prior_now), cfg.prior_sigma
+            step[2:5] = 0.0  # the prior knows x, y and yaw only
+        elif (odo := self._odometry_step(frame)) is not None:
+            step, model = odo, cfg.odometry_sigma
         elif len(self.poses) >= 2:
-            step = relative(self.poses[-2], prev)
-            a, b, c, d, e = cfg.motion_sigma
-        elif prior is None:
+            step, model = relative(self.poses[-2], prev), cfg.motion_sigma
+        if step is None:
             return None
-        if prior is not None:
-            pred = prior
-            sig = np.array([cfg.prior_translation_range / 3, cfg.prior_yaw_range / 3])
-        else:
-            pred = compose(prev, step)
-            dist = float(np.linalg.norm(step[: self.dim]))
-            turn = float(np.abs(wrap_angle(step[self.dim:])).max())
-            sig = np.array([a + b * dist, c + d * turn + e * dist])
+        a, b, c, d, e = model
+        pred = compose(prev, step)
+        dist = float(np.linalg.norm(step[: self.dim]))
+        turn = float(np.abs(wrap_angle(step[self.dim:])).max())
+        sig = np.array([a + b * dist, c + d * turn + e * dist])
         pred = pred.copy()
         pred[self.dim:] = prev[self.dim:] + wrap_angle(pred[self.dim:] - prev[self.dim:])
         return pred, sig

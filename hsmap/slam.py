@@ -344,8 +344,9 @@ def _at_least_as_good(scan: NDArray[np.float64], target: RegistrationTarget, a: 
         return False
     ma, mb = float(ra[both].mean()), float(rb[both].mean())
     fa, fb = float(np.isfinite(ra).mean()), float(np.isfinite(rb).mean())
-    if strict:
-        return ma < 0.8 * mb - 0.002 or fa > fb + 0.1
+    if strict:  # better residuals without losing matches, or far more matches: a crowd walking ahead of the
+        # robot (matched by a pose that follows it) must not win by its count alone
+        return (ma < 0.8 * mb - 0.002 and fa >= fb - 0.1) or fa > fb + 0.25
     return ma <= 1.2 * mb + 0.002 and fa >= fb - 0.1
 
 

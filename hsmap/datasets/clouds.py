@@ -195,6 +195,8 @@ class CloudFolderDataset(Dataset):
             raise InputError(f"{names['drive']} must be 'scan' or 'cloud', got {drive!r}")
         if scan_rate is not None and scans is None:
             raise InputError(f"{names['scan_rate']} needs a folder of 2D scans ({names['scans']} DIR)")
+        self.cloud_rate, self.scan_rate = cloud_rate, scan_rate
+        self.extra_paths = [] if scans is None else [str(scans)]  # read too: part of the input's identity
         self._clouds = _Stream(p, cloud_rate, "cloud", "input", names["cloud_rate"])
         self._scans = None if scans is None else _Stream(Path(scans), scan_rate, "scan", names["scans"],
                                                         names["scan_rate"])

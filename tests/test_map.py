@@ -53,10 +53,10 @@ def recording(tmp_path_factory):
     return bag, out, err
 
 
-def _errors(est, ref):
-    """Largest position (m) and heading (deg) error of ``est`` against ``ref`` (same stamps), as written: the map
-    starts at the first odometry pose, which the simulator puts at the first true pose."""
-    P = np.array([matrix_to_pose(X) for X in align(est, ref, Alignment.NONE)[0]])
+def _errors(est, ref, alignment=Alignment.NONE):
+    """Largest position (m) and heading (deg) error of ``est`` against ``ref`` (same stamps); by default as
+    written: ``hsmap map`` starts at the first odometry pose, which the simulator puts at the first true pose."""
+    P = np.array([matrix_to_pose(X) for X in align(est, ref, alignment)[0]])
     e = P[:, [0, 1, 5]] - ref.poses
     return float(np.hypot(e[:, 0], e[:, 1]).max()), float(np.degrees(np.abs(wrap_angle(e[:, 2])).max()))
 
@@ -217,3 +217,54 @@ def test_map_needs_both_lidars(tmp_path):
     code, err = run_cli("map", str(tmp_path / "clouds"), "--out", str(tmp_path / "o"), "--cloud-rate", "10",
                         "--extrinsic3d", "0,0,1.6,0,0,0")
     assert code == 2 and "need a folder of them (--scans DIR)" in err and len(err.strip().splitlines()) == 1
+
+
+def test_slam_6dof_on_a_recording_with_a_faster_2d_lidar(tmp_path):
+    """Issue 13's first complaint: scans at 4x the cloud rate; the 6-DOF run's frames are the clouds, and the 2D
+    run's poses (at the scans' stamps) seed them, interpolated at the clouds' stamps."""
+    from hsmap.sim import Lidar3DConfig
+    from hsmap.sim.bag import write_simulated_bag
+    from hsmap.trajectory import Trajectory, write_tum
+
+    bag = write_simulated_bag("two-rooms", tmp_path / "b.mcap", seed=2, scan_rate=8.0, duration=6.0,
+                              lidar3d=Lidar3DConfig(channels=32, columns=512))
+    assert (bag.messages["/scan"], bag.messages["/ouster/points"]) == (49, 12)  # 8 Hz and 2 Hz over 6 s
+    code, err = run_cli("slam", str(bag.path), "--out", str(tmp_path / "2d"), "--quiet")
+    assert code == 0, err
+    t2 = read_tum(tmp_path / "2d" / "trajectory.tum", dof=3)
+    np.testing.assert_allclose(t2.stamps, bag.scans.stamps, atol=1e-6)
+    out = tmp_path / "3d"
+    code, err = run_cli("slam", str(bag.path), "--out", str(out), "--dof", "6", "--prior",
+                        str(tmp_path / "2d" / "trajectory.tum"), "--quiet")
+    assert code == 0, err
+    t3 = read_tum(out / "trajectory.tum")
+    np.testing.assert_allclose(t3.stamps, bag.clouds.stamps, atol=1e-6)  # one frame per cloud
+    m = json.loads((out / "metrics.json").read_text())
+    n = len(bag.clouds)
+    assert m["prior"] == {"frames": n, "frames_with_prior": n, "coverage": 1.0, "sync_tolerance": 0.1}
+    assert m["input_info"]["driven_by"] == "cloud" and m["input_info"]["frames_with_scan"] == n
+    assert m["config"]["sync_tolerance"] == 0.1
+    e3, y3 = _errors(t3.as_3dof(), bag.clouds, Alignment.ORIGIN)  # hsmap slam starts at the origin
+    assert e3 < 0.03 and y3 < 0.5
+    from hsmap.viz.rerun import recording_contents, rerun_binary
+
+    if rerun_binary() is not None:  # a 6-DOF run has no 2D map: its recording has the 3D view only
+        views = [e for e in recording_contents(out / "slam.rrd") if e.count("/") == 2 and e.startswith("/view/")]
+        assert len(views) == 1
+    # a prior that covers half the clouds: a warning, and its coverage in metrics.json
+    half = Trajectory(t2.stamps[: len(t2) // 2], t2.poses[: len(t2) // 2])
+    write_tum(tmp_path / "half.tum", half)
+    code, err = run_cli("slam", str(bag.path), "--out", str(tmp_path / "h"), "--dof", "6", "--prior",
+                        str(tmp_path / "half.tum"), "--quiet", "--no-recording")
+    assert code == 0 and "hsmap: warning: --prior" in err and "of the 12 frames" in err, err
+    assert 0 < json.loads((tmp_path / "h" / "metrics.json").read_text())["prior"]["coverage"] < 1
+    # a prior of another recording (other stamps): an error naming the flag, before any frame is processed
+    write_tum(tmp_path / "other.tum", Trajectory(t2.stamps + 1000.0, t2.poses))
+    code, err = run_cli("slam", str(bag.path), "--out", str(tmp_path / "x"), "--dof", "6", "--prior",
+                        str(tmp_path / "other.tum"), "--quiet")
+    assert code == 2 and err.startswith("hsmap: error: --prior ") and "none of the input's 12 frames" in err
+    assert len(err.strip().splitlines()) == 1
+    # a 2D-only input for a 6-DOF run: the flag that would name the clouds
+    code, err = run_cli("slam", str(bag.path), "--out", str(tmp_path / "y"), "--dof", "6", "--cloud-topic", "",
+                        "--quiet")
+    assert code == 2 and "frames made by the clouds need a 3D cloud" in err and "--cloud-topic" in err

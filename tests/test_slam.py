@@ -249,6 +249,12 @@ def test_cli_slam_on_a_carmen_log(tmp_path):
 
     if rerun_binary() is not None:
         verify_rrd(out / "slam.rrd")
+        from hsmap.viz.rerun import recording_contents
+
+        # the blueprint's 2D map view has its map (issue 13: it stayed empty): the grid and the path
+        entities = recording_contents(out / "slam.rrd")
+        assert "/map/occupancy" in entities and "/map/paths/estimate" in entities
+        assert "/world/map/occupancy" in entities
     # bad input: one line, no traceback, exit 2
     r = subprocess.run([sys.executable, "-m", "hsmap.cli", "slam", str(tmp_path / "missing.bag"), "--out",
                         str(out)], capture_output=True, text=True)

@@ -121,3 +121,45 @@ def test_bad_folders_name_the_file_and_what_was_expected(tmp_path):
     empty.mkdir()
     with pytest.raises(DatasetError, match="neither dataset.yaml .* nor point-cloud files"):
         open_dataset(empty)
+
+
+def test_cli_cloud_folder_flags(tmp_path):
+    """The command line names its flags; a 6-DOF run on a folder of clouds at a given rate."""
+    import contextlib
+    import io
+    import json
+    import warnings
+
+    from hsmap.cli import main
+    from hsmap.testing import room_cloud_3d
+
+    folder = tmp_path / "clouds"
+    views = [np.array([4.0 + 0.05 * k, 3.0, 1.6]) for k in range(4)]  # the sensor moves 5 cm along x per sweep
+    write(folder, ".bin", [room_cloud_3d(3000, viewpoint=v, rng=k) - v for k, v in enumerate(views)])
+
+    def run(*args):
+        err = io.StringIO()
+        with contextlib.redirect_stderr(err), warnings.catch_warnings():
+            warnings.simplefilter("always")
+            code = main(["slam", str(folder), "--out", str(tmp_path / "o"), "--quiet", "--no-recording", *args])
+        return code, err.getvalue()
+
+    code, err = run("--dof", "6")
+    assert code == 2 and "give the clouds' rate with --cloud-rate HZ" in err and len(err.strip().splitlines()) == 1
+    code, err = run("--dof", "6", "--cloud-rate", "0")
+    assert code == 2 and "--cloud-rate must be a rate in Hz > 0, got 0" in err
+    code, err = run("--dof", "6", "--cloud-rate", "10", "--scans", str(tmp_path / "none"))
+    assert code == 2 and "--scans " in err and "no such folder" in err
+    code, err = run("--dof", "6", "--cloud-rate", "10", "--scan-topic", "/scan")
+    assert code == 2 and "--scan-topic do not apply to a point-cloud folder" in err
+    code, err = run("--dof", "3", "--cloud-rate", "10")
+    assert code == 2 and "need a folder of them (--scans DIR)" in err
+    code, err = run("--dof", "6", "--cloud-rate", "10")
+    assert code == 0 and err.count("hsmap: warning:") == 1 and "--extrinsic3d" in err
+    m = json.loads((tmp_path / "o" / "metrics.json").read_text())
+    assert m["frames"] == 4 and m["input_info"]["clouds"]["stamps"] == "--cloud-rate 10"
+    np.testing.assert_allclose(m["per_frame"]["stamp"], [0.0, 0.1, 0.2, 0.3])
+    from hsmap.trajectory import read_tum
+
+    np.testing.assert_allclose(read_tum(tmp_path / "o" / "trajectory.tum").poses[:, 0], [0, 0.05, 0.1, 0.15],
+                               atol=0.02)

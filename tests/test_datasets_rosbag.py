@@ -365,6 +365,11 @@ def test_corrupted_and_missing_bags(tmp_path):
         open_dataset(bad)
     with pytest.raises(DatasetError, match="no such"):
         open_dataset(tmp_path / "missing.bag")
+    for suffix in (".mcap", ".db3"):  # lone ROS2 storage files: damaged ones name the file
+        bad = tmp_path / f"garbage{suffix}"
+        bad.write_bytes(bytes(range(256)) * 4)
+        with pytest.raises(DatasetError, match=rf"garbage\{suffix}: cannot read as a ROS1/ROS2 bag"):
+            open_dataset(bad)
     good = write_bag(tmp_path / "good.bag", clouds=False)
     truncated = tmp_path / "truncated.bag"
     truncated.write_bytes(good.read_bytes()[: good.stat().st_size // 2])

@@ -606,6 +606,7 @@ class RosbagDataset(Dataset):
         self.extrinsic2d = np.zeros(3)
         self.extrinsic3d = np.zeros(6)
         self._tf_chains: dict[str, list[str]] = {}
+        self.height2d = 0.0  # the 2D LiDAR's height above the base frame (TF), for drawing
         self._flip_scan = False
         for key in ("2d", "3d"):
             if key in sensors:
@@ -622,6 +623,7 @@ class RosbagDataset(Dataset):
                 self._flip_scan = True
                 R = R @ np.diag([1.0, -1.0, -1.0])
             self.extrinsic2d = np.array([T[0, 3], T[1, 3], math.atan2(R[1, 0], R[0, 0])])
+            self.height2d = float(T[2, 3])
         if "3d" in sensors and base is not None and found["3d"]:
             self.extrinsic3d = matrix_to_pose(tf.lookup(base, sensors["3d"]))
 
@@ -731,6 +733,7 @@ class RosbagDataset(Dataset):
             "base_frame": self.base_frame,
             "sensor_frames": dict(self.sensor_frames),
             "tf_chains": {k: " -> ".join(v) for k, v in self._tf_chains.items()},
+            "height2d": self.height2d,
             "order": self.order.value,
             "sync_tolerance": self.sync_tolerance,
             "frames_with_odometry": int((~np.isnan(self._odometry[:, 0])).sum()) if n else 0,

@@ -465,7 +465,10 @@ def _write_outputs(out: Path, dataset: Dataset, ds2: Dataset, ds3: Dataset, run2
 
 
 def _sensor_height(ds: Dataset) -> float:
-    """Height of the 2D LiDAR above the base frame where the reader knows it (a simulator's description), else 0."""
+    """Height of the 2D LiDAR above the base frame where the reader knows it (a bag's TF, a simulator's
+    description), else 0."""
+    if getattr(ds, "height2d", None) is not None:
+        return float(ds.height2d)
     sensors = getattr(ds, "sensors", None)
     try:
         return float(sensors["lidar2d"]["mount_height"])

@@ -10,8 +10,10 @@ inserted). The harmony memory is seeded with
 - the odometry prediction (the previous pose moved by the odometry increment), when the input has odometry and
   ``use_odometry`` is on,
 - the mean of the recent poses,
-- in 6-DOF, optionally, a prior pose from a 2D run at the same stamp (the paper seeds its 3D run with the 2D
-  poses) with a narrower range,
+- in 6-DOF, optionally, a prior pose from a 2D run (the paper seeds its 3D run with the 2D poses) with a
+  narrower range: the 2D poses around the cloud's stamp, SE(2)-interpolated (:meth:`Trajectory.interpolate`)
+  when both lie within ``sync_tolerance`` of it (a 2D LiDAR runs faster than a 3D one and they are not
+  synchronised),
 
 and the search box spans the seeds plus a range around them. Scans are added to the map at keyframes (the robot
 moved or turned enough since the last one); a keyframe's new points are splatted into the search distance field
@@ -72,7 +74,7 @@ from .registration import (
 from .trajectory import Trajectory, write_tum
 
 __all__ = ["SlamConfig", "FrameResult", "SlamResult", "HsSlam", "run_slam", "write_slam_outputs",
-           "frame_points"]
+           "frame_points", "prior_coverage"]
 
 
 def _tracking_registration() -> RegistrationConfig:
@@ -105,6 +107,9 @@ class SlamConfig:
         Seed the memory with the odometry prediction when the input has odometry.
     prior_translation_range, prior_yaw_range : float
         Half-widths used instead when a 6-DOF run is seeded by prior (2D) poses.
+    sync_tolerance : float
+        Seconds: a frame takes the prior's pose interpolated between the prior poses just before and after its
+        stamp when both lie within this time of it (or the pose within 1 ms of it); others are seeded without.
     recent_poses : int
         How many recent poses the "mean of recent poses" seed averages.
     warmup_frames : int
@@ -142,6 +147,7 @@ class SlamConfig:
     use_odometry: bool = True
     prior_translation_range: float = 0.15
     prior_yaw_range: float = np.deg2rad(4.0)
+    sync_tolerance: float = 0.1
     recent_poses: int = 5
     warmup_frames: int = 3
     map_voxel: float | None = None
@@ -182,7 +188,8 @@ class SlamConfig:
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise ConfigError(f"slam.{name} must be a finite number > 0, got {v!r}")
-        for name in ("prior_translation_range", "prior_yaw_range", "local_map_radius", "keyframe_distance",
+        for name in ("prior_translation_range", "prior_yaw_range", "sync_tolerance", "local_map_radius",
+                     "keyframe_distance",
                      "keyframe_angle", "min_range", "max_range"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
@@ -243,6 +250,8 @@ class SlamResult:
     cpu_seconds: float = float("nan")
     loop_closure: dict = field(default_factory=dict)
     tracked: Trajectory | None = None
+    prior: dict = field(default_factory=dict)
+    input_info: dict = field(default_factory=dict)
 
     def metrics(self) -> dict:
         """Per-frame and total metrics, JSON-ready."""
@@ -267,6 +276,8 @@ class SlamResult:
             "loop_closure": self.loop_closure.get("status", "disabled"),
             "loops_closed": int(self.loop_closure.get("loops_closed", 0)),
             "loop_closure_detail": self.loop_closure,
+            "prior": self.prior or None,
+            "input_info": self.input_info or None,
             "per_frame": {
                 "index": [f.index for f in self.frames],
                 "stamp": [f.stamp for f in self.frames],
@@ -419,7 +430,7 @@ class HsSlam:
     def _prior_pose(self, stamp: float) -> NDArray[np.float64] | None:
         if self._prior is None:
             return None
-        poses, found = self._prior.at([stamp], max_dt=1e-3)
+        poses, found = self._prior.interpolate([stamp], self.config.sync_tolerance)
         if not found[0]:
             return None
         (x, y, yaw), prev = poses[0], self.poses[-1]
@@ -790,6 +801,48 @@ class HsSlam:
         return Trajectory(np.asarray(self.stamps), np.asarray(P).reshape(-1, self.config.dof))
 
 
+def prior_coverage(prior: Trajectory, stamps, tolerance: float, *, name: str = "prior") -> dict:
+    """How many frames (by their ``stamps``) a prior trajectory gives a pose (:meth:`Trajectory.interpolate`).
+
+    Parameters
+    ----------
+    prior : Trajectory
+    stamps : array_like of shape (N,)
+        The frames' stamps.
+    tolerance : float
+        Seconds (``SlamConfig.sync_tolerance``).
+    name : str
+        What the caller calls the prior (``--prior FILE`` at the command line), for the messages.
+
+    Returns
+    -------
+    dict
+        ``frames``, ``frames_with_prior``, ``coverage`` (their ratio), ``sync_tolerance``.
+
+    Raises
+    ------
+    InputError
+        The prior gives no frame a pose (it would be silently ignored). Partial coverage is warned about
+        (:class:`~hsmap.errors.HsmapWarning`).
+    """
+    t = np.asarray(stamps, dtype=float).reshape(-1)
+    if len(prior) == 0:
+        raise InputError(f"{name}: the trajectory is empty; expected the poses of a 2D run of the same input")
+    if len(t) == 0:
+        return {"frames": 0, "frames_with_prior": 0, "coverage": None, "sync_tolerance": float(tolerance)}
+    _, found = prior.interpolate(t, tolerance)
+    k, n = int(found.sum()), len(t)
+    if k == 0:
+        raise InputError(
+            f"{name}: none of the input's {n} frames ({t.min():.3f}..{t.max():.3f} s) lies between two of its "
+            f"{len(prior)} poses ({prior.stamps.min():.3f}..{prior.stamps.max():.3f} s) within the sync tolerance "
+            f"of {tolerance:g} s; expected the trajectory.tum of a 2D run of the same input (or a larger tolerance)")
+    if k < n:
+        warnings.warn(f"{name} gives a pose to {k} of the {n} frames ({100.0 * k / n:.1f} %) within the sync "
+                      f"tolerance of {tolerance:g} s; the others are seeded without it", HsmapWarning, stacklevel=3)
+    return {"frames": n, "frames_with_prior": k, "coverage": k / n, "sync_tolerance": float(tolerance)}
+
+
 @blas_limited
 def run_slam(
     dataset: Dataset | Iterable[Frame],
@@ -801,6 +854,7 @@ def run_slam(
     max_frames: int | None = None,
     progress: bool | None = None,
     on_frame: Callable[[Frame, FrameResult, HsSlam], None] | None = None,
+    prior_name: str = "prior",
 ) -> SlamResult:
     """Run HS-SLAM over a dataset (or any iterable of frames).
 
@@ -812,17 +866,30 @@ def run_slam(
     initial_pose : array_like, optional
         Pose of the first frame (default: origin).
     prior : Trajectory, optional
-        6-DOF: 2D poses used as seeds.
+        6-DOF: 2D poses used as seeds, interpolated at each frame's stamp within ``config.sync_tolerance``. When
+        ``dataset`` knows its frame stamps, a prior that covers none of them is an :class:`InputError` and
+        one that covers only some is warned about, before any frame is processed (:func:`prior_coverage`);
+        the coverage goes into the metrics (``prior``).
     max_frames : int, optional
         Stop after this many frames.
     progress : bool or None
         Show a progress bar; None shows it only on a terminal.
     on_frame : callable, optional
         Called after each frame with (frame, result, slam), e.g. to log to rerun.
+    prior_name : str
+        What the caller calls the prior, in messages (``--prior FILE`` at the command line).
+
+    The metrics' ``input_info`` is the dataset's :meth:`~hsmap.datasets.frames.Dataset.describe` (topics,
+    message counts and rates, frames, the sensor offsets and where they came from, warnings).
     """
     from tqdm.auto import tqdm
 
     slam = HsSlam(config, rng=rng, initial_pose=initial_pose, prior=prior)
+    prior_info: dict = {}
+    stamps = getattr(dataset, "stamps", None)
+    if prior is not None and stamps is not None:
+        prior_info = prior_coverage(prior, np.asarray(stamps)[:max_frames], slam.config.sync_tolerance,
+                                    name=prior_name)
     dof = slam.config.dof
     frames = dataset.frames(clouds=dof == 6) if isinstance(dataset, Dataset) else iter(dataset)
     total = len(dataset) if isinstance(dataset, Dataset) else None
@@ -847,7 +914,8 @@ def run_slam(
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     return SlamResult(slam.trajectory, slam.global_map(), slam.results, slam.config, time.perf_counter() - t0,
                       peak, getattr(dataset, "name", ""), time.process_time() - c0,
-                      loop_closure=slam.loop_summary(), tracked=slam.tracked_trajectory)
+                      loop_closure=slam.loop_summary(), tracked=slam.tracked_trajectory, prior=prior_info,
+                      input_info=dataset.describe() if isinstance(dataset, Dataset) else {})
 
 
 def write_slam_outputs(result: SlamResult, out_dir: str | Path) -> dict[str, Path]:

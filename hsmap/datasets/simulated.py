@@ -90,6 +90,7 @@ class SimulatedDataset(Dataset):
             self.extrinsic3d = np.asarray(self.sensors["lidar3d"]["extrinsic"], dtype=float).reshape(6)
             s3 = self.sensors["lidar3d"]
             self._shape3d = (int(s3["channels"]), int(s3["columns"]))
+            self.extrinsic_sources.update({"2d": "dataset.yaml", "3d": "dataset.yaml"})
         except (KeyError, TypeError, ValueError) as exc:
             raise DataFormatError(f"{meta_path}: bad sensor description: {exc}") from None
         scans = root / "scans2d.npz"

@@ -77,7 +77,8 @@ def run(args: argparse.Namespace) -> int:
 
         # a 2D map view only where there is a 2D map: the occupancy grid of a 3-DOF run, logged at the end
         rec = hv.open_recording(out / "slam.rrd", application_id="hsmap_slam",
-                                blueprint=hv.default_blueprint(graph=False, map2d=cfg.dof == 3))
+                                blueprint=hv.default_blueprint(graph=False, map2d=cfg.dof == 3, legend=True))
+        hv.log_legend(rec, _legend(cfg.dof))
         map_logger = hv.PointMapLogger(rec, block=10, voxel=0.05 if cfg.dof == 3 else 0.15)
 
         keyscans: list = []  # 3-DOF: the keyframes' scans, for the grid at their final poses
@@ -101,9 +102,7 @@ def run(args: argparse.Namespace) -> int:
             map_logger.flush()
             from ..viz import rerun as hv
 
-            hv.log_trajectory(rec, result.trajectory, robot_entity=None)
-            if keyscans:
-                _log_grid(rec, keyscans, result.trajectory)
+            _log_replay(rec, keyscans, result)
     except BaseException:
         if rec is not None:
             rec.abort()
@@ -122,18 +121,68 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _log_grid(rec, frames, trajectory) -> None:
-    """The occupancy grid of the keyframes' scans at their final (optimised) poses, in the 2D map view."""
+def _legend(dof: int) -> str:
+    from ..viz.rerun import series_legend
+
+    lines = [f"### hsmap slam ({'3-DOF' if dof == 3 else '6-DOF'})",
+             "Move the time cursor (timelines `time` and `scan`) to replay the run.", "",
+             series_legend(["estimate"]) + " (after loop closure: the optimised poses, drawn up to the current time)",
+             "- **orange box** (3D)" + (" / **orange arrow** (2D map)" if dof == 3 else "") + ": the robot",
+             "- **orange-red points**: the current scan" + ("" if dof == 3 else " and cloud (coloured by height)"),
+             "- **points**: the map, the keyframes at their poses when they were added"]
+    if dof == 3:
+        lines.append("- **2D map**: the occupancy grid of the keyframes' scans so far, at their final poses")
+    return "\n".join(lines)
+
+
+def _log_replay(rec, keyscans, result, grid_updates: int = 10, path_updates: int = 60) -> None:
+    """After the run: the final (optimised) path drawn up to each time, and, in 3-DOF, the occupancy grid of
+    the keyframes' scans so far (at their final poses) growing along the timelines in both views, with the
+    robot in the 2D map view."""
     import numpy as np
 
     from ..grid import grid_from_scans
     from ..viz import rerun as hv
 
-    poses, found = trajectory.as_3dof().at([f.stamp for f in frames], max_dt=1e-3)
-    kept = [f for f, ok in zip(frames, found, strict=True) if ok]
-    if not kept:
+    traj = result.trajectory
+    n = len(traj)
+    if n == 0:
         return
-    grid = grid_from_scans([f.scan2d for f in kept], poses, 0.05,
-                           extrinsic=np.asarray([f.extrinsic2d for f in kept], dtype=float))
-    hv.log_occupancy_grid(rec, grid.data, grid.geometry)
-    hv.log_map2d_path(rec, "estimate", trajectory, grid.geometry)
+    idx = np.array([f.index for f in result.frames]) if len(result.frames) == n else np.arange(n)
+    stamps = np.asarray(traj.stamps, dtype=float)
+    poses = np.asarray(traj.poses, dtype=float)
+    grid = geo = None
+    if keyscans and result.config.dof == 3:
+        kposes, found = traj.as_3dof().at([f.stamp for f in keyscans], max_dt=1e-3)
+        kept = [f for f, ok in zip(keyscans, found, strict=True) if ok]
+        if kept:
+            scans = [f.scan2d for f in kept]
+            kposes = np.asarray(kposes)[np.asarray(found, dtype=bool)] if len(kposes) != len(kept) else kposes
+            ext = np.asarray([f.extrinsic2d for f in kept], dtype=float)
+            kstamps = np.array([f.stamp for f in kept])
+            grid = grid_from_scans(scans, kposes, 0.05, extrinsic=ext)
+            geo = grid.geometry
+    grid_at = set(np.linspace(0, n - 1, grid_updates).round().astype(int)) if geo is not None else set()
+    path_at = set(np.linspace(0, n - 1, path_updates).round().astype(int))
+    robot_every = max(1, n // 600)
+    for r in range(n):
+        g, p, robot = r in grid_at, r in path_at, geo is not None and r % robot_every == 0
+        if not (g or p or robot):
+            continue
+        hv.set_frame_time(rec, int(idx[r]), stamps[r])
+        if robot:
+            hv.log_map2d_robot(rec, poses[r], geo)
+        if p and r > 0:
+            hv.log_path(rec, "estimate", poses[: r + 1], static=False)
+            if geo is not None:
+                hv.log_map2d_path(rec, "estimate", poses[: r + 1], geo, static=False)
+        if g:
+            upto = kstamps <= stamps[r]
+            if r == n - 1:
+                now = grid
+            elif upto.any():
+                now = grid_from_scans([s for s, u in zip(scans, upto, strict=True) if u], kposes[upto],
+                                      extrinsic=ext[upto], geometry=geo)
+            else:
+                continue
+            hv.log_occupancy_grid(rec, now.data, geo, static=False)

@@ -281,3 +281,129 @@ def point_to_plane_normal_equations(p, q, n, kernel):  # pragma: no cover - JIT
         for b in range(a):
             A[a, b] = A[b, a]
     return A, g
+
+
+@nb.njit(cache=True, nogil=True)
+def point_to_plane_step(p, q, n, kernel):  # pragma: no cover - JIT
+    """One Gauss-Newton step of point-to-plane ICP: the update transform (d+1, d+1) and the step's largest entry.
+
+    Solves the normal equations of :func:`point_to_plane_normal_equations` (a 1e-9 ridge keeps them regular) and
+    turns the increment (translation, rotation) into a rigid transform (Rodrigues' formula in 3D).
+    """
+    d = p.shape[1]
+    A, g = point_to_plane_normal_equations(p, q, n, kernel)
+    k = A.shape[0]
+    for a in range(k):
+        A[a, a] += 1e-9
+    delta = -np.linalg.solve(A, g)
+    dT = np.eye(d + 1)
+    if d == 2:
+        c, s = np.cos(delta[2]), np.sin(delta[2])
+        dT[0, 0], dT[0, 1], dT[1, 0], dT[1, 1] = c, -s, s, c
+    else:
+        wx, wy, wz = delta[3], delta[4], delta[5]
+        theta = np.sqrt(wx * wx + wy * wy + wz * wz)
+        if theta > 1e-12:
+            K = np.array([[0.0, -wz, wy], [wz, 0.0, -wx], [-wy, wx, 0.0]]) / theta
+            R = np.eye(3) + np.sin(theta) * K + (1.0 - np.cos(theta)) * (K @ K)
+            dT[:3, :3] = R
+    for a in range(d):
+        dT[a, d] = delta[a]
+    return dT, np.abs(delta).max()
+
+
+@nb.njit(cache=True, nogil=True)
+def splat_nearest_2d(pts, normals, origin, res, field, near, radius):  # pragma: no cover - JIT
+    """:func:`splat_field_2d` that also records, per node, the nearest point and its normal: near[a, b] =
+    (x, y, nx, ny) of the point whose distance set field[a, b]."""
+    nx = field.shape[0]
+    ny = field.shape[1]
+    for i in range(pts.shape[0]):
+        u = (pts[i, 0] - origin[0]) / res - 0.5
+        v = (pts[i, 1] - origin[1]) / res - 0.5
+        cu = int(np.floor(u + 0.5))
+        cv = int(np.floor(v + 0.5))
+        for a in range(max(cu - radius, 0), min(cu + radius + 1, nx)):
+            dx = (a - u) * res
+            for b in range(max(cv - radius, 0), min(cv + radius + 1, ny)):
+                dy = (b - v) * res
+                d = np.sqrt(dx * dx + dy * dy)
+                if d < field[a, b]:
+                    field[a, b] = d
+                    near[a, b, 0] = pts[i, 0]
+                    near[a, b, 1] = pts[i, 1]
+                    near[a, b, 2] = normals[i, 0]
+                    near[a, b, 3] = normals[i, 1]
+
+
+@nb.njit(cache=True, nogil=True)
+def refine_on_field_2d(src, T, near, origin, res, schedule, per_stage, tol, kernel):  # pragma: no cover - JIT
+    """Trimmed point-to-line ICP in 2D with correspondences read from a nearest-point field (see
+    :func:`splat_nearest_2d`): each source point takes the map point nearest to the node it falls in.
+
+    ``schedule`` holds the trimming distances (halving), ``per_stage`` iterations at most each, a stage ending
+    when the step's largest entry is below ``tol``. Returns the refined 3x3 transform.
+    """
+    nx = near.shape[0]
+    ny = near.shape[1]
+    m = src.shape[0]
+    T = T.copy()
+    A = np.zeros((3, 3))
+    g = np.zeros(3)
+    for s in range(schedule.shape[0]):
+        dist = schedule[s]
+        d2max = dist * dist
+        for _ in range(per_stage):
+            A[:, :] = 0.0
+            g[:] = 0.0
+            c, sn = T[0, 0], T[1, 0]
+            count = 0
+            for i in range(m):
+                px = c * src[i, 0] - sn * src[i, 1] + T[0, 2]
+                py = sn * src[i, 0] + c * src[i, 1] + T[1, 2]
+                a = int(np.floor((px - origin[0]) / res))
+                b = int(np.floor((py - origin[1]) / res))
+                if a < 0 or b < 0 or a >= nx or b >= ny:
+                    continue
+                qx = near[a, b, 0]
+                if np.isnan(qx):
+                    continue
+                qy = near[a, b, 1]
+                ex = px - qx
+                ey = py - qy
+                if ex * ex + ey * ey > d2max:
+                    continue
+                n0 = near[a, b, 2]
+                n1 = near[a, b, 3]
+                r = n0 * ex + n1 * ey
+                j0, j1, j2 = n0, n1, n1 * px - n0 * py
+                w = 1.0
+                if kernel > 0:
+                    t = kernel * kernel + r * r
+                    w = kernel * kernel * kernel * kernel / (t * t)
+                g[0] += w * j0 * r
+                g[1] += w * j1 * r
+                g[2] += w * j2 * r
+                A[0, 0] += w * j0 * j0
+                A[0, 1] += w * j0 * j1
+                A[0, 2] += w * j0 * j2
+                A[1, 1] += w * j1 * j1
+                A[1, 2] += w * j1 * j2
+                A[2, 2] += w * j2 * j2
+                count += 1
+            if count < 4:
+                break
+            A[1, 0] = A[0, 1]
+            A[2, 0] = A[0, 2]
+            A[2, 1] = A[1, 2]
+            for k in range(3):
+                A[k, k] += 1e-9
+            delta = -np.linalg.solve(A, g)
+            cd, sd = np.cos(delta[2]), np.sin(delta[2])
+            dT = np.eye(3)
+            dT[0, 0], dT[0, 1], dT[1, 0], dT[1, 1] = cd, -sd, sd, cd
+            dT[0, 2], dT[1, 2] = delta[0], delta[1]
+            T = dT @ T
+            if np.abs(delta).max() < tol:
+                break
+    return T

@@ -72,6 +72,10 @@ class DistanceField:
     bounds : array_like of shape (2, d), optional
         [lower corner, upper corner] of the volume in world metres; default: the points' bounding box grown by
         the truncation. Points outside the volume do not count.
+    normals : ndarray of shape (M, 2), optional
+        2D only: unit normals of the points. The field then also keeps, per node, the nearest point and its
+        normal (:attr:`nearest`, (nx, ny, 4) float32, NaN where none is within the band): correspondences for a
+        point-to-line refinement at the cost of one look-up (:func:`hsmap.registration.refine_icp`).
 
     Notes
     -----
@@ -79,7 +83,7 @@ class DistanceField:
     """
 
     def __init__(self, points: ArrayLike, resolution: float, truncation: float,
-                 bounds: ArrayLike | None = None) -> None:
+                 bounds: ArrayLike | None = None, normals: ArrayLike | None = None) -> None:
         pts = np.asarray(points, dtype=float)
         if not resolution > 0:
             raise InputError(f"field resolution must be > 0 m, got {resolution}")
@@ -115,9 +119,14 @@ class DistanceField:
         self._pshape = np.array(self._padded.shape)
         self._flat = self._padded.ravel()
         self._radius = int(np.ceil(truncation / resolution)) + 1
-        self.add(pts)
+        self.nearest = None
+        if normals is not None:
+            if self.dim != 2:
+                raise InputError("a nearest-point field (normals) is 2D only")
+            self.nearest = np.full(self.shape + (4,), np.nan, dtype=np.float32)
+        self.add(pts, normals)
 
-    def add(self, points: ArrayLike) -> None:
+    def add(self, points: ArrayLike, normals: ArrayLike | None = None) -> None:
         """Lower the field around new target points (N, d); points outside the volume are ignored.
 
         Each node within the truncation band of a point takes the exact distance from its centre to the point if
@@ -127,6 +136,15 @@ class DistanceField:
 
         pts = np.ascontiguousarray(points, dtype=float)
         if len(pts) == 0:
+            return
+        if self.nearest is not None:
+            if normals is None:
+                raise InputError("this field keeps nearest points: add() needs their normals too")
+            nrm = np.ascontiguousarray(normals, dtype=float)
+            if nrm.shape != pts.shape:
+                raise InputError(f"normals must have the shape of the points {pts.shape}, got {nrm.shape}")
+            _kernels.splat_nearest_2d(pts, nrm, self.origin, self.resolution, self.values, self.nearest,
+                                      self._radius)
             return
         splat = _kernels.splat_field_2d if self.dim == 2 else _kernels.splat_field_3d
         splat(pts, self.origin, self.resolution, self.values, self._radius)

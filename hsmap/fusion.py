@@ -166,7 +166,11 @@ def slice_scan(points: ArrayLike, sensor_pose: ArrayLike, *, z_min: float = 1.7,
     -------
     scan : ndarray of shape (K, 2)
         End points in the frame of a level virtual sensor at the 3D sensor's (x, y) and yaw, in azimuth order
-        (K <= bins; bins without a point in the slice are left out).
+        (bins without a point in the slice are left out), with a row of NaN where two consecutive end points
+        are more than twice the scan's median spacing apart in azimuth: nothing was seen at the slice height
+        between them (a 3D LiDAR with few channels crosses the slice only at some distances), and
+        :func:`hsmap.grid.grid_from_scans` then takes the free area back to the sensor there (a beam without a
+        return) instead of across the unseen part.
     pose : ndarray of shape (3,)
         World (x, y, yaw) of that virtual sensor.
     """
@@ -196,7 +200,12 @@ def slice_scan(points: ArrayLike, sensor_pose: ArrayLike, *, z_min: float = 1.7,
     first[1:] = b[order][1:] != b[order][:-1]
     sel = order[first]  # nearest point of each bin, bins ascending = azimuth order
     c, s = np.cos(yaw), np.sin(yaw)
-    local = d[sel] @ np.array([[c, -s], [s, c]])  # rotate world offsets into the virtual sensor frame
+    local = d[sel] @ np.array([[c, -s], [s, c]])  # world offsets rotated into the virtual sensor frame
+    if len(sel) > 2:
+        gap = np.diff(b[sel])
+        unseen = np.flatnonzero(gap > 2 * np.median(gap))
+        if len(unseen):
+            local = np.insert(local, unseen + 1, np.nan, axis=0)
     return local, pose2
 
 
@@ -220,7 +229,8 @@ def slice_scans(
     Returns
     -------
     scans : list of ndarray of shape (K_i, 2)
-        The scans with at least two points, each in its virtual sensor's frame, in azimuth order.
+        The scans with at least two points, each in its virtual sensor's frame, in azimuth order (NaN rows:
+        unseen gaps, see :func:`slice_scan`).
     sensor_poses : ndarray of shape (S, 3)
         World (x, y, yaw) of each scan's virtual sensor.
 
@@ -244,7 +254,7 @@ def slice_scans(
         sensor = pose_to_matrix(_pose6(P[k], f"poses[{k}]")) @ pose_to_matrix(_pose6(fr.extrinsic3d, "extrinsic3d"))
         scan, p2 = slice_scan(fr.cloud3d, matrix_to_pose(sensor), z_min=z_min, z_max=z_max, bins=bins)
         n += 1
-        if len(scan) >= 2:
+        if np.isfinite(scan[:, 0]).sum() >= 2:
             scans.append(scan)
             spos.append(p2)
     if n != len(P):

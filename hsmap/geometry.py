@@ -34,6 +34,7 @@ __all__ = [
     "quaternion_to_matrix",
     "matrix_to_quaternion",
     "dof_of_dim",
+    "interpolate_poses",
 ]
 
 
@@ -155,6 +156,61 @@ def invert(pose: ArrayLike) -> NDArray[np.float64]:
 def relative(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
     """Relative pose a⁻¹ ⊕ b of pose vectors: b expressed in the frame of a."""
     return matrix_to_pose(invert_matrix(pose_to_matrix(a)) @ pose_to_matrix(b))
+
+
+def _se2_v(theta: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(sin t / t, (1 - cos t) / t) with their limits at t = 0: the SE(2) exponential's V = [[a, -b], [b, a]]."""
+    small = np.abs(theta) < 1e-6
+    t = np.where(small, 1.0, theta)
+    a = np.where(small, 1.0 - theta**2 / 6.0, np.sin(t) / t)
+    b = np.where(small, theta / 2.0, (1.0 - np.cos(t)) / t)
+    return a, b
+
+
+def interpolate_poses(a: ArrayLike, b: ArrayLike, s: ArrayLike) -> NDArray[np.float64]:
+    """Poses a fraction ``s`` of the way from ``a`` to ``b`` along the geodesic of SE(2) or SE(3).
+
+    ``a ⊕ exp(s log(a⁻¹ ⊕ b))``: in 2D the robot turns at a constant rate while it moves along the arc that
+    joins the two poses (not along the straight line), the motion a wheeled robot makes between two close
+    poses; in 3D the rotation is slerped and the translation interpolated linearly.
+
+    Parameters
+    ----------
+    a, b : array_like of shape (..., 3) or (..., 6)
+        (x, y, yaw) or (x, y, z, roll, pitch, yaw).
+    s : array_like of shape (...)
+        Fractions; 0 gives ``a``, 1 gives ``b``.
+
+    Returns
+    -------
+    ndarray of shape (..., 3) or (..., 6)
+    """
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    s = np.asarray(s, dtype=float)
+    if a.shape != b.shape or a.shape[-1] not in (3, 6):
+        raise ShapeError(f"a and b must be pose vectors (..., 3) or (..., 6) alike, got {a.shape} and {b.shape}")
+    if s.shape != a.shape[:-1]:
+        raise ShapeError(f"s must have shape {a.shape[:-1]}, got {s.shape}")
+    d = relative(a, b)
+    if a.shape[-1] == 3:
+        theta = wrap_angle(d[..., 2])
+        va, vb = _se2_v(theta)
+        det = va**2 + vb**2
+        u = np.stack([(va * d[..., 0] + vb * d[..., 1]) / det, (-vb * d[..., 0] + va * d[..., 1]) / det], -1)
+        ts = s * theta
+        wa, wb = _se2_v(ts)
+        su = s[..., None] * u
+        step = np.stack([wa * su[..., 0] - wb * su[..., 1], wb * su[..., 0] + wa * su[..., 1], ts], -1)
+        return compose(a, step)
+    rotvec = Rotation.from_matrix(euler_to_matrix(d[..., 3], d[..., 4], d[..., 5]).reshape(-1, 3, 3)).as_rotvec()
+    R = Rotation.from_rotvec(rotvec * s.reshape(-1, 1)).as_matrix().reshape(*a.shape[:-1], 3, 3)
+    Ta, Tb = pose_to_matrix(a), pose_to_matrix(b)
+    T = np.zeros_like(Ta)
+    T[..., :3, :3] = Ta[..., :3, :3] @ R
+    T[..., :3, 3] = Ta[..., :3, 3] + s[..., None] * (Tb[..., :3, 3] - Ta[..., :3, 3])
+    T[..., 3, 3] = 1.0
+    return matrix_to_pose(T)
 
 
 def quaternion_to_matrix(q: ArrayLike) -> NDArray[np.float64]:

@@ -433,8 +433,8 @@ def _as_scan_points(scan, name: str) -> tuple[NDArray[np.float64], NDArray[np.bo
     pts = np.asarray(scan, dtype=float)
     if pts.ndim != 2 or pts.shape[1] != 2:
         raise ShapeError(f"{name} must be (N, 2) points or a LaserScan2D, got shape {pts.shape}")
-    ok = np.all(np.isfinite(pts), axis=1)
-    return pts[ok], np.ones(int(ok.sum()), dtype=bool)
+    ok = np.all(np.isfinite(pts), axis=1)  # a row of NaN: a beam without return
+    return np.where(ok[:, None], pts, 0.0), ok
 
 
 def _placed_scans(scans, poses: ArrayLike, extrinsic: ArrayLike | None = None
@@ -504,8 +504,9 @@ def grid_from_scans(
     Parameters
     ----------
     scans : sequence of (N_i, 2) arrays or LaserScan2D
-        Each scan in its sensor frame. Arrays are end points in beam order (a LaserScan2D also gives the
-        no-return beams).
+        Each scan in its sensor frame. Arrays are end points in beam order, a row of NaN a beam without a return
+        (as a LaserScan2D's no-return beams: the swept area goes back to the sensor there instead of cutting
+        across the unseen part between its neighbours).
     poses : ndarray of shape (M, 3)
         World pose (x, y, yaw) of the robot at each scan (M = len(scans)).
     resolution : float

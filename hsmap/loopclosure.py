@@ -80,6 +80,8 @@ class LoopClosureConfig:
         6-DOF: fixed half-widths in z and in roll/pitch (gravity keeps them small).
     attempts_per_keyframe : int
         Submaps matched per new keyframe at most (the nearest ones first).
+    search_every : int
+        Search at every this many keyframes.
     retry_after : int
         A submap that was matched is not tried again before this many more keyframes.
     min_inlier_ratio : float
@@ -118,12 +120,13 @@ class LoopClosureConfig:
     window_z: float = 0.1
     window_roll_pitch: float = float(np.deg2rad(2.0))
     attempts_per_keyframe: int = 1
+    search_every: int = 1
     retry_after: int = 5
     min_inlier_ratio: float = 0.6
     max_sigma_translation: float = 0.05
     degenerate_ratio: float = 0.05
     max_sigma_rotation: float = float(np.deg2rad(1.0))
-    edge_sigma_translation: float = 0.01
+    edge_sigma_translation: float = 0.005
     edge_sigma_rotation: float = float(np.deg2rad(0.1))
     tracking_path_distance: float = 20.0
     optimize_threshold_translation: float = 0.02
@@ -150,7 +153,7 @@ class LoopClosureConfig:
         if not 0.0 <= self.min_inlier_ratio <= 1.0:
             raise ConfigError(f"slam.loop_closure.min_inlier_ratio must be in [0, 1], got {self.min_inlier_ratio!r}")
         for name in ("submap_keyframes", "source_keyframes", "min_separation", "attempts_per_keyframe",
-                     "retry_after", "optimize_every"):
+                     "search_every", "retry_after", "optimize_every"):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
                 raise ConfigError(f"slam.loop_closure.{name} must be an integer >= 1, got {v!r}")
@@ -261,10 +264,12 @@ class LoopCloser:
                 self._cache.move_to_end(s)
                 return target
         vm = VoxelMap(self.dim, self.map_voxel)
+        pts, nrm = [], []
         for k, r in zip(members, rel, strict=True):
             T = pose_to_matrix(r)
-            kf = keyframes[k]
-            vm.add(transform_points(T, kf.points), kf.normals @ T[: self.dim, : self.dim].T)
+            pts.append(transform_points(T, keyframes[k].points))
+            nrm.append(keyframes[k].normals @ T[: self.dim, : self.dim].T)
+        vm.add(np.concatenate(pts), np.concatenate(nrm))
         target = RegistrationTarget(vm.points, self.config.registration, normals=vm.normals)
         self._cache[s] = (rel, target)
         self._cache.move_to_end(s)

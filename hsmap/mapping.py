@@ -99,10 +99,10 @@ class VoxelMap:
         """Unit normals of the map points, (N, dim); NaN rows where none was given."""
         return self._normals
 
-    def add(self, points: ArrayLike, normals: ArrayLike | None = None) -> NDArray[np.float64]:
+    def add(self, points: ArrayLike, normals: ArrayLike | None = None, *, return_normals: bool = False):
         """Insert world points (and their normals); a point whose voxel already holds one is dropped.
 
-        Returns the points that were added, (K, dim).
+        Returns the points that were added, (K, dim) (and their normals, with ``return_normals``).
         """
         pts = np.asarray(points, dtype=float)
         if pts.ndim != 2 or pts.shape[1] != self.dim:
@@ -113,7 +113,7 @@ class VoxelMap:
         ok = np.all(np.isfinite(pts), axis=1)
         pts, nrm = pts[ok], nrm[ok]
         if len(pts) == 0:
-            return pts
+            return (pts, nrm) if return_normals else pts
         keys = voxel_keys(pts, self.voxel)
         keys, first = np.unique(keys, return_index=True)
         pts, nrm = pts[first], nrm[first]
@@ -122,12 +122,12 @@ class VoxelMap:
         hit[hit] = self._keys[pos[hit]] == keys[hit]
         new = ~hit
         if not new.any():
-            return pts[:0]
+            return (pts[:0], nrm[:0]) if return_normals else pts[:0]
         pos_new = pos[new]  # where the new keys go in the sorted arrays (np.insert keeps them sorted)
         self._keys = np.insert(self._keys, pos_new, keys[new])
         self._points = np.insert(self._points, pos_new, pts[new], axis=0)
         self._normals = np.insert(self._normals, pos_new, nrm[new], axis=0)
-        return pts[new]
+        return (pts[new], nrm[new]) if return_normals else pts[new]
 
     def crop(self, centre: ArrayLike, radius: float) -> NDArray[np.float64]:
         """Map points within ``radius`` metres of ``centre`` (horizontal distance in 3D)."""

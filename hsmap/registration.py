@@ -375,11 +375,22 @@ class RegistrationTarget:
                 res = self.config.field_resolution
                 if res is None:
                     res = max(0.02, truncation / 10.0) if self.dim == 2 else truncation / 4.0
-                lk = DistanceField(self.points, res, truncation)
+                # 2D: keep nearest points too, for the point-to-line refinement's correspondences
+                plane = self.dim == 2 and self.config.refinement is Refinement.POINT_TO_PLANE
+                lk = DistanceField(self.points, res, truncation, normals=self.normals if plane else None)
             else:
                 lk = KDTreeLookup(self.points, truncation)
             self._lookups[truncation] = lk
         return lk
+
+    def nearest_field(self, reach: float) -> DistanceField | None:
+        """A 2D field of this target that keeps nearest points and reaches at least ``reach`` metres, if any."""
+        best = None
+        for lk in self._lookups.values():
+            if (isinstance(lk, DistanceField) and lk.nearest is not None and lk.truncation >= reach
+                    and (best is None or lk.resolution < best.resolution)):
+                best = lk
+        return best
 
     def exact(self, truncation: float) -> KDTreeLookup:
         """Exact (KD-tree) truncated distances, sharing this target's tree."""
@@ -506,6 +517,14 @@ def refine_icp(
     except ValueError:
         raise InputError(f"method must be one of {[r.value for r in Refinement]}, got {method!r}") from None
     normals = target.normals if method is Refinement.POINT_TO_PLANE else None
+    field = target.nearest_field(schedule[0]) if normals is not None and dim == 2 else None
+    if field is not None:
+        # correspondences from the field's nearest points (one look-up each, compiled); then a few iterations
+        # with exact nearest neighbours at the final distance polish what the field's cells rounded
+        T = _kernels.refine_on_field_2d(np.ascontiguousarray(source, dtype=float), T, field.nearest,
+                                        field.origin, field.resolution, np.asarray(schedule, dtype=float),
+                                        per_stage, tolerance, robust_kernel)
+        schedule, per_stage = schedule[-1:], min(per_stage, 3)
     for dist in schedule:
         for _ in range(per_stage):
             moved = transform_points(T, source)
@@ -524,19 +543,7 @@ def refine_icp(
                 dT[:dim, dim] = mq - dT[:dim, :dim] @ mp
                 step = max(np.abs(dT[:dim, dim]).max(), np.abs(dT[:dim, :dim] - np.eye(dim)).max())
             else:
-                A, g = _kernels.point_to_plane_normal_equations(p, q, normals[idx[ok]], robust_kernel)
-                delta = -np.linalg.solve(A + 1e-9 * np.eye(len(g)), g)
-                if dim == 2:
-                    c, s_ = np.cos(delta[2]), np.sin(delta[2])
-                    dT[:2, :2] = [[c, -s_], [s_, c]]
-                else:
-                    w = delta[3:]
-                    theta = np.linalg.norm(w)
-                    if theta > 1e-12:
-                        K = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]]) / theta
-                        dT[:3, :3] = np.eye(3) + np.sin(theta) * K + (1 - np.cos(theta)) * K @ K
-                dT[:dim, dim] = delta[:dim]
-                step = np.abs(delta).max()
+                dT, step = _kernels.point_to_plane_step(p, q, normals[idx[ok]], robust_kernel)
             T = dT @ T
             if step < tolerance:
                 break
@@ -576,6 +583,12 @@ def alignment_information(source: NDArray[np.float64], target: RegistrationTarge
     (at least ``min_sigma``^2); and the number n of correspondences. With too few correspondences the matrix is
     zero (nothing is known).
     """
+    info, sigma, n, _ = _information_and_cost(source, target, pose, threshold, robust_kernel, min_sigma)
+    return info, sigma, n
+
+
+def _information_and_cost(source, target, pose, threshold, robust_kernel=0.0, min_sigma=1e-3):
+    """:func:`alignment_information` and :func:`alignment_cost` (point-to-plane) from one correspondence search."""
     from . import _kernels
 
     dim = source.shape[1]
@@ -586,10 +599,11 @@ def alignment_information(source: NDArray[np.float64], target: RegistrationTarge
     ok = np.isfinite(d)
     n = int(ok.sum())
     if n < 2 * dim:
-        return np.zeros((dof, dof)), float("nan"), n
+        return np.zeros((dof, dof)), float("nan"), n, 1.0 - n / max(len(source), 1)
     p, q, nq = moved[ok], target.points[idx[ok]], target.normals[idx[ok]]
     A, _ = _kernels.point_to_plane_normal_equations(p, q, nq, robust_kernel)
     r = np.einsum("ij,ij->i", nq, p - q)
+    cost = float((np.minimum(np.abs(r), threshold).sum() + threshold * (len(source) - n)) / (threshold * len(source)))
     if robust_kernel > 0:
         k2 = robust_kernel * robust_kernel
         w = k2 * k2 / (k2 + r * r) ** 2
@@ -597,7 +611,7 @@ def alignment_information(source: NDArray[np.float64], target: RegistrationTarge
         w = np.ones_like(r)
     sigma = max(float(np.sqrt((w * r * r).sum() / w.sum())), min_sigma)
     Ad = adjoint(T)
-    return Ad.T @ (A / sigma**2) @ Ad, sigma, n
+    return Ad.T @ (A / sigma**2) @ Ad, sigma, n, cost
 
 
 @blas_limited
@@ -727,8 +741,7 @@ def harmony_icp(
     inlier_ratio = float(inl.mean())
     fitness = float(d.mean() / cfg.threshold + cfg.inlier_weight * (1.0 - inlier_ratio))
     rmse = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else float("nan")
-    information, _, _ = alignment_information(full, tgt, pose, cfg.threshold, cfg.robust_kernel)
-    cost = _alignment_cost(pose, full, tgt, cfg.threshold, plane=True)
+    information, _, _, cost = _information_and_cost(full, tgt, pose, cfg.threshold, cfg.robust_kernel)
     return RegistrationResult(
         transformation=pose_to_matrix(pose),
         pose=pose,

@@ -5,8 +5,8 @@ Pipeline (images in (row, col), world coordinates through :class:`hsmap.grid.Gri
 1. binary free-space image, median filtered (by default the filter may clear free speckle but never erase
    an occupied pixel: a plain 3x3 median erases walls one pixel thick); occupied blobs smaller than
    ``min_obstacle_area`` (chairs, table legs, specks) are ignored by the door detection;
-2. skeleton of the free space and its Euclidean distance transform (clearance, metres); their product is
-   the clearance along the skeleton;
+2. skeleton of the free space (Zhang-Suen thinning) and its Euclidean distance transform (clearance,
+   metres); their product is the clearance along the skeleton;
 3. door candidates on the skeleton:
 
    * ``method="paper"``: the skeleton pixels whose clearance lies in the band of half door widths
@@ -19,23 +19,44 @@ Pipeline (images in (row, col), world coordinates through :class:`hsmap.grid.Gri
 
 4. at each centre a line is drawn out to the nearest occupied cells on both sides, perpendicular to the
    skeleton (``paper``) or through the two nearest obstacle points on opposite sides (``critical``; this also
-   closes gaps between free-standing wall ends); the lines cut the free space, whose 4-connected components
-   are the first regions;
-5. (``critical`` only) a door is kept only where it is a real narrowing: its half width is at most
-   ``narrowing_ratio`` times the geometric mean of the largest clearances of the two regions it separates
-   (a door from a narrow corridor into a room narrows the room much more than the corridor); the other
-   doors are removed and their regions merged, least door-like first;
-6. regions under ``min_room_area`` (1.5 m^2) are merged into the neighbour they share the longest border
+   closes gaps between free-standing wall ends). With ``critical`` a line is kept only if a wall runs on
+   from one of its ends at least (a door frame, a partition's end; not a column or a bulge of a wall that
+   narrows a corridor);
+5. (``critical`` with ``wall_gaps``) openings that are no narrowing of the clearance (a room open to a
+   corridor over most of its width, a cubicle, a ring corridor's side rooms) are found as gaps in walls,
+   relative to the spaces they join:
+
+   * corners: obstacle pixels that are the nearest obstacle to a wedge of free space at least
+     ``corner_angle`` wide (a wall's end, the convex corner of a thick wall);
+   * candidate lines, at most ``max_gap_width`` long, free, with no obstacle in the disc they are the
+     diameter of: from corner to corner where a wall runs on beyond one end (over ``wall_continuation``),
+     and from a corner along the wall it ends to the first obstacle, where that wall is at least 1 m and
+     at least as long as the gap;
+   * a line is narrow on a side if it is at most ``gap_ratio`` times the free chord parallel to it there
+     (median over depths up to half its length), every other candidate drawn in as a wall: a line across a
+     corridor then sees the corridor's width on both sides, a line closing a room off the corridor sees the
+     room's width and the corridor's length. Narrow on both sides: a room border; on one side only (the
+     mouth of a corridor, into a room or into another corridor): judged with the critical lines below;
+
+6. the lines cut the free space, whose 4-connected components are the first regions; (``critical``) the
+   regions on either side of a critical line, or of a wall-gap line narrow on one side, stay apart only where
+   the line is a real narrowing: half its width at most ``narrowing_ratio`` times the geometric mean of the
+   largest clearances of the two regions (the room borders being walls); the others are merged, least
+   door-like first, each piece of a line between the room borders it crosses on its own;
+7. regions under ``min_room_area`` (1.5 m^2) are merged into the neighbour they share the longest border
    with (isolated ones under ``min_isolated_area``, free specks, are dropped);
-7. optionally (``assign_furniture``) occupied blobs enclosed by a single room are given its label.
+8. optionally (``assign_furniture``) occupied blobs enclosed by a single room are given its label.
 
 The result carries the room labels (on the input's free pixels), the door list in world coordinates (only
-doors between two different final rooms, one per passage) and, on request, every intermediate image (for
-the step-by-step figure, :func:`hsmap.viz.map_figures.voronoi_steps_figure`).
+doors between two different final rooms, one per passage, in the middle of the wall it crosses; ``kind``
+"door" for a narrowing, "opening" for a wall gap) and, on request, every intermediate image (for the
+step-by-step figure, :func:`hsmap.viz.map_figures.voronoi_steps_figure`).
 
-On the Bormann et al. (2016) benchmark (``benchmarks/segmentation.py``) the paper's band alone finds only
-doors 70-90 cm wide and under-segments (per-room precision about 0.73); the critical-point variant reaches
-about 0.94 precision and 0.98 (plain) / 0.92 (furnished) recall with the defaults below.
+On the Bormann et al. (2016) benchmark (``benchmarks/segmentation.py``, 15 buildings, one configuration) the
+paper's band alone finds only doors 70-90 cm wide and under-segments (per-room precision about 0.73);
+critical points with the narrowing test alone reach 0.95 precision, 0.99 (plain) / 0.92 (furnished) recall,
+but merge rooms that open onto corridors (area-weighted precision 0.87); with the wall gaps (the defaults
+below) precision is 0.98 plain and furnished (area-weighted 0.96) at the same recall.
 """
 
 from __future__ import annotations
@@ -46,6 +67,18 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage as ndi
 
+from ._seg_kernels import (
+    basis_points,
+    chord_median,
+    corner_wedges,
+    edt,
+    free_between,
+    label_max,
+    line_pixels,
+    ray_hit,
+    thin,
+    wall_steps,
+)
 from .errors import ConfigError, EmptyInputError, InputError, ShapeError
 from .grid import GridGeometry, OccupancyGrid
 
@@ -72,7 +105,7 @@ class SegmentationConfig:
     ----------
     method : str
         ``"paper"``: Algorithm 2 as published (band of half door widths); ``"critical"``: critical points
-        on the skeleton plus the narrowing test (the default, see the module docstring).
+        on the skeleton with the narrowing test, and gaps in walls (the default, see the module docstring).
     median_size : int
         Side of the median filter on the free-space image (paper: yes; 0 or 1 disables).
     median_keeps_walls : bool
@@ -92,6 +125,19 @@ class SegmentationConfig:
     narrowing_ratio : float
         A door is kept only if its half width is at most this fraction of the geometric mean of the largest
         clearances of the two regions it separates.
+    wall_gaps : bool
+        (``critical``) Also close gaps in walls that are narrow relative to the spaces they join (step 5 of
+        the module docstring); False gives the critical points and the narrowing test alone.
+    max_gap_width : float
+        Longest wall gap (metres) closed.
+    gap_ratio : float
+        A wall gap is narrow on a side if its length is at most this fraction of the free chord parallel to
+        it on that side.
+    corner_angle : float
+        Degrees of free space an obstacle pixel must be the nearest obstacle to, to be a corner (a wall's
+        end: 180; a thick wall's convex corner: 90; a straight wall: about 0).
+    wall_continuation : float
+        Metres a wall must run on beyond a door line's or a wall gap's end.
     min_room_area : float
         Regions smaller than this (m^2) are merged into a neighbour (paper: 1.5).
     min_isolated_area : float
@@ -109,9 +155,14 @@ class SegmentationConfig:
     door_half_width: float = 0.40
     door_half_width_tolerance: float = 0.05
     min_door_half_width: float = 0.15
-    max_door_half_width: float = 0.75
+    max_door_half_width: float = 1.5
     critical_radius: float = 0.5
-    narrowing_ratio: float = 0.7
+    narrowing_ratio: float = 0.65
+    wall_gaps: bool = True
+    max_gap_width: float = 4.0
+    gap_ratio: float = 0.85
+    corner_angle: float = 70.0
+    wall_continuation: float = 0.3
     min_room_area: float = 1.5
     min_isolated_area: float = 0.25
     assign_furniture: bool = False
@@ -134,6 +185,13 @@ class SegmentationConfig:
             raise ConfigError("min_obstacle_area and min_obstacle_length must be >= 0")
         if self.median_size < 0:
             raise ConfigError(f"median_size must be >= 0, got {self.median_size}")
+        for name in ("max_gap_width", "wall_continuation"):
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"{name} must be > 0 metres, got {getattr(self, name)}")
+        if not 0 < self.gap_ratio <= 1:
+            raise ConfigError(f"gap_ratio must lie in (0, 1], got {self.gap_ratio}")
+        if not 0 < self.corner_angle <= 360:
+            raise ConfigError(f"corner_angle must lie in (0, 360] degrees, got {self.corner_angle}")
 
 
 @dataclass
@@ -153,6 +211,9 @@ class Door:
         Labels of the two rooms it connects (0 where not known).
     pixel : tuple of int
         (row, col) of the centre in the map image.
+    kind : str
+        ``"door"``: a narrowing of the free space (a critical point, or the paper's band); ``"opening"``: a
+        gap in a wall, closed between two wall ends or a wall end and the face of another wall.
     """
 
     centre: NDArray[np.float64]
@@ -160,6 +221,7 @@ class Door:
     width: float
     rooms: tuple[int, int] = (0, 0)
     pixel: tuple[int, int] = (0, 0)
+    kind: str = "door"
 
     def as_dict(self) -> dict:
         return {
@@ -168,6 +230,7 @@ class Door:
             "width": float(self.width),
             "rooms": [int(r) for r in self.rooms],
             "pixel": [int(v) for v in self.pixel],
+            "kind": self.kind,
         }
 
 
@@ -193,7 +256,8 @@ class Segmentation:
     config : SegmentationConfig
     steps : dict of str to ndarray
         Intermediate (H, W) images when asked for (``keep_steps=True``): ``free``, ``filtered``,
-        ``distance``, ``skeleton``, ``product``, ``candidates``, ``door_lines``, ``regions``.
+        ``distance``, ``skeleton``, ``product``, ``candidates``, ``door_lines`` (every line drawn),
+        ``gap_lines`` (the wall gaps that are room borders), ``regions``.
     """
 
     labels: NDArray[np.int32]
@@ -270,43 +334,22 @@ def _march(free: NDArray[np.bool_], start: NDArray[np.float64], direction: NDArr
     return idx[int(np.argmax(hit))]
 
 
-def _basis_points(free: NDArray[np.bool_], p: NDArray[np.int64], radius: int,
+def _basis_points(free: NDArray[np.bool_], p: NDArray[np.int64], radius: int, clearance: float = np.inf,
                   min_angle: float = np.deg2rad(110)) -> tuple[NDArray[np.int64] | None, NDArray[np.int64] | None]:
     """The two obstacle pixels a critical line joins: the nearest one to ``p`` and the nearest one seen from
     ``p`` at least ``min_angle`` away from the first (on the other side of the passage); None if absent
-    within ``radius`` pixels."""
-    H, W = free.shape
-    r0, r1 = max(p[0] - radius, 0), min(p[0] + radius + 1, H)
-    c0, c1 = max(p[1] - radius, 0), min(p[1] + radius + 1, W)
-    orr, occ = np.nonzero(~free[r0:r1, c0:c1])
-    if not len(orr):
+    within ``radius`` pixels. ``clearance``, the distance from ``p`` to the nearest obstacle if known, only
+    speeds the search up."""
+    ir, ic, jr, jc = basis_points(free, int(p[0]), int(p[1]), int(radius), float(np.cos(min_angle)),
+                                  float(min(clearance, radius)))
+    if ir < 0:
         return None, None
-    v = np.stack([orr + r0 - p[0], occ + c0 - p[1]], 1).astype(float)
-    d = np.hypot(v[:, 0], v[:, 1])
-    i = int(np.argmin(d))
-    if d[i] < 1e-9:
-        return None, None
-    cosang = (v @ v[i]) / np.maximum(d * d[i], 1e-9)
-    ok = (cosang <= np.cos(min_angle)) & (d <= radius)
-    if not ok.any():
-        return None, None
-    j = np.nonzero(ok)[0][np.argmin(d[ok])]
-    return np.array([orr[i] + r0, occ[i] + c0], dtype=np.int64), np.array([orr[j] + r0, occ[j] + c0], dtype=np.int64)
+    return np.array([ir, ic], dtype=np.int64), np.array([jr, jc], dtype=np.int64)
 
 
 def _line_pixels(a: NDArray[np.int64], b: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """4-connected pixel line from a to b (rows, cols), so that 4-connected regions cannot leak through."""
-    n = int(max(abs(b[0] - a[0]), abs(b[1] - a[1]))) * 2 + 1
-    t = np.linspace(0.0, 1.0, n)
-    r = np.rint(a[0] + t * (b[0] - a[0])).astype(np.int64)
-    c = np.rint(a[1] + t * (b[1] - a[1])).astype(np.int64)
-    # close diagonal steps: add the pixel (r_prev, c_next) at each diagonal move
-    dr = np.diff(r) != 0
-    dc = np.diff(c) != 0
-    diag = np.nonzero(dr & dc)[0]
-    r = np.concatenate([r, r[diag]])
-    c = np.concatenate([c, c[diag + 1]])
-    return r, c
+    return line_pixels(int(a[0]), int(a[1]), int(b[0]), int(b[1]))
 
 
 class _UnionFind:
@@ -342,6 +385,160 @@ def _region_borders(labels: NDArray[np.int64]) -> dict[tuple[int, int], int]:
         return {}
     u, c = np.unique(allp, axis=0, return_counts=True)
     return {(int(x), int(y)): int(n) for (x, y), n in zip(u, c, strict=True)}
+
+
+# ----------------------------------------------------------------------------------------------------------
+# wall gaps: lines between two obstacle corners that close a gap in a wall
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _corner_points(angles: NDArray[np.float64], min_angle: float) -> NDArray[np.int64]:
+    """(K, 2) rows and columns of the corners: per 8-connected group of obstacle pixels whose wedge is at
+    least ``min_angle`` degrees, the pixel of the group nearest to its centroid (the first in scan order
+    among equals)."""
+    lab, n = ndi.label(angles >= min_angle, structure=_EIGHT)
+    if n == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    flat = np.flatnonzero(lab)
+    g = lab.ravel()[flat]
+    r, c = np.divmod(flat, lab.shape[1])
+    cnt = np.bincount(g, minlength=n + 1).astype(float)
+    mr = np.bincount(g, r, minlength=n + 1) / np.maximum(cnt, 1)
+    mc = np.bincount(g, c, minlength=n + 1) / np.maximum(cnt, 1)
+    d2 = (r - mr[g]) ** 2 + (c - mc[g]) ** 2
+    order = np.lexsort((flat, d2, g))
+    first = np.r_[True, g[order][1:] != g[order][:-1]]
+    return np.stack([r[order][first], c[order][first]], 1).astype(np.int64)
+
+
+def _runs_along_wall(filtered: NDArray[np.bool_], a: NDArray[np.float64], u: NDArray[np.float64],
+                     steps: int, side: int = 2) -> bool:
+    """Whether a wall runs on from obstacle pixel ``a`` in direction ``u`` for ``steps`` pixels: the line
+    (shifted by at most one pixel across) stays on obstacle pixels while free space lies 2 to ``side`` pixels
+    to one side of it (a wall's face, a thin wall, or the middle of a wall at most 2 ``side`` pixels thick;
+    not the inside of a thick wall or of a pillar entered at an angle), for 80 % of the steps."""
+    table = wall_steps(filtered, float(a[0]), float(a[1]), float(u[0]), float(u[1]), steps, side)
+    return bool((table.sum(1) >= 0.8 * steps).any())
+
+
+def _wall_run(filtered: NDArray[np.bool_], a: NDArray[np.float64], u: NDArray[np.float64], max_steps: int) -> int:
+    """How many pixels a wall runs on from obstacle pixel ``a`` in direction ``u`` (at most ``max_steps``), as
+    :func:`_runs_along_wall` sees it, until three steps in a row fail."""
+    table = wall_steps(filtered, float(a[0]), float(a[1]), float(u[0]), float(u[1]), max_steps, 2)
+    best = 0
+    for good in table:
+        bad = np.convolve(~good, np.ones(3), mode="valid") >= 3
+        best = max(best, int(np.argmax(bad)) if bad.any() else max_steps)
+    return best
+
+
+def _free_width(filtered: NDArray[np.bool_], mid: NDArray[np.float64], u: NDArray[np.float64],
+                n: NDArray[np.float64], depths: NDArray[np.float64], reach: int) -> float:
+    """Median over the depths ``t`` of the free chord (pixels) parallel to ``u`` through ``mid + t n``, each
+    side of the centre followed up to ``reach`` pixels."""
+    return float(chord_median(filtered, float(mid[0]), float(mid[1]), float(u[0]), float(u[1]), float(n[0]),
+                              float(n[1]), depths.astype(np.float64), int(reach)))
+
+
+def _free_run(filtered: NDArray[np.bool_], a: NDArray[np.float64], b: NDArray[np.float64], end_px: float) -> bool:
+    """Whether the straight line from obstacle pixel ``a`` to obstacle pixel ``b`` is free from the first free
+    pixel after ``a`` to the last before ``b``, and these lie within ``end_px`` of the ends (a corner is the
+    middle of the wall end it rounds)."""
+    return bool(free_between(filtered, float(a[0]), float(a[1]), float(b[0]), float(b[1]), float(end_px)))
+
+
+def _extension(filtered: NDArray[np.bool_], a: NDArray[np.int64], e: NDArray[np.float64], max_px: float,
+               end_px: float) -> NDArray[np.int64] | None:
+    """The first obstacle pixel met by the ray from corner ``a`` along ``e`` once it has left the corner's
+    obstacle (within ``end_px``), at most ``max_px`` away; None if there is none."""
+    r, c = ray_hit(filtered, float(a[0]), float(a[1]), float(e[0]), float(e[1]), float(max_px), float(end_px))
+    return None if r < 0 else np.array([r, c], dtype=np.int64)
+
+
+def _wall_gap_lines(filtered: NDArray[np.bool_], dist_px: NDArray[np.float64], corners: NDArray[np.int64],
+                    angles: NDArray[np.float64], starts: NDArray[np.int64], nbins: int, res: float,
+                    cfg: SegmentationConfig) -> list[tuple[NDArray[np.int64], NDArray[np.int64], float, bool]]:
+    """Lines across gaps in walls, at most ``max_gap_width`` long, along a free straight line with no obstacle
+    in the disc it is the diameter of:
+
+    * between two corners (obstacle pixels with a wide wedge of free space) when a wall runs on beyond one
+      end at least;
+    * from a corner along the wall it ends (a face of the wall, continued) to the first obstacle.
+
+    A line is narrow on a side where it is at most ``gap_ratio`` times the free chord parallel to it there (the
+    median over depths up to half its length), every other candidate drawn in as a wall (so that a line across
+    a corridor sees the corridor's width even where rooms open onto it). Narrow on both sides, it is a room
+    border (firm); on one side only (the mouth of a corridor, into a room or into another corridor), the
+    narrowing test decides. Returns (a, b, width in metres, firm) per line narrow on a side at least.
+    """
+    from scipy.spatial import cKDTree
+
+    if not len(corners):
+        return []
+    steps = max(2, int(round(cfg.wall_continuation / res)))
+    end_px = max(2.0, 0.15 / res)
+    max_px = cfg.max_gap_width / res
+    segs: list[tuple[NDArray[np.int64], NDArray[np.int64]]] = []
+    # corner pairs
+    pairs = cKDTree(corners).query_pairs(max_px + 1.0, output_type="ndarray") if len(corners) > 1 else []
+    for i, j in pairs:
+        a, b = corners[i], corners[j]
+        af, bf = a.astype(float), b.astype(float)
+        L = float(np.hypot(*(bf - af)))
+        if L < 3.0:
+            continue
+        u = (bf - af) / L
+        if _free_run(filtered, af, bf, end_px) and (_runs_along_wall(filtered, af, -u, steps)
+                                                    or _runs_along_wall(filtered, bf, u, steps)):
+            segs.append((a, b))
+    # walls continued from their ends: the free wedge of a corner is bounded by the faces that meet there, so
+    # a face continued runs along an edge of the wedge
+    sector = 2.0 * np.pi / nbins
+    ext_steps = max(steps, int(round(1.0 / res)))
+    for a in corners:
+        s0 = int(starts[a[0], a[1]])
+        if s0 < 0:
+            continue
+        lo = s0 * sector - np.pi
+        hi = lo + np.deg2rad(angles[a[0], a[1]])
+        for th in (lo + np.pi / 2, hi - np.pi / 2):
+            e = np.array([np.sin(th), np.cos(th)])
+            if not _runs_along_wall(filtered, a.astype(float), -e, ext_steps):
+                continue
+            b = _extension(filtered, a, e, max_px, end_px)
+            # a gap no longer than the wall it continues
+            if b is not None and 3.0 <= np.hypot(*(b - a)) <= _wall_run(filtered, a.astype(float), -e,
+                                                                       int(max_px) + 1):
+                segs.append((a, b))
+    if not segs:
+        return []
+    # nothing nearer to the middle than the two ends (the Gabriel condition)
+    keep = []
+    for a, b in segs:
+        L = float(np.hypot(*(b - a)))
+        mid = np.rint((a + b) / 2.0).astype(np.int64)
+        if filtered[mid[0], mid[1]] and dist_px[mid[0], mid[1]] >= 0.9 * L / 2 - 1.0:
+            keep.append((a, b))
+    if not keep:
+        return []
+    walls = filtered.copy()
+    for a, b in keep:
+        lr, lc = _line_pixels(a, b)
+        walls[lr, lc] = False
+    out = []
+    for a, b in keep:
+        af, bf = a.astype(float), b.astype(float)
+        L = float(np.hypot(*(bf - af)))
+        u = (bf - af) / L
+        nrm = np.array([-u[1], u[0]])
+        depths = np.arange(2.0, max(L / 2, 3.0) + 1.0)
+        reach = int(np.ceil(L / cfg.gap_ratio)) + 2
+        centre = (af + bf) / 2
+        narrow = [L - 1.0 <= cfg.gap_ratio * _free_width(walls, centre, u, side * nrm, depths, reach)
+                  for side in (1.0, -1.0)]
+        if any(narrow):
+            out.append((a, b, max(L - 1.0, 0.0) * res, all(narrow)))
+    return out
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -452,7 +649,9 @@ def segment_rooms(
 
     # 1. median filter
     if cfg.median_size > 1:
-        filtered = ndi.median_filter(free.astype(np.uint8), size=cfg.median_size).astype(bool)
+        # the median of binary values is the majority
+        k = cfg.median_size
+        filtered = ndi.correlate(free.astype(np.uint8), np.ones((k, k), np.uint8), mode="reflect") > (k * k) // 2
         if cfg.median_keeps_walls:
             filtered &= free
     else:
@@ -471,10 +670,11 @@ def segment_rooms(
                 small[k] = False
         filtered |= small[occ]
     # 2. skeleton x distance transform
-    from skimage.morphology import skeletonize
-
-    dist_px = ndi.distance_transform_edt(filtered)
-    skel = skeletonize(filtered)
+    dist_px, feat_r, feat_c = edt(filtered)
+    nbins = 32
+    if cfg.method == "critical" and cfg.wall_gaps:
+        angles, starts = corner_wedges(filtered, dist_px, feat_r, feat_c, 0.15 / res, 0.5 / res, nbins)
+    skel = thin(filtered)
     product = np.where(skel, dist_px * res, 0.0)
 
     # 3. candidates
@@ -491,15 +691,25 @@ def segment_rooms(
     max_len = 2.0 * (cfg.max_door_half_width if cfg.method == "critical"
                      else cfg.door_half_width + cfg.door_half_width_tolerance)
     max_steps = min(int(np.ceil(1.5 * max_len / res)) + 2, sum(free.shape))  # a march never leaves the image
+    wall_steps = max(2, int(round(cfg.wall_continuation / res)))
     for (r, c), u in zip(centres, directions, strict=True):
         p = np.array([r, c], dtype=float)
         if cfg.method == "paper":
             a = _march(filtered, p, u, max_steps)
             b = _march(filtered, p, -u, max_steps)
         else:
-            a, b = _basis_points(filtered, np.array([r, c]), max_steps)
+            a, b = _basis_points(filtered, np.array([r, c]), max_steps, float(dist_px[r, c]))
         if a is None or b is None:
             continue
+        if cfg.method == "critical" and cfg.wall_gaps:
+            # a door runs on from a wall at one end at least (a frame, a partition's end): a bulge of a wall or
+            # a pillar narrowing a corridor does not
+            d = (b - a) / max(float(np.hypot(*(b - a))), 1e-9)
+            side = int(round(0.25 / res))
+            ca = _runs_along_wall(filtered, a.astype(float), -d, wall_steps, side)
+            cb = _runs_along_wall(filtered, b.astype(float), d, wall_steps, side)
+            if not (ca or cb):
+                continue
         # the free span: between the facing edges of the two end pixels
         width = max(float(np.hypot(*(a - b))) - 1.0, 0.0) * res
         if width > 1.5 * max_len:
@@ -507,33 +717,43 @@ def segment_rooms(
         lr, lc = _line_pixels(a, b)
         cut[lr, lc] = True
         door_px.append((np.array([r, c]), a, b, np.stack([lr, lc], 1), width))
+    n_critical = len(door_px)
+    soft = [True] * n_critical
+    gap_cut = np.zeros_like(free)
+    if cfg.method == "critical" and cfg.wall_gaps:
+        corners = _corner_points(angles, cfg.corner_angle)
+        for a, b, width, firm in _wall_gap_lines(filtered, dist_px, corners, angles, starts, nbins, res, cfg):
+            lr, lc = _line_pixels(a, b)
+            cut[lr, lc] = True
+            gap_cut[lr, lc] |= firm
+            door_px.append((np.rint((a + b) / 2).astype(np.int64), a, b, np.stack([lr, lc], 1), width))
+            soft.append(not firm)
 
-    # 5. regions
+    # 5. regions: every line cuts; the wall-gap lines stay, the regions facing each other across a critical
+    # line are merged unless it is a narrowing between them (``narrowing_ratio``); a critical line crossing
+    # wall-gap lines is judged piece by piece
     lab, n = ndi.label(filtered & ~cut, structure=_FOUR)
-    regions0 = lab.copy()
-    peak = np.zeros(n + 1)
-    if n:
-        # largest clearance of each region: it lies on a local maximum of the distance transform
-        top = (dist_px >= ndi.maximum_filter(dist_px, size=3)) & (lab > 0)
-        np.maximum.at(peak, lab[top], dist_px[top] * res)
-        peak[0] = 0.0
     uf = _UnionFind(n + 1)
-    # which regions does each door line separate?
-    door_regions: list[tuple[int, int]] = []
-    for _, _, _, px, _ in door_px:
-        nb = (px[:, None, :] + _OFFSETS[None, :, :]).reshape(-1, 2)
-        ok = (nb[:, 0] >= 0) & (nb[:, 0] < lab.shape[0]) & (nb[:, 1] >= 0) & (nb[:, 1] < lab.shape[1])
-        v = lab[nb[ok, 0], nb[ok, 1]]
-        v = v[v > 0]
-        if not len(v):
-            door_regions.append((0, 0))
-            continue
-        u, cnt = np.unique(v, return_counts=True)
-        o = np.argsort(-cnt)
-        door_regions.append((int(u[o[0]]), int(u[o[1]])) if len(u) > 1 else (int(u[0]), int(u[0])))
+    if cfg.method == "critical" and any(soft):
+        # largest clearance of each region, the wall-gap lines being walls
+        clear = edt(filtered & ~gap_cut)[0] if gap_cut.any() else dist_px
+        peak = np.maximum(label_max(lab, clear, n), 0.0) * res
+        peak[0] = 0.0
+        near_gap = gap_cut.copy()
+        gr, gc = np.nonzero(gap_cut)
+        for dr, dc in _OFFSETS:
+            near_gap[gr + dr, gc + dc] = True
+        edges = []
+        for (_, a, b, px, width), sft in zip(door_px, soft, strict=True):
+            if not sft:
+                continue
+            for run in _pieces_between(px, a, b, near_gap):
+                edges.append((*_separated_regions(lab, run), width / 2.0))
+        if edges:
+            e = np.array(edges)
+            _merge_by_narrowing(e[:, 2], e[:, :2].astype(np.int64), peak, uf, cfg)
+    regions0 = lab.copy()
 
-    if cfg.method == "critical":
-        _merge_by_narrowing(door_px, door_regions, peak, uf, cfg)
     # 6. fold the cut pixels into regions, then merge small regions
     lab = _relabel(lab, uf)
     lab = _fill_from_neighbours(lab, free)
@@ -547,7 +767,7 @@ def segment_rooms(
     full_labels = np.zeros(free_full.shape, dtype=np.int32)
     full_labels[r0:r1, c0:c1] = lab[pad:-pad, pad:-pad]
     found = []
-    for centre, a, b, px, width in door_px:
+    for k, (centre, a, b, px, width) in enumerate(door_px):
         nb = (px[:, None, :] + _OFFSETS[None, :, :]).reshape(-1, 2)
         ok = (nb[:, 0] >= 0) & (nb[:, 0] < lab.shape[0]) & (nb[:, 1] >= 0) & (nb[:, 1] < lab.shape[1])
         v = lab[nb[ok, 0], nb[ok, 1]]
@@ -555,19 +775,21 @@ def segment_rooms(
         if len(u) < 2:
             continue
         o = np.argsort(-cnt)
-        found.append((width, tuple(sorted((int(u[o[0]]), int(u[o[1]])))), centre, a, b))
-    # one door per passage: of several lines between the same rooms closer than a door width, keep the
-    # narrowest
+        found.append((width, tuple(sorted((int(u[o[0]]), int(u[o[1]])))), centre, a, b, k >= n_critical))
+    # one door per passage: of several lines between the same rooms closer than a door width, keep a critical
+    # line (the middle of a passage through a thick wall) before a wall-gap line (its ends), the narrowest first
     kept: list[tuple] = []
-    for width, pair, centre, a, b in sorted(found, key=lambda t: t[0]):
+    for width, pair, centre, a, b, gap in sorted(found, key=lambda t: (t[5], t[0])):
         if any(k[1] == pair and np.hypot(*(k[2] - centre)) * res < max(width, k[0]) for k in kept):
             continue
-        kept.append((width, pair, centre, a, b))
+        kept.append((width, pair, centre, a, b, gap))
+    thick = int(np.ceil(0.5 / res))  # the thickest wall a door passes through
+    kept = [(w, pair, *_middle_of_wall(filtered, c, a, b, thick), gap) for w, pair, c, a, b, gap in kept]
     kept.sort(key=lambda t: (t[2][0], t[2][1]))
-    for width, pair, centre, a, b in kept:
+    for width, pair, centre, a, b, gap in kept:
         ends = geometry.pixel_to_world(np.stack([a, b]) + off)
         doors.append(Door(geometry.pixel_to_world(centre + off), ends, width, pair,
-                          (int(centre[0] + off[0]), int(centre[1] + off[1]))))
+                          (int(centre[0] + off[0]), int(centre[1] + off[1])), "opening" if gap else "door"))
 
     if keep_steps:
         def full(img: NDArray, fill=0) -> NDArray:
@@ -586,9 +808,38 @@ def segment_rooms(
             "product": full(product),
             "candidates": full(cand),
             "door_lines": full(cut),
+            "gap_lines": full(gap_cut),
             "regions": full(regions0.astype(np.int32)),
         }
     return Segmentation(full_labels, doors, geometry, cfg, steps)
+
+
+def _middle_of_wall(free: NDArray[np.bool_], centre: NDArray[np.int64], a: NDArray[np.int64],
+                    b: NDArray[np.int64], max_px: int) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+    """A door line (obstacle end pixels ``a``, ``b``) moved across itself to the middle of the wall it passes
+    through: the stretch along its normal over which both ends stay on obstacle pixels, if at most ``max_px``
+    to either side."""
+    d = (b - a).astype(float)
+    L = float(np.hypot(*d))
+    if L == 0:
+        return centre, a, b
+    nrm = np.array([-d[1], d[0]]) / L
+    H, W = free.shape
+
+    def on_obstacle(p):
+        q = np.rint(p).astype(np.int64)
+        return 0 <= q[0] < H and 0 <= q[1] < W and not free[q[0], q[1]]
+
+    ext = []
+    for sgn in (1.0, -1.0):
+        t = 0
+        while t <= max_px and on_obstacle(a + (t + 1) * sgn * nrm) and on_obstacle(b + (t + 1) * sgn * nrm):
+            t += 1
+        ext.append(t)
+    if max(ext) > max_px:  # not a wall but a passage (a corridor's mouth): leave it
+        return centre, a, b
+    shift = np.rint((ext[0] - ext[1]) / 2.0 * nrm).astype(np.int64)
+    return centre + shift, a + shift, b + shift
 
 
 def _paper_candidates(skel, product, rr, cc, nbr, dvals, cfg, res):
@@ -674,13 +925,49 @@ def _plateau_centre(i: int, rr, cc, nbr: NDArray[np.int64], dvals: NDArray[np.fl
     return int(m[k])
 
 
-def _merge_by_narrowing(door_px, door_regions, peak, uf, cfg) -> None:
-    """Remove doors that are not narrowings (half width > ratio x geometric mean of the two regions' largest
-    clearances), least door-like first; merged regions take the larger clearance."""
-    if not door_px:
+def _pieces_between(px: NDArray[np.int64], a: NDArray[np.int64], b: NDArray[np.int64],
+                    block: NDArray[np.bool_]) -> list[NDArray[np.int64]]:
+    """The runs of a line's pixels ``px`` (from ``a`` to ``b``) outside ``block``, in order along the line."""
+    if not block[px[:, 0], px[:, 1]].any():
+        return [px]
+    d = (b - a).astype(float)
+    order = np.argsort((px - a) @ d, kind="stable")
+    p = px[order]
+    out = block[p[:, 0], p[:, 1]]
+    runs, start = [], None
+    for i, o in enumerate(np.append(out, True)):
+        if not o and start is None:
+            start = i
+        elif o and start is not None:
+            if i - start >= 2:
+                runs.append(p[start:i])
+            start = None
+    return runs
+
+
+def _separated_regions(lab: NDArray[np.int64], px: NDArray[np.int64]) -> tuple[int, int]:
+    """The two regions a door line (pixels ``px``) separates: the two most frequent labels around it."""
+    nb = (px[:, None, :] + _OFFSETS[None, :, :]).reshape(-1, 2)
+    ok = (nb[:, 0] >= 0) & (nb[:, 0] < lab.shape[0]) & (nb[:, 1] >= 0) & (nb[:, 1] < lab.shape[1])
+    v = lab[nb[ok, 0], nb[ok, 1]]
+    v = v[v > 0]
+    if not len(v):
+        return (0, 0)
+    u, cnt = np.unique(v, return_counts=True)
+    o = np.argsort(-cnt)
+    return (int(u[o[0]]), int(u[o[1]])) if len(u) > 1 else (int(u[0]), int(u[0]))
+
+
+
+
+def _merge_by_narrowing(half: NDArray[np.float64], pairs: NDArray[np.int64], peak: NDArray[np.float64],
+                        uf: _UnionFind, cfg) -> None:
+    """Merge the regions of each pair (``pairs`` (K, 2), across an opening of half width ``half`` (K,), in
+    metres) unless the opening is a narrowing: half width at most ``narrowing_ratio`` times the geometric mean
+    of the two regions' largest clearances ``peak``; least door-like first, a merged region takes the larger
+    clearance."""
+    if not len(half):
         return
-    half = np.array([d[4] / 2.0 for d in door_px])
-    pairs = np.array(door_regions, dtype=np.int64)
     root = np.arange(len(peak))
     pk = peak.copy()
     while True:
@@ -711,12 +998,18 @@ def _fill_from_neighbours(lab: NDArray[np.int64], free: NDArray[np.bool_]) -> ND
     """Give unlabelled free pixels (door lines, filtered-out specks) the label of a labelled neighbour within
     three pixels; free specks further away stay unlabelled."""
     out = lab.copy()
+    H, W = out.shape
     for _ in range(3):
-        hole = free & (out == 0)
-        if not hole.any():
+        hr, hc = np.nonzero(free & (out == 0))
+        if not len(hr):
             return out
-        grown = ndi.maximum_filter(out, size=3)
-        out[hole] = grown[hole]
+        grown = np.zeros(len(hr), dtype=out.dtype)
+        for dr in (-1, 0, 1):
+            for dc in (-1, 0, 1):
+                r = np.clip(hr + dr, 0, H - 1)
+                c = np.clip(hc + dc, 0, W - 1)
+                np.maximum(grown, out[r, c], out=grown)
+        out[hr, hc] = grown
     return out
 
 
@@ -779,8 +1072,8 @@ def _assign_furniture(lab: NDArray[np.int64], free: NDArray[np.bool_]) -> NDArra
         return lab
     # labels of the pixels bordering each occupied blob
     ring = ndi.binary_dilation(~free, structure=_EIGHT) & free
-    _, ind = ndi.distance_transform_edt(free, return_indices=True)
-    owner = occ[ind[0][ring], ind[1][ring]]
+    _, ind_r, ind_c = edt(free)
+    owner = occ[ind_r[ring], ind_c[ring]]
     room = lab[ring]
     out = lab.copy()
     touches_edge = np.zeros(n + 1, dtype=bool)

@@ -10,8 +10,10 @@ inserted). The harmony memory is seeded with
 - the odometry prediction (the previous pose moved by the odometry increment), when the input has odometry and
   ``use_odometry`` is on,
 - the mean of the recent poses,
-- in 6-DOF, optionally, a prior pose from a 2D run at the same stamp (the paper seeds its 3D run with the 2D
-  poses) with a narrower range,
+- in 6-DOF, optionally, a prior pose from a 2D run (the paper seeds its 3D run with the 2D poses) with a
+  narrower range: the 2D poses around the cloud's stamp, SE(2)-interpolated (:meth:`Trajectory.interpolate`)
+  when both lie within ``sync_tolerance`` of it (a 2D LiDAR runs faster than a 3D one and they are not
+  synchronised),
 
 and the search box spans the seeds plus a range around them. Scans are added to the map at keyframes (the robot
 moved or turned enough since the last one); a keyframe's new points are splatted into the search distance field
@@ -61,6 +63,7 @@ from .loopclosure import Keyframe, LoopCloser, LoopClosureConfig
 from .mapping import VoxelMap, voxel_downsample
 from .posegraph import EdgeKind, PoseGraph, information_with_floor
 from .registration import (
+    Refinement,
     RegistrationConfig,
     RegistrationResult,
     RegistrationTarget,
@@ -72,7 +75,7 @@ from .registration import (
 from .trajectory import Trajectory, write_tum
 
 __all__ = ["SlamConfig", "FrameResult", "SlamResult", "HsSlam", "run_slam", "write_slam_outputs",
-           "frame_points"]
+           "frame_points", "prior_coverage"]
 
 
 def _tracking_registration() -> RegistrationConfig:
@@ -105,6 +108,9 @@ class SlamConfig:
         Seed the memory with the odometry prediction when the input has odometry.
     prior_translation_range, prior_yaw_range : float
         Half-widths used instead when a 6-DOF run is seeded by prior (2D) poses.
+    sync_tolerance : float
+        Seconds: a frame takes the prior's pose interpolated between the prior poses just before and after its
+        stamp when both lie within this time of it (or the pose within 1 ms of it); others are seeded without.
     recent_poses : int
         How many recent poses the "mean of recent poses" seed averages.
     warmup_frames : int
@@ -119,11 +125,15 @@ class SlamConfig:
         A scan becomes a keyframe (added to the map) when the robot moved or turned this much since the last one.
     min_range, max_range : float
         Points of the scans outside [min_range, max_range] from the sensor are ignored.
-    odometry_sigma : tuple of 4 floats
-        Uncertainty of an odometry prediction over one frame: translation sigma = a + b * distance, rotation
-        sigma = c + d * |turn| (+ c per metre travelled), as (a [m], b, c [rad], d).
-    motion_sigma : tuple of 4 floats
+    odometry_sigma : tuple of 5 floats
+        Uncertainty of a wheel-odometry prediction over one frame: translation sigma = a + b * distance, rotation
+        sigma = c + d * |turn| + e * distance, as (a [m], b, c [rad], d, e [rad/m]); the default is loose
+        (2 cm + 5 % of the distance, 1 deg + 5 % of the turn + 1 deg per metre): wheel odometry varies.
+    motion_sigma : tuple of 5 floats
         The same for the constant-velocity prediction (no odometry).
+    prior_sigma : tuple of 5 floats
+        The same for the motion of a prior trajectory (6-DOF seeded by a 2D run: scan matching, far more precise
+        than wheel odometry).
     degenerate_ratio : float
         Translation directions whose information is below this fraction of the best constrained one count as
         unconstrained (:func:`hsmap.registration.drop_degenerate`): the prediction carries the pose along them.
@@ -138,6 +148,7 @@ class SlamConfig:
     use_odometry: bool = True
     prior_translation_range: float = 0.15
     prior_yaw_range: float = np.deg2rad(4.0)
+    sync_tolerance: float = 0.1
     recent_poses: int = 5
     warmup_frames: int = 3
     map_voxel: float | None = None
@@ -147,8 +158,9 @@ class SlamConfig:
     keyframe_angle: float = np.deg2rad(15.0)
     min_range: float = 0.1
     max_range: float = 30.0
-    odometry_sigma: tuple[float, float, float, float] = (0.02, 0.05, float(np.deg2rad(1.0)), 0.05)
-    motion_sigma: tuple[float, float, float, float] = (0.1, 0.5, float(np.deg2rad(5.0)), 0.5)
+    odometry_sigma: tuple[float, ...] = (0.02, 0.05, float(np.deg2rad(1.0)), 0.05, float(np.deg2rad(1.0)))
+    motion_sigma: tuple[float, ...] = (0.1, 0.5, float(np.deg2rad(5.0)), 0.5, float(np.deg2rad(5.0)))
+    prior_sigma: tuple[float, ...] = (0.01, 0.02, float(np.deg2rad(0.2)), 0.02, float(np.deg2rad(0.5)))
     verify_sigmas: float = 3.0
     degenerate_ratio: float = 0.05
     loop_closure: LoopClosureConfig = field(default_factory=LoopClosureConfig)
@@ -164,20 +176,21 @@ class SlamConfig:
             from .config import from_dict
 
             self.loop_closure = from_dict(LoopClosureConfig, self.loop_closure, "slam.loop_closure")
-        for name in ("odometry_sigma", "motion_sigma"):
+        for name in ("odometry_sigma", "motion_sigma", "prior_sigma"):
             v = getattr(self, name)
             try:
                 arr = np.asarray(v, dtype=float)
             except (TypeError, ValueError):
                 arr = np.array([])
-            if arr.shape != (4,) or not np.all(np.isfinite(arr)) or np.any(arr < 0):
-                raise ConfigError(f"slam.{name} must be 4 finite numbers >= 0, got {v!r}")
+            if arr.shape != (5,) or not np.all(np.isfinite(arr)) or np.any(arr < 0):
+                raise ConfigError(f"slam.{name} must be 5 finite numbers >= 0, got {v!r}")
             setattr(self, name, tuple(float(x) for x in arr))
         for name in ("verify_sigmas", "degenerate_ratio"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise ConfigError(f"slam.{name} must be a finite number > 0, got {v!r}")
-        for name in ("prior_translation_range", "prior_yaw_range", "local_map_radius", "keyframe_distance",
+        for name in ("prior_translation_range", "prior_yaw_range", "sync_tolerance", "local_map_radius",
+                     "keyframe_distance",
                      "keyframe_angle", "min_range", "max_range"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
@@ -239,6 +252,8 @@ class SlamResult:
     loop_closure: dict = field(default_factory=dict)
     tracked: Trajectory | None = None
     skipped: list[dict] = field(default_factory=list)
+    prior: dict = field(default_factory=dict)
+    input_info: dict = field(default_factory=dict)
 
     def metrics(self) -> dict:
         """Per-frame and total metrics, JSON-ready."""
@@ -265,6 +280,8 @@ class SlamResult:
             "loop_closure": self.loop_closure.get("status", "disabled"),
             "loops_closed": int(self.loop_closure.get("loops_closed", 0)),
             "loop_closure_detail": self.loop_closure,
+            "prior": self.prior or None,
+            "input_info": self.input_info or None,
             "per_frame": {
                 "index": [f.index for f in self.frames],
                 "stamp": [f.stamp for f in self.frames],
@@ -359,8 +376,9 @@ def _at_least_as_good(scan: NDArray[np.float64], target: RegistrationTarget, a: 
         return False
     ma, mb = float(ra[both].mean()), float(rb[both].mean())
     fa, fb = float(np.isfinite(ra).mean()), float(np.isfinite(rb).mean())
-    if strict:
-        return ma < 0.8 * mb - 0.002 or fa > fb + 0.1
+    if strict:  # better residuals without losing matches, or far more matches: a crowd walking ahead of the
+        # robot (matched by a pose that follows it) must not win by its count alone
+        return (ma < 0.8 * mb - 0.002 and fa >= fb - 0.1) or fa > fb + 0.25
     return ma <= 1.2 * mb + 0.002 and fa >= fb - 0.1
 
 
@@ -433,7 +451,7 @@ class HsSlam:
     def _prior_pose(self, stamp: float) -> NDArray[np.float64] | None:
         if self._prior is None:
             return None
-        poses, found = self._prior.at([stamp], max_dt=1e-3)
+        poses, found = self._prior.interpolate([stamp], self.config.sync_tolerance)
         if not found[0]:
             return None
         (x, y, yaw), prev = poses[0], self.poses[-1]
@@ -482,28 +500,29 @@ class HsSlam:
     def prediction(self, frame: Frame) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
         """The predicted pose of ``frame`` and the sigmas (translation, yaw) of its x/y and yaw, or None.
 
-        From the odometry increment when there is one, else (6-DOF) the prior trajectory, else the constant-velocity
-        model; None for the first two frames without odometry.
+        The previous pose moved by: (6-DOF) the prior trajectory's motion between the two stamps, a 2D run being
+        odometry of high quality (``prior_sigma``); else the odometry increment (``odometry_sigma``); else the
+        last motion repeated (``motion_sigma``). None for the first two frames with none of these.
         """
         cfg = self.config
         prev = self.poses[-1]
-        prior = self._prior_pose(frame.stamp)
-        step = self._odometry_step(frame)
-        if step is not None:
-            a, b, c, d = cfg.odometry_sigma
+        step, model = None, None
+        prior_now = self._prior_pose(frame.stamp)
+        prior_prev = self._prior_pose(self.stamps[-1]) if prior_now is not None else None
+        if prior_now is not None and prior_prev is not None:
+            step, model = relative(prior_prev, prior_now), cfg.prior_sigma
+            step[2:5] = 0.0  # the prior knows x, y and yaw only
+        elif (odo := self._odometry_step(frame)) is not None:
+            step, model = odo, cfg.odometry_sigma
         elif len(self.poses) >= 2:
-            step = relative(self.poses[-2], prev)
-            a, b, c, d = cfg.motion_sigma
-        elif prior is None:
+            step, model = relative(self.poses[-2], prev), cfg.motion_sigma
+        if step is None:
             return None
-        if prior is not None:
-            pred = prior
-            sig = np.array([cfg.prior_translation_range / 3, cfg.prior_yaw_range / 3])
-        else:
-            pred = compose(prev, step)
-            dist = float(np.linalg.norm(step[: self.dim]))
-            turn = float(np.abs(wrap_angle(step[self.dim:])).max())
-            sig = np.array([a + b * dist, c + d * turn + c * dist])
+        a, b, c, d, e = model
+        pred = compose(prev, step)
+        dist = float(np.linalg.norm(step[: self.dim]))
+        turn = float(np.abs(wrap_angle(step[self.dim:])).max())
+        sig = np.array([a + b * dist, c + d * turn + e * dist])
         pred = pred.copy()
         pred[self.dim:] = prev[self.dim:] + wrap_angle(pred[self.dim:] - prev[self.dim:])
         return pred, sig
@@ -598,8 +617,10 @@ class HsSlam:
         corridor's axis) the prediction carries the pose. Returns the pose and its information (body frame).
         """
         cfg = self.config
-        info_reg = (drop_degenerate(res.information, cfg.degenerate_ratio) if res.information is not None
-                    else np.zeros((cfg.dof, cfg.dof)))
+        lc = cfg.loop_closure
+        info_reg = (information_with_floor(drop_degenerate(res.information, cfg.degenerate_ratio),
+                                           lc.edge_sigma_translation, lc.edge_sigma_rotation)
+                    if res.information is not None else np.zeros((cfg.dof, cfg.dof)))
         pred = self.prediction(frame)
         if pred is None:
             return res.pose, info_reg
@@ -624,7 +645,6 @@ class HsSlam:
                       information: NDArray[np.float64] | None) -> None:
         """A new keyframe: a graph node tied to the previous one, points in the tracking map, loop search."""
         cfg = self.config
-        lc = cfg.loop_closure
         dense = scan if cfg.dof == 3 else frame_points(frame, cfg.dof, cfg.min_range, cfg.max_range,
                                                        voxel=cfg.effective_map_voxel())
         normals = estimate_normals(dense)
@@ -632,15 +652,14 @@ class HsSlam:
         if k > 0:
             z = relative(self.graph.poses[k - 1], pose)
             info = information if information is not None else np.zeros((cfg.dof,) * 2)
-            self.graph.add_edge(k - 1, k, z, information_with_floor(info, lc.edge_sigma_translation,
-                                                                    lc.edge_sigma_rotation), EdgeKind.ODOMETRY)
+            self.graph.add_edge(k - 1, k, z, info, EdgeKind.ODOMETRY)  # floored in _fuse
             self._odometry_chain.append(z)
         self.keyframes.append(Keyframe(len(self.results), float(frame.stamp), dense, normals))
         T = pose_to_matrix(pose)
         world = transform_points(T, dense)
-        added = self.map.add(world, normals @ T[: self.dim, : self.dim].T)
+        added, added_normals = self.map.add(world, normals @ T[: self.dim, : self.dim].T, return_normals=True)
         if self._field is not None and len(added):
-            self._field.add(added)
+            self._field.add(added, added_normals if self._field.nearest is not None else None)
         self._last_key = pose
         self._target = None  # the refinement target (KD-tree) is rebuilt before the next registration
         if self._closer is not None:
@@ -652,7 +671,8 @@ class HsSlam:
         lc = self.config.loop_closure
         closer = self._closer
         urgent = False
-        for cand in closer.candidates(self.graph, k, self._path)[: lc.attempts_per_keyframe]:
+        search = k % lc.search_every == 0
+        for cand in closer.candidates(self.graph, k, self._path)[: lc.attempts_per_keyframe if search else 0]:
             closure = closer.attempt(self.graph, self.keyframes, k, cand, self.rng)
             if closure is None:
                 continue
@@ -743,13 +763,21 @@ class HsSlam:
         return near.tolist()
 
     def _rebuild_map(self) -> None:
-        cfg = self.config
-        self.map = VoxelMap(self.dim, cfg.effective_map_voxel())
-        for k in self._tracking_keyframes():
+        self.map = self._keyframe_map(self._tracking_keyframes())
+        self._map_stale = False
+
+    def _keyframe_map(self, which) -> VoxelMap:
+        """A voxel map of the given keyframes at their current poses (the earliest point of a voxel kept)."""
+        vm = VoxelMap(self.dim, self.config.effective_map_voxel())
+        pts, nrm = [], []
+        for k in which:
             T = pose_to_matrix(self.graph.poses[k])
             kf = self.keyframes[k]
-            self.map.add(transform_points(T, kf.points), kf.normals @ T[: self.dim, : self.dim].T)
-        self._map_stale = False
+            pts.append(transform_points(T, kf.points))
+            nrm.append(kf.normals @ T[: self.dim, : self.dim].T)
+        if pts:
+            vm.add(np.concatenate(pts), np.concatenate(nrm))  # one insertion: first occurrence wins, in order
+        return vm
 
     def _rebuild_target(self) -> None:
         """The registration target: the local map crop (points, normals) and the search field around the robot."""
@@ -767,17 +795,15 @@ class HsSlam:
             hi = np.r_[centre[:2] + half, pts[:, 2].max() + 1.0] if self.dim == 3 else centre[:2] + half
             res = reg.field_resolution or (max(0.02, reg.search_threshold / 10) if self.dim == 2
                                            else reg.search_threshold / 3)
-            self._field = DistanceField(pts, res, reg.search_threshold, bounds=[lo, hi])
+            plane = self.dim == 2 and reg.refinement is Refinement.POINT_TO_PLANE
+            self._field = DistanceField(pts, res, reg.search_threshold, bounds=[lo, hi],
+                                        normals=normals if plane else None)
             self._field_centre = centre.copy()
         self._target = RegistrationTarget(pts, reg, normals=normals, fields={reg.search_threshold: self._field})
 
     def global_map(self) -> VoxelMap:
         """The point map of every keyframe at its current (optimised) pose."""
-        vm = VoxelMap(self.dim, self.config.effective_map_voxel())
-        for kf, pose in zip(self.keyframes, self.graph.poses, strict=True):
-            T = pose_to_matrix(pose)
-            vm.add(transform_points(T, kf.points), kf.normals @ T[: self.dim, : self.dim].T)
-        return vm
+        return self._keyframe_map(range(len(self.keyframes)))
 
     @property
     def trajectory(self) -> Trajectory:
@@ -798,6 +824,48 @@ class HsSlam:
 _WARN_SKIPPED = 10  # skipped frames warned about one by one; the rest are counted
 
 
+def prior_coverage(prior: Trajectory, stamps, tolerance: float, *, name: str = "prior") -> dict:
+    """How many frames (by their ``stamps``) a prior trajectory gives a pose (:meth:`Trajectory.interpolate`).
+
+    Parameters
+    ----------
+    prior : Trajectory
+    stamps : array_like of shape (N,)
+        The frames' stamps.
+    tolerance : float
+        Seconds (``SlamConfig.sync_tolerance``).
+    name : str
+        What the caller calls the prior (``--prior FILE`` at the command line), for the messages.
+
+    Returns
+    -------
+    dict
+        ``frames``, ``frames_with_prior``, ``coverage`` (their ratio), ``sync_tolerance``.
+
+    Raises
+    ------
+    InputError
+        The prior gives no frame a pose (it would be silently ignored). Partial coverage is warned about
+        (:class:`~hsmap.errors.HsmapWarning`).
+    """
+    t = np.asarray(stamps, dtype=float).reshape(-1)
+    if len(prior) == 0:
+        raise InputError(f"{name}: the trajectory is empty; expected the poses of a 2D run of the same input")
+    if len(t) == 0:
+        return {"frames": 0, "frames_with_prior": 0, "coverage": None, "sync_tolerance": float(tolerance)}
+    _, found = prior.interpolate(t, tolerance)
+    k, n = int(found.sum()), len(t)
+    if k == 0:
+        raise InputError(
+            f"{name}: none of the input's {n} frames ({t.min():.3f}..{t.max():.3f} s) lies between two of its "
+            f"{len(prior)} poses ({prior.stamps.min():.3f}..{prior.stamps.max():.3f} s) within the sync tolerance "
+            f"of {tolerance:g} s; expected the trajectory.tum of a 2D run of the same input (or a larger tolerance)")
+    if k < n:
+        warnings.warn(f"{name} gives a pose to {k} of the {n} frames ({100.0 * k / n:.1f} %) within the sync "
+                      f"tolerance of {tolerance:g} s; the others are seeded without it", HsmapWarning, stacklevel=3)
+    return {"frames": n, "frames_with_prior": k, "coverage": k / n, "sync_tolerance": float(tolerance)}
+
+
 @blas_limited
 def run_slam(
     dataset: Dataset | Iterable[Frame],
@@ -810,6 +878,7 @@ def run_slam(
     progress: bool | None = None,
     on_frame: Callable[[Frame, FrameResult, HsSlam], None] | None = None,
     strict: bool = False,
+    prior_name: str = "prior",
 ) -> SlamResult:
     """Run HS-SLAM over a dataset (or any iterable of frames).
 
@@ -821,7 +890,10 @@ def run_slam(
     initial_pose : array_like, optional
         Pose of the first frame (default: origin).
     prior : Trajectory, optional
-        6-DOF: 2D poses used as seeds.
+        6-DOF: 2D poses used as seeds, interpolated at each frame's stamp within ``config.sync_tolerance``. When
+        ``dataset`` knows its frame stamps, a prior that covers none of them is an :class:`InputError` and
+        one that covers only some is warned about, before any frame is processed (:func:`prior_coverage`);
+        the coverage goes into the metrics (``prior``).
     max_frames : int, optional
         Stop after this many frames.
     progress : bool or None
@@ -832,6 +904,11 @@ def run_slam(
         A frame whose scan or cloud is missing or has too few usable points (:class:`UnusableFrameError`)
         stops the run. By default it is skipped with a warning naming the input and the cause, and counted
         (``SlamResult.skipped``, ``skipped_frames`` in the metrics); its stamp has no pose.
+    prior_name : str
+        What the caller calls the prior, in messages (``--prior FILE`` at the command line).
+
+    The metrics' ``input_info`` is the dataset's :meth:`~hsmap.datasets.frames.Dataset.describe` (topics,
+    message counts and rates, frames, the sensor offsets and where they came from, warnings).
 
     Raises
     ------
@@ -841,6 +918,11 @@ def run_slam(
     from tqdm.auto import tqdm
 
     slam = HsSlam(config, rng=rng, initial_pose=initial_pose, prior=prior)
+    prior_info: dict = {}
+    stamps = getattr(dataset, "stamps", None)
+    if prior is not None and stamps is not None:
+        prior_info = prior_coverage(prior, np.asarray(stamps)[:max_frames], slam.config.sync_tolerance,
+                                    name=prior_name)
     dof = slam.config.dof
     frames = dataset.frames(clouds=dof == 6) if isinstance(dataset, Dataset) else iter(dataset)
     total = len(dataset) if isinstance(dataset, Dataset) else None
@@ -884,7 +966,8 @@ def run_slam(
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     return SlamResult(slam.trajectory, slam.global_map(), slam.results, slam.config, time.perf_counter() - t0,
                       peak, getattr(dataset, "name", ""), time.process_time() - c0,
-                      loop_closure=slam.loop_summary(), tracked=slam.tracked_trajectory, skipped=skipped)
+                      loop_closure=slam.loop_summary(), tracked=slam.tracked_trajectory, skipped=skipped,
+                      prior=prior_info, input_info=dataset.describe() if isinstance(dataset, Dataset) else {})
 
 
 def write_slam_outputs(result: SlamResult, out_dir: str | Path) -> dict[str, Path]:

@@ -227,10 +227,12 @@ def write_scan_bag(
     ros2: bool = False,
     scan_topic: str = "/scan",
     cloud_topic: str = "/points",
+    tf: bool = True,
 ):
     """Write a bag of ``sensor_msgs/LaserScan`` messages (one per row of ``ranges``) with ``rosbags``.
 
-    The scans' header frame is ``laser`` and the bag has no TF, so readers put the sensor at the robot's origin.
+    The scans' header frame is ``laser`` (the clouds' ``lidar``); with ``tf`` a ``/tf_static`` message puts both
+    at the origin of ``base_link`` (without it the readers assume that, with a warning).
     Every field is written as given (no checks: the readers' tests feed it bad geometry on purpose).
 
     Parameters
@@ -247,6 +249,8 @@ def write_scan_bag(
         One ``sensor_msgs/PointCloud2`` (float32 x, y, z) per scan, on ``cloud_topic``, frame ``lidar``.
     ros2 : bool
         Write a ROS2 (sqlite3) bag instead of a ROS1 one.
+    tf : bool
+        Write the sensors' (identity) offsets on ``/tf_static``.
 
     Returns
     -------
@@ -255,10 +259,12 @@ def write_scan_bag(
     import math
     from pathlib import Path
 
-    from rosbags.typesys import Stores, get_typestore
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     path = Path(path)
     ts = get_typestore(Stores.ROS2_HUMBLE if ros2 else Stores.ROS1_NOETIC)
+    if not ros2 and "tf2_msgs/msg/TFMessage" not in ts.types:
+        ts.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms", "tf2_msgs/msg/TFMessage"))
     T = ts.types
 
     def header(t: float, frame: str, seq: int):
@@ -289,7 +295,21 @@ def write_scan_bag(
 
         writer, serialize = Writer(path), ts.serialize_ros1
     scan_type, cloud_type = "sensor_msgs/msg/LaserScan", "sensor_msgs/msg/PointCloud2"
+    tf_type = "tf2_msgs/msg/TFMessage"
+
+    def identity(t: float, child: str):
+        V, Q = T["geometry_msgs/msg/Vector3"], T["geometry_msgs/msg/Quaternion"]
+        tr = T["geometry_msgs/msg/Transform"](translation=V(x=0.0, y=0.0, z=0.0), rotation=Q(x=0.0, y=0.0, z=0.0,
+                                                                                              w=1.0))
+        return T["geometry_msgs/msg/TransformStamped"](header=header(t, "base_link", 0), child_frame_id=child,
+                                                      transform=tr)
+
     with writer as w:
+        if tf and n:
+            t_tf = max(float(stamps[0]) - 0.5, 0.0)
+            edges = [identity(t_tf, "laser")] + ([identity(t_tf, "lidar")] if clouds is not None else [])
+            w.write(w.add_connection("/tf_static", tf_type, typestore=ts), int(round(t_tf * 1e9)),
+                    serialize(T[tf_type](transforms=edges), tf_type))
         conn = w.add_connection(scan_topic, scan_type, typestore=ts)
         cconn = w.add_connection(cloud_topic, cloud_type, typestore=ts) if clouds is not None else None
         for k in range(n):

@@ -3,8 +3,10 @@
 A trajectory is ``stamps (N,)`` in seconds and ``poses (N, 3)`` (x, y, yaw) or ``(N, 6)``
 (x, y, z, roll, pitch, yaw), see :mod:`hsmap.geometry`. :func:`nearest_index` is the one nearest-stamp search of
 the package: :meth:`Trajectory.at` (a trajectory's poses at given stamps), the association of an estimate with
-its reference (:mod:`hsmap.evaluation.trajectory`), the pairing of a bag's clouds with its scans
-(:mod:`hsmap.datasets.rosbag`) and the 2D prior of a 6-DOF HS-SLAM run (:mod:`hsmap.slam`) all go through it.
+its reference (:mod:`hsmap.evaluation.trajectory`) and the pairing of a recording's clouds with its scans
+(:mod:`hsmap.datasets.rosbag`) all go through it. :meth:`Trajectory.interpolate` gives poses between stamps
+(SE(2)/SE(3) interpolation within a tolerance): the 2D prior of a 6-DOF HS-SLAM run (:mod:`hsmap.slam`), whose
+clouds come between the 2D scans.
 
 TUM files (``t x y z qx qy qz qw``, one pose per line) are read and written here (:func:`read_tum`,
 :func:`write_tum`); they are readable by evo.
@@ -20,7 +22,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .errors import DataFormatError, DatasetError, InputError, ShapeError
-from .geometry import euler_to_matrix, matrix_to_euler, matrix_to_quaternion, quaternion_to_matrix
+from .geometry import (
+    euler_to_matrix,
+    interpolate_poses,
+    matrix_to_euler,
+    matrix_to_quaternion,
+    quaternion_to_matrix,
+)
 from .io import atomic_open, read_number_rows
 
 __all__ = ["Trajectory", "nearest_index", "read_tum", "write_tum"]
@@ -114,6 +122,54 @@ class Trajectory:
         idx = nearest_index(self.stamps, stamps, max_dt)
         found = idx >= 0
         return self.poses[idx[found]], found
+
+    def interpolate(self, stamps: ArrayLike, max_dt: float) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+        """The poses at ``stamps``, interpolated between the two poses around each stamp.
+
+        A stamp within 1 ms of a pose's stamp takes that pose (as :meth:`at`); any other stamp takes the
+        geodesic interpolation (:func:`hsmap.geometry.interpolate_poses`: SE(2) for (x, y, yaw), SE(3) for
+        6-DOF poses) of the poses just before and just after it, when both lie within ``max_dt`` seconds of
+        it. Stamps outside the trajectory's time span, or in a gap longer than that, have no pose. This is how
+        the 3D clouds of a recording, stamped between the 2D scans, get the 2D run's poses.
+
+        Parameters
+        ----------
+        stamps : array_like of shape (M,)
+            Seconds.
+        max_dt : float
+            Seconds (>= 0).
+
+        Returns
+        -------
+        poses : ndarray of shape (K, dof)
+            The poses of the K stamps that have one, in the order of ``stamps``.
+        found : ndarray of bool of shape (M,)
+
+        Raises
+        ------
+        InputError
+            The trajectory is empty, or ``max_dt`` is negative or not a number.
+        """
+        if len(self) == 0:
+            raise InputError("the trajectory is empty")
+        if not (np.isfinite(max_dt) and max_dt >= 0):
+            raise InputError(f"max_dt must be a number of seconds >= 0, got {max_dt}")
+        q = np.asarray(stamps, dtype=float).reshape(-1)
+        exact = nearest_index(self.stamps, q, 1e-3)
+        order = np.argsort(self.stamps, kind="stable")
+        ts, ps = self.stamps[order], self.poses[order]
+        hi = np.clip(np.searchsorted(ts, q, side="right"), 1, max(len(ts) - 1, 1))
+        lo = hi - 1
+        inside = (len(ts) > 1) & (ts[lo] <= q) & (q <= ts[hi]) & (q - ts[lo] <= max_dt) & (ts[hi] - q <= max_dt)
+        found = (exact >= 0) | inside
+        out = np.empty((len(q), self.dof))
+        out[exact >= 0] = self.poses[exact[exact >= 0]]
+        between = inside & (exact < 0)
+        if between.any():
+            t0, t1 = ts[lo[between]], ts[hi[between]]
+            frac = np.where(t1 > t0, (q[between] - t0) / np.where(t1 > t0, t1 - t0, 1.0), 0.0)
+            out[between] = interpolate_poses(ps[lo[between]], ps[hi[between]], frac)
+        return out[found], found
 
     def as_6dof(self) -> Trajectory:
         """The same trajectory as (x, y, z, roll, pitch, yaw), z = roll = pitch = 0 for 2D input."""

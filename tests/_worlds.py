@@ -101,3 +101,35 @@ route:
 sensors:
   lidar3d: {channels: 16, columns: 256}
 """
+def ring_corridor(opening: float = 2.5, thickness: float = 0.2, resolution: float = 0.05) -> OccupancyGrid:
+    """An 18 m x 18 m floor: a ring corridor 2 m wide between the square [4, 14]^2 and a closed core
+    [6, 12]^2, and four 14 m x 4 m rooms around it (a pinwheel), each opening onto the corridor through one
+    ``opening`` m gap in the middle of a side: (9, 4), (14, 9), (9, 14), (4, 9)."""
+    t = thickness
+    walls = [(0, 0, 18, 0, t), (18, 0, 18, 18, t), (18, 18, 0, 18, t), (0, 18, 0, 0, t),
+             (0, 4, 14, 4, t), (14, 0, 14, 14, t), (18, 14, 4, 14, t), (4, 18, 4, 4, t),
+             (6, 6, 12, 6, t), (12, 6, 12, 12, t), (12, 12, 6, 12, t), (6, 12, 6, 6, t)]
+    doors = [((9, 4), opening, "x"), ((14, 9), opening, "y"), ((9, 14), opening, "x"), ((4, 9), opening, "y")]
+    rects = [(0, 0, 18, 6), (0, 12, 18, 18), (0, 0, 6, 18), (12, 0, 18, 18)]
+    return draw_world(walls, doors, rects, resolution)
+
+
+def corridor_end(corridor: float = 0.9, gap: float = 0.9, thickness: float = 0.2,
+                 resolution: float = 0.05) -> OccupancyGrid:
+    """A corridor 8 m long (free width ``corridor``, along y = 2.5) ending in a 5 m x 5 m room (x from 8 to 13)
+    through a ``gap`` m opening in the room's wall at x = 8."""
+    t = thickness
+    h = corridor / 2 + t / 2
+    walls = [(0, 2.5 - h, 8, 2.5 - h, t), (0, 2.5 + h, 8, 2.5 + h, t), (0, 2.5 - h, 0, 2.5 + h, t),
+             (8, 0, 13, 0, t), (13, 0, 13, 5, t), (13, 5, 8, 5, t), (8, 5, 8, 0, t)]
+    rects = [(0, 2.5 - h, 8, 2.5 + h), (8, 0, 13, 5)]
+    return draw_world(walls, [((8, 2.5), gap, "y")], rects, resolution)
+
+
+def l_corridor(width: float = 1.8, thickness: float = 0.2, resolution: float = 0.05) -> OccupancyGrid:
+    """An L-shaped corridor without doors: 20 m along x, then 12 m along y, ``width`` m wide."""
+    t = thickness
+    w = width + t
+    walls = [(0, 0, 20, 0, t), (20, 0, 20, 12, t), (20 - w, w, 20 - w, 12, t), (0, w, 20 - w, w, t),
+             (0, 0, 0, w, t), (20 - w, 12, 20, 12, t)]
+    return draw_world(walls, [], [(0, 0, 20, w), (20 - w, 0, 20, 12)], resolution)

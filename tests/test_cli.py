@@ -17,5 +17,5 @@ def test_version():
 def test_help_lists_commands():
     r = run_cli("--help")
     assert r.returncode == 0
-    for cmd in ("simulate", "slam", "segment", "evaluate", "reproduce"):
+    for cmd in ("simulate", "slam", "map", "segment", "evaluate", "reproduce"):
         assert cmd in r.stdout

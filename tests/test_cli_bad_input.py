@@ -255,15 +255,17 @@ def test_prior_that_matches_no_frame_or_only_some(scans, tmp_path, capsys):
     far.write_text("".join(f"{5000 + 0.1 * k:.6f} {k * STEP} 0 0 0 0 0 1\n" for k in range(8)))
     assert main(["slam", str(b), "--out", str(tmp_path / "o"), "--dof", "6", "--prior", str(far), "--quiet"]) == 2
     assert one_line(capsys.readouterr().err).startswith(
-        "--prior: none of its 8 stamps (5000.000..5000.700 s) lies within 1 ms of the input's 8 frame stamps")
+        f"--prior {far}: none of the input's 8 frames (100.000..100.700 s) lies between two of its 8 poses "
+        "(5000.000..5000.700 s) within the sync tolerance of 0.1 s")
     half = tmp_path / "half.tum"
     half.write_text("".join(f"{100 + 0.1 * k:.6f} {k * STEP} 0 0 0 0 0 1\n" for k in range(4)))
     out = tmp_path / "o2"
     assert main(["slam", str(b), "--out", str(out), "--dof", "6", "--prior", str(half), "--quiet",
                  "--no-recording"]) == 0
-    assert "hsmap: warning: --prior has a pose for 4 of the 8 frames (50.0 %)" in capsys.readouterr().err
+    assert (f"hsmap: warning: --prior {half} gives a pose to 4 of the 8 frames (50.0 %) within the sync tolerance"
+            in capsys.readouterr().err)
     m = json.loads((out / "metrics.json").read_text())
-    assert m["prior"] == {"file": str(half), "frames": 8, "frames_with_prior": 4}
+    assert m["prior"] == {"frames": 8, "frames_with_prior": 4, "coverage": 0.5, "sync_tolerance": 0.1}
 
 
 # smaller ones ---------------------------------------------------------------------------------------------------------

@@ -160,7 +160,7 @@ def test_missing_and_laserless_logs(tmp_path):
 
 
 def test_open_dataset_dispatch_errors(tmp_path, log_file, monkeypatch):
-    with pytest.raises(DatasetError, match="only apply to ROS bags"):
+    with pytest.raises(DatasetError, match="scan_topic do not apply to a CARMEN log"):
         open_dataset(log_file, scan_topic="/scan")
     other = tmp_path / "map.png"
     other.write_bytes(b"\x89PNG")

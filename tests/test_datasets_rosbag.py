@@ -13,8 +13,8 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 import hsmap.datasets.rosbag as rosbag_mod
 from hsmap.datasets.open import open_dataset
 from hsmap.datasets.rosbag import FrameOrder, RosbagDataset, adopt_odometry, pointcloud2_xyz
-from hsmap.errors import DataFormatError, DatasetError
-from hsmap.geometry import euler_to_matrix, matrix_to_quaternion, transform_points
+from hsmap.errors import DataFormatError, DatasetError, HsmapWarning, InputError, ShapeError
+from hsmap.geometry import euler_to_matrix, matrix_to_quaternion, pose_to_matrix, transform_points
 
 # The synthetic recording: the robot moves with constant velocity, so linear interpolation of odometry is exact.
 V = np.array([0.5, 0.2, 0.3])  # x, y (m/s), yaw (rad/s)
@@ -138,6 +138,7 @@ def write_bag(
     laser_roll: float = 0.0,
     laser_quaternion: tuple[float, float, float, float] | None = None,
     nan_odom: tuple[int, ...] = (),
+    sensor_tf: bool = True,
 ) -> Path:
     """A small bag: /scan (LaserScan), /odom (Odometry at its own rate), /tf_static, /tf, /points (PointCloud2).
 
@@ -160,7 +161,9 @@ def write_bag(
                                if laser_quaternion is None else (LASER_EXT[0], LASER_EXT[1], 0.3, *laser_quaternion)),
         ("base_link", "velodyne", CLOUD_EXT),
     ]
-    if static_tf:
+    if not sensor_tf:
+        pass
+    elif static_tf:
         records.append((T0 - 1.0, "/tf_static", "tf2_msgs/msg/TFMessage", m.tf(T0 - 1.0, edges)))
     else:  # extrinsics only on /tf, published once
         records.append((T0 - 0.5, "/tf", "tf2_msgs/msg/TFMessage", m.tf(T0 - 0.5, edges)))
@@ -198,7 +201,7 @@ def bag(request, tmp_path) -> Path:
 
 
 def test_reads_scans_odometry_extrinsics_and_clouds(bag):
-    ds = open_dataset(bag)
+    ds = open_dataset(bag, sync_tolerance=0.05)
     assert isinstance(ds, RosbagDataset)
     assert (ds.scan_topic, ds.cloud_topic, ds.odom_topic) == ("/scan", "/points", "/odom")
     frames = list(ds.frames())
@@ -228,6 +231,9 @@ def test_reads_scans_odometry_extrinsics_and_clouds(bag):
     if bag.is_dir():  # a ROS2 bag also opens from its storage file
         (storage,) = [f for f in bag.iterdir() if f.suffix in (".db3", ".mcap")]
         assert len(open_dataset(storage)) == N_SCANS
+        alone = bag.parent / f"alone{storage.suffix}"  # and alone, without its folder
+        storage.rename(alone)
+        assert len(open_dataset(alone)) == N_SCANS
 
 
 def test_ros1_and_ros2_give_the_same_frames(tmp_path):
@@ -300,8 +306,10 @@ def test_adopt_odometry_of_the_same_scans(tmp_path):
         c = w.add_connection("/scan", "sensor_msgs/msg/LaserScan", typestore=ts)
         for k, t in enumerate(stamps):
             w.write(c, int(t * 1e9), ts.serialize_ros1(m.scan(t, k, ranges=RANGES + (k == 7)), "sensor_msgs/msg/LaserScan"))
+    with pytest.warns(HsmapWarning, match="no base frame"):  # a bare scan topic: no TF, no odometry
+        different = RosbagDataset(path)
     with pytest.raises(DatasetError, match="frame 7 .* have different scans"):
-        adopt_odometry(orig, RosbagDataset(path))
+        adopt_odometry(orig, different)
 
 
 def test_upside_down_laser(tmp_path):
@@ -317,14 +325,21 @@ def test_upside_down_laser(tmp_path):
 
 def test_topic_selection(tmp_path):
     path = write_bag(tmp_path / "a.bag", extra_scan_topic=True)
-    with pytest.raises(DatasetError, match=r"several sensor_msgs/msg/LaserScan topics.*scan_topic"):
+    with pytest.raises(DatasetError, match=r"several sensor_msgs/msg/LaserScan topics.*choose one with scan_topic"):
         RosbagDataset(path)
-    ds = RosbagDataset(path, scan_topic="/scan2", odom_topic="")
-    assert ds.scan_topic == "/scan2" and ds.cloud_topic is None and ds.odom_topic is None
+    # the messages name the caller's options (the command line's flags)
+    with pytest.raises(DatasetError, match=r"choose one with --scan-topic \(or --scan-topic '' for none\)"):
+        RosbagDataset(path, cloud_topic="/points", option_names={"scan_topic": "--scan-topic"})
+    # topics are chosen independently: naming the scan topic keeps the (one) cloud topic
+    ds = RosbagDataset(path, scan_topic="/scan2", odom_topic="", sync_tolerance=0.05)
+    assert ds.scan_topic == "/scan2" and ds.cloud_topic == "/points" and ds.odom_topic is None
     frames = list(ds.frames())
-    assert all(f.odometry is None and f.cloud3d is None for f in frames)
+    assert all(f.odometry is None for f in frames)
+    assert [f.cloud3d is None for f in frames] == [k == 5 for k in range(N_SCANS)]
     assert ds.odometry is None
-    clouds_only = RosbagDataset(path, cloud_topic="/points")
+    no_clouds = RosbagDataset(path, scan_topic="/scan2", cloud_topic="")
+    assert no_clouds.cloud_topic is None and all(f.cloud3d is None for f in no_clouds.frames())
+    clouds_only = RosbagDataset(path, scan_topic="", cloud_topic="/points")
     assert clouds_only.scan_topic is None and len(clouds_only) == N_SCANS - 1
     f = next(clouds_only.frames())
     assert f.scan2d is None and f.cloud3d.shape == (3, 3)
@@ -361,6 +376,11 @@ def test_corrupted_and_missing_bags(tmp_path):
         open_dataset(bad)
     with pytest.raises(DatasetError, match="no such"):
         open_dataset(tmp_path / "missing.bag")
+    for suffix in (".mcap", ".db3"):  # lone ROS2 storage files: damaged ones name the file
+        bad = tmp_path / f"garbage{suffix}"
+        bad.write_bytes(bytes(range(256)) * 4)
+        with pytest.raises(DatasetError, match=rf"garbage\{suffix}: cannot read as a ROS1/ROS2 bag"):
+            open_dataset(bad)
     good = write_bag(tmp_path / "good.bag", clouds=False)
     truncated = tmp_path / "truncated.bag"
     truncated.write_bytes(good.read_bytes()[: good.stat().st_size // 2])
@@ -495,3 +515,109 @@ def test_freiburg_bags_scan_content(datasets_dir):
         assert np.nanmax(f.scan2d.ranges, initial=0) < 80.0
     assert n_beams == {180, 181}
     assert 0.12 < masked / total < 0.13  # README: 12.5 % of readings >= 81.8 m
+
+
+def test_frames_driven_by_the_clouds(tmp_path):
+    """A 6-DOF run wants one frame per cloud: the same bag seen from its clouds, the nearest scan attached."""
+    ds = RosbagDataset(write_bag(tmp_path / "b", ros2=True, mcap=True))
+    assert ds.driver == "scan" and len(ds) == N_SCANS
+    clouds = ds.driven_by("cloud")
+    assert clouds.driver == "cloud" and ds.driver == "scan"  # a view; the original is unchanged
+    assert clouds.driven_by("cloud") is clouds and clouds.driven_by("scan").driver == "scan"
+    cloud_stamps = T0 + SCAN_DT * np.delete(np.arange(N_SCANS), 5) + 0.002
+    np.testing.assert_allclose(clouds.stamps, cloud_stamps, atol=1e-9)
+    frames = list(clouds.frames())
+    assert len(frames) == N_SCANS - 1
+    for f, k in zip(frames, np.delete(np.arange(N_SCANS), 5), strict=True):
+        np.testing.assert_allclose(f.cloud3d, cloud_points(k)[[0, 1, 3]])
+        np.testing.assert_array_equal(np.isfinite(f.scan2d.ranges), VALID)  # the scan 2 ms before
+        np.testing.assert_allclose(f.odometry, pose_at(f.stamp), atol=1e-9)  # odometry at the cloud's stamp
+    # with the scans far apart, a cloud may have no scan: it is still a frame
+    tight = RosbagDataset(ds.path, drive="cloud", sync_tolerance=0.001)
+    assert len(tight) == N_SCANS - 1 and all(f.scan2d is None for f in tight.frames(clouds=False))
+    info = clouds.describe()
+    assert info["driven_by"] == "cloud" and info["frames"] == N_SCANS - 1 and info["frames_with_scan"] == N_SCANS - 1
+    assert info["topics"]["scan"] == {"topic": "/scan", "type": "sensor_msgs/msg/LaserScan", "messages": N_SCANS,
+                                      "frame_id": "laser", "rate_hz": pytest.approx(1 / SCAN_DT)}
+    assert info["topics"]["cloud"]["messages"] == N_SCANS - 1 and info["topics"]["cloud"]["frame_id"] == "velodyne"
+    assert info["topics"]["odom"]["rate_hz"] == pytest.approx(1 / ODOM_DT) and info["base_frame"] == "base_link"
+    assert info["extrinsics"]["3d"] == {"value": pytest.approx(list(CLOUD_EXT)), "source": "tf"}
+    assert info["tf_chains"] == {"2d": "base_link -> laser", "3d": "base_link -> velodyne"}
+    assert info["warnings"] == []
+    with pytest.raises(InputError, match="sensor must be 'scan' or 'cloud'"):
+        ds.driven_by("lidar")
+    no_clouds = RosbagDataset(ds.path, cloud_topic="", option_names={"cloud_topic": "--cloud-topic"})
+    with pytest.raises(DatasetError, match="frames made by the clouds need a 3D cloud .* --cloud-topic"):
+        no_clouds.driven_by("cloud")
+
+
+def test_missing_transforms_warn_and_are_recorded(tmp_path):
+    path = write_bag(tmp_path / "notf", ros2=True, sensor_tf=False)
+    names = {"extrinsic2d": "--extrinsic2d", "extrinsic3d": "--extrinsic3d", "base_frame": "--base-frame"}
+    with pytest.warns(HsmapWarning) as caught:
+        ds = RosbagDataset(path, option_names=names)
+    messages = [str(w.message) for w in caught]
+    assert len(messages) == 2
+    assert "no transform from the base frame 'base_link' to 'laser'" in messages[0]
+    assert "give it with --extrinsic2d X,Y,YAW" in messages[0]
+    assert "'velodyne' (the 3D clouds of /points)" in messages[1] and "--extrinsic3d X,Y,Z,ROLL,PITCH,YAW" in messages[1]
+    np.testing.assert_array_equal(ds.extrinsic3d, np.zeros(6))
+    info = ds.describe()
+    assert info["extrinsics"]["2d"]["source"] == info["extrinsics"]["3d"]["source"] == "default"
+    assert info["warnings"] == messages and info["tf_chains"] == {}
+    # an offset given by the caller overrides TF, is recorded as such, and is not warned about
+    with pytest.warns(HsmapWarning) as caught:
+        given = RosbagDataset(path, extrinsic3d=CLOUD_EXT, option_names=names)
+    assert len(caught) == 1 and "'laser'" in str(caught[0].message)
+    assert given.describe()["extrinsics"]["3d"] == {"value": pytest.approx(list(CLOUD_EXT)), "source": "--extrinsic3d"}
+    assert all(np.allclose(f.extrinsic3d, CLOUD_EXT) for f in given.frames(clouds=False))
+    with pytest.raises(ShapeError, match=r"--extrinsic3d must be 6 finite numbers"):
+        RosbagDataset(path, extrinsic2d=LASER_EXT, extrinsic3d=[0, 0, 1], option_names=names)
+
+
+def test_base_frame(tmp_path):
+    path = write_bag(tmp_path / "a", ros2=True)
+    ds = RosbagDataset(path, base_frame="laser")  # any frame of TF: the offsets are relative to it
+    np.testing.assert_allclose(ds.extrinsic2d, 0.0, atol=1e-12)
+    assert ds.describe()["tf_chains"] == {"2d": "laser", "3d": "laser -> base_link -> velodyne"}
+    T = np.linalg.inv(pose_to_matrix([LASER_EXT[0], LASER_EXT[1], 0.3, 0, 0, LASER_EXT[2]])) @ pose_to_matrix(CLOUD_EXT)
+    np.testing.assert_allclose(pose_to_matrix(ds.extrinsic3d), T, atol=1e-9)
+    with pytest.raises(DatasetError, match=r"--base-frame bse_link: no such frame .*: base_link, laser, odom, velodyne"):
+        RosbagDataset(path, base_frame="bse_link", option_names={"base_frame": "--base-frame"})
+    with pytest.raises(InputError, match="--sync-tolerance must be a number of seconds >= 0"):
+        RosbagDataset(path, sync_tolerance=-1, option_names={"sync_tolerance": "--sync-tolerance"})
+
+
+def test_two_tf_hops_and_ouster_zero_points(tmp_path):
+    """An Ouster-style organised cloud (zeros where no return) in a frame two TF hops from the base."""
+    ts = _typestore(True)
+    m = _Msgs(ts, True)
+    T = ts.types
+    PF = T["sensor_msgs/msg/PointField"]
+    pts = np.array([[1.0, 0.0, 0.5], [0.0, 0.0, 0.0], [2.0, 1.0, -0.2], [0.0, 0.0, 0.0]], dtype=np.float32)
+    rec = np.zeros(4, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("pad", "<f4"), ("intensity", "<f4"),
+                             ("t", "<u4"), ("reflectivity", "<u2"), ("ring", "<u2"), ("ambient", "<u2"),
+                             ("pad2", "<u2"), ("range", "<u4"), ("pad3", "u1", (12,))])
+    assert rec.dtype.itemsize == 48
+    rec["x"], rec["y"], rec["z"] = pts.T
+    fields = [PF(name=n, offset=o, datatype=d, count=1) for n, o, d in
+              (("x", 0, 7), ("y", 4, 7), ("z", 8, 7), ("intensity", 16, 7), ("t", 20, 6), ("reflectivity", 24, 4),
+               ("ring", 26, 4), ("ambient", 28, 4), ("range", 32, 6))]
+    cloud = T["sensor_msgs/msg/PointCloud2"](
+        header=m.header(T0, "os_lidar"), height=2, width=2, fields=fields, is_bigendian=False, point_step=48,
+        row_step=96, data=np.frombuffer(rec.tobytes(), dtype=np.uint8), is_dense=False)
+    hops = [("base_link", "os_sensor", (-0.1, 0.0, 1.5, 0, 0, 0)), ("os_sensor", "os_lidar", (0, 0, 0.036, 0, 0, np.pi))]
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    path = tmp_path / "ouster.mcap"
+    with Writer(tmp_path / "bagdir", version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        c_tf = w.add_connection("/tf_static", "tf2_msgs/msg/TFMessage", typestore=ts)
+        c_pc = w.add_connection("/os_cloud_node/points", "sensor_msgs/msg/PointCloud2", typestore=ts)
+        w.write(c_tf, int(T0 * 1e9) - 1, ts.serialize_cdr(m.tf(T0, hops), "tf2_msgs/msg/TFMessage"))
+        w.write(c_pc, int(T0 * 1e9), ts.serialize_cdr(cloud, "sensor_msgs/msg/PointCloud2"))
+    next((tmp_path / "bagdir").glob("*.mcap")).rename(path)  # a lone .mcap file
+    ds = open_dataset(path)  # no odometry: base_link, since TF has it
+    f = next(ds.frames())
+    np.testing.assert_allclose(f.cloud3d, pts[[0, 2]])  # the zeros (no return) dropped
+    np.testing.assert_allclose(ds.extrinsic3d, [-0.1, 0, 1.536, 0, 0, np.pi], atol=1e-9)
+    assert ds.describe()["tf_chains"] == {"3d": "base_link -> os_sensor -> os_lidar"}

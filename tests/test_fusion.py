@@ -163,6 +163,28 @@ def test_slice_scan_keeps_the_nearest_point_per_bin():
     np.testing.assert_allclose(world, [1.0, 3.0], atol=1e-9)
 
 
+def test_slice_scan_marks_what_it_did_not_see():
+    """A sensor in a corridor sees the near wall at the slice height only over part of its azimuths (a LiDAR
+    with few channels crosses the slice at some distances only) and a far wall through a gap: no free space is
+    claimed across the unseen azimuths between them."""
+    sensor = np.array([0.0, 0.0, 1.6, 0.0, 0.0, 0.0])
+    near = np.array([[1.0, np.tan(a), 0.15] for a in np.deg2rad(np.arange(-30, 0) + 0.5)])  # wall x = 1, -30..0 deg
+    far = np.array([[4 * np.cos(a), 4 * np.sin(a), 0.15] for a in np.deg2rad(np.arange(40, 70) + 0.5)])
+    scan, pose = slice_scan(np.vstack([near, far]), sensor, bins=360)
+    gaps = np.flatnonzero(np.isnan(scan[:, 0]))
+    assert len(scan) == 61 and gaps.tolist() == [30]  # one NaN row between the two seen arcs
+    grid = grid_from_scans([scan], pose[None], 0.05)
+    geo = grid.geometry
+    seen = geo.world_to_index(np.array([[0.5, -0.1], [2.0, 2.5]]))  # in front of the near wall; before the far one
+    assert all(grid.data[r, c] == FREE for r, c in seen)
+    unseen = geo.world_to_index(np.array([[2.0, 1.5], [2.5, 2.0]]))  # between the arcs, behind x = 1
+    assert all(grid.data[r, c] == UNKNOWN for r, c in unseen)
+    # the old chord from (1, 0) to the far arc would have cleared them
+    dense = slice_scan(np.vstack([near, far]), sensor, bins=360)[0]
+    joined = grid_from_scans([dense[np.isfinite(dense[:, 0])]], pose[None], 0.05, geometry=geo)
+    assert any(joined.data[r, c] == FREE for r, c in unseen)
+
+
 def test_resample_grid_shift_and_identity():
     geo = GridGeometry((20, 30), 0.1, (0.0, 0.0))
     data = np.full(geo.shape, FREE, dtype=np.int8)

@@ -76,3 +76,46 @@ def test_bad_shapes():
         g.pose_to_matrix([1, 2])
     with pytest.raises(ShapeError, match=r"points must have shape \(N, 2\)"):
         g.transform_points(np.eye(3), np.zeros((4, 3)))
+
+
+def _se2_exp(twist):
+    """exp of an se(2) twist (vx, vy, w): the pose after moving at that constant twist for unit time."""
+    vx, vy, w = twist
+    if abs(w) < 1e-12:
+        return np.array([vx, vy, 0.0])
+    a, b = np.sin(w) / w, (1 - np.cos(w)) / w
+    return np.array([a * vx - b * vy, b * vx + a * vy, w])
+
+
+def test_interpolate_poses_follows_a_constant_twist(rng):
+    # a robot driving at a constant twist: the pose at fraction s is exp(s * twist) after the start, on the arc
+    for _ in range(20):
+        start = np.array([*rng.uniform(-5, 5, 2), rng.uniform(-np.pi, np.pi)])
+        twist = np.array([*rng.uniform(-1, 1, 2), rng.uniform(-2.5, 2.5)])
+        end = g.compose(start, _se2_exp(twist))
+        for s in (0.0, 0.25, 0.6, 1.0):
+            expected = g.compose(start, _se2_exp(s * twist))
+            got = g.interpolate_poses(start, end, np.float64(s))
+            np.testing.assert_allclose(got[:2], expected[:2], atol=1e-9)
+            assert abs(g.wrap_angle(got[2] - expected[2])) < 1e-9
+    # straight motion without turning: plain linear interpolation; across +/- pi the short way round
+    np.testing.assert_allclose(g.interpolate_poses([0, 0, 0.3], [2, 1, 0.3], np.float64(0.5)), [1, 0.5, 0.3])
+    mid = g.interpolate_poses([0, 0, 3.1], [0, 0, -3.1], np.float64(0.5))
+    assert abs(abs(mid[2]) - np.pi) < 1e-9
+
+
+def test_interpolate_poses_3d_batched(rng):
+    a = np.column_stack([rng.uniform(-2, 2, (5, 3)), rng.uniform(-0.5, 0.5, (5, 3))])
+    b = np.column_stack([rng.uniform(-2, 2, (5, 3)), rng.uniform(-0.5, 0.5, (5, 3))])
+    np.testing.assert_allclose(g.interpolate_poses(a, b, np.zeros(5)), a, atol=1e-9)
+    np.testing.assert_allclose(g.interpolate_poses(a, b, np.ones(5)), b, atol=1e-9)
+    mid = g.interpolate_poses(a, b, np.full(5, 0.5))
+    np.testing.assert_allclose(mid[:, :3], 0.5 * (a[:, :3] + b[:, :3]), atol=1e-9)
+    # the rotation halfway: the same angle from a as to b
+    Ra, Rm, Rb = (g.euler_to_matrix(p[:, 3], p[:, 4], p[:, 5]) for p in (a, mid, b))
+    ang = lambda R: np.arccos(np.clip((np.trace(R, axis1=-2, axis2=-1) - 1) / 2, -1, 1))  # noqa: E731
+    np.testing.assert_allclose(ang(np.swapaxes(Ra, -1, -2) @ Rm), ang(np.swapaxes(Rm, -1, -2) @ Rb), atol=1e-9)
+    with pytest.raises(ShapeError):
+        g.interpolate_poses(a, b[:, :3], np.zeros(5))
+    with pytest.raises(ShapeError):
+        g.interpolate_poses(a, b, np.zeros(4))

@@ -381,7 +381,8 @@ def pointcloud2(draw):
 
 
 def _decode(fields, step, width, height, row_step, big, data):
-    """The finite (x, y, z) points of a layout, decoded point by point with struct (None: no decodable cloud)."""
+    """The finite (x, y, z) points of a layout but (0, 0, 0) (no return, as Ouster sends it), decoded point by
+    point with struct (None: no decodable cloud)."""
     f = {n: (o, t) for n, o, t in fields}
     if any(n not in f or f[n][1] not in _PF_FORMATS for n in "xyz") or step <= 0:
         return None
@@ -396,7 +397,7 @@ def _decode(fields, step, width, height, row_step, big, data):
             base = r * rs + i * step
             p = [struct.unpack_from((">" if big else "<") + _PF_FORMATS[f[n][1]], data, base + f[n][0])[0]
                  for n in "xyz"]
-            if all(math.isfinite(v) for v in p):
+            if all(math.isfinite(v) for v in p) and any(v != 0.0 for v in p):
                 pts.append(p)
     return np.array(pts, dtype=float).reshape(-1, 3)
 

@@ -2,7 +2,15 @@ import dataclasses
 
 import numpy as np
 import pytest
-from _worlds import TWO_ROOMS_DOORS, cast_scans, draw_world, two_rooms
+from _worlds import (
+    TWO_ROOMS_DOORS,
+    cast_scans,
+    corridor_end,
+    draw_world,
+    l_corridor,
+    ring_corridor,
+    two_rooms,
+)
 
 from hsmap.config import from_dict
 from hsmap.errors import ConfigError, EmptyInputError, InputError, ShapeError
@@ -47,6 +55,44 @@ def test_uniform_corridor_has_no_door():
                       [], [(0, 0, 12, 2)])
     seg = segment_rooms(grid)
     assert seg.doors == [] and seg.n_rooms == 1
+
+
+@pytest.mark.parametrize("opening", [2.0, 2.5])
+def test_ring_corridor_with_rooms_behind_wide_openings(opening):
+    # the openings are wider than any door and wider than the 2 m corridor: no narrowing of the clearance,
+    # but gaps in the corridor's wall, narrow relative to the spaces on both sides -> five rooms
+    seg = segment_rooms(ring_corridor(opening))
+    assert seg.n_rooms == 5
+    corridor = {_region_at(seg, p) for p in [(5, 9), (9, 5), (13, 9), (9, 13), (5, 5), (13, 13)]}
+    rooms = [_region_at(seg, p) for p in [(7, 2), (16, 7), (11, 16), (2, 11)]]
+    assert len(corridor) == 1 and 0 not in corridor and len(set(rooms)) == 4 and not corridor & set(rooms)
+    openings = np.array([[9, 4], [14, 9], [9, 14], [4, 9]], float)
+    assert len(seg.doors) == 4 and np.all(_match_doors(seg, openings) < 0.15)
+    assert all(abs(d.width - opening) < 0.15 and set(d.rooms) & corridor for d in seg.doors)
+    areas = sorted(r.area for r in seg.rooms())
+    assert areas[-1] == pytest.approx(58.5, rel=0.05)  # the corridor (40 m of 2 m, the corners, the gaps)
+    assert areas[:4] == pytest.approx([4 * 14 - 3.4] * 4, rel=0.05)
+
+
+@pytest.mark.parametrize("corridor", [0.9, 1.2])
+def test_room_at_the_end_of_a_narrow_corridor(corridor):
+    # a corridor 0.9 m (as wide as the gap: no narrowing along it) or 1.2 m wide ends in a room through a
+    # 0.9 m gap -> two rooms, the border in the room's wall
+    seg = segment_rooms(corridor_end(corridor, 0.9))
+    assert seg.n_rooms == 2 and len(seg.doors) == 1
+    assert _region_at(seg, (4.0, 2.5)) != _region_at(seg, (10.5, 2.5))
+    (d,) = seg.doors
+    assert abs(d.centre[0] - 8.0) < 0.15 and abs(d.centre[1] - 2.5) < 0.1 and abs(d.width - 0.9) < 0.1
+    # a narrowing of the 1.2 m corridor is a door; the mouth of the 0.9 m one is an opening in the room's wall
+    assert d.kind == ("opening" if corridor == 0.9 else "door")
+    areas = {r.label: r.area for r in seg.rooms()}
+    assert areas[_region_at(seg, (4.0, 2.5))] == pytest.approx(8 * corridor, rel=0.05)
+
+
+def test_long_corridor_without_doors_stays_one_room():
+    for width in (1.2, 1.8):
+        seg = segment_rooms(l_corridor(width))
+        assert seg.n_rooms == 1 and seg.doors == []
 
 
 def test_small_nook_is_merged():
@@ -110,11 +156,16 @@ def test_paper_method_finds_doors_in_the_band():
 
 
 def test_wide_opening_is_no_door():
-    # two rooms joined by a 3 m opening: not a narrowing -> one region
+    # two 5 m x 4 m halves of a hall joined by a 3.6 m opening in the 4 m wall between them (0.2 m stubs left):
+    # not narrow relative to the space on either side -> one region
     walls = [(0, 0, 10, 0, 0.2), (10, 0, 10, 4, 0.2), (10, 4, 0, 4, 0.2), (0, 4, 0, 0, 0.2), (5, 0, 5, 4, 0.2)]
-    grid = draw_world(walls, [((5.0, 2.0), 3.0, "y")], [(0, 0, 10, 4)])
+    grid = draw_world(walls, [((5.0, 2.0), 3.6, "y")], [(0, 0, 10, 4)])
     seg = segment_rooms(grid)
     assert seg.n_rooms == 1 and seg.doors == []
+    # a 3 m opening (three quarters of the wall) is a room border, as the benchmark's ground truth draws one
+    # across rooms that open onto a corridor almost over their full width (lab_c_scan, lab_a_scan)
+    seg = segment_rooms(draw_world(walls, [((5.0, 2.0), 3.0, "y")], [(0, 0, 10, 4)]))
+    assert seg.n_rooms == 2 and len(seg.doors) == 1 and abs(seg.doors[0].width - 3.0) < 0.15
 
 
 def test_furniture_assignment_and_steps():
@@ -165,6 +216,12 @@ def test_bad_input():
         SegmentationConfig(method="voronoi")
     with pytest.raises(ConfigError):
         SegmentationConfig(min_door_half_width=1.0, max_door_half_width=0.5)
+    with pytest.raises(ConfigError, match="gap_ratio"):
+        SegmentationConfig(gap_ratio=1.5)
+    with pytest.raises(ConfigError, match="max_gap_width"):
+        SegmentationConfig(max_gap_width=0.0)
+    with pytest.raises(ConfigError, match="corner_angle"):
+        SegmentationConfig(corner_angle=-10.0)
     with pytest.raises(ConfigError, match="unknown"):
         from_dict(SegmentationConfig, {"door_width": 0.9})
     # free cells with unknown all around (no wall) still make a room; an isolated free speck under

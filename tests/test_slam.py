@@ -135,6 +135,42 @@ def test_prior_seeds_6dof():
     assert half[0] == SlamConfig().prior_translation_range
     with pytest.raises(InputError, match="prior trajectory seeds 6-DOF runs only"):
         HsSlam(SlamConfig(dof=3), prior=prior)
+    # a cloud between two prior poses (a 2D LiDAR runs faster than the 3D one): their SE(2) interpolation
+    wide = HsSlam(SlamConfig(dof=6, sync_tolerance=0.5), prior=prior)
+    wide.poses.append(np.zeros(6))
+    seeds, _ = wide.seeds(Frame(stamp=0.5, cloud3d=np.zeros((10, 3))))
+    np.testing.assert_allclose(seeds[0][[0, 1, 5]], prior.interpolate([0.5], 0.5)[0][0])
+    assert slam._prior_pose(0.5) is None  # 0.5 s from both, more than the default tolerance
+
+
+class _Stamped:
+    """Frames that know their stamps up front, as readers do."""
+
+    def __init__(self, frames):
+        self._frames = frames
+        self.stamps = np.array([f.stamp for f in frames])
+        self.name = "stamped"
+
+    def __iter__(self):
+        return iter(self._frames)
+
+
+def test_prior_coverage_is_checked_before_the_run(frames):
+    from hsmap.errors import HsmapWarning
+    from hsmap.slam import prior_coverage
+
+    stamps = np.arange(10) * 0.1
+    prior = Trajectory(np.arange(0, 0.45, 0.05), np.zeros((9, 3)))  # covers 0.0 .. 0.4 s
+    with pytest.warns(HsmapWarning, match=r"--prior p.tum gives a pose to 5 of the 10 frames \(50.0 %\)"):
+        info = prior_coverage(prior, stamps, 0.1, name="--prior p.tum")
+    assert info == {"frames": 10, "frames_with_prior": 5, "coverage": 0.5, "sync_tolerance": 0.1}
+    far = Trajectory(stamps + 100.0, np.zeros((10, 3)))
+    with pytest.raises(InputError, match=r"--prior p.tum: none of the input's 10 frames .* sync tolerance of 0.1 s"):
+        prior_coverage(far, stamps, 0.1, name="--prior p.tum")
+    # run_slam checks a dataset that knows its stamps before it processes any frame
+    ds = _Stamped([dataclasses.replace(f, cloud3d=np.zeros((5, 3))) for f in frames[:3]])
+    with pytest.raises(InputError, match="prior: none of the input's 3 frames"):
+        run_slam(ds, SlamConfig(dof=6), prior=Trajectory(ds.stamps + 50, np.zeros((3, 3))), progress=False)
 
 
 def test_bad_inputs(frames):
@@ -253,11 +289,50 @@ def test_cli_slam_on_a_carmen_log(tmp_path):
 
     if rerun_binary() is not None:
         verify_rrd(out / "slam.rrd")
+        from hsmap.viz.rerun import recording_contents
+
+        # the blueprint's 2D map view has its map (issue 13: it stayed empty): the grid and the path
+        entities = recording_contents(out / "slam.rrd")
+        assert "/map/occupancy" in entities and "/map/paths/estimate" in entities
+        assert "/world/map/occupancy" in entities
     # bad input: one line, no traceback, exit 2
     r = subprocess.run([sys.executable, "-m", "hsmap.cli", "slam", str(tmp_path / "missing.bag"), "--out",
                         str(out)], capture_output=True, text=True)
     assert r.returncode == 2 and r.stderr.startswith("hsmap: error:") and "Traceback" not in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("flag, value, match", [
+    ("--extrinsic2d", "0.1,0", "--extrinsic2d must be 3 comma-separated"),
+    ("--extrinsic2d", "a,b,c", "--extrinsic2d must be 3 comma-separated numbers"),
+    ("--extrinsic2d", "0,nan,0", "--extrinsic2d must be 3 comma-separated finite numbers"),
+    ("--extrinsic3d", "0,0,1.6", "--extrinsic3d must be 6 comma-separated"),
+])
+def test_cli_slam_bad_extrinsic(tmp_path, flag, value, match):
+    from hsmap.cli import main
+
+    log = tmp_path / "office.log"
+    write_carmen(log, ROUTE[:3])
+    import contextlib
+    import io
+
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        assert main(["slam", str(log), "--out", str(tmp_path / "o"), flag, value, "--quiet"]) == 2
+    assert match in err.getvalue() and len(err.getvalue().strip().splitlines()) == 1
+
+
+def test_cli_slam_extrinsic_and_no_loop_closure(tmp_path):
+    from hsmap.cli import main
+
+    log = tmp_path / "office.log"
+    write_carmen(log, ROUTE[:25])
+    out = tmp_path / "o"
+    assert main(["slam", str(log), "--out", str(out), "--extrinsic2d", "0.1,0,0", "--no-loop-closure",
+                 "--no-recording", "--quiet"]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["loop_closure"] == "disabled" and m["config"]["loop_closure"]["enabled"] is False
+    assert "frames_retried" in m and m["loops_closed"] == 0
 
 
 def test_interrupted_cli_run_leaves_the_previous_outputs_as_they_were(tmp_path, monkeypatch):

@@ -98,8 +98,9 @@ def test_loop_closes_on_the_ring(ring, tmp_path):
     t_closed, r_closed = end_to_start(closed.trajectory, route)
     assert t_closed < 0.02 and r_closed < 0.5, (t_closed, r_closed)
     # the graph spreads the misclosure over the loop by the edges' uncertainties (each tracking edge at least
-    # 1 cm / 0.1 deg): the largest error along the route shrinks, it does not vanish
-    assert route_error(closed.trajectory, route) < 0.6 * drift
+    # 5 mm / 0.1 deg, floors meant for real sensors, far above this scene's 1 mm): the largest error along the
+    # route shrinks, it does not vanish
+    assert route_error(closed.trajectory, route) < 0.75 * drift
     assert open_.metrics()["loop_closure"] == "disabled"
     # trajectory.tum holds the optimised poses, metrics.json the loop-closure counts
     paths = write_slam_outputs(closed, tmp_path)

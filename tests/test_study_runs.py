@@ -285,20 +285,39 @@ def test_simulated_dataset_is_generated_once(tmp_path, monkeypatch):
 
 
 @pytest.mark.datasets
-def test_open_freiburg_scan_odometry_and_laser_override(datasets_dir):
+def test_open_freiburg_as_the_command_line_does(datasets_dir):
     from hsmap.study import open_freiburg
 
     folder = datasets_dir / "slam2d"
-    ds = open_freiburg(folder, "fr079", laser_x=-0.04)
+    ds = open_freiburg(folder, "fr079")
     assert len(ds) == 4934
     frame = next(ds.frames())
-    np.testing.assert_allclose(frame.extrinsic2d, [-0.04, 0.0, 0.0])
+    np.testing.assert_allclose(frame.extrinsic2d, [-0.04, 0.0, 0.0])  # --extrinsic2d -0.04,0,0
     assert ds.odometry is not None and len(ds.odometry) == len(ds)
-    plain = open_freiburg(folder, "fr079", scan_odometry=False)
-    np.testing.assert_allclose(plain.extrinsic2d, [0.04, 0.0, 0.0])  # what the bag's TF says
-    # the per-scan odometry differs from the bag's interpolated /odom, and both identify the dataset
+    plain = open_freiburg(folder, "fr079", extrinsic2d=[0.04, 0.0, 0.0])
     fps = {json.dumps(dataset_fingerprint(d), sort_keys=True) for d in (ds, plain)}
-    assert len(fps) == 2
+    assert len(fps) == 2  # the offset identifies the dataset
+    with pytest.raises(InputError, match="unknown Freiburg log"):
+        open_freiburg(folder, "aces")
+
+
+@pytest.mark.datasets
+def test_freiburg_relations_over_seeds(datasets_dir, tmp_path, monkeypatch):
+    from hsmap.study import freiburg_relations
+
+    monkeypatch.setenv("HSMAP_GENERATED", str(tmp_path))
+    res = freiburg_relations(datasets_dir / "slam2d", ["fr079"], seeds=[1, 2], max_frames=150)
+    rows = {r["method"]: r for r in res.rows}
+    assert set(rows) == {"raw odometry", "HS-SLAM", "HS-SLAM, no loop closure"}
+    ours = rows["HS-SLAM"]
+    assert ours["seeds"] == [1, 2] and ours["worst_m"] >= ours["translation_m"][0]
+    assert ours["translation_m"][0] < 0.1 and ours["translation_m"][0] < rows["raw odometry"]["translation_m"][0]
+    assert rows["HS-SLAM, no loop closure"]["seeds"] == [1]
+    assert ("fr079", "HS-SLAM") in res.curves
+    table = res.table({"freiburg_relations": {"methods": [
+        {"log": "fr079", "method": "Cartographer", "source": "Hess 2016", "translation_m": [0.0452, 0.0354],
+         "rotation_deg": [0.538, 0.718]}]}})
+    assert "Cartographer (Hess 2016)" in table and "HS-SLAM, no loop closure" in table
 
 
 @pytest.mark.datasets

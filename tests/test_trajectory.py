@@ -82,3 +82,31 @@ def test_tum_zero_quaternion_names_the_file(tmp_path):
     p.write_text("0 0 0 0 0 0 0 1\n1 0 0 0 0 0 0 0\n")
     with pytest.raises(DataFormatError, match=r"zero.tum: quaternion .* zero"):
         read_tum(p)
+
+
+def test_interpolate_between_poses_within_the_tolerance():
+    # 2D poses every 0.1 s of a robot turning on an arc; queries between them
+    t = np.arange(0, 1.01, 0.1)
+    # 0.5 m/s forward while turning at 0.8 rad/s
+    poses = np.array([[np.sin(0.8 * s) / 0.8 * 0.5, (1 - np.cos(0.8 * s)) / 0.8 * 0.5, 0.8 * s] for s in t])
+    traj = Trajectory(t, poses)
+    q = np.array([0.05, 0.2, 0.34, 1.0, 1.04, -0.01, 0.5004])
+    got, found = traj.interpolate(q, max_dt=0.065)
+    assert found.tolist() == [True, True, True, True, False, False, True]
+    expected = np.array([[np.sin(0.8 * s) / 0.8 * 0.5, (1 - np.cos(0.8 * s)) / 0.8 * 0.5, 0.8 * s]
+                         for s in q[found]])
+    expected[-1] = poses[5]  # within 1 ms of a pose: that pose
+    np.testing.assert_allclose(got, expected, atol=1e-12)
+    # a pose farther than the tolerance on either side: no pose
+    assert not traj.interpolate([0.34], max_dt=0.05)[1][0]
+    assert not traj.interpolate([0.36], max_dt=0.05)[1][0]
+    # unordered stamps are sorted first; 6-DOF poses interpolate too
+    shuffled = Trajectory(t[::-1], poses[::-1])
+    np.testing.assert_allclose(shuffled.interpolate([0.33], 0.06)[0], traj.interpolate([0.33], 0.06)[0])
+    six, ok = traj.as_6dof().interpolate([0.25], 0.06)
+    assert ok[0] and six.shape == (1, 6)
+    np.testing.assert_allclose(six[0, [0, 1, 5]], traj.interpolate([0.25], 0.06)[0][0], atol=2e-3)
+    with pytest.raises(InputError, match="max_dt"):
+        traj.interpolate([0.3], max_dt=-1.0)
+    with pytest.raises(InputError, match="empty"):
+        Trajectory(np.zeros(0), np.zeros((0, 3))).interpolate([0.0], 0.1)

@@ -104,7 +104,7 @@ def test_full_scene_recording_verifies_and_holds_each_part(tmp_path):
         "/world/robot/lidar2d/scan": "Points3D:positions",
         "/world/robot/lidar3d/cloud": "Points3D:positions",
         "/world/map/occupancy": "GridMap:data",
-        "/world/map/rooms": "GridMap:data",
+        "/world/map/rooms": "Mesh3D:albedo_texture_buffer",
         "/world/map/graph/nodes": "Points3D:positions",
         "/world/map/graph/edges": "LineStrips3D:strips",
         "/world/trajectory/groundtruth": "LineStrips3D:strips",
@@ -176,21 +176,34 @@ def test_grid_and_labels_are_placed_by_their_geometry(tmp_path, monkeypatch):
     assert gm.cell_size.pa_array.to_pylist()[0] == pytest.approx(0.05)
     data = np.array(gm.data.pa_array.to_pylist()[0], np.uint8).reshape(geo.shape)
     np.testing.assert_array_equal(data, np.where(occ, 100, 0))  # row 0 = top row, as rerun draws it
-    rooms = spy.get("world/map/rooms", rr.GridMap)
-    assert rooms.translation.pa_array.to_pylist()[0][:2] == [-1.0, -2.0]
-    rgba = np.array(rooms.data.pa_array.to_pylist()[0], np.uint8).reshape(geo.shape + (4,))
-    np.testing.assert_array_equal(rgba[40, 50, :3], label_color(1))
-    np.testing.assert_array_equal(rgba[40, 150, :3], label_color(2))
+    # room colours as a textured quad over the grid's extent (a colour GridMap is flagged by rerun 0.41),
+    # texture row 0 (v = 0) on the side of largest y, as the GridMap's row 0
+    rooms = spy.get("world/map/rooms", rr.Mesh3D)
+    corners = np.array(rooms.vertex_positions.pa_array.to_pylist())
+    h, w = geo.shape
+    np.testing.assert_allclose(corners[:, :2], [[-1, -2], [-1 + w * 0.05, -2], [-1 + w * 0.05, -2 + h * 0.05],
+                                                [-1, -2 + h * 0.05]])
+    uv = np.array(rooms.vertex_texcoords.pa_array.to_pylist())
+    assert uv[0, 1] == 1.0 and uv[2, 1] == 0.0
+    fmt = rooms.albedo_texture_format.pa_array.to_pylist()[0]
+    rgba = np.array(rooms.albedo_texture_buffer.pa_array.to_pylist()[0], np.uint8).reshape(
+        fmt["height"], fmt["width"], 4)
+    up = fmt["height"] // h  # each cell drawn as an up x up block
+    assert fmt["width"] == up * w
+    np.testing.assert_array_equal(rgba[40 * up, 50 * up, :3], label_color(1))
+    np.testing.assert_array_equal(rgba[40 * up, 150 * up, :3], label_color(2))
     assert rgba[0, 0, 3] == 0  # no room: transparent
     ctx = spy.get("map/rooms", rr.AnnotationContext)
     assert "room 2" in str(ctx.context.pa_array.to_pylist())
     seg = spy.get("map/rooms", rr.SegmentationImage)
     assert seg.format.pa_array.to_pylist()[0]["width"] == 200
-    # the graph view shows the map from above: world (x, -y) * scale
+    # the graph view shows the map from above: world (x, -y) * scale; the door, on the line between its two
+    # rooms (2, 0) and (7, 0), is drawn a third of their distance aside so that the labels do not collide
     nodes = spy.get("graph", rr.GraphNodes)
     ids = nodes.node_ids.pa_array.to_pylist()
     pos = dict(zip(ids, nodes.positions.pa_array.to_pylist(), strict=True))
-    assert pos["1"] == pytest.approx([20.0, -0.0]) and pos["d1"] == pytest.approx([50.0, -0.0])
+    assert pos["1"] == pytest.approx([20.0, -0.0]) and pos["2"] == pytest.approx([70.0, -0.0])
+    assert pos["d1"][0] == pytest.approx(50.0) and abs(pos["d1"][1]) == pytest.approx(50.0 / 3)
     edges = spy.get("graph", rr.GraphEdges).edges.pa_array.to_pylist()
     assert sorted(map(sorted, ([e["first"], e["second"]] if isinstance(e, dict) else e for e in edges))) == [
         ["1", "d1"], ["2", "d1"]]

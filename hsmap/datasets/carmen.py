@@ -237,6 +237,8 @@ class CarmenDataset(Dataset):
         odom = np.array([r[3] for r in rows])
         off = laser_offset if laser_offset is not None else self._param(f"robot_{side}laser_offset")
         self.extrinsic2d = np.array([off or 0.0, 0.0, 0.0 if side == "front" else math.pi])
+        self.extrinsic_sources["2d"] = ("laser_offset" if laser_offset is not None else
+                                        f"PARAM robot_{side}laser_offset" if off is not None else "default")
         fov = fov_deg if fov_deg is not None else self._param(f"laser_{side}_laser_fov")
         fov = 180.0 if fov is None else fov
         if not (math.isfinite(fov) and 0 < fov <= 360):
@@ -261,6 +263,7 @@ class CarmenDataset(Dataset):
         ]
         self._extrinsics = relative(robot, laser)
         self.extrinsic2d = self._extrinsics[0].copy()
+        self.extrinsic_sources["2d"] = "ROBOTLASER laser and robot poses"
         self.fov = float(np.median(head[:, 2]))
         self.logged_poses = Trajectory(self.stamps, robot)
         self.odometry = Trajectory(self.stamps.copy(), robot.copy())
@@ -277,9 +280,9 @@ class CarmenDataset(Dataset):
         r[~((r >= 0.0) & (r < thr))] = np.nan  # NaN, inf, negative, no return
         return LaserScan2D(ranges=r, angles=angles, range_min=0.0, range_max=thr)
 
-    def override_extrinsics(self, extrinsic2d=None, extrinsic3d=None) -> None:
+    def override_extrinsics(self, extrinsic2d=None, extrinsic3d=None, *, source: str | None = None) -> None:
         """Replace the laser extrinsic (also the per-message one of ROBOTLASER lines); see :class:`Dataset`."""
-        super().override_extrinsics(extrinsic2d, extrinsic3d)
+        super().override_extrinsics(extrinsic2d, extrinsic3d, source=source)
         if extrinsic2d is not None:
             self._extrinsics = None
 

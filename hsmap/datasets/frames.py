@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["LaserScan2D", "Frame", "Dataset"]
+__all__ = ["LaserScan2D", "Frame", "Dataset", "SOURCE_INPUT", "SOURCE_DEFAULT"]
 
 
 @dataclass
@@ -67,6 +67,12 @@ class Frame:
     extrinsic3d: NDArray[np.float64] = field(default_factory=lambda: np.zeros(6))
 
 
+#: Where a sensor offset came from when the reader says nothing else (a simulated folder's dataset.yaml, ...).
+SOURCE_INPUT = "input"
+#: No transform was found: the offset is zero.
+SOURCE_DEFAULT = "default"
+
+
 class Dataset:
     """What every reader returns: a sequence of :class:`Frame` plus what the source knows about itself.
 
@@ -80,17 +86,35 @@ class Dataset:
         Wheel odometry of the robot base at the scan stamps, when the source has it.
     groundtruth : Trajectory or None
         Ground-truth poses of the robot base at the scan stamps (simulator only).
+    extrinsic_sources : dict
+        ``{"2d": ..., "3d": ...}``: where each sensor offset came from: ``"tf"`` (a bag's transforms),
+        ``"default"`` (none found: zero), the option that gave it (``"--extrinsic3d"`` at the command line,
+        ``"extrinsic3d"`` in Python), or what the input says (``"input"``: a simulated folder's description).
+    warnings : list of str
+        What the reader worked around (a missing transform, ...), also issued as :class:`HsmapWarning`.
+    driver : str or None
+        ``"scan"`` or ``"cloud"``: the sensor whose messages make the frames, where a reader has both at their
+        own rates (:meth:`driven_by`); None where every frame has both.
     """
 
     name: str = ""
     path: str = ""
     odometry = None
     groundtruth = None
+    driver: str | None = None
 
     def __len__(self) -> int:
         raise NotImplementedError
 
-    def override_extrinsics(self, extrinsic2d=None, extrinsic3d=None) -> None:
+    @property
+    def extrinsic_sources(self) -> dict:
+        return self.__dict__.setdefault("_extrinsic_sources", {"2d": SOURCE_INPUT, "3d": SOURCE_INPUT})
+
+    @property
+    def warnings(self) -> list:
+        return self.__dict__.setdefault("_warnings", [])
+
+    def override_extrinsics(self, extrinsic2d=None, extrinsic3d=None, *, source: str | None = None) -> None:
         """Replace the sensor extrinsics the source declares (e.g. a TF known to be wrong).
 
         Parameters
@@ -99,6 +123,8 @@ class Dataset:
             (x, y, yaw) of the 2D LiDAR in the robot base frame.
         extrinsic3d : array_like of shape (6,), optional
             (x, y, z, roll, pitch, yaw) of the 3D LiDAR in the robot base frame.
+        source : str, optional
+            What gave them, recorded in :attr:`extrinsic_sources` (default the argument's name).
         """
         from ..errors import ShapeError
 
@@ -107,8 +133,53 @@ class Dataset:
                 continue
             arr = np.asarray(value, dtype=float)
             if arr.shape != (n,) or not np.all(np.isfinite(arr)):
-                raise ShapeError(f"{name} must be {n} finite numbers, got {np.asarray(value).tolist()}")
+                raise ShapeError(f"{source or name} must be {n} finite numbers, got {np.asarray(value).tolist()}")
             setattr(self, name, arr)
+            self.extrinsic_sources[name[-2:]] = source or name
+
+    def driven_by(self, sensor: str) -> Dataset:
+        """This dataset with frames made by ``sensor``'s messages (``"scan"`` or ``"cloud"``).
+
+        A recording whose 2D LiDAR runs faster than its 3D one gives a 6-DOF run one frame per cloud (the
+        nearest scan attached when within the reader's sync tolerance) and a 3-DOF run one frame per scan.
+        Readers whose frames carry both sensors at once return themselves.
+        """
+        if sensor not in ("scan", "cloud"):
+            from ..errors import InputError
+
+            raise InputError(f"sensor must be 'scan' or 'cloud', got {sensor!r}")
+        return self
+
+    def describe(self) -> dict:
+        """What was read and how, JSON-ready (``input_info`` of a SLAM run's metrics.json).
+
+        ``reader``, ``path``, ``frames``, ``driven_by``, ``extrinsics`` (per sensor its ``value`` and
+        ``source``, see :attr:`extrinsic_sources`), ``warnings``, and what the reader adds (a bag's topics with
+        their message counts, rates and frames, its base frame, the transforms used, the sync tolerance).
+        """
+        ext = {}
+        for key, attr in (("2d", "extrinsic2d"), ("3d", "extrinsic3d")):
+            value = getattr(self, attr, None)
+            if value is not None and key in self.extrinsic_sources:
+                ext[key] = {"value": [float(v) for v in np.asarray(value, dtype=float).reshape(-1)],
+                            "source": self.extrinsic_sources.get(key, SOURCE_INPUT)}
+        out = {"reader": type(self).__name__, "path": str(self.path), "frames": len(self),
+               "driven_by": self.driver, "extrinsics": ext, "warnings": list(self.warnings)}
+        out.update(self._describe())
+        return out
+
+    def _describe(self) -> dict:
+        """Reader-specific entries of :meth:`describe`."""
+        return {}
+
+    def _warn(self, message: str, stacklevel: int = 3) -> None:
+        """Record a warning in :attr:`warnings` and issue it as :class:`~hsmap.errors.HsmapWarning`."""
+        import warnings
+
+        from ..errors import HsmapWarning
+
+        self.warnings.append(message)
+        warnings.warn(message, HsmapWarning, stacklevel=stacklevel)
 
     def frames(self, clouds: bool = True):  # -> Iterator[Frame]
         """Yield the frames in recording order; ``clouds=False`` may skip reading 3D clouds (faster 2D runs)."""

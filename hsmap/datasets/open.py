@@ -3,15 +3,22 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from pathlib import Path
 
 from ..errors import DatasetError
 from .frames import Dataset
 
-__all__ = ["open_dataset", "CARMEN_SUFFIXES"]
+__all__ = ["open_dataset", "CARMEN_SUFFIXES", "BAG_SUFFIXES"]
 
 #: File endings read as CARMEN logs.
 CARMEN_SUFFIXES = (".log", ".clf", ".gz")
+#: File endings read as bags: ROS1, and the ROS2 storage files (alone or in their bag folder).
+BAG_SUFFIXES = (".bag", ".mcap", ".db3")
+
+#: Options only some readers take, with the kinds of input that take them.
+_BAG_OPTIONS = ("scan_topic", "cloud_topic", "odom_topic", "base_frame")
+_FOLDER_OPTIONS = ("cloud_rate", "scans", "scan_rate")
 
 
 def open_dataset(
@@ -22,73 +29,123 @@ def open_dataset(
     odom_topic: str | None = None,
     extrinsic2d=None,
     extrinsic3d=None,
+    base_frame: str | None = None,
+    sync_tolerance: float | None = None,
+    drive: str | None = None,
+    cloud_rate: float | None = None,
+    scans: str | os.PathLike | None = None,
+    scan_rate: float | None = None,
+    option_names: Mapping[str, str] | None = None,
+    progress: bool | None = False,
 ) -> Dataset:
-    """Open a simulator folder, a ROS1/ROS2 bag or a CARMEN log.
+    """Open a simulator folder, a ROS1/ROS2 bag, a CARMEN log or a folder of point clouds.
 
     Parameters
     ----------
     path : str or Path
         - a folder with ``dataset.yaml``: the simulator's output (:class:`hsmap.datasets.simulated.SimulatedDataset`);
-        - a ``.bag`` file (ROS1), or a ROS2 bag folder (with ``metadata.yaml``) or its ``.db3``/``.mcap``
-          file: :class:`hsmap.datasets.rosbag.RosbagDataset`;
-        - a ``.log``/``.clf`` file or its ``.gz``: :class:`hsmap.datasets.carmen.CarmenDataset`.
-    scan_topic, cloud_topic, odom_topic : str, optional
-        Bag topics (auto-detected by message type when None); only meaningful for bags.
+        - a ``.bag`` file (ROS1), a ROS2 bag folder (with ``metadata.yaml``), or a ROS2 ``.mcap``/``.db3``
+          storage file, in its folder or alone: :class:`hsmap.datasets.rosbag.RosbagDataset`;
+        - a ``.log``/``.clf`` file or its ``.gz``: :class:`hsmap.datasets.carmen.CarmenDataset`;
+        - a folder of ``.pcd``/``.ply``/KITTI ``.bin``/``.csv`` clouds:
+          :class:`hsmap.datasets.clouds.CloudFolderDataset`.
+    scan_topic, cloud_topic, odom_topic, base_frame : str, optional
+        Bags only: topics (each auto-detected by message type when None, ``""`` for none) and the robot base frame.
     extrinsic2d, extrinsic3d : array_like of shape (3,) / (6,), optional
-        Override the sensor extrinsics the input declares (see :meth:`Dataset.override_extrinsics`). For
-        example, the fr079 bag's TF puts the laser 0.04 m forward while the CARMEN log's PARAM says 0.04 m back;
-        the Freiburg relations agree with the PARAM.
+        Override the sensor extrinsics the input declares. For example, the fr079 bag's TF puts the laser
+        0.04 m forward while the CARMEN log's PARAM says 0.04 m back; the Freiburg relations agree with the PARAM.
+    sync_tolerance : float, optional
+        Bags and cloud folders: the largest stamp difference (s) between a frame and the other sensor's message
+        attached to it (default :data:`hsmap.datasets.rosbag.DEFAULT_SYNC_TOLERANCE`).
+    drive : str, optional
+        ``"scan"`` or ``"cloud"``: which sensor's messages make the frames where an input has both at their own
+        rates (bags, cloud folders); default the scans when there are any. A 6-DOF run wants ``"cloud"``.
+    cloud_rate, scans, scan_rate :
+        Cloud folders only: the clouds' rate (Hz) instead of a ``times.txt``, a folder of 2D scans, their rate.
+    option_names : mapping, optional
+        The caller's names of these options, used in messages (the command line passes its flags:
+        ``{"scan_topic": "--scan-topic", ...}``).
+    progress : bool or None
+        A progress bar while a bag is read (None: on a terminal only).
 
     Raises
     ------
     DatasetError
-        ``path`` does not exist, is none of the above, topics are given for a non-bag input, or the
-        simulated-dataset reader is not available.
+        ``path`` does not exist, is none of the above, options are given for an input that does not take them,
+        or the simulated-dataset reader is not available.
     """
-    ds = _open(Path(path), scan_topic, cloud_topic, odom_topic)
-    if extrinsic2d is not None or extrinsic3d is not None:
-        ds.override_extrinsics(extrinsic2d, extrinsic3d)
+    from .rosbag import DEFAULT_SYNC_TOLERANCE, OPTION_NAMES
+
+    names = {**OPTION_NAMES, "cloud_rate": "cloud_rate", "scans": "scans", "scan_rate": "scan_rate",
+             **(option_names or {})}
+    p = Path(path)
+    if not p.exists():
+        raise DatasetError(f"{p}: no such file or folder")
+    given = {"scan_topic": scan_topic, "cloud_topic": cloud_topic, "odom_topic": odom_topic, "base_frame": base_frame,
+             "cloud_rate": cloud_rate, "scans": scans, "scan_rate": scan_rate}
+    given = [k for k, v in given.items() if v is not None]
+    tol = DEFAULT_SYNC_TOLERANCE if sync_tolerance is None else sync_tolerance
+    kind = _kind(p)
+
+    def only(allowed: tuple[str, ...]) -> None:
+        wrong = [names[k] for k in given if k not in allowed]
+        if wrong:
+            raise DatasetError(f"{p}: {', '.join(wrong)} do not apply to a {kind}")
+
+    if kind in ("ROS bag", "ROS2 bag folder"):
+        only(_BAG_OPTIONS)
+        from .rosbag import RosbagDataset
+
+        return RosbagDataset(p, scan_topic=scan_topic, cloud_topic=cloud_topic, odom_topic=odom_topic,
+                             base_frame=base_frame, sync_tolerance=tol, drive=drive, extrinsic2d=extrinsic2d,
+                             extrinsic3d=extrinsic3d, option_names=names, progress=progress)
+    if kind == "point-cloud folder":
+        only(_FOLDER_OPTIONS)
+        from .clouds import CloudFolderDataset
+
+        return CloudFolderDataset(p, cloud_rate=cloud_rate, scans=scans, scan_rate=scan_rate, sync_tolerance=tol,
+                                  drive=drive, extrinsic2d=extrinsic2d, extrinsic3d=extrinsic3d, option_names=names)
+    only(())
+    if kind == "simulated dataset folder":
+        try:
+            from .simulated import SimulatedDataset
+        except ImportError as exc:
+            raise DatasetError(
+                f"{p}: a simulated dataset folder, but its reader hsmap.datasets.simulated is not available ({exc})"
+            ) from None
+        ds: Dataset = SimulatedDataset(p)
+    else:
+        from .carmen import CarmenDataset
+
+        ds = CarmenDataset(p)
+    for key, value in (("extrinsic2d", extrinsic2d), ("extrinsic3d", extrinsic3d)):
+        if value is not None:
+            ds.override_extrinsics(**{key: value}, source=names.get(key, key))
     return ds
 
 
-def _open(p: Path, scan_topic: str | None, cloud_topic: str | None, odom_topic: str | None) -> Dataset:
-    if not p.exists():
-        raise DatasetError(f"{p}: no such file or folder")
-    topics = {"scan_topic": scan_topic, "cloud_topic": cloud_topic, "odom_topic": odom_topic}
-    given = [k for k, v in topics.items() if v is not None]
-
-    def no_topics(kind: str) -> None:
-        if given:
-            raise DatasetError(f"{p}: {', '.join(given)} only apply to ROS bags, and this is a {kind}")
-
+def _kind(p: Path) -> str:
+    """What ``p`` is, or a DatasetError saying what was expected."""
     if p.is_dir():
         if (p / "dataset.yaml").is_file():
-            no_topics("simulated dataset folder")
-            try:
-                from .simulated import SimulatedDataset
-            except ImportError as exc:
-                raise DatasetError(
-                    f"{p}: a simulated dataset folder, but its reader hsmap.datasets.simulated is not available ({exc})"
-                ) from None
-            return SimulatedDataset(p)
+            return "simulated dataset folder"
         if (p / "metadata.yaml").is_file():
-            from .rosbag import RosbagDataset
+            return "ROS2 bag folder"
+        from .clouds import is_cloud_folder
 
-            return RosbagDataset(p, **topics)
+        if is_cloud_folder(p):
+            return "point-cloud folder"
         raise DatasetError(
-            f"{p}: a folder with neither dataset.yaml (simulator output) nor metadata.yaml (ROS2 bag)"
+            f"{p}: a folder with neither dataset.yaml (simulator output), metadata.yaml (ROS2 bag) nor point-cloud "
+            "files (.pcd, .ply, KITTI .bin, .csv)"
         )
     suffix = p.suffix.lower()
-    if suffix == ".bag" or (suffix in (".db3", ".mcap") and (p.parent / "metadata.yaml").is_file()):
-        from .rosbag import RosbagDataset
-
-        return RosbagDataset(p, **topics)
+    if suffix in BAG_SUFFIXES:
+        return "ROS bag"
     if suffix in CARMEN_SUFFIXES:
-        no_topics("CARMEN log")
-        from .carmen import CarmenDataset
-
-        return CarmenDataset(p)
+        return "CARMEN log"
     raise DatasetError(
-        f"{p}: unknown input type {suffix or '(no suffix)'!r}; expected a simulator folder (dataset.yaml), "
-        f"a ROS1 .bag, a ROS2 bag folder, or a CARMEN log ({', '.join(CARMEN_SUFFIXES)})"
+        f"{p}: unknown input type {suffix or '(no suffix)'!r}; expected a simulator folder (dataset.yaml), a ROS1 "
+        f".bag, a ROS2 bag folder or .mcap/.db3 file, a CARMEN log ({', '.join(CARMEN_SUFFIXES)}) or a folder of "
+        "point clouds"
     )

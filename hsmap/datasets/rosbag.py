@@ -7,19 +7,26 @@ What is read
 - ``/tf_static`` (and, only when the static tree does not connect them, the first ``/tf`` transform of each
   edge that does not move the base): the sensor extrinsics, robot base -> sensor frame.
 
-Topics are chosen by message type when there is one candidate; with several, name one (``scan_topic=``,
-``cloud_topic=``, ``odom_topic=``). When neither ``scan_topic`` nor ``cloud_topic`` is given, every
-sensor type with exactly one topic is used (a 2D scan topic and a 3D cloud topic give multi-LiDAR frames).
-A topic that is named but absent raises :class:`~hsmap.errors.DatasetError` listing the topics of the bag.
+Inputs: a ROS1 ``.bag``, a ROS2 bag folder (``metadata.yaml``), or a ROS2 storage file alone (``.mcap`` or
+``.db3``, without its folder: rosbags reads the topics from the file itself).
+
+Topics are chosen independently of each other: each of ``scan_topic``, ``cloud_topic`` and ``odom_topic``
+is the named topic, or, when None, the one topic of its message type (none when the bag has none); ``""``
+leaves that sensor out. Several candidates, or a named topic that is absent or of another type, raise
+:class:`~hsmap.errors.DatasetError` naming the option (``option_names`` maps them to the caller's names, the
+command line's ``--scan-topic`` ...) and listing the topics of the bag.
 ROS1 LaserScan and Odometry messages with the standard definitions (checked by md5sum) are decoded straight
 from their bytes, about twice as fast as rosbags' generic deserializer (the tests check both agree); all
 other messages, and every ROS2 message, go through rosbags.
 
 Frames and order
 ----------------
-Frames are driven by the 2D scans when there are any, else by the clouds; the other sensor's nearest
+A 2D LiDAR usually runs faster than a 3D one (40 Hz and 10 Hz), and they are not synchronised. The frames are
+made by one sensor's messages, the *driver*: the 2D scans by default when there are any (a 3-DOF run), the
+clouds for a 6-DOF run (``drive="cloud"`` or :meth:`RosbagDataset.driven_by`); the other sensor's nearest
 message within ``sync_tolerance`` seconds is attached (``None`` when there is none). Each frame carries its
-sensor message's own ``Header.stamp``.
+driving message's own ``Header.stamp``. (A 6-DOF run seeded by a 2D run interpolates the 2D poses at the
+clouds' stamps: :meth:`hsmap.trajectory.Trajectory.interpolate`.)
 
 The order of frames is :class:`FrameOrder`. ``AUTO`` (default) takes ROS1's ``Header.seq`` (the publisher's
 counter, i.e. the order in which the messages were produced) when every message of the topic has a distinct
@@ -30,6 +37,16 @@ odometry carried by each scan is a smooth 508 m path in seq order and a 661 m zi
 frames therefore keep their original, non-monotonic stamps in seq order; consumers that interpolate in time
 (the relations metric) sort by stamp themselves.
 
+Sensor offsets
+--------------
+The pose of each sensor's ``frame_id`` in the base frame comes from TF (the chain of transforms, any number of
+hops: ``base_link -> os_sensor -> os_lidar``), or from the caller (``extrinsic2d``/``extrinsic3d``, the
+command line's ``--extrinsic2d``/``--extrinsic3d``), which overrides TF. A sensor with neither gets a zero
+offset and a warning (:class:`~hsmap.errors.HsmapWarning`, also in :attr:`Dataset.warnings` and
+``describe()``), because a zero offset is almost never right (a 3D LiDAR on a mast is a metre or more above the
+base). :meth:`RosbagDataset.describe` records the topics, their message counts, rates and frames, the base
+frame, each offset with its source (``tf`` and the chain, the option, ``default``) and the warnings.
+
 Odometry
 --------
 ``Frame.odometry`` is the odometry pose linearly interpolated (yaw on the unwrapped angle) at the frame's
@@ -38,6 +55,11 @@ outside the odometry's time span get ``None``. With jittered stamps (intel, see 
 pose inherits the jitter: 37 of intel's 13,630 frame-to-frame odometry steps exceed 0.3 m, against none for
 the odometry CARMEN stored with each scan (which ``intel.clf2bag.bag`` carries, one message per scan):
 :func:`adopt_odometry` gives the ``orig.bag`` frames that odometry after checking the scans are identical.
+
+No-return points of a cloud
+---------------------------
+Points with a non-finite coordinate, and points at exactly (0, 0, 0) (organised clouds such as Ouster's
+write zeros where a beam had no return), are dropped.
 
 No-return readings
 ------------------
@@ -51,6 +73,7 @@ default ``no_return=80.0`` m catches both. Pass ``no_return=None`` to trust ``ra
 from __future__ import annotations
 
 import contextlib
+import copy
 import enum
 import functools
 import math
@@ -64,7 +87,7 @@ from numpy.typing import NDArray
 from ..errors import DataFormatError, DatasetError, HsmapWarning, InputError
 from ..geometry import invert_matrix, matrix_to_pose, quaternion_to_matrix, wrap_angle
 from ..trajectory import Trajectory, nearest_index
-from .frames import Dataset, Frame, LaserScan2D
+from .frames import SOURCE_DEFAULT, Dataset, Frame, LaserScan2D
 
 __all__ = [
     "FrameOrder",
@@ -78,6 +101,8 @@ __all__ = [
     "pointcloud2_xyz",
     "no_return_threshold",
     "adopt_odometry",
+    "ROS2_STORAGE_SUFFIXES",
+    "DEFAULT_SYNC_TOLERANCE",
 ]
 
 SCAN_TYPE = "sensor_msgs/msg/LaserScan"
@@ -89,6 +114,10 @@ TF_TYPE = "tf2_msgs/msg/TFMessage"
 NO_RETURN_MARGIN = 0.05
 #: Readings at or above this many metres count as "no return" (SICK error codes 81.83 / 81.91 m in CARMEN logs).
 DEFAULT_NO_RETURN = 80.0
+#: ROS2 storage files that open alone, without their bag folder.
+ROS2_STORAGE_SUFFIXES = (".mcap", ".db3")
+#: Seconds: the largest stamp difference between a frame and the other sensor's message attached to it.
+DEFAULT_SYNC_TOLERANCE = 0.1
 
 # sensor_msgs/PointField datatypes -> numpy
 _POINTFIELD_DTYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
@@ -123,7 +152,8 @@ def pointcloud2_xyz(msg, *, source: str = "PointCloud2") -> NDArray[np.float64]:
     Returns
     -------
     ndarray of shape (N, 3)
-        Points with any non-finite coordinate dropped.
+        Points with any non-finite coordinate dropped, and points at exactly (0, 0, 0): organised clouds
+        (Ouster's, 48 bytes a point) write zeros where a beam had no return.
     """
     fields = {f.name: f for f in msg.fields}
     missing = [n for n in ("x", "y", "z") if n not in fields]
@@ -156,7 +186,7 @@ def pointcloud2_xyz(msg, *, source: str = "PointCloud2") -> NDArray[np.float64]:
         rows = np.lib.stride_tricks.as_strided(data, shape=(height, width * step), strides=(row_step, 1))
         rec = np.ascontiguousarray(rows).reshape(-1).view(dtype)
     xyz = np.column_stack([rec["x"], rec["y"], rec["z"]]).astype(float)
-    return xyz[np.isfinite(xyz).all(axis=1)]
+    return xyz[np.isfinite(xyz).all(axis=1) & (xyz != 0.0).any(axis=1)]
 
 
 # ROS1 md5sums of the standard definitions, for which the raw layout below is fixed
@@ -272,6 +302,25 @@ class _TfTree:
             seen.add(frame)
         return frame, T
 
+    def chain(self, target: str, source: str) -> list[str]:
+        """The frames from ``target`` to ``source`` through their common ancestor (both ends included)."""
+        def up(frame: str) -> list[str]:
+            out, seen = [frame], {frame}
+            while frame in self.parent and self.parent[frame][0] not in seen:
+                frame = self.parent[frame][0]
+                out.append(frame)
+                seen.add(frame)
+            return out
+
+        a, b = up(_frame_id(target)), up(_frame_id(source))
+        common = next((f for f in a if f in set(b)), None)
+        if common is None:
+            return []
+        return a[: a.index(common) + 1] + b[: b.index(common)][::-1]
+
+    def frames(self) -> set[str]:
+        return set(self.parent) | {p for p, _ in self.parent.values()}
+
     def lookup(self, target: str, source: str) -> NDArray[np.float64] | None:
         """Pose of ``source`` in ``target`` (4x4), or None when they are not connected."""
         rs, Ts = self._to_root(_frame_id(source))
@@ -292,31 +341,49 @@ def _ros2_typestore():
     return get_typestore(Stores.LATEST)
 
 
+#: The Python names of the options, used in messages unless the caller names them its own way.
+OPTION_NAMES = {"scan_topic": "scan_topic", "cloud_topic": "cloud_topic", "odom_topic": "odom_topic",
+                "base_frame": "base_frame", "extrinsic2d": "extrinsic2d", "extrinsic3d": "extrinsic3d",
+                "sync_tolerance": "sync_tolerance", "drive": "drive"}
+
+
 def _topics_listing(reader) -> str:
     return ", ".join(f"{c.topic} ({c.msgtype})" for c in sorted(reader.connections, key=lambda c: c.topic)) or "none"
 
 
 class RosbagDataset(Dataset):
-    """Frames from a ROS1 bag (``.bag``) or a ROS2 bag (folder with ``metadata.yaml``).
+    """Frames from a ROS1 bag (``.bag``), a ROS2 bag (folder with ``metadata.yaml``) or a ROS2 storage file alone
+    (``.mcap``, ``.db3``).
 
     Parameters
     ----------
     path : str or Path
-        The bag file (ROS1) or bag folder (ROS2).
+        The bag file (ROS1), bag folder or storage file (ROS2).
     scan_topic, cloud_topic, odom_topic : str, optional
-        Topics to read; auto-detected by message type when None (see the module docstring). Pass
-        ``odom_topic=""`` to ignore odometry.
+        Topics to read, each chosen on its own: the named one, or when None the one topic of its type (see the
+        module docstring); ``""`` leaves that sensor (or the odometry) out.
     order : FrameOrder or str
         Frame order, default ``AUTO`` (ROS1 seq when distinct, else stamps).
     base_frame : str, optional
         Robot base frame for the extrinsics; default: the odometry's ``child_frame_id``, else ``base_link``
-        or ``base_footprint`` when TF has them, else the sensor frame itself (identity extrinsic).
+        or ``base_footprint`` when TF has them. A named frame must be in TF, or be a sensor's frame or the
+        odometry's child frame. The grids' heights (a 3D map's slice) are measured from its z = 0: use a
+        frame on the floor (``base_footprint``) where the bag has one.
     no_return : float or None
         Ranges at or above ``min(range_max - 0.05, no_return)`` are no-return and masked (NaN).
     odom_tolerance : float
         Frames more than this many seconds outside the odometry's time span get no odometry.
     sync_tolerance : float
-        Largest stamp difference (s) for attaching the secondary sensor's message to a frame.
+        Largest stamp difference (s) for attaching the other sensor's message to a frame.
+    drive : str, optional
+        ``"scan"`` or ``"cloud"``: the sensor whose messages make the frames (default: the scans when the bag
+        has a scan topic, else the clouds); :meth:`driven_by` gives the other view of the same bag.
+    extrinsic2d, extrinsic3d : array_like of shape (3,) / (6,), optional
+        Sensor offsets in the base frame that override TF.
+    option_names : mapping, optional
+        The caller's names of the options, for messages (``{"scan_topic": "--scan-topic", ...}``).
+    progress : bool or None
+        A progress bar while the bag is read (None: on a terminal only).
 
     Attributes
     ----------
@@ -326,10 +393,13 @@ class RosbagDataset(Dataset):
         Frame stamps in frame order.
     order : FrameOrder
         The order actually used (never AUTO).
+    driver : str
+        ``"scan"`` or ``"cloud"``.
+    base_frame : str or None
     extrinsic2d : ndarray of shape (3,)
     extrinsic3d : ndarray of shape (6,)
     extrinsic_found : dict
-        For each sensor frame used, whether TF gave its pose in the base frame (identity otherwise).
+        For each sensor frame used, whether TF gave its pose in the base frame (zero otherwise).
     odometry : Trajectory or None
         Odometry at the frame stamps (frames that have one), in frame order.
     """
@@ -345,25 +415,41 @@ class RosbagDataset(Dataset):
         base_frame: str | None = None,
         no_return: float | None = DEFAULT_NO_RETURN,
         odom_tolerance: float = 0.5,
-        sync_tolerance: float = 0.05,
+        sync_tolerance: float = DEFAULT_SYNC_TOLERANCE,
+        drive: str | None = None,
+        extrinsic2d=None,
+        extrinsic3d=None,
+        option_names: dict | None = None,
+        progress: bool | None = False,
     ) -> None:
         self.path = str(path)
         p = Path(path)
         self.name = p.name.split(".")[0] if p.is_file() else p.name
+        self._names = {**OPTION_NAMES, **(option_names or {})}
         try:
             self.order = FrameOrder(order)
         except ValueError:
             raise DatasetError(f"order must be one of {[o.value for o in FrameOrder]}, got {order!r}") from None
         self.no_return = no_return
         self.odom_tolerance = float(odom_tolerance)
+        if not (math.isfinite(float(sync_tolerance)) and float(sync_tolerance) >= 0):
+            raise InputError(f"{self._names['sync_tolerance']} must be a number of seconds >= 0, got {sync_tolerance!r}")
         self.sync_tolerance = float(sync_tolerance)
+        if drive not in (None, "scan", "cloud"):
+            raise InputError(f"{self._names['drive']} must be 'scan' or 'cloud', got {drive!r}")
+        self._progress = progress
 
         with self._open() as reader:
             self._resolve_topics(reader, scan_topic, cloud_topic, odom_topic)
             tf = self._read_static_tf(reader)
             self._read(reader)
             self._resolve_extrinsics(reader, tf, base_frame)
-        self._build_frames()
+        if extrinsic2d is not None:
+            self.override_extrinsics(extrinsic2d=extrinsic2d, source=self._names["extrinsic2d"])
+        if extrinsic3d is not None:
+            self.override_extrinsics(extrinsic3d=extrinsic3d, source=self._names["extrinsic3d"])
+        self._warn_missing_extrinsics()
+        self._build_frames(drive or ("scan" if self.scan_topic else "cloud"))
 
     # -- opening and topics -------------------------------------------------------------------------
     @contextlib.contextmanager
@@ -373,11 +459,11 @@ class RosbagDataset(Dataset):
         p = Path(self.path)
         if not p.exists():
             raise DatasetError(f"{p}: no such bag file or folder")
-        if p.is_file() and p.suffix in (".db3", ".mcap") and (p.parent / "metadata.yaml").is_file():
+        if p.is_file() and p.suffix in ROS2_STORAGE_SUFFIXES and (p.parent / "metadata.yaml").is_file():
             p = p.parent
         try:
             # ROS1 bags carry their message definitions; older ROS2 bags need the standard ones
-            reader = AnyReader([p], default_typestore=_ros2_typestore() if p.is_dir() else None)
+            reader = AnyReader([p], default_typestore=_ros2_typestore() if p.suffix != ".bag" else None)
             reader.open()
         except Exception as exc:  # rosbags raises its own error types (and plain OSError) for bad files
             raise DatasetError(f"{p}: cannot read as a ROS1/ROS2 bag: {exc}") from None
@@ -387,6 +473,7 @@ class RosbagDataset(Dataset):
             reader.close()
 
     def _pick(self, reader, topic: str | None, msgtype: str, what: str, option: str) -> str | None:
+        flag = self._names[option]
         conns = [c for c in reader.connections if c.msgtype == msgtype]
         if topic is not None:
             if topic == "":
@@ -394,34 +481,34 @@ class RosbagDataset(Dataset):
             named = [c for c in reader.connections if c.topic == topic]
             if not named:
                 raise DatasetError(
-                    f"{self.path}: no topic {topic!r} ({what}); the bag has: {_topics_listing(reader)}"
+                    f"{self.path}: {flag} {topic}: no such topic ({what}); the bag has: {_topics_listing(reader)}"
                 )
             if named[0].msgtype != msgtype:
                 raise DatasetError(
-                    f"{self.path}: topic {topic!r} is {named[0].msgtype}, expected {msgtype} for {option}"
+                    f"{self.path}: {flag} {topic}: the topic is {named[0].msgtype}, expected {msgtype}"
                 )
             return topic
         topics = sorted({c.topic for c in conns})
         if len(topics) > 1:
             raise DatasetError(
-                f"{self.path}: several {msgtype} topics {topics}: choose one with {option}"
+                f"{self.path}: several {msgtype} topics {topics}: choose one with {flag} (or {flag} '' for none)"
             )
         return topics[0] if topics else None
 
     def _resolve_topics(self, reader, scan_topic, cloud_topic, odom_topic) -> None:
-        if scan_topic is None and cloud_topic is None:
-            self.scan_topic = self._pick(reader, None, SCAN_TYPE, "2D scans", "scan_topic")
-            self.cloud_topic = self._pick(reader, None, CLOUD_TYPE, "3D clouds", "cloud_topic")
-        else:  # named sensors only
-            self.scan_topic = self._pick(reader, scan_topic, SCAN_TYPE, "2D scans", "scan_topic") if scan_topic else None
-            self.cloud_topic = (
-                self._pick(reader, cloud_topic, CLOUD_TYPE, "3D clouds", "cloud_topic") if cloud_topic else None
-            )
+        self.scan_topic = self._pick(reader, scan_topic, SCAN_TYPE, "2D scans", "scan_topic")
+        self.cloud_topic = self._pick(reader, cloud_topic, CLOUD_TYPE, "3D clouds", "cloud_topic")
         if self.scan_topic is None and self.cloud_topic is None:
             raise DatasetError(
                 f"{self.path}: no {SCAN_TYPE} or {CLOUD_TYPE} topic to read; the bag has: {_topics_listing(reader)}"
             )
         self.odom_topic = self._pick(reader, odom_topic, ODOM_TYPE, "odometry", "odom_topic")
+        self._counts = {}
+        for key, topic in (("scan", self.scan_topic), ("cloud", self.cloud_topic), ("odom", self.odom_topic)):
+            if topic:
+                c = next(c for c in reader.connections if c.topic == topic)
+                self._counts[key] = {"topic": topic, "type": c.msgtype,
+                                     "messages": int(sum(x.msgcount for x in reader.connections if x.topic == topic))}
 
     def _messages(self, reader, conns) -> Iterator:
         """``reader.messages`` with rosbags' errors on damaged data turned into DataFormatError."""
@@ -468,7 +555,13 @@ class RosbagDataset(Dataset):
         fast = {id(c) for c in scan_c + odom_c if c.digest in (_ROS1_SCAN_MD5, _ROS1_ODOM_MD5)}
         checked: set = set()  # scan geometries found sound
         bad_odom = 0
+        from tqdm.auto import tqdm
+
+        total = sum(int(c.msgcount) for c in scan_c + cloud_c + odom_c)
+        bar = tqdm(total=total, unit="msg", desc=f"reading {Path(self.path).name}", leave=False,
+                   disable=None if self._progress is None else not self._progress, mininterval=0.5)
         for c, _, raw in self._messages(reader, scan_c + cloud_c + odom_c):
+            bar.update(1)
             is_scan = id(c) in scan_ids
             if id(c) in fast:
                 try:
@@ -514,6 +607,7 @@ class RosbagDataset(Dataset):
                 odom.append((stamp, *pose))
                 if self._odom_child is None:
                     self._odom_child = frame
+        bar.close()
         if bad_odom:
             import warnings
 
@@ -528,36 +622,71 @@ class RosbagDataset(Dataset):
         self._odom = np.asarray(odom, dtype=float).reshape(-1, 4)
 
     # -- extrinsics ---------------------------------------------------------------------------------
-    def _resolve_extrinsics(self, reader, tf: _TfTree, base_frame: str | None) -> None:
+    def _sensor_frames(self) -> dict[str, str]:
         sensors = {}
         if self.scan_topic:
-            sensors["scan"] = _frame_id(self._scans["frame"][0])
+            sensors["2d"] = _frame_id(self._scans["frame"][0])
         if self.cloud_topic:
-            sensors["cloud"] = _frame_id(self._clouds["frame"][0])
+            sensors["3d"] = _frame_id(self._clouds["frame"][0])
+        return sensors
+
+    def _resolve_extrinsics(self, reader, tf: _TfTree, base_frame: str | None) -> None:
+        sensors = self._sensor_frames()
+        named = base_frame is not None
         if base_frame is None:
             if self._odom_child:
                 base_frame = self._odom_child
             else:
                 base_frame = next((b for b in ("base_link", "base_footprint") if b in tf), None)
         base = _frame_id(base_frame) if base_frame else None
-        found = {name: base is None or f == base or tf.lookup(base, f) is not None for name, f in sensors.items()}
+        found = {k: base is None or f == base or tf.lookup(base, f) is not None for k, f in sensors.items()}
         if base is not None and not all(found.values()):
             self._read_dynamic_tf(reader, tf, base, list(sensors.values()))
-            found = {name: f == base or tf.lookup(base, f) is not None for name, f in sensors.items()}
+            found = {k: f == base or tf.lookup(base, f) is not None for k, f in sensors.items()}
+        if named and base not in tf and base not in sensors.values() and base != _frame_id(self._odom_child or ""):
+            known = sorted(tf.frames() | set(sensors.values()) | ({_frame_id(self._odom_child)} if self._odom_child else set()))
+            raise DatasetError(f"{self.path}: {self._names['base_frame']} {base_frame}: no such frame in the bag's TF "
+                               f"or sensor messages; its frames are: {', '.join(known) or 'none'}")
         self.base_frame = base
-        self.extrinsic_found = {sensors[k]: v for k, v in found.items()}
+        self.sensor_frames = sensors
+        self.extrinsic_found = {sensors[k]: bool(v and base is not None) for k, v in found.items()}
         self.extrinsic2d = np.zeros(3)
         self.extrinsic3d = np.zeros(6)
+        self._tf_chains: dict[str, list[str]] = {}
+        self.height2d = 0.0  # the 2D LiDAR's height above the base frame (TF), for drawing
         self._flip_scan = False
-        if "scan" in sensors and base is not None and found["scan"]:
-            T = tf.lookup(base, sensors["scan"])
+        for key in ("2d", "3d"):
+            if key in sensors:
+                ok = base is not None and found[key]
+                self.extrinsic_sources[key] = "tf" if ok else SOURCE_DEFAULT
+                if ok:
+                    self._tf_chains[key] = tf.chain(base, sensors[key]) if sensors[key] != base else [base]
+            else:
+                self.extrinsic_sources.pop(key, None)
+        if "2d" in sensors and base is not None and found["2d"]:
+            T = tf.lookup(base, sensors["2d"])
             R = T[:3, :3]
             if R[2, 2] < 0:  # mounted upside down: beam angles are mirrored about the sensor's x axis
                 self._flip_scan = True
                 R = R @ np.diag([1.0, -1.0, -1.0])
             self.extrinsic2d = np.array([T[0, 3], T[1, 3], math.atan2(R[1, 0], R[0, 0])])
-        if "cloud" in sensors and base is not None and found["cloud"]:
-            self.extrinsic3d = matrix_to_pose(tf.lookup(base, sensors["cloud"]))
+            self.height2d = float(T[2, 3])
+        if "3d" in sensors and base is not None and found["3d"]:
+            self.extrinsic3d = matrix_to_pose(tf.lookup(base, sensors["3d"]))
+
+    def _warn_missing_extrinsics(self) -> None:
+        """A sensor whose offset neither TF nor the caller gave: a warning (a zero offset is rarely right)."""
+        what = {"2d": ("2D scans", "X,Y,YAW"), "3d": ("3D clouds", "X,Y,Z,ROLL,PITCH,YAW")}
+        for key, frame in self.sensor_frames.items():
+            if self.extrinsic_sources.get(key) != SOURCE_DEFAULT:
+                continue
+            topic = self.scan_topic if key == "2d" else self.cloud_topic
+            where = (f"no transform from the base frame {self.base_frame!r} to {frame!r}" if self.base_frame
+                     else "no base frame (no odometry child frame, no base_link or base_footprint in TF)")
+            self._warn(f"{self.path}: {where} (the {what[key][0]} of {topic}): its offset is taken as zero; give it "
+                       f"with {self._names['extrinsic' + key]} {what[key][1]}"
+                       + ("" if self.base_frame else f" or name the base frame with {self._names['base_frame']}"),
+                       stacklevel=4)
 
     def _read_dynamic_tf(self, reader, tf: _TfTree, base: str, sensors: list[str]) -> None:
         """Add the first /tf transform of every edge that does not move the base (odom -> base is skipped),
@@ -592,26 +721,72 @@ class RosbagDataset(Dataset):
             return np.argsort(stamps, kind="stable"), order
         return np.arange(len(stamps)), order
 
-    def _build_frames(self) -> None:
-        if self.scan_topic:
-            prim_stamps = np.asarray(self._scans["stamp"])
-            idx, self.order = self._order_of(prim_stamps, self._scans["seq"])
-            self._scan_index = idx
-            self.stamps = prim_stamps[idx]
-            if self.cloud_topic:
-                self._cloud_index = nearest_index(self._clouds["stamp"], self.stamps, self.sync_tolerance)
-            else:
-                self._cloud_index = None
+    def _build_frames(self, driver: str) -> None:
+        topic = self.scan_topic if driver == "scan" else self.cloud_topic
+        if not topic:
+            kind = "2D scan (sensor_msgs/LaserScan)" if driver == "scan" else "3D cloud (sensor_msgs/PointCloud2)"
+            flag = self._names["scan_topic" if driver == "scan" else "cloud_topic"]
+            raise DatasetError(f"{self.path}: frames made by the {driver}s need a {kind} topic, and none is used "
+                               f"(name one with {flag})")
+        self.driver = driver
+        primary = self._scans if driver == "scan" else self._clouds
+        stamps = np.asarray(primary["stamp"], dtype=float)
+        idx, self.order = self._order_of(stamps, primary["seq"])
+        self.stamps = stamps[idx]
+        other = self._clouds if driver == "scan" else self._scans
+        other_topic = self.cloud_topic if driver == "scan" else self.scan_topic
+        paired = nearest_index(other["stamp"], self.stamps, self.sync_tolerance) if other_topic else None
+        if driver == "scan":
+            self._scan_index, self._cloud_index = idx, paired
         else:
-            cs = np.asarray(self._clouds["stamp"])
-            idx, self.order = self._order_of(cs, self._clouds["seq"])
-            self._scan_index = None
-            self._cloud_index = idx
-            self.stamps = cs[idx]
+            self._scan_index, self._cloud_index = paired, idx
         self._odometry = self._interpolate_odometry(self.stamps)
         ok = ~np.isnan(self._odometry[:, 0])
         self.odometry = Trajectory(self.stamps[ok], self._odometry[ok]) if ok.any() else None
         self._angle_cache: dict = {}
+
+    def driven_by(self, sensor: str) -> RosbagDataset:
+        """The same bag with frames made by ``sensor``'s messages (``"scan"`` or ``"cloud"``), the other
+        sensor's nearest message attached within ``sync_tolerance``; see :class:`Dataset`."""
+        super().driven_by(sensor)
+        if sensor == self.driver:
+            return self
+        view = copy.copy(self)
+        view.__dict__["_warnings"] = list(self.warnings)
+        view.__dict__["_extrinsic_sources"] = dict(self.extrinsic_sources)
+        view._build_frames(sensor)
+        return view
+
+    def _describe(self) -> dict:
+        topics = {}
+        for key, rec in (("scan", self._scans), ("cloud", self._clouds)):
+            if key in self._counts:
+                st = np.sort(np.asarray(rec["stamp"], dtype=float))
+                topics[key] = {**self._counts[key], "frame_id": _frame_id(rec["frame"][0]) if rec["frame"] else None,
+                               "rate_hz": (len(st) - 1) / float(st[-1] - st[0]) if len(st) > 1 and st[-1] > st[0]
+                               else None}
+        if "odom" in self._counts:
+            st = np.sort(self._odom[:, 0])
+            topics["odom"] = {**self._counts["odom"], "child_frame_id": self._odom_child,
+                              "rate_hz": (len(st) - 1) / float(st[-1] - st[0]) if len(st) > 1 and st[-1] > st[0]
+                              else None}
+        n = len(self.stamps)
+        attached = {}
+        if self.driver == "scan" and self._cloud_index is not None:
+            attached["frames_with_cloud"] = int((self._cloud_index >= 0).sum())
+        if self.driver == "cloud" and self._scan_index is not None:
+            attached["frames_with_scan"] = int((self._scan_index >= 0).sum())
+        return {
+            "topics": topics,
+            "base_frame": self.base_frame,
+            "sensor_frames": dict(self.sensor_frames),
+            "tf_chains": {k: " -> ".join(v) for k, v in self._tf_chains.items()},
+            "height2d": self.height2d,
+            "order": self.order.value,
+            "sync_tolerance": self.sync_tolerance,
+            "frames_with_odometry": int((~np.isnan(self._odometry[:, 0])).sum()) if n else 0,
+            **attached,
+        }
 
     def _interpolate_odometry(self, t: NDArray[np.float64]) -> NDArray[np.float64]:
         out = np.full((len(t), 3), np.nan)
@@ -682,9 +857,10 @@ class RosbagDataset(Dataset):
         clouds = self._clouds_in_order(self._cloud_index) if want else (None for _ in range(n))
         for i, cloud in zip(range(n), clouds, strict=True):
             odo = self._odometry[i]
+            k = -1 if self._scan_index is None else int(self._scan_index[i])
             yield Frame(
                 stamp=float(self.stamps[i]),
-                scan2d=self._scan(int(self._scan_index[i])) if self._scan_index is not None else None,
+                scan2d=self._scan(k) if k >= 0 else None,
                 cloud3d=cloud,
                 odometry=None if np.isnan(odo[0]) else odo.copy(),
                 index=i,
@@ -716,8 +892,8 @@ def adopt_odometry(dataset: RosbagDataset, source: RosbagDataset) -> RosbagDatas
         raise DatasetError(
             f"{source.path} has {len(source)} frames, {dataset.path} has {len(dataset)}: not the same scans"
         )
-    if dataset._scan_index is None or source._scan_index is None:
-        raise DatasetError("adopt_odometry pairs 2D scans: both datasets need a scan topic")
+    if dataset.driver != "scan" or source.driver != "scan":
+        raise DatasetError("adopt_odometry pairs 2D scans: both datasets need frames made by their scan topic")
     for i in range(len(dataset)):
         a = dataset._scans["ranges"][int(dataset._scan_index[i])]
         b = source._scans["ranges"][int(source._scan_index[i])]

@@ -115,6 +115,7 @@ class SimulatedDataset(Dataset):
             s2 = self.sensors["lidar2d"]
             for key in ("range_min", "range_max"):
                 float(s2[key])
+            self.extrinsic_sources.update({"2d": "dataset.yaml", "3d": "dataset.yaml"})
         except (KeyError, TypeError, ValueError) as exc:
             raise DataFormatError(f"{meta_path}: bad sensor description: {exc}") from None
         scans = root / "scans2d.npz"

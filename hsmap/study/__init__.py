@@ -31,7 +31,14 @@ from .benchmarks import (
 from .datasets import simulated_dataset
 from .maps import TwoLidarMaps, map_distances, point_map, point_maps, scan_grid, two_lidar_maps
 from .paths import datasets_dir, generated_dir
-from .recording import record_slam_run
+from .recording import (
+    overlap_blueprint,
+    record_overlap,
+    record_slam_run,
+    record_topology,
+    slam_blueprint,
+    topology_blueprint,
+)
 from .report import NotebookReport
 from .runs import SimulatedRuns, SlamRun, cached_slam, dataset_fingerprint, simulated_slam_runs, slam_key
 
@@ -55,6 +62,11 @@ __all__ = [
     "published_references",
     "real_benchmark_metrics",
     "record_slam_run",
+    "slam_blueprint",
+    "record_overlap",
+    "overlap_blueprint",
+    "record_topology",
+    "topology_blueprint",
     "room_segmentation_benchmark",
     "scan_grid",
     "segmentation_table",

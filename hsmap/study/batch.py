@@ -458,6 +458,34 @@ def _sweep_temporaries(folder: Path) -> list[str]:
     return left
 
 
+def _open_recordings_in_viewer(run: NotebookRun, out_dir: Path) -> None:
+    """Open each recording in the headless viewer (where a graphics stack allows): a view that reports an
+    error, or that should show something and is empty, fails the notebook. Where the viewer cannot run, the
+    run says so in its warnings."""
+    from ..errors import HsmapError
+    from ..viz.viewer import HeadlessViewer, viewer_unavailable
+
+    reason = viewer_unavailable()
+    if reason is not None:
+        run.warnings.append(f"recordings not opened in the viewer: {reason}")
+        return
+    try:
+        viewer = HeadlessViewer()
+    except HsmapError as exc:  # the viewer itself did not start: not the notebook's fault
+        run.warnings.append(f"recordings not opened in the viewer: {exc}")
+        return
+    with viewer:
+        for rel in run.recordings:
+            try:
+                check = viewer.screenshots(out_dir / rel, None, positions=("end",))
+                errors = check.errors
+            except Exception as exc:  # noqa: BLE001 - a recording the viewer cannot open fails the notebook
+                errors = [f"{type(exc).__name__}: {exc}"]
+            if errors:
+                run.status, run.error = "failed", f"recording {rel} in the viewer: {'; '.join(errors)}"
+                return
+
+
 def execute_notebook(
     spec: NotebookSpec,
     out_dir: str | os.PathLike,
@@ -533,6 +561,8 @@ def execute_notebook(
                         if run.ok:
                             msg = str(exc).replace(f"{stage / rel}: ", "")
                             run.status, run.error = "failed", f"recording {rel} does not verify: {msg}"
+            if run.ok:
+                _open_recordings_in_viewer(run, out_dir)
 
         # the executed notebook and its HTML, marked with the run's status
         nb = None

@@ -39,10 +39,15 @@ __all__ = [
     "real_benchmark_metrics",
 ]
 
-#: The Freiburg logs of ``$HSMAP_DATASETS/slam2d`` and their laser's forward offset (m) in the robot frame
-#: where the bag's TF is wrong (fr079: the TF says +0.04 m, the CARMEN PARAM -0.04 m, and the relations agree
-#: with -0.04 m: 0.025 m vs 0.042 m mean error on the first 1500 scans).
-FREIBURG_LOGS: dict[str, float | None] = {"intel": None, "fr079": -0.04}
+#: The Freiburg logs of ``$HSMAP_DATASETS/slam2d`` (``NAME/BAG``, ``NAME/NAME.relations``) and the laser pose
+#: (x, y, yaw) the user states where the bag's TF is wrong: fr079's TF says +0.04 m, the CARMEN PARAM -0.04 m,
+#: and the relations agree with -0.04 m (0.025 m vs 0.042 m mean error on the first 1500 scans), so the
+#: command line is given ``--extrinsic2d -0.04,0,0`` for it.
+FREIBURG_LOGS: dict[str, dict[str, Any]] = {
+    "intel": {"bag": "intel.orig.bag", "extrinsic2d": None},
+    "fr079": {"bag": "fr079.orig.bag", "extrinsic2d": (-0.04, 0.0, 0.0)},
+    "fr-clinic": {"bag": "fr-clinic_robotlaser.orig.bag", "extrinsic2d": None},
+}
 
 #: The 15 buildings of the ipa_room_segmentation maps in ``$HSMAP_DATASETS`` (Bormann et al. 2016).
 BORMANN_BUILDINGS = ("lab_ipa", "lab_c_scan", "Freiburg52_scan", "Freiburg79_scan", "lab_b_scan", "lab_f_scan",
@@ -70,31 +75,45 @@ def published_references(path: str | os.PathLike | None = None) -> dict:
 
 # --- Freiburg relations ------------------------------------------------------------------------------------
 
-def open_freiburg(folder: str | os.PathLike, name: str, *, scan_odometry: bool = True,
-                  laser_x: float | None = None):
-    """A Freiburg benchmark log (``slam2d/NAME/NAME.orig.bag``) with the odometry CARMEN stored with each scan.
-
-    The ``.orig.bag`` has the true (IPC) scan stamps, which the ``.relations`` use; with ``scan_odometry`` its
-    frames get, by :func:`hsmap.datasets.rosbag.adopt_odometry`, the per-scan odometry of ``NAME.clf2bag.bag``
-    (the bag's own /odom runs at its own rate). ``laser_x`` overrides the laser's forward offset in the robot
-    frame (see :data:`FREIBURG_LOGS`).
+def open_freiburg(folder: str | os.PathLike, name: str, *, extrinsic2d: Sequence[float] | None = None):
+    """A Freiburg benchmark log as the command line opens it: ``slam2d/NAME/BAG`` (:data:`FREIBURG_LOGS`), its
+    odometry from the bag's /odom, ``extrinsic2d`` (default: the log's entry in :data:`FREIBURG_LOGS`) replacing
+    the bag's laser pose.
 
     Returns
     -------
     RosbagDataset
     """
     from ..datasets.open import open_dataset
-    from ..datasets.rosbag import adopt_odometry
 
-    root = Path(folder) / name
-    ds = open_dataset(root / f"{name}.orig.bag")
-    if scan_odometry:
-        adopt_odometry(ds, open_dataset(root / f"{name}.clf2bag.bag"))
-    if laser_x is not None:
-        ext = np.asarray(ds.extrinsic2d, dtype=float).copy()
-        ext[0] = float(laser_x)
-        ds.override_extrinsics(extrinsic2d=ext)
-    return ds
+    if name not in FREIBURG_LOGS:
+        raise InputError(f"unknown Freiburg log {name!r}; expected one of {sorted(FREIBURG_LOGS)}")
+    spec = FREIBURG_LOGS[name]
+    ext = extrinsic2d if extrinsic2d is not None else spec["extrinsic2d"]
+    return open_dataset(Path(folder) / name / spec["bag"], extrinsic2d=ext)
+
+
+#: How the relations are split by the time between their two poses (seconds): short-range accuracy (tracking)
+#: and long-range consistency (loop closure).
+SHORT_DT, LONG_DT = 10.0, 60.0
+
+
+def _relations_numbers(traj, rel, skip_unmatched: bool) -> dict:
+    from ..evaluation import relations_error
+
+    r = relations_error(traj, rel, skip_unmatched=skip_unmatched)
+    dt = np.abs(rel.t_j - rel.t_i)[r.used]
+    rot = np.degrees(r.rotation)
+
+    def part(m):
+        return {"translation_m": float(r.translation[m].mean()) if m.any() else None,
+                "rotation_deg": float(rot[m].mean()) if m.any() else None, "relations": int(m.sum())}
+
+    out = {"all": part(dt >= 0), "short": part(dt <= SHORT_DT), "long": part(dt > LONG_DT),
+           "translation_std_m": float(r.translation.std(ddof=1)) if r.translation.size > 1 else 0.0,
+           "rotation_std_deg": float(rot.std(ddof=1)) if rot.size > 1 else 0.0}
+    out["dt_s"], out["errors_m"] = dt, r.translation
+    return out
 
 
 @dataclass
@@ -104,99 +123,124 @@ class FreiburgResults:
     Attributes
     ----------
     rows : list of dict
-        One per log and method (``raw odometry``, ``HS-SLAM, <mode>``): ``log``, ``method``, ``mode`` (None for
-        the odometry), ``translation_m`` and ``rotation_deg`` ([mean, std]), ``relations``.
-    runs : dict of (log, mode) to SlamRun
+        One per log and method (``raw odometry``, ``HS-SLAM``, ``HS-SLAM, no loop closure``): ``log``, ``method``,
+        ``mode`` (None for the odometry), ``seeds``, ``translation_m`` and ``rotation_deg`` as [mean over the
+        seeds of the per-seed mean error, sd over the seeds], ``worst_m`` / ``worst_deg`` (the worst seed),
+        ``short_m`` / ``long_m`` (relations with dt <= 10 s / > 60 s, mean over the seeds), ``loops_closed``,
+        ``frames_retried``, ``real_time_factor`` (mean over the seeds), ``relations``.
+    runs : dict of (log, mode, seed) to SlamRun
+    curves : dict of (log, method) to (dt, error) arrays of the first seed, for the error-against-dt figure
     max_frames : int or None
     """
 
     rows: list[dict] = field(default_factory=list)
-    runs: dict[tuple[str, str], SlamRun] = field(default_factory=dict)
+    runs: dict[tuple[str, str, int], SlamRun] = field(default_factory=dict)
+    curves: dict[tuple[str, str], tuple] = field(default_factory=dict)
     max_frames: int | None = None
 
     def table(self, references: Mapping[str, Any] | None = None) -> str:
-        """Ours and the published methods, one line each: translational and rotational error per log."""
-        logs = list(dict.fromkeys(r["log"] for r in self.rows))
-        cells: dict[str, dict[str, tuple]] = {}
+        """Ours (mean ± sd over seeds, worst seed, dt splits) beside Cartographer, one line per log and method."""
+        carto = {m["log"]: m for m in (references or {}).get("freiburg_relations", {}).get("methods", [])
+                 if m["method"] == "Cartographer"}
+        lines = [f"{'log':10s}{'method':28s}{'seeds':>6s}{'trans [m] mean ± sd':>22s}{'worst':>8s}"
+                 f"{'rot [deg]':>18s}{'dt<=10s':>9s}{'dt>60s':>9s}{'loops':>7s}{'x real time':>12s}"]
         for r in self.rows:
-            cells.setdefault(r["method"], {})[r["log"]] = (r["translation_m"], r["rotation_deg"])
-        for m in (references or {}).get("freiburg_relations", {}).get("methods", []):
-            if m["log"] in logs:
-                cells.setdefault(f"{m['method']} ({m['source']})", {})[m["log"]] = (m["translation_m"],
-                                                                                    m["rotation_deg"])
-
-        def fmt(ms) -> str:
-            return "-" if ms is None else f"{ms[0]:.3f} ± {ms[1]:.3f}"
-
-        lines = [f"{'method':34s}" + "".join(f"{n + ' trans [m]':>22s}{n + ' rot [deg]':>20s}" for n in logs)]
-        for method, by_log in cells.items():
-            lines.append(f"{method:34s}" + "".join(f"{fmt(by_log.get(n, (None, None))[0]):>22s}"
-                                                   f"{fmt(by_log.get(n, (None, None))[1]):>20s}" for n in logs))
-        wall = (references or {}).get("freiburg_relations", {}).get("cartographer_wall_clock", {})
-        for (name, mode), run in self.runs.items():
-            line = (f"{name:6s} HS-SLAM {mode:12s}: {run.seconds:6.0f} s for {run.metrics['input_duration_s']:.0f} s "
-                    f"of data ({run.real_time_factor:.1f}x real time, "
-                    f"{1000 * run.metrics['seconds_per_frame_median']:.1f} ms per scan median, 1 core)")
-            if name in wall:
-                d, w = wall[name]["data_s"], wall[name]["wall_s"]
-                line += f"; Cartographer: {w} s for {d} s ({d / w:.1f}x, 6-core Xeon)"
-            lines.append(line)
+            t, a = r["translation_m"], r["rotation_deg"]
+            lines.append(f"{r['log']:10s}{r['method']:28s}{len(r['seeds']) or '-':>6}"
+                         f"{t[0]:>13.4f} ± {t[1]:.4f}{r['worst_m']:>8.4f}{a[0]:>10.3f} ± {a[1]:.3f}"
+                         f"{_f(r['short_m']):>9s}{_f(r['long_m']):>9s}{_f(r['loops_closed'], '.0f'):>7s}"
+                         f"{_f(r['real_time_factor'], '.1f'):>12s}")
+            c = carto.get(r["log"])
+            if c is not None and r["method"] == "HS-SLAM":
+                lines.append(f"{r['log']:10s}{'Cartographer (' + c['source'] + ')':28s}{'':>6s}"
+                             f"{c['translation_m'][0]:>13.4f} ± {c['translation_m'][1]:.4f}{'':>8s}"
+                             + (f"{c['rotation_deg'][0]:>10.3f} ± {c['rotation_deg'][1]:.3f}"
+                                if c.get("rotation_deg") else f"{'-':>18s}"))
         return "\n".join(lines)
 
 
-def _relation_row(log: str, method: str, mode: str | None, result: dict) -> dict:
-    return {"log": log, "method": method, "mode": mode,
-            "translation_m": [result["translation_m"]["mean"], result["translation_m"]["std"]],
-            "rotation_deg": [result["rotation_deg"]["mean"], result["rotation_deg"]["std"]],
-            "relations": result["n_relations"]}
+def _f(v, fmt: str = ".4f") -> str:
+    return "-" if v is None else format(v, fmt)
 
 
 def freiburg_relations(folder: str | os.PathLike, logs: Sequence[str] = tuple(FREIBURG_LOGS), *,
-                       modes: Sequence[str] = ("no-odometry",), seed: int = 1, max_frames: int | None = None,
-                       laser_x: Mapping[str, float | None] | None = None, log=None) -> FreiburgResults:
-    """HS-SLAM (3-DOF, cached runs) on the Freiburg logs, scored with the relations metric beside raw odometry.
+                       seeds: Sequence[int] = (1, 2, 3, 4, 5), max_frames: int | None = None,
+                       compare_without_loop_closure: bool = True, log=None) -> FreiburgResults:
+    """HS-SLAM (3-DOF, the command line's configuration, cached runs) on the Freiburg logs over several seeds,
+    scored with the relations metric beside raw odometry (and, on the first seed, without loop closure).
 
     Parameters
     ----------
     folder : path
-        ``$HSMAP_DATASETS/slam2d``: ``NAME/NAME.orig.bag``, ``NAME/NAME.clf2bag.bag``, ``NAME/NAME.relations``.
+        ``$HSMAP_DATASETS/slam2d`` (``NAME/BAG`` and ``NAME/NAME.relations``, see :data:`FREIBURG_LOGS`).
     logs : sequence of str
-    modes : sequence of str
-        ``"no-odometry"`` (HS-SLAM on the scans alone, the paper's claim) and/or ``"odometry"`` (seeded by the
-        per-scan CARMEN odometry).
-    seed : int
+    seeds : sequence of int
+        One run per seed; the rows give the mean, sd and worst over them.
     max_frames : int, optional
         Only the first frames of each log (quick runs); the relations are then scored inside that time span.
-    laser_x : mapping, optional
-        Laser forward offset per log (default :data:`FREIBURG_LOGS`).
+    compare_without_loop_closure : bool
+        Also run the first seed with loop closure off (tracking only), for the maps before and after.
     log : callable, optional
         Receives one line per run.
     """
     from ..datasets.relations import read_relations
-    from ..evaluation import relations_error
 
-    bad = sorted(set(modes) - {"no-odometry", "odometry"})
-    if bad:
-        raise InputError(f"modes must be 'no-odometry' and/or 'odometry', got {bad}")
-    offsets = dict(FREIBURG_LOGS if laser_x is None else laser_x)
+    seeds = [int(s) for s in seeds]
+    if not seeds:
+        raise InputError("seeds must name at least one seed")
     out = FreiburgResults(max_frames=max_frames)
+    skip = max_frames is not None
     for name in logs:
-        ds = open_freiburg(folder, name, laser_x=offsets.get(name))
+        ds = open_freiburg(folder, name)
         rel = read_relations(Path(folder) / name / f"{name}.relations")
         odo = ds.odometry if max_frames is None else ds.odometry.head(max_frames)
-        out.rows.append(_relation_row(name, "raw odometry", None,
-                                      relations_error(odo, rel, skip_unmatched=True).as_dict()))
-        for mode in modes:
-            run = cached_slam(ds, SlamConfig(dof=3, use_odometry=mode == "odometry"), seed, max_frames=max_frames)
-            out.runs[(name, mode)] = run
-            r = relations_error(run.trajectory, rel, skip_unmatched=max_frames is not None).as_dict()
-            out.rows.append(_relation_row(name, f"HS-SLAM, {mode}", mode, r))
-            if log is not None:
-                log(f"{name:6s} HS-SLAM {mode:12s}: {r['translation_m']['mean']:.3f} ± "
-                    f"{r['translation_m']['std']:.3f} m, {r['rotation_deg']['mean']:.2f} ± "
-                    f"{r['rotation_deg']['std']:.2f} deg over {r['n_relations']} relations; {len(run.trajectory)} "
-                    f"scans in {run.seconds:.0f} s ({run.real_time_factor:.1f}x real time)"
-                    + (" (cached)" if run.cached else ""))
+        o = _relations_numbers(odo, rel, skip_unmatched=True)
+        out.rows.append({"log": name, "method": "raw odometry", "mode": None, "seeds": [],
+                         "translation_m": [o["all"]["translation_m"], o["translation_std_m"]],
+                         "rotation_deg": [o["all"]["rotation_deg"], o["rotation_std_deg"]],
+                         "worst_m": o["all"]["translation_m"], "worst_deg": o["all"]["rotation_deg"],
+                         "short_m": o["short"]["translation_m"], "long_m": o["long"]["translation_m"],
+                         "loops_closed": None, "frames_retried": None, "real_time_factor": None,
+                         "relations": o["all"]["relations"]})
+        out.curves[(name, "raw odometry")] = (o["dt_s"], o["errors_m"])
+        modes = [("loop closure", seeds)] + ([("no loop closure", seeds[:1])] if compare_without_loop_closure else [])
+        for mode, mode_seeds in modes:
+            cfg = SlamConfig(dof=3)
+            cfg.loop_closure.enabled = mode == "loop closure"
+            per = []
+            for seed in mode_seeds:
+                t0 = time.perf_counter()
+                run = cached_slam(ds, cfg, seed, max_frames=max_frames)
+                out.runs[(name, mode, seed)] = run
+                n = _relations_numbers(run.trajectory, rel, skip)
+                per.append((seed, run, n))
+                if seed == mode_seeds[0]:
+                    out.curves[(name, "HS-SLAM" if mode == "loop closure" else "HS-SLAM, no loop closure")] = (
+                        n["dt_s"], n["errors_m"])
+                if log is not None:
+                    log(f"{name:9s} {mode:15s} seed {seed}: {n['all']['translation_m']:.4f} m, "
+                        f"{n['all']['rotation_deg']:.3f} deg (dt<=10 s {_f(n['short']['translation_m'])} m, "
+                        f"dt>60 s {_f(n['long']['translation_m'])} m), {run.metrics.get('loops_closed', 0)} loops, "
+                        f"{run.real_time_factor:.1f}x real time" + (" (cached)" if run.cached
+                                                                     else f" ({time.perf_counter() - t0:.0f} s)"))
+            t = np.array([n["all"]["translation_m"] for _, _, n in per])
+            a = np.array([n["all"]["rotation_deg"] for _, _, n in per])
+
+            def mean_of(key, part, per=per):
+                v = [n[part][key] for _, _, n in per if n[part][key] is not None]
+                return float(np.mean(v)) if v else None
+
+            out.rows.append({
+                "log": name, "method": "HS-SLAM" if mode == "loop closure" else "HS-SLAM, no loop closure",
+                "mode": mode, "seeds": [s for s, _, _ in per],
+                "translation_m": [float(t.mean()), float(t.std(ddof=1)) if t.size > 1 else 0.0],
+                "rotation_deg": [float(a.mean()), float(a.std(ddof=1)) if a.size > 1 else 0.0],
+                "worst_m": float(t.max()), "worst_deg": float(a.max()),
+                "short_m": mean_of("translation_m", "short"), "long_m": mean_of("translation_m", "long"),
+                "loops_closed": float(np.mean([r.metrics.get("loops_closed", 0) for _, r, _ in per])),
+                "frames_retried": float(np.mean([r.metrics.get("frames_retried", 0) for _, r, _ in per])),
+                "real_time_factor": float(np.mean([r.real_time_factor for _, r, _ in per])),
+                "relations": per[0][2]["all"]["relations"]})
     return out
 
 
@@ -279,7 +323,7 @@ def segmentation_table(rows: Sequence[Mapping[str, Any]], references: Mapping[st
 
 def summarise_segmentation(rows: Sequence[Mapping[str, Any]]) -> dict:
     """Means over the maps of each kind (precision, recall, both area-weighted, seconds) with the median and the
-    largest time per map; ``all``: the times over every map."""
+    largest time per map, segments and ground-truth rooms summed; ``all``: the times over every map."""
     out: dict[str, dict] = {}
     for kind in ("plain", "furnished"):
         r = [x for x in rows if x["kind"] == kind]
@@ -287,7 +331,9 @@ def summarise_segmentation(rows: Sequence[Mapping[str, Any]]) -> dict:
             out[kind] = {"maps": len(r), **{k: float(np.mean([x[k] for x in r])) for k in
                                             ("precision", "recall", "precision_area", "recall_area", "seconds")},
                          "seconds_median": float(np.median([x["seconds"] for x in r])),
-                         "seconds_max": float(np.max([x["seconds"] for x in r]))}
+                         "seconds_max": float(np.max([x["seconds"] for x in r])),
+                         "segments": int(sum(x["segments"] for x in r)), "rooms": int(sum(x["rooms"] for x in r)),
+                         "maps_with_fewer_segments_than_rooms": int(sum(x["segments"] < x["rooms"] for x in r))}
     if rows:
         t = [x["seconds"] for x in rows]
         out["all"] = {"seconds_median": float(np.median(t)), "seconds_max": float(np.max(t))}
@@ -316,36 +362,35 @@ def real_benchmark_metrics(slam: FreiburgResults | None, segmentation: Sequence[
     reference: dict[str, dict] = {}
     frel = references["freiburg_relations"]
     published = {(m["log"], m["method"]): m for m in frel["methods"]}
-    first = None
     for r in (slam.rows if slam else []):
-        tag = "odometry" if r["mode"] is None else "hsslam_" + r["mode"].replace("-", "")
-        what = "raw odometry" if r["mode"] is None else f"HS-SLAM ({r['mode']})"
-        k = f"{r['log']}_{tag}"
-        values.update({f"{k}_trans_m": r["translation_m"][0], f"{k}_trans_std_m": r["translation_m"][1],
-                       f"{k}_rot_deg": r["rotation_deg"][0], f"{k}_rot_std_deg": r["rotation_deg"][1],
-                       f"{k}_relations": r["relations"]})
-        units.update({f"{k}_trans_m": "m", f"{k}_trans_std_m": "m", f"{k}_rot_deg": "deg", f"{k}_rot_std_deg": "deg"})
-        labels.update({f"{k}_trans_m": f"{r['log']}: {what}, relations translation error (mean)",
-                       f"{k}_rot_deg": f"{r['log']}: {what}, relations rotation error (mean)"})
+        tag = {"raw odometry": "odometry", "HS-SLAM": "hsslam", "HS-SLAM, no loop closure": "hsslam_nolc"}[r["method"]]
+        k = f"{r['log'].replace('-', '_')}_{tag}"
+        seeds = f", {len(r['seeds'])} seeds" if len(r["seeds"]) > 1 else ""
+        values.update({f"{k}_trans_m": r["translation_m"][0], f"{k}_trans_sd_m": r["translation_m"][1],
+                       f"{k}_trans_worst_m": r["worst_m"], f"{k}_rot_deg": r["rotation_deg"][0],
+                       f"{k}_trans_short_m": r["short_m"], f"{k}_trans_long_m": r["long_m"],
+                       f"{k}_relations": r["relations"], f"{k}_seeds": r["seeds"]})
+        units.update({f"{k}_trans_m": "m", f"{k}_trans_sd_m": "m", f"{k}_trans_worst_m": "m", f"{k}_rot_deg": "deg",
+                      f"{k}_trans_short_m": "m", f"{k}_trans_long_m": "m"})
+        labels.update({f"{k}_trans_m": f"{r['log']}: {r['method']}, relations translation error (mean{seeds})",
+                       f"{k}_trans_worst_m": f"{r['log']}: {r['method']}, worst seed",
+                       f"{k}_rot_deg": f"{r['log']}: {r['method']}, relations rotation error (mean{seeds})",
+                       f"{k}_trans_long_m": f"{r['log']}: {r['method']}, relations over dt > 60 s"})
         if r["mode"] is not None:
-            first = first or tag
-            carto = published.get((r["log"], "Cartographer"))
-            if carto and tag == first:
-                src = f"Cartographer ({carto['source']})"
-                reference[f"{k}_trans_m"] = {"value": carto["translation_m"][0], "source": src}
-                if carto["rotation_deg"] is not None:
-                    reference[f"{k}_rot_deg"] = {"value": carto["rotation_deg"][0], "source": src}
-    for (name, mode), run in (slam.runs.items() if slam else []):
-        k = f"{name}_hsslam_{mode.replace('-', '')}"
-        values.update({f"{k}_seconds": run.seconds, f"{k}_real_time_factor": run.real_time_factor,
-                       f"{k}_scans": len(run.trajectory)})
-        units[f"{k}_seconds"] = "s"
-        units[f"{k}_real_time_factor"] = "x real time"
-        labels[f"{k}_real_time_factor"] = f"{name}: HS-SLAM ({mode}) speed, one core"
-        wall = frel.get("cartographer_wall_clock", {}).get(name)
-        if wall and k.endswith(first or ""):
-            reference[f"{k}_real_time_factor"] = {"value": wall["data_s"] / wall["wall_s"],
-                                                  "source": "Cartographer (Hess 2016), 6 cores"}
+            values.update({f"{k}_loops_closed": r["loops_closed"], f"{k}_frames_retried": r["frames_retried"],
+                           f"{k}_real_time_factor": r["real_time_factor"]})
+            units[f"{k}_real_time_factor"] = "x real time"
+            labels[f"{k}_real_time_factor"] = f"{r['log']}: {r['method']} speed, one core"
+        carto = published.get((r["log"], "Cartographer"))
+        if carto and tag == "hsslam":
+            src = f"Cartographer ({carto['source']})"
+            reference[f"{k}_trans_m"] = {"value": carto["translation_m"][0], "source": src}
+            if carto["rotation_deg"] is not None:
+                reference[f"{k}_rot_deg"] = {"value": carto["rotation_deg"][0], "source": src}
+            wall = frel.get("cartographer_wall_clock", {}).get(r["log"])
+            if wall:
+                reference[f"{k}_real_time_factor"] = {"value": wall["data_s"] / wall["wall_s"],
+                                                      "source": "Cartographer (Hess 2016), 6 cores"}
     if segmentation:
         summary = summarise_segmentation(segmentation)
         voronoi = next((m for m in references["room_segmentation"]["methods"] if m["method"] == "Voronoi"), None)
@@ -362,9 +407,9 @@ def real_benchmark_metrics(slam: FreiburgResults | None, segmentation: Sequence[
                         "value": voronoi[kind][f"{k}_pct"] / 100,
                         "source": f"Bormann 2016 Voronoi ({references['room_segmentation'].get('maps', '?')} maps)"}
         values["seg_maps"] = [dict(r) for r in segmentation]
-    first = first or ""
-    headline = [k for k in (f"intel_{first}_trans_m", f"intel_{first}_rot_deg", f"fr079_{first}_trans_m",
-                            f"fr079_{first}_rot_deg", f"intel_{first}_real_time_factor", "seg_plain_recall",
-                            "seg_furnished_recall", "seg_furnished_precision") if k in values]
+    headline = [k for k in ("intel_hsslam_trans_m", "intel_hsslam_rot_deg", "fr079_hsslam_trans_m",
+                            "fr079_hsslam_rot_deg", "fr_clinic_hsslam_trans_m", "fr_clinic_hsslam_rot_deg",
+                            "intel_hsslam_real_time_factor", "seg_plain_recall", "seg_furnished_recall",
+                            "seg_furnished_precision") if k in values]
     return {"values": values, "reference": {k: v for k, v in reference.items() if k in values}, "units": units,
             "labels": labels, "headline": headline}

@@ -51,7 +51,7 @@ __all__ = [
 
 #: Reader attributes that change the frames a dataset serves (part of its fingerprint when present).
 _READER_OPTIONS = ("scan_topic", "cloud_topic", "odom_topic", "order", "base_frame", "no_return",
-                   "odom_tolerance", "sync_tolerance")
+                   "odom_tolerance", "sync_tolerance", "driver", "cloud_rate", "scan_rate")
 
 #: Files of a SLAM run folder (besides the cache's own ``cache.json``).
 _RUN_FILES = ("trajectory.tum", "map.ply", "config.yaml", "metrics.json")
@@ -158,6 +158,10 @@ def dataset_fingerprint(dataset: Dataset | str | os.PathLike, open_kwargs: Mappi
                           "frames": len(dataset)}
     if path and Path(path).exists():
         fp["content"] = _path_digest(path)
+        extra = [str(p) for p in getattr(dataset, "extra_paths", ()) or ()]  # e.g. a cloud folder's 2D scans
+        if extra:
+            parts = [fp["content"], *(f"{p}:{_path_digest(p)}" for p in extra)]
+            fp["content"] = hashlib.sha256("\0".join(parts).encode()).hexdigest()
     else:
         fp["content"] = _frames_digest(dataset.frames())
     fp["options"] = {k: to_plain(getattr(dataset, k)) for k in _READER_OPTIONS if hasattr(dataset, k)}

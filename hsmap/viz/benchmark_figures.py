@@ -16,7 +16,7 @@ from matplotlib.figure import Figure
 from ..errors import InputError
 from .figures import new_figure
 
-__all__ = ["relations_figure", "precision_recall_figure"]
+__all__ = ["relations_figure", "relations_dt_figure", "precision_recall_figure"]
 
 
 def relations_figure(rows: Sequence[Mapping[str, Any]], published: Sequence[Mapping[str, Any]], *,
@@ -55,6 +55,61 @@ def relations_figure(rows: Sequence[Mapping[str, Any]], published: Sequence[Mapp
         ax.set_xlabel("mean translational error over the relations [m] (log)")
         ax.set_title(f"{log}: ours (blue), raw odometry (red), published (grey)" + (f"\n{note}" if note else ""))
         ax.grid(True, axis="x", lw=0.3)
+    return fig
+
+
+def relations_dt_figure(curves: Mapping[tuple[str, str], tuple], *, cartographer: Mapping[str, float] | None = None,
+                        bins: int = 12) -> Figure:
+    """One panel per log: the mean translational relations error against the time between the two poses.
+
+    Short relations measure the tracking, long ones the global consistency: without loop closure the error grows
+    with dt, with it the curve stays flat.
+
+    Parameters
+    ----------
+    curves : mapping of (log, method) to (dt, error)
+        :attr:`hsmap.study.benchmarks.FreiburgResults.curves`: each relation's dt (s) and translational error (m).
+    cartographer : mapping of log to float, optional
+        Cartographer's mean error per log, drawn as a grey line.
+    bins : int
+        Logarithmic dt bins.
+    """
+    logs = list(dict.fromkeys(k[0] for k in curves))
+    if not logs:
+        raise InputError("relations_dt_figure needs at least one curve")
+    colors = {"HS-SLAM": "tab:blue", "HS-SLAM, no loop closure": "tab:orange", "raw odometry": "tab:red"}
+    fig, axes = new_figure(1, len(logs), size=(6.5 * len(logs), 4.8))
+    for ax, log in zip(np.atleast_1d(axes), logs, strict=True):
+        mine = {m: v for (lg, m), v in curves.items() if lg == log}
+        dts = np.concatenate([np.asarray(v[0]) for v in mine.values()])
+        if dts.size == 0:
+            ax.text(0.5, 0.5, f"{log}: no relations scored", ha="center", transform=ax.transAxes)
+            continue
+        edges = np.geomspace(max(dts.min(), 0.1), max(dts.max(), 0.2) * 1.001, bins + 1)
+        drawn = 0
+        for method, (dt, err) in mine.items():
+            dt, err = np.asarray(dt), np.asarray(err)
+            k = np.digitize(dt, edges) - 1
+            centre, mean = [], []
+            for b in range(bins):
+                m = k == b
+                if m.sum() >= 3:
+                    centre.append(np.sqrt(edges[b] * edges[b + 1]))
+                    mean.append(err[m].mean())
+            ax.plot(centre, mean, "o-", color=colors.get(method, "k"), label=method, ms=3)
+            drawn += len(centre)
+        if not drawn:
+            ax.text(0.5, 0.5, f"{log}: too few relations per dt bin", ha="center", transform=ax.transAxes)
+            continue
+        if cartographer and log in cartographer:
+            ax.axhline(cartographer[log], color="0.5", lw=1, ls="--", label="Cartographer, all relations (Hess 2016)")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("time between the relation's poses, dt [s] (log)")
+        ax.set_ylabel("mean translational error [m] (log)")
+        ax.set_title(f"{log}: relations error against dt")
+        ax.grid(True, which="both", lw=0.3)
+        ax.legend(fontsize=8)
     return fig
 
 

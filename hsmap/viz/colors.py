@@ -5,7 +5,10 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["ROOM_PALETTE", "label_colors", "label_color", "label_overlay", "SERIES_COLORS", "height_colors"]
+__all__ = [
+    "ROOM_PALETTE", "label_colors", "label_color", "label_overlay", "SERIES_COLORS", "VIEWER_SERIES_COLORS",
+    "height_colors",
+]
 
 # matplotlib's tab20, dark shades first then light ones, so that consecutive labels contrast.
 _TAB20 = [
@@ -24,6 +27,16 @@ SERIES_COLORS = {
     "slam": (31, 119, 180),
     "odometry": (214, 39, 40),
     "other": (44, 160, 44),
+}
+
+#: The same curves in the rerun viewer, whose background is dark and whose maps are white: colours that stand
+#: apart on both (the figures' dark-grey ground truth disappears on the viewer's black).
+VIEWER_SERIES_COLORS = {
+    "groundtruth": (60, 210, 90),
+    "estimate": (40, 150, 255),
+    "slam": (40, 150, 255),
+    "odometry": (245, 70, 50),
+    "other": (250, 200, 40),
 }
 
 

@@ -356,24 +356,20 @@ def segmentation_comparison_figure(panels: Sequence[tuple[OccupancyGrid | None, 
 
 def log_overlay(rec: Any, rgb: ArrayLike, geometry: GridGeometry, *, entity: str = "world/map/overlay",
                 map_entity: str | None = "map/overlay", z: float = 0.01, opacity: float = 0.9) -> None:
-    """Log an (H, W, 3) overlay picture (:func:`hsmap.fusion.overlay_image`) as a ``GridMap`` in the 3D world
-    placed by ``geometry`` and as an ``Image`` in the 2D map view (static)."""
+    """Log an (H, W, 3) overlay picture (:func:`hsmap.fusion.overlay_image`) as a coloured quad in the 3D world
+    placed by ``geometry`` (:func:`hsmap.viz.rerun.log_rgba_grid`) and as an ``Image`` in the 2D map view
+    (static)."""
     import rerun as rr
 
-    from .rerun import _stream
+    from .rerun import _stream, log_rgba_grid
 
     img = np.asarray(rgb)
     if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8:
         raise ShapeError(f"overlay must be an (H, W, 3) uint8 picture, got {img.shape} {img.dtype}")
     if img.shape[:2] != geometry.shape:
         raise ShapeError(f"overlay {img.shape[:2]} differs from its geometry {geometry.shape}")
-    h, w = img.shape[:2]
     s = _stream(rec)
-    # rows as hsmap.viz.rerun.log_occupancy_grid passes them (row 0 = the top row), so the two line up
-    s.log(entity, rr.GridMap(
-        data=np.ascontiguousarray(img).tobytes(),
-        format=rr.components.ImageFormat(width=w, height=h, color_model="RGB", channel_datatype="U8"),
-        cell_size=geometry.resolution, translation=[geometry.origin[0], geometry.origin[1], z], opacity=opacity),
-        static=True, strict=True)
+    alpha = np.full(img.shape[:2] + (1,), int(round(255 * float(opacity))), np.uint8)
+    log_rgba_grid(rec, entity, np.concatenate([img, alpha], axis=2), geometry, z=z)
     if map_entity is not None:
         s.log(map_entity, rr.Image(img, color_model="RGB", draw_order=-5.0), static=True, strict=True)

@@ -52,7 +52,7 @@ from ..geometry import euler_to_matrix, matrix_to_quaternion  # noqa: E402
 from ..grid import GridGeometry  # noqa: E402
 from ..io import locked_temporary, publish_file, write_failure_reason  # noqa: E402
 from ..mapping import first_per_voxel  # noqa: E402
-from .colors import ROOM_PALETTE, SERIES_COLORS, height_colors, label_color, label_colors  # noqa: E402
+from .colors import ROOM_PALETTE, VIEWER_SERIES_COLORS, height_colors, label_color, label_colors  # noqa: E402
 from .occupancy import _ros_to_image, occupancy_to_image, occupancy_to_ros  # noqa: E402
 
 __all__ = [
@@ -60,6 +60,12 @@ __all__ = [
     "Recording",
     "open_recording",
     "default_blueprint",
+    "eye_for_bounds",
+    "log_legend",
+    "series_legend",
+    "log_rgba_grid",
+    "log_map2d_robot",
+    "log_map2d_points",
     "set_frame_time",
     "pose_transform",
     "log_robot_pose",
@@ -93,6 +99,8 @@ LIDAR3D = "world/robot/lidar3d"
 WORLD_MAP = "world/map"
 MAP2D = "map"
 GRAPH = "graph"
+LEGEND = "legend"
+ROBOT_COLOR = (255, 140, 0)
 
 _UNIX_TIME_THRESHOLD = 1e8  # seconds: stamps above this (after 1973) are taken as Unix times
 
@@ -283,18 +291,55 @@ def open_recording(path: str | os.PathLike, **kwargs: Any) -> Recording:
     return Recording(path, **kwargs)
 
 
-def default_blueprint(*, view3d: bool = True, map2d: bool = True, graph: bool = True) -> rrb.Blueprint:
-    """The layout a recording opens on: the 3D world on the left; the 2D map and the room graph on the right.
+def eye_for_bounds(lo: ArrayLike, hi: ArrayLike, *, elevation_deg: float = 55.0) -> rrb.EyeControls3D:
+    """A 3D camera that frames the box ``lo``..``hi`` (world x, y, z) whole: looking at its centre from the
+    south (-y), ``elevation_deg`` above the horizon, far enough back for the box's larger side."""
+    lo_a, hi_a = np.asarray(lo, dtype=float).reshape(-1), np.asarray(hi, dtype=float).reshape(-1)
+    if lo_a.shape != (3,) or hi_a.shape != (3,) or not np.all(np.isfinite(lo_a)) or not np.all(np.isfinite(hi_a)):
+        raise InputError(f"bounds must be two finite (x, y, z) corners, got {lo!r} and {hi!r}")
+    centre = 0.5 * (lo_a + hi_a)
+    size = max(float(np.max(hi_a[:2] - lo_a[:2])), 1.0)
+    dist = 1.1 * size  # a ~60 deg field of view sees about 1.15 x its distance across
+    el = np.radians(elevation_deg)
+    eye = centre + dist * np.array([0.0, -np.cos(el), np.sin(el)])
+    return rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, position=eye, look_target=centre, eye_up=(0.0, 0.0, 1.0))
+
+
+def default_blueprint(
+    *,
+    view3d: bool = True,
+    map2d: bool = True,
+    graph: bool = True,
+    names: Mapping[str, str] | None = None,
+    legend: bool = False,
+    eye: rrb.EyeControls3D | None = None,
+    hidden: Iterable[str] = (),
+) -> rrb.Blueprint:
+    """The layout a recording opens on: the 3D world on the left; the 2D map, the room graph and the legend on
+    the right.
 
     Views whose data a recording lacks can be left out (``map2d=False`` for a SLAM run without a grid).
+
+    Parameters
+    ----------
+    names : mapping, optional
+        View titles by view ("3D world", "2D map", "Room graph", "Legend"), e.g. the paper's figure names.
+    legend : bool
+        Add a text view of ``legend`` (see :func:`log_legend`): what each colour and entity is.
+    eye : rerun.blueprint.EyeControls3D, optional
+        The 3D view's camera (see :func:`eye_for_bounds`); rerun's default otherwise.
+    hidden : entity paths
+        Entities the 3D view has but hides at first (slabs, ceilings): the user can show them in the viewer.
     """
+    title = {"3D world": "3D world", "2D map": "2D map", "Room graph": "Room graph", "Legend": "Legend"}
+    title.update(names or {})
     right: list[Any] = []
     if map2d:
-        right.append(rrb.Spatial2DView(name="2D map", origin=MAP2D))
+        right.append(rrb.Spatial2DView(name=title["2D map"], origin=MAP2D))
     if graph:
         right.append(
             rrb.GraphView(
-                name="Room graph",
+                name=title["Room graph"],
                 origin=GRAPH,
                 # positions are given (world x, -y): keep them, do not let the force layout move the nodes
                 force_link=rrb.archetypes.ForceLink(enabled=False),
@@ -302,17 +347,45 @@ def default_blueprint(*, view3d: bool = True, map2d: bool = True, graph: bool = 
                 force_center=rrb.archetypes.ForceCenter(enabled=False),
             )
         )
-    left = [rrb.Spatial3DView(name="3D world", origin=WORLD)] if view3d else []
+    overrides = {f"/{e.strip('/')}": rrb.EntityBehavior(visible=False) for e in hidden}
+    left = [rrb.Spatial3DView(name=title["3D world"], origin=WORLD, eye_controls=eye, overrides=overrides or None)
+            ] if view3d else []
     if not left and not right:
         raise InputError("default_blueprint needs at least one view")
+    if legend:
+        right.append(rrb.TextDocumentView(name=title["Legend"], origin=LEGEND))
     if left and right:
+        shares = [3, 1, 1][: len(right)] if len(right) > 1 else None
         root: Any = rrb.Horizontal(
-            left[0], right[0] if len(right) == 1 else rrb.Vertical(*right), column_shares=[3, 2]
+            left[0], right[0] if len(right) == 1 else rrb.Vertical(*right, row_shares=shares), column_shares=[3, 2]
         )
     else:
         views = left + right
         root = views[0] if len(views) == 1 else rrb.Vertical(*views)
     return rrb.Blueprint(root, collapse_panels=False)
+
+
+def log_legend(rec: Any, markdown: str) -> None:
+    """The recording's legend (Markdown), shown by the blueprint's text view (``default_blueprint(legend=True)``)."""
+    _stream(rec).log(LEGEND, rr.TextDocument(str(markdown), media_type=rr.MediaType.MARKDOWN), static=True,
+                     strict=True)
+
+
+def series_legend(names: Iterable[str]) -> str:
+    """Markdown lines naming the colour of each path (``VIEWER_SERIES_COLORS``)."""
+    what = {"groundtruth": "ground truth", "estimate": "estimate (HS-SLAM)", "slam": "estimate (HS-SLAM)",
+            "odometry": "wheel odometry"}
+    lines = []
+    for n in names:
+        c = VIEWER_SERIES_COLORS.get(n, VIEWER_SERIES_COLORS["other"])
+        lines.append(f"- **{_colour_name(c)}** line: {what.get(n, n)}")
+    return "\n".join(lines)
+
+
+def _colour_name(c: Any) -> str:
+    names = {(60, 210, 90): "green", (40, 150, 255): "blue", (245, 70, 50): "red", (250, 200, 40): "yellow"}
+    rgb = tuple(int(v) for v in c[:3])
+    return names.get(rgb, "#" + "".join(f"{v:02x}" for v in rgb))
 
 
 # --- time and poses ------------------------------------------------------------------------------------
@@ -386,6 +459,9 @@ def log_sensor_rig(
     """
     s = _stream(rec)
     s.log(robot, rr.TransformAxes3D(axis_length), static=True, strict=True)
+    # a body to find the robot by (orange, a 0.6 x 0.44 x 0.3 m box on the floor, its front marked by the axes)
+    s.log(f"{robot}/body", rr.Boxes3D(centers=[[0.0, 0.0, 0.15]], half_sizes=[[0.3, 0.22, 0.15]],
+                                      colors=ROBOT_COLOR, fill_mode="solid"), static=True, strict=True)
     if extrinsic2d is not None:
         e = np.asarray(extrinsic2d, dtype=float)
         if e.shape != (3,):
@@ -580,21 +656,27 @@ def log_path(
     z: float | None = None,
     entity: str | None = None,
     static: bool = True,
+    label: str | None = None,
 ) -> None:
     """Log a whole path as one line strip at ``world/trajectory/NAME`` (static by default).
 
     Parameters
     ----------
     name : str
-        "groundtruth", "odometry", "estimate", ... (sets the default colour, see ``SERIES_COLORS``).
+        "groundtruth", "odometry", "estimate", ... (sets the default colour, see ``VIEWER_SERIES_COLORS``;
+        :func:`series_legend` says which is which).
     poses : Trajectory or array of shape (N, 2), (N, 3) or (N, 6)
     z : float, optional
         Height of the line for planar paths (default 0; 6-DOF paths keep their own z).
+    static : bool
+        False logs the path at the current time (a path drawn up to now, logged again as it grows).
+    label : str, optional
+        A text label on the line (none by default: rerun draws every label of a strip on one spot).
     """
     xyz = _path_positions(poses, z)
-    color = SERIES_COLORS.get(name, SERIES_COLORS["other"]) if color is None else color
+    color = VIEWER_SERIES_COLORS.get(name, VIEWER_SERIES_COLORS["other"]) if color is None else color
     _stream(rec).log(entity or f"{WORLD}/trajectory/{name}",
-                     rr.LineStrips3D([xyz], colors=color, radii=radius, labels=[name]),
+                     rr.LineStrips3D([xyz], colors=color, radii=radius, labels=None if label is None else [label]),
                      static=static, strict=True)
 
 
@@ -708,8 +790,8 @@ def log_room_labels(
     static: bool = True,
 ) -> None:
     """Log a room label image (H, W) (0 = no room): in the 2D map view as ``SegmentationImage`` with an
-    ``AnnotationContext`` (room names and colours), and in the 3D world as an RGBA ``GridMap`` placed by
-    ``geometry`` just above the occupancy grid."""
+    ``AnnotationContext`` (room names and colours), and in the 3D world as a coloured quad
+    (:func:`log_rgba_grid`) placed by ``geometry`` just above the occupancy grid."""
     lab = np.asarray(labels)
     if lab.ndim != 2:
         raise ShapeError(f"labels must be an (H, W) image, got shape {lab.shape}")
@@ -720,19 +802,8 @@ def log_room_labels(
     ids = np.unique(lab16)
     s = _stream(rec)
     rgba = label_colors(lab16)
-    h, w = lab16.shape
-    s.log(
-        entity,
-        rr.GridMap(
-            data=np.ascontiguousarray(rgba).tobytes(),
-            format=rr.components.ImageFormat(width=w, height=h, color_model="RGBA", channel_datatype="U8"),
-            cell_size=geometry.resolution,
-            translation=[geometry.origin[0], geometry.origin[1], z],
-            opacity=opacity,
-        ),
-        static=static,
-        strict=True,
-    )
+    rgba[..., 3] = np.where(rgba[..., 3] > 0, int(round(255 * float(opacity))), 0).astype(np.uint8)
+    log_rgba_grid(rec, entity, rgba, geometry, z=z, static=static)
     if map_entity is not None:
         s.log(map_entity, room_annotation_context(ids, names), static=True, strict=True)
         s.log(map_entity, rr.SegmentationImage(lab16, opacity=opacity, draw_order=0.0), static=static,
@@ -749,12 +820,55 @@ def log_map2d_path(
     rec: Any, name: str, poses: Any, geometry: GridGeometry, *, color: ArrayLike | None = None,
     radius: float = 1.0, static: bool = True,
 ) -> None:
-    """A path drawn over the 2D map view at ``map/paths/NAME`` (radius in pixels)."""
+    """A path drawn over the 2D map view at ``map/paths/NAME`` (radius in pixels; ``static=False`` logs it at
+    the current time, for a path that grows)."""
     xy = _path_positions(poses, None)[:, :2]
-    color = SERIES_COLORS.get(name, SERIES_COLORS["other"]) if color is None else color
+    color = VIEWER_SERIES_COLORS.get(name, VIEWER_SERIES_COLORS["other"]) if color is None else color
     _stream(rec).log(f"{MAP2D}/paths/{name}",
                      rr.LineStrips2D([world_to_map2d(geometry, xy)], colors=color, radii=radius,
                                      draw_order=10.0), static=static, strict=True)
+
+
+def log_map2d_robot(rec: Any, pose: ArrayLike, geometry: GridGeometry, *, entity: str = f"{MAP2D}/robot",
+                    length: float = 0.6, color: ArrayLike = ROBOT_COLOR) -> None:
+    """The robot in the 2D map view at the current time: a dot and an arrow ``length`` metres along its heading."""
+    p = _pose6(pose)
+    x, y, yaw = p[0], p[1], p[5]
+    a, b = world_to_map2d(geometry, np.array([[x, y], [x + length * np.cos(yaw), y + length * np.sin(yaw)]]))
+    s = _stream(rec)
+    s.log(entity, rr.Arrows2D(origins=[a], vectors=[b - a], colors=color, radii=1.5, draw_order=40.0),
+          rr.Points2D([a], colors=color, radii=4.0, draw_order=40.0), strict=True)
+
+
+def log_map2d_points(rec: Any, name: str, points_world: ArrayLike, geometry: GridGeometry, *,
+                     color: ArrayLike = (230, 90, 30), radius: float = 1.2, static: bool = False) -> None:
+    """World points (N, 2+) in the 2D map view at ``map/NAME`` (radius in pixels), at the current time."""
+    p = _points(points_world, (2, 3), "points_world")
+    _stream(rec).log(f"{MAP2D}/{name}", rr.Points2D(world_to_map2d(geometry, p[:, :2]), colors=color, radii=radius,
+                                                  draw_order=35.0), static=static, strict=True)
+
+
+def log_rgba_grid(
+    rec: Any, entity: str, image: ArrayLike, geometry: GridGeometry, *, z: float = 0.0, static: bool = True,
+) -> None:
+    """An (H, W, 3) or (H, W, 4) uint8 picture over a grid, in the 3D world, placed by ``geometry``: a textured
+    quad (``Mesh3D``). Rows as an image's and a ``GridMap``'s: row 0 on the side of largest y, so it lies on
+    the occupancy grid. (rerun 0.41 flags a colour ``GridMap`` as an error in the view, so colour pictures go this way.)"""
+    img = np.asarray(image)
+    if img.ndim != 3 or img.shape[2] not in (3, 4) or img.dtype != np.uint8:
+        raise ShapeError(f"{entity}: a picture must be (H, W, 3|4) uint8, got {img.shape} {img.dtype}")
+    _check_geometry(geometry, img.shape, entity)
+    h, w = img.shape[:2]
+    x0, y0 = float(geometry.origin[0]), float(geometry.origin[1])
+    x1, y1 = x0 + w * geometry.resolution, y0 + h * geometry.resolution
+    # nearest-neighbour look: a texture is filtered linearly, so each cell is drawn as a 4 x 4 block
+    big = np.ascontiguousarray(np.repeat(np.repeat(img, 4, axis=0), 4, axis=1)) if max(h, w) <= 1024 else img
+    _stream(rec).log(entity, rr.Mesh3D(
+        vertex_positions=[[x0, y0, z], [x1, y0, z], [x1, y1, z], [x0, y1, z]],
+        triangle_indices=[[0, 1, 2], [0, 2, 3]],
+        vertex_texcoords=[[0.0, 1.0], [1.0, 1.0], [1.0, 0.0], [0.0, 0.0]],  # row 0 (v = 0) on the far side
+        albedo_texture=big,
+    ), static=static, strict=True)
 
 
 # --- room graph ----------------------------------------------------------------------------------------
@@ -785,7 +899,7 @@ def log_room_graph(
     world_entity: str | None = f"{WORLD_MAP}/graph",
     geometry: GridGeometry | None = None,
     z: float = 0.3,
-    scale: float = 50.0,
+    scale: float = 40.0,
     static: bool = True,
 ) -> None:
     """Log a room/door graph (networkx): rooms have ``centroid`` (x, y) and ``area`` (m^2), doors a
@@ -793,12 +907,15 @@ def log_room_graph(
     from ``area``; a room's ``label`` attribute (its id in the label image) picks its colour.
 
     Logs ``GraphNodes``/``GraphEdges`` at ``entity`` (positions world (x, -y) * ``scale``, so the graph view
-    looks like the map from above), the same graph in the 3D world at height ``z`` (``world_entity``), and,
-    with ``geometry``, over the 2D map view (``map/graph``).
+    looks like the map from above; a door lying on the line between its two rooms is drawn a little aside,
+    so that its label does not cover theirs), the same graph in the 3D world at height ``z`` (``world_entity``:
+    light edges and each edge's length at its middle), and, with ``geometry``, over the 2D map view
+    (``map/graph``: labels in white, not in the room's own colour, which is the fill under them; doors by
+    their short name).
     """
     if not hasattr(graph, "nodes") or not hasattr(graph, "edges"):
         raise InputError(f"expected a networkx graph, got {type(graph).__name__}")
-    ids, pos, labels, colors, radii, kinds = [], [], [], [], [], []
+    ids, pos, labels, short, colors, radii, kinds = [], [], [], [], [], [], []
     for i, (n, data) in enumerate(graph.nodes(data=True)):
         kind = _node_kind(data)
         c = _centroid(n, data)
@@ -809,12 +926,15 @@ def log_room_graph(
             area = data.get("area")
             name = data.get("name") or f"room {n}"
             labels.append(f"{name} ({float(area):.1f} m²)" if area is not None else str(name))
+            short.append(str(name))
             lab = data.get("label", n if isinstance(n, (int, np.integer)) else i + 1)
             colors.append(label_color(int(lab)) if isinstance(lab, (int, np.integer)) else tuple(ROOM_PALETTE[0]))
             radii.append(1.0)
         else:
-            labels.append(str(data.get("name") or f"door {n}"))
-            colors.append((60, 60, 60))
+            name = str(data.get("name") or f"door {n}")
+            labels.append(name)
+            short.append(name)
+            colors.append(_DOOR_COLOR)
             radii.append(0.5)
     if not ids:
         raise InputError("the room graph has no nodes")
@@ -827,27 +947,67 @@ def log_room_graph(
         d = data.get("distance")
         edge_labels.append(f"{float(d):.2f} m" if d is not None else "")
     s = _stream(rec)
-    gpos = np.column_stack([pos_a[:, 0], -pos_a[:, 1]]) * scale
+    gpos = _graph_positions(graph, pos_a, kinds, index) * np.array([1.0, -1.0]) * scale
     s.log(entity, rr.GraphNodes(ids, positions=gpos, labels=labels, colors=colors,
-                                radii=np.array(radii) * 0.25 * scale, show_labels=True),
+                                radii=np.array(radii) * 0.15 * scale, show_labels=True),
           static=static, strict=True)
     s.log(entity, rr.GraphEdges(edges, graph_type="undirected"), static=static, strict=True)
     if world_entity is not None:
         p3 = np.column_stack([pos_a, np.full(len(pos_a), z)])
-        s.log(f"{world_entity}/nodes", rr.Points3D(p3, colors=colors, radii=np.array(radii) * 0.15,
-                                                   labels=labels, show_labels=True), static=static, strict=True)
+        # labels in white: a room's label in its own colour would vanish on its floor's fill
+        s.log(f"{world_entity}/nodes", rr.Points3D(p3, colors=colors, radii=np.array(radii) * 0.2),
+              static=static, strict=True)
+        # rooms only: door labels would crowd a corridor's (the door clouds and the edges show the doors)
+        rooms = np.array([k == "room" for k in kinds])
+        s.log(f"{world_entity}/labels", rr.Points3D(p3[rooms] + [0.0, 0.0, 0.25], colors=(255, 255, 255),
+                                                    radii=0.01, labels=[t for t, r in zip(labels, rooms, strict=True)
+                                                                        if r], show_labels=True),
+              static=static, strict=True)
         if edges:
             lines = [np.column_stack([np.array(e), np.full(2, z)]) for e in edge_lines]
-            s.log(f"{world_entity}/edges", rr.LineStrips3D(lines, colors=(40, 40, 40), radii=0.03,
-                                                           labels=edge_labels), static=static, strict=True)
+            s.log(f"{world_entity}/edges", rr.LineStrips3D(lines, colors=(235, 235, 235), radii=0.06),
+                  static=static, strict=True)
+            mids = np.array([ln.mean(axis=0) for ln in lines])
+            s.log(f"{world_entity}/lengths", rr.Points3D(mids, colors=(235, 235, 235), radii=0.08,
+                                                         labels=edge_labels, show_labels=True),
+                  static=static, strict=True)
     if geometry is not None:
-        s.log(f"{MAP2D}/graph/nodes", rr.Points2D(world_to_map2d(geometry, pos_a), colors=colors,
-                                                 radii=np.array(radii) * 4.0, labels=labels, draw_order=30.0),
+        tags = [lab if kinds[k] == "room" else lab.removeprefix("door ") for k, lab in enumerate(short)]
+        s.log(f"{MAP2D}/graph/nodes", rr.Points2D(world_to_map2d(geometry, pos_a), colors=(255, 255, 255),
+                                                 radii=np.array(radii) * 4.0, labels=tags, draw_order=30.0),
               static=static, strict=True)
         if edges:
             s.log(f"{MAP2D}/graph/edges",
                   rr.LineStrips2D([world_to_map2d(geometry, np.array(e)) for e in edge_lines],
                                   colors=(40, 40, 40), radii=1.0, draw_order=25.0), static=static, strict=True)
+
+
+_DOOR_COLOR = (230, 230, 230)
+
+
+def _graph_positions(graph: Any, pos: NDArray[np.float64], kinds: list[str], index: Mapping[str, int]
+                     ) -> NDArray[np.float64]:
+    """Node positions for the graph view: the map's, except that a door lying (nearly) on the line between
+    its two rooms moves aside, perpendicular to that line, by a third of the rooms' distance (else the door's
+    label and the rooms' overlap when rooms follow each other along a corridor)."""
+    out = pos.copy()
+    for n in graph.nodes:
+        k = index[str(n)]
+        if kinds[k] != "door":
+            continue
+        rooms = [index[str(m)] for m in graph.neighbors(n) if kinds[index[str(m)]] == "room"]
+        if len(rooms) != 2:
+            continue
+        a, b = pos[rooms[0]], pos[rooms[1]]
+        ab = b - a
+        length = float(np.hypot(*ab))
+        if length < 1e-9:
+            continue
+        normal = np.array([-ab[1], ab[0]]) / length
+        off = float(np.dot(pos[k] - a, normal))
+        if abs(off) < 0.15 * length:
+            out[k] = pos[k] + normal * (np.sign(off) if off else 1.0) * (length / 3.0 - abs(off))
+    return out
 
 
 # --- verification --------------------------------------------------------------------------------------

@@ -1,0 +1,104 @@
+"""The paper's whole chain on one recording with a floor-level 2D LiDAR and a 3D LiDAR.
+
+2D HS-SLAM on the scans; 6-DOF HS-SLAM on the clouds seeded by the 2D poses (interpolated at each cloud's
+stamp); the floor-level occupancy grid and the grid of the 3D map's 1.7-1.8 m slice (--slice), each as a
+map_server PGM+YAML that Nav2's map_server loads, and PNG; their registration and overlay; doors, rooms and the
+room/door graph of the slice and of the floor grid (the paper's Figure 18 comparison); the doors' points in
+both point maps; map2d.ply and map3d.ply; summary.html with the figures and numbers; metrics.json (what was read,
+the offsets and their sources, warnings, every stage's numbers); map.rrd, one rerun recording of it all.
+
+Every stage shows a progress bar and is kept in --out/.stages/: run again with the same inputs and the stages
+are read back ("unchanged"); change a flag and only the stages after it run again.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+NAME = "map"
+HELP = "the paper's whole chain on one recording: both SLAM maps, Nav2 grids, overlay, rooms, doors, graph"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from .inputs import INPUT_HELP, add_input_arguments
+
+    parser.add_argument("input", help=INPUT_HELP + "; it needs 2D scans and 3D clouds")
+    parser.add_argument("--out", required=True, help="output folder")
+    parser.add_argument("--seed", type=int, default=0, help="seed of every random choice (default 0)")
+    parser.add_argument("--slice", metavar="ZMIN,ZMAX", default="1.7,1.8",
+                        help="heights (m above the base frame) of the 3D map's slice (default 1.7,1.8, the paper's)")
+    parser.add_argument("--resolution", type=float, default=0.05, help="metres per grid cell (default 0.05)")
+    parser.add_argument("--method", choices=("critical", "paper"), default=None,
+                        help="door detection: critical points + narrowing test (default) or the paper's band")
+    parser.add_argument("--no-odometry", action="store_true", help="ignore the input's odometry")
+    parser.add_argument("--no-loop-closure", action="store_true", help="HS-SLAM without pose graph and loop closure")
+    add_input_arguments(parser)
+    parser.add_argument("--no-recording", action="store_true", help="do not write map.rrd")
+    parser.add_argument("--quiet", action="store_true", help="no progress bars or summary")
+
+
+def run(args: argparse.Namespace) -> int:
+    import dataclasses
+    import math
+    from pathlib import Path
+
+    from ..errors import InputError
+    from ..segmentation import SegmentationConfig
+    from ..slam import SlamConfig
+    from ..study.chain import map_recording
+    from .inputs import open_input, parse_vector, sync_tolerance
+
+    if args.seed < 0:
+        raise InputError(f"--seed must be >= 0, got {args.seed}")
+    z = parse_vector(args.slice, 2, "--slice")
+    if not z[0] < z[1]:
+        raise InputError(f"--slice must be ZMIN,ZMAX with ZMIN < ZMAX (metres), got {args.slice!r}")
+    if not (math.isfinite(args.resolution) and args.resolution > 0):
+        raise InputError(f"--resolution must be > 0 metres per cell, got {args.resolution}")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out {out}: exists and is not a folder")
+    slam2d, slam3d = SlamConfig(dof=3), SlamConfig(dof=6)
+    if args.no_odometry:
+        slam2d, slam3d = (dataclasses.replace(c, use_odometry=False) for c in (slam2d, slam3d))
+    if args.no_loop_closure:
+        slam2d, slam3d = (dataclasses.replace(c, loop_closure=dataclasses.replace(c.loop_closure, enabled=False))
+                          for c in (slam2d, slam3d))
+    tol = sync_tolerance(args)
+    if tol is not None:
+        slam2d, slam3d = (dataclasses.replace(c, sync_tolerance=tol) for c in (slam2d, slam3d))
+    seg = SegmentationConfig() if args.method is None else SegmentationConfig(method=args.method)
+    progress = False if args.quiet else None
+    dataset = open_input(args, progress=progress)
+    from ..datasets.carmen import CarmenDataset
+    from ..errors import DatasetError
+
+    if isinstance(dataset, CarmenDataset):
+        raise DatasetError(f"{args.input}: a CARMEN log has 2D scans only; hsmap map needs 2D scans and 3D clouds")
+    for sensor in ("scan", "cloud"):
+        try:
+            dataset.driven_by(sensor)
+        except DatasetError as exc:
+            raise DatasetError(f"hsmap map needs 2D scans and 3D clouds: {exc}") from None
+    m = map_recording(dataset, out, seed=args.seed, slam2d=slam2d, slam3d=slam3d, segmentation=seg,
+                      z_range=(float(z[0]), float(z[1])), resolution=float(args.resolution),
+                      recording=not args.no_recording, progress=progress)
+    if not args.quiet:
+        import sys
+
+        s2, s3, fus = m["slam2d"], m["slam3d"], m["fusion"]
+        lines = [
+            f"2D HS-SLAM: {s2['frames']} scans, {s2['loops_closed']} loops closed; 6-DOF HS-SLAM: {s3['frames']} "
+            f"clouds, 2D prior for {(s3.get('prior') or {}).get('frames_with_prior')} of them",
+            f"2D map -> slice: ({fus['x']:+.3f} m, {fus['y']:+.3f} m, {fus['yaw_deg']:+.2f} deg), overlap "
+            f"{fus['overlap']:.3f}",
+            f"slice: {m['slice']['rooms']} rooms, {m['slice']['doors']} doors ({m['slice']['graph']}); floor-level "
+            f"map: {m['floor']['rooms']} rooms, {m['floor']['doors']} doors",
+            *(f"warning: {w}" for w in m["warnings"]),
+            "stages: " + ", ".join(f"{k} " + ("unchanged" if v["unchanged"] else f"{v['seconds']:.1f} s")
+                                   for k, v in m["stages"].items()),
+            f"wrote {out}/summary.html, metrics.json, slice.yaml/.pgm, floor.yaml/.pgm, rooms.png, doors.json, "
+            f"topology.json, map2d.ply, map3d.ply{'' if args.no_recording else ', map.rrd'}",
+        ]
+        sys.stderr.write("\n".join(lines) + "\n")
+    return 0

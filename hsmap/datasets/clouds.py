@@ -1,0 +1,267 @@
+"""A folder of point clouds (``.pcd``, ``.ply``, KITTI ``.bin``, ``.csv``) as a recording, optionally with a folder
+of 2D scans beside it.
+
+Layout
+------
+- The clouds: one file per 3D LiDAR sweep, in the 3D sensor's frame, **ordered by file name** (zero-padded
+  names such as KITTI's ``000000.bin`` sort in time). One kind of file per folder:
+
+  - ``.pcd`` and ``.ply``: read with Open3D (ASCII or binary);
+  - ``.bin``: KITTI Velodyne, float32 ``x y z intensity`` per point (16 bytes);
+  - ``.csv`` (or ``.txt``): one point per line, ``x y [z]`` separated by commas or spaces, ``#`` comments.
+
+  Points at exactly (0, 0, 0) and non-finite ones are no returns and are dropped.
+- The stamps (seconds): a ``times.txt`` with one number per line, one line per file in name order, in the
+  folder or beside it (KITTI's ``sequences/NN/times.txt`` next to ``velodyne/``); or a fixed rate
+  (``cloud_rate``, the command line's ``--cloud-rate HZ``: file *k* at *k* / rate), which wins over a
+  ``times.txt``.
+- Optionally the 2D scans (``scans``, ``--scans DIR``): a folder of the same kinds of files, each a 2D LiDAR
+  scan as points in the 2D sensor's frame (z ignored), with its own ``times.txt`` or rate (``scan_rate``,
+  ``--scan-rate HZ``).
+
+With both sensors, frames are made by one of them (``drive``: the scans by default, the clouds for a 6-DOF run,
+:meth:`CloudFolderDataset.driven_by`) and the other's nearest file within ``sync_tolerance`` is attached, as
+for a bag (:mod:`hsmap.datasets.rosbag`). A folder has no transforms: the sensor offsets are zero unless given
+(``extrinsic2d``/``extrinsic3d``), with a warning, and a folder has no odometry.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import os
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import DataFormatError, DatasetError, InputError
+from ..trajectory import nearest_index
+from .frames import SOURCE_DEFAULT, Dataset, Frame, LaserScan2D
+
+__all__ = ["CloudFolderDataset", "CLOUD_SUFFIXES", "is_cloud_folder", "read_points"]
+
+#: File endings read as point clouds (``.txt`` as ``.csv``).
+CLOUD_SUFFIXES = (".pcd", ".ply", ".bin", ".csv", ".txt")
+TIMES = "times.txt"
+
+_OPTION_NAMES = {"cloud_rate": "cloud_rate", "scans": "scans", "scan_rate": "scan_rate",
+                 "sync_tolerance": "sync_tolerance", "drive": "drive", "extrinsic2d": "extrinsic2d",
+                 "extrinsic3d": "extrinsic3d"}
+
+
+def _point_files(folder: Path) -> list[Path]:
+    return sorted(f for f in folder.iterdir()
+                  if f.is_file() and f.suffix.lower() in CLOUD_SUFFIXES and f.name != TIMES)
+
+
+def is_cloud_folder(path: str | os.PathLike) -> bool:
+    """Whether ``path`` is a folder holding point-cloud files (and no bag or simulator description)."""
+    p = Path(path)
+    return p.is_dir() and bool(_point_files(p))
+
+
+def read_points(path: str | os.PathLike) -> NDArray[np.float64]:
+    """The points (N, 3) of one ``.pcd``/``.ply``/``.bin``/``.csv`` file; no-return points (zeros, NaN) dropped.
+
+    Raises
+    ------
+    DataFormatError
+        The file is not what its ending says (naming the file and what was expected).
+    """
+    p = Path(path)
+    suffix = p.suffix.lower()
+    if suffix == ".bin":
+        size = p.stat().st_size
+        if size % 16:
+            raise DataFormatError(f"{p}: {size} bytes is not a whole number of KITTI points (16 bytes: float32 x, y, "
+                                  "z, intensity)")
+        pts = np.fromfile(p, dtype="<f4").reshape(-1, 4)[:, :3].astype(float)
+    elif suffix in (".pcd", ".ply"):
+        with open(p, "rb") as fh:
+            head = fh.read(256)
+        ok = head.startswith(b"ply") if suffix == ".ply" else (b"FIELDS" in head or head.startswith(b"# .PCD"))
+        if not ok:
+            raise DataFormatError(f"{p}: not a {suffix[1:].upper()} point cloud (expected a "
+                                  f"{'ply' if suffix == '.ply' else 'PCD VERSION/FIELDS'} header)")
+        import open3d as o3d
+
+        pts = np.asarray(o3d.io.read_point_cloud(str(p)).points, dtype=float)
+    else:
+        rows = []
+        with open(p, encoding="utf-8", errors="replace") as fh:
+            for lineno, line in enumerate(fh, 1):
+                text = line.split("#", 1)[0].replace(",", " ").split()
+                if not text:
+                    continue
+                try:
+                    values = [float(v) for v in text]
+                except ValueError:
+                    raise DataFormatError(f"{p}:{lineno}: expected numbers x y [z], got {line.strip()!r}") from None
+                if len(values) not in (2, 3):
+                    raise DataFormatError(f"{p}:{lineno}: expected 2 or 3 numbers (x y [z]), got {len(values)}")
+                rows.append(values + [0.0] * (3 - len(values)))
+        pts = np.asarray(rows, dtype=float).reshape(-1, 3)
+    return pts[np.isfinite(pts).all(axis=1) & (pts != 0.0).any(axis=1)]
+
+
+def _scan_from_points(pts: NDArray[np.float64]) -> LaserScan2D:
+    xy = pts[:, :2]
+    r = np.hypot(xy[:, 0], xy[:, 1])
+    a = np.arctan2(xy[:, 1], xy[:, 0])
+    order = np.argsort(a, kind="stable")
+    return LaserScan2D(ranges=r[order], angles=a[order])
+
+
+class _Stream:
+    """One sensor's files and stamps."""
+
+    def __init__(self, folder: Path, rate: float | None, what: str, folder_flag: str, rate_flag: str) -> None:
+        if not folder.is_dir():
+            raise DatasetError(f"{folder_flag} {folder}: no such folder")
+        self.folder = folder
+        self.files = _point_files(folder)
+        if not self.files:
+            raise DatasetError(f"{folder_flag} {folder}: no {what} files ({', '.join(CLOUD_SUFFIXES)})")
+        kinds = sorted({f.suffix.lower() for f in self.files})
+        if len(kinds) > 1:
+            raise DatasetError(f"{folder}: holds {' and '.join(kinds)} files; expected one kind of {what} file")
+        self.kind = kinds[0]
+        n = len(self.files)
+        if rate is not None:
+            if not (math.isfinite(rate) and rate > 0):
+                raise InputError(f"{rate_flag} must be a rate in Hz > 0, got {rate!r}")
+            self.stamps = np.arange(n) / float(rate)
+            self.stamp_source = f"{rate_flag} {rate:g}"
+            return
+        times = next((t for t in (folder / TIMES, folder.parent / TIMES) if t.is_file()), None)
+        if times is None:
+            raise DatasetError(f"{folder}: no {TIMES} in the folder or beside it; give the {what}s' rate with "
+                               f"{rate_flag} HZ")
+        from ..io import read_number_rows
+
+        arr = read_number_rows(times, "t", "stamps")
+        if len(arr) != n:
+            raise DataFormatError(f"{times}: {len(arr)} stamps for the {n} {what} files of {folder}; expected one "
+                                  "per file, in name order")
+        self.stamps = arr[:, 0].astype(float)
+        if not np.all(np.isfinite(self.stamps)) or np.any(np.diff(self.stamps) <= 0):
+            raise DataFormatError(f"{times}: stamps must be finite and increase from line to line (file name order)")
+        self.stamp_source = str(times)
+
+    def describe(self) -> dict:
+        st = self.stamps
+        return {"folder": str(self.folder), "files": len(self.files), "kind": self.kind,
+                "stamps": self.stamp_source,
+                "rate_hz": (len(st) - 1) / float(st[-1] - st[0]) if len(st) > 1 else None}
+
+
+class CloudFolderDataset(Dataset):
+    """Frames from a folder of point clouds, optionally with a folder of 2D scans (see the module docstring).
+
+    Parameters
+    ----------
+    path : str or Path
+        The clouds folder.
+    cloud_rate : float, optional
+        Hz: file *k* is stamped *k* / rate (instead of a ``times.txt``).
+    scans : str or Path, optional
+        A folder of 2D scans.
+    scan_rate : float, optional
+        Hz, for the scans (instead of their ``times.txt``).
+    sync_tolerance : float
+        Largest stamp difference (s) for attaching the other sensor's file to a frame.
+    drive : str, optional
+        ``"scan"`` or ``"cloud"``: the sensor whose files make the frames (default the scans when given).
+    extrinsic2d, extrinsic3d : array_like of shape (3,) / (6,), optional
+        The sensors' poses in the robot base frame (zero, with a warning, when not given).
+    option_names : mapping, optional
+        The caller's names of the options, for messages (``{"cloud_rate": "--cloud-rate", ...}``).
+    """
+
+    def __init__(self, path: str | os.PathLike, *, cloud_rate: float | None = None, scans: str | os.PathLike | None = None,
+                 scan_rate: float | None = None, sync_tolerance: float = 0.1, drive: str | None = None,
+                 extrinsic2d=None, extrinsic3d=None, option_names: dict | None = None) -> None:
+        names = {**_OPTION_NAMES, **(option_names or {})}
+        self._names = names
+        p = Path(path)
+        self.path = str(p)
+        self.name = p.name
+        if not (math.isfinite(float(sync_tolerance)) and float(sync_tolerance) >= 0):
+            raise InputError(f"{names['sync_tolerance']} must be a number of seconds >= 0, got {sync_tolerance!r}")
+        self.sync_tolerance = float(sync_tolerance)
+        if drive not in (None, "scan", "cloud"):
+            raise InputError(f"{names['drive']} must be 'scan' or 'cloud', got {drive!r}")
+        if scan_rate is not None and scans is None:
+            raise InputError(f"{names['scan_rate']} needs a folder of 2D scans ({names['scans']} DIR)")
+        self.cloud_rate, self.scan_rate = cloud_rate, scan_rate
+        self.extra_paths = [] if scans is None else [str(scans)]  # read too: part of the input's identity
+        self._clouds = _Stream(p, cloud_rate, "cloud", "input", names["cloud_rate"])
+        self._scans = None if scans is None else _Stream(Path(scans), scan_rate, "scan", names["scans"],
+                                                        names["scan_rate"])
+        self.extrinsic2d = np.zeros(3) if self._scans is not None else None
+        self.extrinsic3d = np.zeros(6)
+        self.extrinsic_sources.clear()
+        self.extrinsic_sources["3d"] = SOURCE_DEFAULT
+        if self._scans is not None:
+            self.extrinsic_sources["2d"] = SOURCE_DEFAULT
+        if extrinsic3d is not None:
+            self.override_extrinsics(extrinsic3d=extrinsic3d, source=names["extrinsic3d"])
+        if extrinsic2d is not None:
+            if self._scans is None:
+                raise InputError(f"{names['extrinsic2d']} is the 2D LiDAR's offset, and there are no 2D scans "
+                                 f"({names['scans']} DIR)")
+            self.override_extrinsics(extrinsic2d=extrinsic2d, source=names["extrinsic2d"])
+        for key, sig in (("2d", "X,Y,YAW"), ("3d", "X,Y,Z,ROLL,PITCH,YAW")):
+            if self.extrinsic_sources.get(key) == SOURCE_DEFAULT:
+                what = "2D scans" if key == "2d" else "3D clouds"
+                self._warn(f"{self.path}: a folder has no transforms: the offset of the {what} in the robot base "
+                           f"frame is taken as zero; give it with {names['extrinsic' + key]} {sig}")
+        self._build(drive or ("scan" if self._scans is not None else "cloud"))
+
+    def _build(self, driver: str) -> None:
+        if driver == "scan" and self._scans is None:
+            raise DatasetError(f"{self.path}: frames made by 2D scans need a folder of them ({self._names['scans']} DIR)")
+        self.driver = driver
+        if driver == "cloud":
+            self.stamps = self._clouds.stamps.copy()
+            self._cloud_index = np.arange(len(self.stamps))
+            self._scan_index = (None if self._scans is None else
+                                nearest_index(self._scans.stamps, self.stamps, self.sync_tolerance))
+        else:
+            self.stamps = self._scans.stamps.copy()
+            self._scan_index = np.arange(len(self.stamps))
+            self._cloud_index = nearest_index(self._clouds.stamps, self.stamps, self.sync_tolerance)
+
+    def driven_by(self, sensor: str) -> CloudFolderDataset:
+        super().driven_by(sensor)
+        if sensor == self.driver:
+            return self
+        view = copy.copy(self)
+        view.__dict__["_warnings"] = list(self.warnings)
+        view.__dict__["_extrinsic_sources"] = dict(self.extrinsic_sources)
+        view._build(sensor)
+        return view
+
+    def __len__(self) -> int:
+        return len(self.stamps)
+
+    def _describe(self) -> dict:
+        out = {"clouds": self._clouds.describe(), "sync_tolerance": self.sync_tolerance}
+        if self._scans is not None:
+            out["scans"] = self._scans.describe()
+        return out
+
+    def frames(self, clouds: bool = True) -> Iterator[Frame]:
+        for i, t in enumerate(self.stamps):
+            k = -1 if self._scan_index is None else int(self._scan_index[i])
+            c = int(self._cloud_index[i])
+            yield Frame(
+                stamp=float(t),
+                scan2d=_scan_from_points(read_points(self._scans.files[k])) if k >= 0 else None,
+                cloud3d=read_points(self._clouds.files[c]) if clouds and c >= 0 else None,
+                index=i,
+                extrinsic2d=np.zeros(3) if self.extrinsic2d is None else self.extrinsic2d.copy(),
+                extrinsic3d=self.extrinsic3d.copy(),
+            )

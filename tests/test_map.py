@@ -1,0 +1,270 @@
+"""``hsmap map``: the paper's whole chain on a robot's recording (issue 13's acceptance).
+
+The recording: the simulated two-rooms run written as a ROS2 MCAP bag the way a robot writes it
+(:func:`hsmap.sim.bag.write_simulated_bag`): 2D scans at 4 Hz, an Ouster-style PointCloud2 at a quarter of that
+rate (48-byte points, zeros where no return, 0.1 s after a scan) in ``os_lidar``, two TF hops from
+``base_link``, odometry and TF at 20 Hz. To keep the test's CPU time modest the 3D LiDAR has 32 x 512 beams
+instead of the simulator's 128 x 1024 and runs at 1 Hz (183 clouds, 733 scans over the 45 m route); about 70 s
+of CPU in all.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import warnings
+
+import numpy as np
+import pytest
+import yaml
+from PIL import Image
+
+from hsmap.cli import main
+from hsmap.evaluation.trajectory import Alignment, align
+from hsmap.geometry import matrix_to_pose, wrap_angle
+from hsmap.trajectory import read_tum
+
+pytest.importorskip("open3d")
+
+
+def run_cli(*argv: str) -> tuple[int, str]:
+    """``hsmap ARGV`` in this process: exit status and stderr (warnings printed as the command prints them)."""
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), warnings.catch_warnings():
+        warnings.simplefilter("always")
+        code = main(list(argv))
+    return code, err.getvalue()
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    from hsmap.sim import Lidar3DConfig
+    from hsmap.sim.bag import write_simulated_bag
+
+    folder = tmp_path_factory.mktemp("map")
+    bag = write_simulated_bag("two-rooms", folder / "two-rooms.mcap", seed=1, scan_rate=4.0, cloud_every=4,
+                              lidar3d=Lidar3DConfig(channels=32, columns=512))
+    out = folder / "out"
+    # scans 0.25 s apart, each cloud 0.1 s after one and 0.15 s before the next: interpolating the 2D poses at
+    # the clouds needs a sync tolerance of 0.15 s (a 40 Hz 2D LiDAR: 0.025 s, within the default 0.1 s)
+    code, err = run_cli("map", str(bag.path), "--out", str(out), "--sync-tolerance", "0.2", "--quiet")
+    assert code == 0, err
+    return bag, out, err
+
+
+def _errors(est, ref, alignment=Alignment.NONE):
+    """Largest position (m) and heading (deg) error of ``est`` against ``ref`` (same stamps); by default as
+    written: ``hsmap map`` starts at the first odometry pose, which the simulator puts at the first true pose."""
+    P = np.array([matrix_to_pose(X) for X in align(est, ref, alignment)[0]])
+    e = P[:, [0, 1, 5]] - ref.poses
+    return float(np.hypot(e[:, 0], e[:, 1]).max()), float(np.degrees(np.abs(wrap_angle(e[:, 2])).max()))
+
+
+def test_map_of_a_robot_recording(recording):
+    bag, out, err = recording
+    assert err == ""  # no warning: TF gives both offsets
+    m = json.loads((out / "metrics.json").read_text())
+    # what was read: one frame per scan for the 2D run, one per cloud for the 6-DOF run, the offsets from TF
+    info = m["input_info"]
+    assert info["scans"]["frames"] == len(bag.scans) == 733 and info["clouds"]["frames"] == len(bag.clouds) == 183
+    topics = info["clouds"]["topics"]
+    assert topics["scan"]["messages"] == 733 and topics["scan"]["rate_hz"] == pytest.approx(4.0)
+    assert topics["cloud"]["messages"] == 183 and topics["cloud"]["rate_hz"] == pytest.approx(1.0)
+    assert topics["cloud"]["frame_id"] == "os_lidar" and topics["odom"]["child_frame_id"] == "base_link"
+    assert info["clouds"]["tf_chains"] == {"2d": "base_link -> laser", "3d": "base_link -> os_sensor -> os_lidar"}
+    ext = info["clouds"]["extrinsics"]
+    np.testing.assert_allclose(ext["3d"]["value"], bag.extrinsic3d, atol=1e-6)
+    assert ext["3d"]["source"] == ext["2d"]["source"] == "tf" and m["warnings"] == []
+    assert m["slam3d"]["prior"]["frames_with_prior"] == 183  # every cloud seeded by interpolated 2D poses
+
+    # the trajectories
+    t2 = read_tum(out / "trajectory2d.tum", dof=3)
+    t3 = read_tum(out / "trajectory3d.tum")
+    np.testing.assert_allclose(t2.stamps, bag.scans.stamps, atol=1e-6)
+    np.testing.assert_allclose(t3.stamps, bag.clouds.stamps, atol=1e-6)
+    e2, y2 = _errors(t2, bag.scans)
+    e3, y3 = _errors(t3.as_3dof(), bag.clouds)
+    print(f"2D HS-SLAM: {100 * e2:.2f} cm, {y2:.3f} deg; 6-DOF: {100 * e3:.2f} cm, {y3:.3f} deg")
+    assert e3 < 0.02 and y3 < 0.5
+    assert np.abs(t3.poses[:, 2]).max() < 0.02 and np.degrees(np.abs(t3.poses[:, 3:5]).max()) < 0.5
+    assert e2 < 0.035 and y2 < 0.5  # see the closing note of issue 13: 2D is at 2-3 cm here
+
+    # rooms and doors of the slice: the world's three rooms and two doors
+    assert m["slice"]["rooms"] == 3 and m["slice"]["doors"] == 2
+    doors = json.loads((out / "doors.json").read_text())["doors"]
+    truth = np.array([d["center"] for d in bag.doors])
+    for d in doors:
+        assert np.hypot(*(truth - d["centre"]).T).min() < 0.05
+    graph = json.loads((out / "topology.json").read_text())
+    assert sum(n.get("kind") == "room" for n in graph["nodes"]) == 3
+    assert m["floor"]["rooms"] >= 3  # the floor-level map, for Figure 18's comparison
+    assert m["fusion"]["overlap"] > 0.3 and abs(m["fusion"]["x"]) < 0.05 and abs(m["fusion"]["yaw_deg"]) < 0.5
+    assert all(p["points3d"] > 0 for p in m["door_points"])
+
+    # the grids as map_server maps (Nav2's map_server reads these keys and the PGM)
+    for name in ("slice", "floor"):
+        meta = yaml.safe_load((out / f"{name}.yaml").read_text())
+        assert set(meta) >= {"image", "resolution", "origin", "negate", "occupied_thresh", "free_thresh", "mode"}
+        assert meta["image"] == f"{name}.pgm" and meta["mode"] == "trinary" and meta["negate"] == 0
+        assert len(meta["origin"]) == 3 and meta["resolution"] == pytest.approx(0.05)
+        assert 0 < meta["free_thresh"] < meta["occupied_thresh"] < 1
+        with Image.open(out / meta["image"]) as img, Image.open(out / f"{name}.png") as png:
+            assert img.format == "PPM" and img.mode == "L" and png.size == img.size
+            assert set(np.unique(np.asarray(img))) <= {0, 205, 254}
+    for f in ("map2d.ply", "map3d.ply", "overlay.png", "rooms.png", "floor_rooms.png", "door_points.json",
+              "topology.graphml", "floor_topology.json", "summary.html", "map.rrd"):
+        assert (out / f).stat().st_size > 0, f
+    html = (out / "summary.html").read_text()
+    assert "3 rooms, 2 doors" in html and 'src="figures/comparison.png"' in html
+    assert {"rooms", "comparison", "overlay", "grids", "trajectories"} <= set(m["figures"])
+
+    from hsmap.viz.rerun import recording_contents, rerun_binary
+
+    if rerun_binary() is not None:
+        entities = recording_contents(out / "map.rrd")
+        for e in ("/world/map/occupancy", "/world/map/points3d", "/world/map/points2d", "/map/occupancy",
+                  "/map/rooms", "/graph"):
+            assert e in entities, e
+
+
+def test_map_again_skips_unchanged_stages(recording):
+    bag, out, _ = recording
+    before = (out / "trajectory3d.tum").stat().st_mtime_ns
+    code, err = run_cli("map", str(bag.path), "--out", str(out), "--sync-tolerance", "0.2", "--quiet")
+    assert code == 0, err
+    m = json.loads((out / "metrics.json").read_text())
+    assert all(m["stages"][s]["unchanged"] for s in ("slam2d", "slam3d", "grids", "fusion", "rooms", "outputs"))
+    assert (out / "trajectory3d.tum").stat().st_mtime_ns == before
+    # another segmentation method: only the rooms stage and the outputs run again
+    code, err = run_cli("map", str(bag.path), "--out", str(out), "--sync-tolerance", "0.2", "--quiet",
+                        "--method", "paper")
+    assert code == 0, err
+    stages = json.loads((out / "metrics.json").read_text())["stages"]
+    assert [k for k, v in stages.items() if not v["unchanged"]] == ["rooms", "outputs"]
+
+
+def test_a_recording_without_tf_warns_and_says_so(tmp_path):
+    """The first 12 s of the same run, recorded without /tf_static: the offsets are unknown."""
+    from hsmap.sim import Lidar3DConfig
+    from hsmap.sim.bag import write_simulated_bag
+
+    bag = write_simulated_bag("two-rooms", tmp_path / "notf.mcap", seed=1, scan_rate=4.0, tf=False, duration=12.0,
+                              lidar3d=Lidar3DConfig(channels=32, columns=512))
+    code, err = run_cli("slam", str(bag.path), "--out", str(tmp_path / "s"), "--dof", "6", "--max-frames", "3",
+                        "--quiet", "--no-recording")
+    assert code == 0, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 2 and all(line.startswith("hsmap: warning:") for line in lines)
+    assert "no transform from the base frame 'base_link' to 'os_lidar'" in err and "--extrinsic3d X,Y,Z" in err
+    m = json.loads((tmp_path / "s" / "metrics.json").read_text())
+    assert m["input_info"]["extrinsics"]["3d"] == {"value": [0.0] * 6, "source": "default"}
+    assert len(m["input_info"]["warnings"]) == 2 and m["input_info"]["driven_by"] == "cloud"
+    # the 3D offset given with its flag: no warning for it, and the map is made; the 2D offset stays missing
+    ext3 = ",".join(f"{v:.9f}" for v in bag.extrinsic3d)
+    code, err = run_cli("map", str(bag.path), "--out", str(tmp_path / "m"), f"--extrinsic3d={ext3}",
+                        "--sync-tolerance", "0.2", "--quiet", "--no-recording")
+    assert code == 0, err
+    assert err.count("hsmap: warning:") == 1 and "'laser'" in err and "--extrinsic2d X,Y,YAW" in err
+    m = json.loads((tmp_path / "m" / "metrics.json").read_text())
+    assert len(m["warnings"]) == 1 and "'laser'" in m["warnings"][0]
+    assert m["input_info"]["clouds"]["extrinsics"]["3d"]["source"] == "--extrinsic3d"
+    assert m["input_info"]["clouds"]["extrinsics"]["2d"]["source"] == "default"
+    assert "Warnings" in (tmp_path / "m" / "summary.html").read_text()
+
+
+@pytest.fixture(scope="module")
+def tiny_bag(tmp_path_factory):
+    """One second of the run, a tiny 3D LiDAR: enough to open."""
+    from hsmap.sim import Lidar3DConfig
+    from hsmap.sim.bag import write_simulated_bag
+
+    return write_simulated_bag("two-rooms", tmp_path_factory.mktemp("tiny") / "b.mcap", duration=1.0,
+                               lidar3d=Lidar3DConfig(channels=4, columns=16))
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--slice", "1.8,1.7"], "--slice must be ZMIN,ZMAX with ZMIN < ZMAX"),
+    (["--slice", "1.7"], "--slice must be 2 comma-separated"),
+    (["--resolution", "0"], "--resolution must be > 0 metres per cell"),
+    (["--seed", "-1"], "--seed must be >= 0"),
+    (["--sync-tolerance", "-0.1"], "--sync-tolerance must be a number of seconds >= 0"),
+    (["--extrinsic3d", "0,0,1"], "--extrinsic3d must be 6 comma-separated"),
+    (["--base-frame", "bse_link"], "--base-frame bse_link: no such frame in the bag's TF"),
+    (["--cloud-rate", "10"], "--cloud-rate do not apply to a ROS bag"),
+    (["--scan-topic", "/front"], "--scan-topic /front: no such topic (2D scans); the bag has: /odom"),
+    (["--scan-topic", "/odom"], "--scan-topic /odom: the topic is nav_msgs/msg/Odometry, expected"),
+    (["--scan-topic", ""], "hsmap map needs 2D scans and 3D clouds: "),
+])
+def test_map_bad_input_is_one_line_naming_the_flag(tiny_bag, tmp_path, args, message):
+    bag = tiny_bag
+    code, err = run_cli("map", str(bag.path), "--out", str(tmp_path / "o"), "--quiet", *args)
+    assert code == 2 and err.startswith("hsmap: error:") and message in err, err
+    assert len(err.strip().splitlines()) == 1
+
+
+def test_map_needs_both_lidars(tmp_path):
+    from test_slam import write_carmen
+
+    from hsmap.testing import office_route
+
+    log = tmp_path / "office.log"
+    write_carmen(log, office_route()[:3])
+    code, err = run_cli("map", str(log), "--out", str(tmp_path / "o"))
+    assert code == 2 and "a CARMEN log has 2D scans only; hsmap map needs 2D scans and 3D clouds" in err
+    (tmp_path / "clouds").mkdir()
+    np.array([[1.0, 2.0, 3.0, 1.0]], dtype="<f4").tofile(tmp_path / "clouds" / "000000.bin")
+    code, err = run_cli("map", str(tmp_path / "clouds"), "--out", str(tmp_path / "o"), "--cloud-rate", "10",
+                        "--extrinsic3d", "0,0,1.6,0,0,0")
+    assert code == 2 and "need a folder of them (--scans DIR)" in err and len(err.strip().splitlines()) == 1
+
+
+def test_slam_6dof_on_a_recording_with_a_faster_2d_lidar(tmp_path):
+    """Issue 13's first complaint: scans at 4x the cloud rate; the 6-DOF run's frames are the clouds, and the 2D
+    run's poses (at the scans' stamps) seed them, interpolated at the clouds' stamps."""
+    from hsmap.sim import Lidar3DConfig
+    from hsmap.sim.bag import write_simulated_bag
+    from hsmap.trajectory import Trajectory, write_tum
+
+    bag = write_simulated_bag("two-rooms", tmp_path / "b.mcap", seed=2, scan_rate=8.0, duration=6.0,
+                              lidar3d=Lidar3DConfig(channels=32, columns=512))
+    assert (bag.messages["/scan"], bag.messages["/ouster/points"]) == (49, 12)  # 8 Hz and 2 Hz over 6 s
+    code, err = run_cli("slam", str(bag.path), "--out", str(tmp_path / "2d"), "--quiet")
+    assert code == 0, err
+    t2 = read_tum(tmp_path / "2d" / "trajectory.tum", dof=3)
+    np.testing.assert_allclose(t2.stamps, bag.scans.stamps, atol=1e-6)
+    out = tmp_path / "3d"
+    code, err = run_cli("slam", str(bag.path), "--out", str(out), "--dof", "6", "--prior",
+                        str(tmp_path / "2d" / "trajectory.tum"), "--quiet")
+    assert code == 0, err
+    t3 = read_tum(out / "trajectory.tum")
+    np.testing.assert_allclose(t3.stamps, bag.clouds.stamps, atol=1e-6)  # one frame per cloud
+    m = json.loads((out / "metrics.json").read_text())
+    n = len(bag.clouds)
+    assert m["prior"] == {"frames": n, "frames_with_prior": n, "coverage": 1.0, "sync_tolerance": 0.1}
+    assert m["input_info"]["driven_by"] == "cloud" and m["input_info"]["frames_with_scan"] == n
+    assert m["config"]["sync_tolerance"] == 0.1
+    e3, y3 = _errors(t3.as_3dof(), bag.clouds, Alignment.ORIGIN)  # hsmap slam starts at the origin
+    assert e3 < 0.03 and y3 < 0.5
+    from hsmap.viz.rerun import recording_contents, rerun_binary
+
+    if rerun_binary() is not None:  # a 6-DOF run has no 2D map: its recording has the 3D view only
+        views = [e for e in recording_contents(out / "slam.rrd") if e.count("/") == 2 and e.startswith("/view/")]
+        assert len(views) == 1
+    # a prior that covers half the clouds: a warning, and its coverage in metrics.json
+    half = Trajectory(t2.stamps[: len(t2) // 2], t2.poses[: len(t2) // 2])
+    write_tum(tmp_path / "half.tum", half)
+    code, err = run_cli("slam", str(bag.path), "--out", str(tmp_path / "h"), "--dof", "6", "--prior",
+                        str(tmp_path / "half.tum"), "--quiet", "--no-recording")
+    assert code == 0 and "hsmap: warning: --prior" in err and "of the 12 frames" in err, err
+    assert 0 < json.loads((tmp_path / "h" / "metrics.json").read_text())["prior"]["coverage"] < 1
+    # a prior of another recording (other stamps): an error naming the flag, before any frame is processed
+    write_tum(tmp_path / "other.tum", Trajectory(t2.stamps + 1000.0, t2.poses))
+    code, err = run_cli("slam", str(bag.path), "--out", str(tmp_path / "x"), "--dof", "6", "--prior",
+                        str(tmp_path / "other.tum"), "--quiet")
+    assert code == 2 and err.startswith("hsmap: error: --prior ") and "none of the input's 12 frames" in err
+    assert len(err.strip().splitlines()) == 1
+    # a 2D-only input for a 6-DOF run: the flag that would name the clouds
+    code, err = run_cli("slam", str(bag.path), "--out", str(tmp_path / "y"), "--dof", "6", "--cloud-topic", "",
+                        "--quiet")
+    assert code == 2 and "frames made by the clouds need a 3D cloud" in err and "--cloud-topic" in err

@@ -1,11 +1,10 @@
 """File I/O shared by every stage: the one output writer, JSON, rows of numbers.
 
 Every file hsmap writes goes through :func:`atomic_path` (or :func:`atomic_open`, :func:`write_json`,
-:func:`write_text`, :func:`publish_file` for a temporary file written elsewhere): it is written to a hidden
-temporary file beside its target (``.NAME.XXXXXXXX.SUFFIX``), flushed to the disk (``fsync``), checked where the
-library that wrote it cannot be trusted to report a failure (Open3D's ``write_point_cloud`` returns True on a full
-disk; rerun writes its ``.rrd`` from a background thread: see :func:`verify_output`), and only then renamed over
-the target. A failure on the way (no space left, a read-only folder, a file that does not check out) raises
+:func:`write_text`, :func:`write_ply_points`, :func:`publish_file` for a temporary file written elsewhere): it is
+written to a hidden temporary file beside its target (``.NAME.XXXXXXXX.SUFFIX``), flushed to the disk
+(``fsync``), checked where the library that wrote it cannot be trusted to report a failure (a ``.ply`` or a
+rerun ``.rrd`` cut short: see :func:`verify_output`), and only then renamed over the target. A failure on the way (no space left, a read-only folder, a file that does not check out) raises
 :class:`~hsmap.errors.OutputError` naming the output and the cause, deletes the temporary file and leaves the
 target as it was: an interrupted or failed run never leaves a half-written file under an output's name.
 
@@ -30,7 +29,7 @@ from pathlib import Path
 from typing import IO, Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from .errors import DataFormatError, DatasetError, InputError, OutputError
 
@@ -50,9 +49,9 @@ __all__ = [
     "sweep_stale_temporaries",
     "prepare_output_dir",
     "folder_lock",
-    "native_stderr_captured",
     "write_failure_reason",
     "write_json",
+    "write_ply_points",
     "to_plain",
     "write_text",
     "read_number_rows",
@@ -87,45 +86,6 @@ def write_failure_reason(folder: str | os.PathLike, detail: str) -> str:
     if st.f_bavail == 0 or st.f_favail == 0:
         return os.strerror(errno.ENOSPC)
     return detail
-
-
-@contextlib.contextmanager
-def native_stderr_captured() -> Iterator[list[str]]:
-    """Hold back what native libraries print on the process's stderr (file descriptor 2) during the ``with``
-    block: Open3D's PLY writer prints ``RPly: Error closing up`` (and a line per value it fails to write) on a full
-    disk, before hsmap reports the failure on one line. When the block ends with an :class:`OutputError` the
-    text is dropped (the error says it all); otherwise it is written back to stderr, so nothing else is lost.
-    Yields a list that receives the captured text."""
-    import sys
-
-    captured: list[str] = []
-    try:
-        sys.stderr.flush()
-        saved = os.dup(2)
-    except (OSError, ValueError, AttributeError):  # no real stderr (embedded): nothing to capture
-        yield captured
-        return
-    replay = True
-    with tempfile.TemporaryFile() as buf:
-        os.dup2(buf.fileno(), 2)
-        try:
-            yield captured
-        except OutputError:
-            replay = False
-            raise
-        finally:
-            try:
-                sys.stderr.flush()
-            except (OSError, ValueError):
-                pass
-            os.dup2(saved, 2)
-            os.close(saved)
-            buf.seek(0)
-            captured.append(buf.read().decode("utf-8", "replace"))
-            if replay and captured[0]:
-                with contextlib.suppress(OSError, ValueError):
-                    sys.stderr.write(captured[0])
-                    sys.stderr.flush()
 
 
 def _lock(fd: int) -> bool:
@@ -594,6 +554,32 @@ def _json_default(o: Any) -> Any:
     if plain is o:
         raise TypeError(f"cannot serialise {type(o).__name__} to JSON")
     return plain
+
+
+def write_ply_points(path: str | os.PathLike, points: ArrayLike) -> Path:
+    """Write points as a binary little-endian PLY of double ``x``, ``y``, ``z`` (what Open3D writes for a cloud of
+    points only, and reads back), atomically.
+
+    hsmap writes its point clouds itself: Open3D's ``write_point_cloud`` returns True when the disk fills, prints
+    ``RPly: Error closing up`` and leaves the file open (its space is held until the process ends).
+
+    Parameters
+    ----------
+    path : path-like
+    points : array_like of shape (N, 3)
+
+    Raises
+    ------
+    OutputError
+        The file cannot be written (see :func:`atomic_path`).
+    """
+    pts = np.ascontiguousarray(np.asarray(points, dtype="<f8").reshape(-1, 3))
+    header = ("ply\nformat binary_little_endian 1.0\ncomment written by hsmap\n"
+              f"element vertex {len(pts)}\nproperty double x\nproperty double y\nproperty double z\nend_header\n")
+    with atomic_open(path, "wb") as fh:
+        fh.write(header.encode("ascii"))
+        fh.write(pts.tobytes())
+    return Path(path)
 
 
 def write_json(path: str | os.PathLike, obj: Any) -> None:

@@ -58,7 +58,7 @@ from .errors import ConfigError, EmptyInputError, HsmapWarning, InputError, Unus
 from .fitness import DistanceField
 from .geometry import compose, pose_to_matrix, relative, transform_points, wrap_angle
 from .harmony import HarmonyConfig, as_rng
-from .io import atomic_path, native_stderr_captured, write_json
+from .io import write_json, write_ply_points
 from .loopclosure import Keyframe, LoopCloser, LoopClosureConfig
 from .mapping import VoxelMap, voxel_downsample
 from .posegraph import EdgeKind, PoseGraph, information_with_floor
@@ -975,8 +975,6 @@ def write_slam_outputs(result: SlamResult, out_dir: str | Path) -> dict[str, Pat
 
     ``metrics.json`` is written last: a folder without it is incomplete.
     """
-    import open3d as o3d
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = {"trajectory": out / "trajectory.tum", "map": out / "map.ply", "config": out / "config.yaml",
@@ -985,10 +983,7 @@ def write_slam_outputs(result: SlamResult, out_dir: str | Path) -> dict[str, Pat
     pts = result.map.points
     if pts.shape[1] == 2:
         pts = np.column_stack([pts, np.zeros(len(pts))])
-    # Open3D prints on stderr when the disk fills, and returns True: the writer's check reports it on one line
-    with native_stderr_captured(), atomic_path(paths["map"]) as tmp:
-        if not o3d.io.write_point_cloud(str(tmp), o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))):
-            raise OSError(f"open3d could not write {paths['map']}")
+    write_ply_points(paths["map"], pts)
     dump_config(result.config, paths["config"])
     metrics = result.metrics()
     metrics["config"] = to_dict(result.config)

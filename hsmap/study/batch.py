@@ -458,10 +458,11 @@ def _sweep_temporaries(folder: Path) -> list[str]:
     return left
 
 
-def _open_recordings_in_viewer(run: NotebookRun, out_dir: Path) -> None:
-    """Open each recording in the headless viewer (where a graphics stack allows): a view that reports an
-    error, or that should show something and is empty, fails the notebook. Where the viewer cannot run, the
-    run says so in its warnings."""
+def _open_recordings_in_viewer(run: NotebookRun, folder: Path, out_dir: Path | None = None) -> None:
+    """Open each recording (``run.recordings``, relative to ``folder``: the notebook's staging folder) in the
+    headless viewer (where a graphics stack allows): a view that reports an error, or that should show something
+    and is empty, fails the notebook, naming the recording where it is published (under ``out_dir``). Where the
+    viewer cannot run, the run says so in its warnings."""
     from ..errors import HsmapError
     from ..viz.viewer import HeadlessViewer, viewer_unavailable
 
@@ -477,10 +478,12 @@ def _open_recordings_in_viewer(run: NotebookRun, out_dir: Path) -> None:
     with viewer:
         for rel in run.recordings:
             try:
-                check = viewer.screenshots(out_dir / rel, None, positions=("end",))
+                check = viewer.screenshots(folder / rel, None, positions=("end",))
                 errors = check.errors
             except Exception as exc:  # noqa: BLE001 - a recording the viewer cannot open fails the notebook
                 errors = [f"{type(exc).__name__}: {exc}"]
+            if out_dir is not None:
+                errors = [e.replace(str(folder), str(out_dir)) for e in errors]
             if errors:
                 run.status, run.error = "failed", f"recording {rel} in the viewer: {'; '.join(errors)}"
                 return
@@ -562,7 +565,7 @@ def execute_notebook(
                             msg = str(exc).replace(f"{stage / rel}: ", "")
                             run.status, run.error = "failed", f"recording {rel} does not verify: {msg}"
             if run.ok:
-                _open_recordings_in_viewer(run, out_dir)
+                _open_recordings_in_viewer(run, stage, out_dir)  # not published yet: in the staging folder
 
         # the executed notebook and its HTML, marked with the run's status
         nb = None

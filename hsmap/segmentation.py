@@ -584,6 +584,8 @@ def check_scale(free: NDArray[np.bool_], resolution: float, config: Segmentation
     ------
     InputError
         The message names the resolution and the range it should lie in.
+    EmptyInputError
+        The map has no free pixel (whatever the resolution).
     """
     cfg = config or SegmentationConfig()
     narrowest = (cfg.min_door_half_width if cfg.method == "critical"
@@ -594,7 +596,10 @@ def check_scale(free: NDArray[np.bool_], resolution: float, config: Segmentation
         raise InputError(f"resolution {resolution:g} m/pixel is coarser than the narrowest door half width the "
                          f"segmentation looks for ({narrowest:g} m): no door can show; expected at most "
                          f"{narrowest:g} m/pixel")
-    area = float(np.count_nonzero(free)) * resolution**2
+    n_free = int(np.count_nonzero(free))
+    if n_free == 0:  # not the resolution's fault
+        raise EmptyInputError("the map has no free space to segment (no free pixel)")
+    area = float(n_free) * resolution**2
     smallest = min(cfg.min_room_area, cfg.min_isolated_area)
     if area < smallest:
         raise InputError(f"at resolution {resolution:g} m/pixel the map's free space covers only {area:.3g} m^2, "

@@ -41,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
     from PIL import Image
 
     from ..config import dump_config, load_config
-    from ..errors import HsmapWarning, InputError
+    from ..errors import EmptyInputError, HsmapWarning, InputError
     from ..grid import read_map, write_label_image
     from ..io import atomic_path, prepare_output_dir, staged_outputs, sweep_stale_temporaries, write_json
     from ..segmentation import SegmentationConfig, check_scale, segment_rooms
@@ -59,6 +59,8 @@ def run(args: argparse.Namespace) -> int:
     grid = read_map(args.map, args.resolution)
     try:
         check_scale(grid.free, grid.geometry.resolution, cfg)
+    except EmptyInputError as exc:
+        raise EmptyInputError(f"{args.map}: {exc}") from None
     except InputError as exc:
         src = "--resolution" if args.resolution is not None else (
             f"{args.map}: 'resolution'" if Path(args.map).suffix.lower() in (".yaml", ".yml")

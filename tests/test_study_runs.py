@@ -4,6 +4,7 @@ folders), maps from a dataset and a trajectory, the replayed rerun recording, th
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import threading
 from pathlib import Path
@@ -14,7 +15,7 @@ from _worlds import TINY_SCENARIO
 
 import hsmap.slam
 from hsmap.datasets.frames import Dataset, Frame, LaserScan2D
-from hsmap.errors import HsmapError, InputError
+from hsmap.errors import HsmapError, HsmapWarning, InputError
 from hsmap.geometry import compose, relative
 from hsmap.slam import SlamConfig
 from hsmap.study import (
@@ -162,7 +163,12 @@ def test_damaged_folder_is_computed_again(tmp_path, dataset, count_runs, damage)
         (a.folder / "map.ply").unlink()
     elif damage == "wrong_key":
         (a.folder / "cache.json").write_text(json.dumps({"key": "0" * 64}))
-    b = cached_slam(dataset, CFG, seed=1, max_frames=12, cache_dir=tmp_path)
+    if damage == "wrong_key":  # another key's folder: stale, not damaged, replaced without a word
+        b = cached_slam(dataset, CFG, seed=1, max_frames=12, cache_dir=tmp_path)
+    else:  # damaged: computed again, with a warning naming the file
+        with pytest.warns(HsmapWarning, match=rf"cache folder {re.escape(str(a.folder))} is damaged: "
+                                              rf"{re.escape(str(a.folder))}/(metrics\.json|trajectory\.tum|map\.ply)"):
+            b = cached_slam(dataset, CFG, seed=1, max_frames=12, cache_dir=tmp_path)
     assert not b.cached and len(count_runs) == 2
     np.testing.assert_allclose(b.trajectory.poses, ref, atol=1e-7)  # same seed: the same run again
     c = cached_slam(dataset, CFG, seed=1, max_frames=12, cache_dir=tmp_path)

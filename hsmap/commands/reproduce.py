@@ -50,8 +50,9 @@ def _notebooks_dir(arg: str | None):
 
 
 def _list(notebooks_dir, only) -> int:
-    from ..study.batch import discover, inspect_parameters, select
+    from ..study.batch import discover, inspect_parameters, require_study_tooling, select
 
+    require_study_tooling()
     specs = select(discover(notebooks_dir), only)
     if not specs:
         print(f"no study notebooks (NN-name.ipynb) in {notebooks_dir}")

@@ -355,3 +355,30 @@ def test_reproduce_says_what_to_install_without_the_study_tooling(monkeypatch, c
         assert main(args) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and "papermill is not installed: pip install 'hsmap[study]'" in err
+
+
+def test_a_kernel_that_dies_before_it_starts_gets_one_more_try(tmp_path, monkeypatch):
+    import papermill
+
+    from hsmap.study.batch import discover, execute_notebook
+
+    nbdir = tmp_path / "notebooks"
+    nbdir.mkdir()
+    shutil.copy(DATA / "03-second.ipynb", nbdir / "03-second.ipynb")
+    (spec,) = discover(nbdir)
+    calls = []
+
+    def flaky(*args, **kwargs):
+        calls.append(1)
+        if len(calls) <= deaths:
+            raise RuntimeError("Kernel died before replying to kernel_info")
+
+    monkeypatch.setattr(papermill, "execute_notebook", flaky)
+    deaths = 1
+    run = execute_notebook(spec, tmp_path / "reports", {"quick": True}, verify_recordings=False)
+    assert run.status == "ok" and len(calls) == 2
+    assert any("started again" in w for w in run.warnings)
+    calls.clear()
+    deaths = 2
+    run = execute_notebook(spec, tmp_path / "reports", {"quick": True}, verify_recordings=False)
+    assert run.status == "failed" and len(calls) == 2 and "died before replying" in run.error

@@ -178,7 +178,7 @@ def test_notebook_08_is_skipped_without_the_data_and_runs_once_fetched(datasets_
     monkeypatch.setenv("HSMAP_GENERATED", str(tmp_path / "generated"))
     # the notebook's kernel is told the (empty) download folder; left to itself in this checkout it would find
     # ../shared/datasets
-    params = {"datasets": str(fetch_dir())}
+    params = {"datasets": str(fetch_dir()), "slam_logs": "intel"}  # one log is enough here
     out = tmp_path / "reports"
     (run,) = run_notebooks(repo / "notebooks", out, only=["08"], quick=True, parameters=params, log=None).runs
     assert run.status == "skipped", run.error

@@ -294,6 +294,12 @@ def _clear_previous(out_dir: Path, name: str) -> None:
         (out_dir / f"{name}{suffix}").unlink(missing_ok=True)
 
 
+def _died_at_start(exc: BaseException) -> bool:
+    """Whether the kernel died before it ran anything (jupyter_client's "Kernel died before replying to
+    kernel_info"): the notebook itself is not at fault."""
+    return "died before replying to kernel_info" in str(exc)
+
+
 def _error_text(exc: BaseException) -> tuple[str, int | None]:
     from papermill.exceptions import PapermillExecutionError
 
@@ -486,16 +492,23 @@ def execute_notebook(
     tmp_ipynb = Path(tmp)
     try:
         t0 = time.perf_counter()
-        try:
-            papermill.execute_notebook(
-                str(spec.path), str(tmp_ipynb), parameters=dict(parameters), kernel_name=kernel_name,
-                language="python",
-                cwd=str(spec.path.parent), progress_bar=False, log_output=False, execution_timeout=timeout,
-            )
-            run.status = "ok"
-        except Exception as exc:  # the notebook failed (or its kernel died): record it, carry on
-            run.status = "failed"
-            run.error, run.error_cell = _error_text(exc)
+        for attempt in (1, 2):
+            try:
+                papermill.execute_notebook(
+                    str(spec.path), str(tmp_ipynb), parameters=dict(parameters), kernel_name=kernel_name,
+                    language="python",
+                    cwd=str(spec.path.parent), progress_bar=False, log_output=False, execution_timeout=timeout,
+                )
+                run.status = "ok"
+            except Exception as exc:  # the notebook failed (or its kernel died): record it, carry on
+                if attempt == 1 and _died_at_start(exc):
+                    # no cell ran: a kernel that could not start (on a busy machine, parallel kernels can race
+                    # for the same ports) gets one more try
+                    run.warnings.append(f"the kernel died before it started ({exc}); started again")
+                    continue
+                run.status = "failed"
+                run.error, run.error_cell = _error_text(exc)
+            break
         run.duration_s = round(time.perf_counter() - t0, 3)
 
         left = _sweep_temporaries(folder)

@@ -18,6 +18,7 @@ __all__ = [
     "ScenarioError",
     "HsmapWarning",
     "CacheError",
+    "DependencyError",
 ]
 
 
@@ -61,3 +62,8 @@ class HsmapWarning(UserWarning):
 class CacheError(HsmapError):
     """A cached result cannot be looked up or published: its lock is not free in time, or the code digest that
     keys it cannot be computed (a file it expects is missing)."""
+
+
+class DependencyError(HsmapError):
+    """An optional part of hsmap is used without the packages it needs; the message says what to install
+    (e.g. ``pip install 'hsmap[study]'`` for the notebooks)."""

@@ -1,7 +1,12 @@
 """The ``hsmap`` command: ``hsmap --help`` lists the sub-commands.
 
-Every sub-command exits 0 on success; on bad input it prints one line ``hsmap: error: <reason>`` to
-stderr and exits 2 (input/usage) or 1 (a stage failed).
+Every sub-command exits 0 on success. Every expected failure ends in one place, :func:`main`, as one line
+``hsmap: error: <reason>`` on stderr and exit status 2: bad input or configuration (an
+:class:`~hsmap.errors.HsmapError`, the reason naming the file, key, field or flag), an output that cannot be
+written (an ``OSError``, e.g. a full disk or a read-only folder: the reason names the file), and a malformed
+command line (argparse's message, on one line). A run that completes but has a failed part (a notebook of
+``hsmap reproduce``) exits 1. An interrupt (Ctrl-C, SIGTERM) ends with ``hsmap: interrupted`` and status 130
+(143 for SIGTERM), after the command has removed its temporary files; earlier outputs are left as they were.
 """
 
 from __future__ import annotations
@@ -9,23 +14,31 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import signal
 import sys
 import warnings
 
 from . import __version__
 from ._blas import limited_blas
 from .commands import COMMANDS
-from .errors import HsmapError
+from .errors import HsmapError, HsmapWarning
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with its usage errors on one line (``hsmap slam: error: ...``), exit status 2."""
+
+    def error(self, message: str):  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="hsmap",
         description="Multi-LiDAR indoor mapping: Harmony Search scan matching and SLAM, door detection, "
         "room segmentation and topological maps.",
     )
     parser.add_argument("--version", action="version", version=f"hsmap {__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for name in COMMANDS:
         mod = importlib.import_module(f".commands.{name}", __package__)
         p = sub.add_parser(mod.NAME, help=mod.HELP, description=mod.__doc__)
@@ -39,23 +52,53 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
     print(f"hsmap: warning: {message}", file=sys.stderr if file is None else file)
 
 
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM, raised like Ctrl-C so that every command's clean-up runs."""
+
+
+def _on_sigterm(signum, frame) -> None:
+    raise _Terminated()
+
+
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run the ``hsmap`` command line; returns the exit status. hsmap's warnings are printed, one line each,
+    whatever the caller's warning filters (restored on return)."""
+    with warnings.catch_warnings():
+        warnings.showwarning = _show_warning
+        warnings.simplefilter("default", HsmapWarning)
+        return _main(argv)
+
+
+def _main(argv: list[str] | None) -> int:
     os.environ.setdefault("RERUN_ANALYTICS", "0")
-    warnings.showwarning = _show_warning
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "_run", None):
         parser.print_help()
         return 2
+    previous = signal.getsignal(signal.SIGTERM)
+    if previous in (signal.SIG_DFL, None):
+        signal.signal(signal.SIGTERM, _on_sigterm)
     try:
         with limited_blas():  # hsmap's own process: BLAS on $HSMAP_BLAS_THREADS threads throughout
             return int(args._run(args) or 0)
     except HsmapError as exc:
-        print(f"hsmap: error: {exc}", file=sys.stderr)
+        print(f"hsmap: error: {_one_line(exc)}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except OSError as exc:  # an output (or input) the system refused: full disk, read-only folder, ...
+        where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
+        print(f"hsmap: error: {where}{_one_line(exc.strerror or exc)}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt as exc:
         print("hsmap: interrupted", file=sys.stderr)
-        return 130
+        return 143 if isinstance(exc, _Terminated) else 130
+    finally:
+        if previous in (signal.SIG_DFL, None):
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 if __name__ == "__main__":  # pragma: no cover

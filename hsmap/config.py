@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import dataclasses
+import enum
 import os
+import types
 import typing
 from pathlib import Path
 from typing import Any, TypeVar
@@ -15,7 +17,7 @@ from .io import to_plain, write_text
 
 T = TypeVar("T")
 
-__all__ = ["from_dict", "to_dict", "read_yaml", "load_config", "dump_config"]
+__all__ = ["from_dict", "to_dict", "read_yaml", "load_config", "dump_config", "yaml_error_text"]
 
 
 def to_dict(cfg: Any) -> dict[str, Any]:
@@ -23,8 +25,49 @@ def to_dict(cfg: Any) -> dict[str, Any]:
     return to_plain(dataclasses.asdict(cfg))
 
 
+def yaml_error_text(exc: Exception) -> str:
+    """A YAML parser error on one line: ``line L, column C: problem (context)``."""
+    mark = getattr(exc, "problem_mark", None)
+    problem = getattr(exc, "problem", None)
+    context = getattr(exc, "context", None)
+    if problem is None:
+        return " ".join(str(exc).split())
+    where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
+    return where + " ".join(str(problem).split()) + (f" ({' '.join(str(context).split())})" if context else "")
+
+
+def _check_type(value: Any, hint: Any, where: str) -> None:
+    """ConfigError naming ``where`` when a YAML value cannot be what the field's annotation says (a number, a
+    whole number, true/false, text); other annotations are left to the dataclass's own checks."""
+    options = typing.get_args(hint) if isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union \
+        else (hint,)
+    if value is None:
+        if type(None) in options:
+            return
+    kinds = [o for o in options if o is not type(None)]
+    if len(kinds) != 1:
+        return
+    kind = kinds[0]
+    if isinstance(kind, type) and issubclass(kind, enum.Enum):
+        if not isinstance(value, (str, kind)):
+            raise ConfigError(f"{where} must be one of {[m.value for m in kind]}, got {value!r}")
+        return
+    expected = {float: "a number", int: "a whole number", bool: "true or false", str: "text"}.get(kind)
+    if expected is None:
+        return
+    ok = (isinstance(value, bool) if kind is bool else
+          isinstance(value, str) if kind is str else
+          isinstance(value, int) and not isinstance(value, bool) if kind is int else
+          isinstance(value, (int, float)) and not isinstance(value, bool))
+    if not ok:
+        raise ConfigError(f"{where} must be {expected}{' or null' if type(None) in options else ''}, got {value!r}")
+    if kind is float and value != value:
+        raise ConfigError(f"{where} must be a number, got NaN")
+
+
 def from_dict(cls: type[T], data: dict[str, Any] | None, where: str = "config") -> T:
-    """Build dataclass ``cls`` from ``data``; unknown keys raise :class:`ConfigError` naming them."""
+    """Build dataclass ``cls`` from ``data``; unknown keys raise :class:`ConfigError` naming them, and so do values
+    of the wrong kind (text where a number is expected, ...)."""
     if data is None:
         return cls()
     if not isinstance(data, dict):
@@ -38,13 +81,14 @@ def from_dict(cls: type[T], data: dict[str, Any] | None, where: str = "config") 
     for k, v in data.items():
         sub = hints.get(k)
         nested = dataclasses.is_dataclass(sub) and isinstance(v, dict)
+        if not nested:
+            _check_type(v, sub, f"{where}.{k}")
         kwargs[k] = from_dict(sub, v, f"{where}.{k}") if nested else v  # type: ignore[arg-type]
     try:
         return cls(**kwargs)
-    except (TypeError, ValueError) as exc:
-        if isinstance(exc, ConfigError):
-            raise
-        raise ConfigError(f"{where}: {exc}") from None
+    except (TypeError, ValueError) as exc:  # the dataclass's own checks; the message gets the file (or key) in front
+        text = " ".join(str(exc).split())
+        raise ConfigError(text if text.startswith(where) else f"{where}: {text}") from None
 
 
 def read_yaml(path: str | os.PathLike, what: str = "configuration file") -> Any:
@@ -60,8 +104,10 @@ def read_yaml(path: str | os.PathLike, what: str = "configuration file") -> Any:
         return yaml.safe_load(path.read_text(encoding="utf-8"))
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read the {what}: {exc.strerror}") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: cannot read the {what}: not UTF-8 text ({exc.reason})") from None
     except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML: {exc}") from None
+        raise ConfigError(f"{path}: not valid YAML: {yaml_error_text(exc)}") from None
 
 
 def load_config(cls: type[T], path: str | os.PathLike) -> T:

@@ -12,6 +12,8 @@ __all__ = [
     "InputError",
     "ShapeError",
     "EmptyInputError",
+    "DegenerateInputError",
+    "UnusableFrameError",
     "ConfigError",
     "DataFormatError",
     "DatasetError",
@@ -19,6 +21,7 @@ __all__ = [
     "HsmapWarning",
     "CacheError",
     "DependencyError",
+    "OutputError",
 ]
 
 
@@ -36,6 +39,29 @@ class ShapeError(InputError):
 
 class EmptyInputError(InputError):
     """An input that must hold data is empty (or nothing is left after dropping invalid values)."""
+
+
+class DegenerateInputError(InputError):
+    """An input holds data, but not enough to determine what is asked: a point cloud whose points all coincide or
+    lie on one line (2D) or one plane (3D) has no unique registration."""
+
+
+class UnusableFrameError(EmptyInputError):
+    """A frame (one time step of a recording) cannot be used: its scan or cloud is missing or has too few usable
+    points. :func:`hsmap.slam.run_slam` skips such frames with a warning unless ``strict``.
+
+    Attributes
+    ----------
+    index : int or None
+        The frame's position in its sequence.
+    stamp : float or None
+        The frame's stamp, seconds.
+    """
+
+    def __init__(self, message: str, index: int | None = None, stamp: float | None = None) -> None:
+        super().__init__(message)
+        self.index = index
+        self.stamp = stamp
 
 
 class ConfigError(HsmapError, ValueError):
@@ -57,6 +83,13 @@ class ScenarioError(ConfigError):
 class HsmapWarning(UserWarning):
     """Something hsmap worked around (a failed optimisation, a skipped input): the result is usable but the user
     should know."""
+
+
+class OutputError(HsmapError, OSError):
+    """An output could not be written completely (no space left, a read-only or missing folder, a file a library
+    wrote that does not read back): the message names the output and the cause. Nothing was published under its
+    name; a file of an earlier run there is left as it was. Also an :class:`OSError`, so callers that catch I/O
+    errors catch it too."""
 
 
 class CacheError(HsmapError):

@@ -49,6 +49,10 @@ def transform_batch(poses: NDArray[np.float64], points: NDArray[np.float64]) -> 
     return out
 
 
+#: The most cells a :class:`DistanceField` allocates (float32: 1 GiB); a larger one is an input error.
+MAX_FIELD_CELLS = 2**28
+
+
 class DistanceField:
     """Truncated distance to a point set, precomputed on a regular grid (2D) or voxel volume (3D).
 
@@ -97,7 +101,16 @@ class DistanceField:
                 raise InputError(f"field bounds must be [lower, upper] corners of {self.dim} values with "
                                  f"lower < upper, got {np.asarray(bounds).tolist()}")
         self.origin = lo
-        shape = np.ceil((hi - lo) / resolution).astype(int) + 1
+        with np.errstate(over="ignore", invalid="ignore"):
+            cells = np.ceil((hi - lo) / resolution) + 1
+            total = float(np.prod(cells + 2))
+            span = hi - lo
+        if not (np.all(np.isfinite(cells)) and total <= MAX_FIELD_CELLS):
+            raise InputError(
+                f"the target's points span {' x '.join(f'{v:.4g}' for v in span)} m: a distance field at "
+                f"{resolution:g} m would need {total:.3g} cells, more than {MAX_FIELD_CELLS:.3g}; crop the target or "
+                "use the KD-tree backend (RegistrationConfig(backend='kdtree'))")
+        shape = cells.astype(int)
         self.shape = tuple(int(s) for s in shape)
         # Padded storage: one cell of `truncation` on every side; `values` is a view of the interior.
         self._padded = np.full(tuple(s + 2 for s in self.shape), np.float32(truncation), dtype=np.float32)

@@ -13,13 +13,14 @@ Every other module converts through :class:`GridGeometry`; nothing else flips ro
 from __future__ import annotations
 
 import os
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .errors import DataFormatError, DatasetError, EmptyInputError, InputError, ShapeError
+from .errors import DataFormatError, DatasetError, EmptyInputError, HsmapWarning, InputError, ShapeError
 from .io import atomic_path, write_text
 
 __all__ = [
@@ -126,6 +127,9 @@ PGM_FREE, PGM_OCCUPIED, PGM_UNKNOWN = 254, 0, 205
 #: Default free-space rule for plain images (no YAML): gray value >= 250 is free (the IPA benchmark's rule).
 IMAGE_FREE_MIN = 250
 
+#: Image formats (as PIL names them) whose compression changes pixel values.
+_LOSSY_FORMATS = {"JPEG", "MPO"}
+
 _IMAGE_SUFFIXES = {".png", ".pgm", ".ppm", ".pnm", ".bmp", ".tif", ".tiff", ".jpg", ".jpeg"}
 
 
@@ -207,6 +211,10 @@ def read_image_gray(path: str | os.PathLike) -> NDArray[np.uint8]:
         raise DatasetError(f"{path}: no such map image")
     try:
         with Image.open(path) as im:
+            if im.format in _LOSSY_FORMATS:
+                warnings.warn(f"{path}: {im.format} is a lossy format: its compression blurs walls and speckles free "
+                              "space, which changes what is free and occupied (and the rooms found); use PNG or PGM",
+                              HsmapWarning, stacklevel=2)
             if im.mode in ("I;16", "I;16B", "I;16L", "I"):
                 arr = np.asarray(im, dtype=np.int64)
                 return np.clip(arr // 256 if arr.max(initial=0) > 255 else arr, 0, 255).astype(np.uint8)
@@ -279,36 +287,67 @@ def read_map(path: str | os.PathLike, resolution: float | None = None) -> Occupa
 
 
 def _read_map_yaml(path: Path, resolution: float | None) -> OccupancyGrid:
+    """A map_server YAML, every key checked: ``image`` (an existing image file), ``resolution`` (finite, > 0),
+    ``origin`` ([x, y] or [x, y, yaw], finite, yaw 0), ``negate`` (0 or 1), ``occupied_thresh`` and
+    ``free_thresh`` (in [0, 1], free below occupied), ``mode`` (trinary, scale or raw)."""
     import yaml
 
     try:
         meta = yaml.safe_load(path.read_text(encoding="utf-8"))
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise DataFormatError(f"{path}: not valid YAML ({exc})") from None
+        raise DataFormatError(f"{path}: not valid YAML ({' '.join(str(exc).split())})") from None
+    except OSError as exc:
+        raise DatasetError(f"{path}: cannot read it ({exc.strerror})") from None
     if not isinstance(meta, dict):
         raise DataFormatError(f"{path}: expected a map_server mapping with 'image', 'resolution', 'origin'")
     for key in ("image", "resolution", "origin"):
         if key not in meta:
             raise DataFormatError(f"{path}: missing key '{key}' (map_server YAML needs image, resolution, origin)")
-    image_path = Path(str(meta["image"]))
+
+    def as_number(v: object, key: str) -> float:
+        # YAML 1.1 reads 1e-3 (no dot) as a string; map_server's parser reads it as a number, and so do we
+        if isinstance(v, bool) or not isinstance(v, (int, float, str)):
+            raise DataFormatError(f"{path}: '{key}' must be a number, got {v!r}")
+        try:
+            x = float(v)
+        except ValueError:
+            raise DataFormatError(f"{path}: '{key}' must be a number, got {v!r}") from None
+        if not np.isfinite(x):
+            raise DataFormatError(f"{path}: '{key}' must be finite, got {v!r}")
+        return x
+
+    def number(key: str, default: float | None = None) -> float:
+        return as_number(meta.get(key, default), key)
+
+    if not isinstance(meta["image"], str) or not meta["image"].strip():
+        raise DataFormatError(f"{path}: 'image' must be the file name of the map image, got {meta['image']!r}")
+    image_path = Path(meta["image"])
     if not image_path.is_absolute():
         image_path = path.parent / image_path
     if not image_path.is_file():
         raise DatasetError(f"{path}: its image '{meta['image']}' does not exist ({image_path})")
-    try:
-        res = float(meta["resolution"]) if resolution is None else float(resolution)
-        origin = [float(v) for v in meta["origin"]]
-        negate = int(meta.get("negate", 0))
-        occ_t = float(meta.get("occupied_thresh", 0.65))
-        free_t = float(meta.get("free_thresh", 0.196))
-    except (TypeError, ValueError) as exc:
-        raise DataFormatError(f"{path}: malformed value ({exc})") from None
-    if len(origin) < 2:
-        raise DataFormatError(f"{path}: 'origin' must be [x, y, yaw], got {meta['origin']}")
-    if not (np.isfinite(res) and res > 0):
-        raise InputError(f"{path}: resolution must be > 0 metres per pixel, got {res}")
+    res = number("resolution") if resolution is None else float(resolution)
+    if not res > 0:
+        raise DataFormatError(f"{path}: 'resolution' must be > 0 metres per pixel, got {res}")
+    origin = meta["origin"]
+    if not isinstance(origin, (list, tuple)) or len(origin) not in (2, 3):
+        raise DataFormatError(f"{path}: 'origin' must be [x, y, yaw], got {origin!r}")
+    origin = [as_number(v, "origin") for v in origin]
     if len(origin) > 2 and abs(origin[2]) > 1e-9:
         raise DataFormatError(f"{path}: rotated map origins (yaw = {origin[2]}) are not supported")
+    negate = meta.get("negate", 0)
+    if negate not in (0, 1) or isinstance(negate, float):
+        raise DataFormatError(f"{path}: 'negate' must be 0 or 1, got {negate!r}")
+    occ_t = number("occupied_thresh", 0.65)
+    free_t = number("free_thresh", 0.196)
+    for key, v in (("occupied_thresh", occ_t), ("free_thresh", free_t)):
+        if not 0.0 <= v <= 1.0:
+            raise DataFormatError(f"{path}: '{key}' must lie in [0, 1] (a probability), got {v}")
+    if not free_t < occ_t:
+        raise DataFormatError(f"{path}: 'free_thresh' ({free_t}) must be below 'occupied_thresh' ({occ_t})")
+    mode = meta.get("mode", "trinary")
+    if mode not in ("trinary", "scale", "raw"):
+        raise DataFormatError(f"{path}: 'mode' must be trinary, scale or raw, got {mode!r}")
     img = read_image_gray(image_path).astype(float)
     occ = img / 255.0 if negate else (255.0 - img) / 255.0
     data = np.full(img.shape, UNKNOWN, dtype=np.int8)

@@ -63,8 +63,10 @@ def as_rng(rng: int | np.random.Generator | None) -> np.random.Generator:
     if rng is None:
         return np.random.default_rng(0)
     if isinstance(rng, (int, np.integer)) and not isinstance(rng, bool):
+        if rng < 0:
+            raise InputError(f"rng must be a seed >= 0 (or a numpy Generator, or None), got {int(rng)}")
         return np.random.default_rng(int(rng))
-    raise InputError(f"rng must be an int seed, a numpy Generator or None, got {type(rng).__name__}")
+    raise InputError(f"rng must be an int seed >= 0, a numpy Generator or None, got {type(rng).__name__}")
 
 
 @dataclass

@@ -23,7 +23,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
 from ._blas import blas_limited
-from .errors import ConfigError, EmptyInputError, InputError, ShapeError
+from .errors import ConfigError, DegenerateInputError, EmptyInputError, InputError, ShapeError
 from .fitness import DistanceField, FieldObjective, KDTreeLookup, score
 from .geometry import dof_of_dim, matrix_to_pose, pose_to_matrix, transform_points, wrap_angle
 from .harmony import HarmonyConfig, HarmonyResult, as_rng, harmony_search
@@ -42,6 +42,7 @@ __all__ = [
     "alignment_information",
     "adjoint",
     "drop_degenerate",
+    "spans_its_space",
 ]
 
 
@@ -306,6 +307,37 @@ def _clean_cloud(points: ArrayLike, name: str, dim: int | None = None) -> tuple[
     return arr, dropped
 
 
+def _check_spread(arr: NDArray[np.float64], name: str) -> None:
+    """DegenerateInputError naming ``name`` when its (finite) points do not span the plane (2D) or space (3D)."""
+    if not spans_its_space(arr):
+        d = arr.shape[1]
+        where = "on one line" if d == 2 else "on one plane"
+        raise DegenerateInputError(
+            f"{name} cannot be registered: its {len(arr)} finite points "
+            f"{'coincide' if not spans_its_space(arr, 1) else 'all lie ' + where}; a {d}D registration needs points "
+            f"that span the {'plane' if d == 2 else 'space'} (at least {d + 1} not {where})")
+
+
+def spans_its_space(points: NDArray[np.float64], rank: int | None = None) -> bool:
+    """Whether finite points (N, d) span ``rank`` dimensions (default d): not all equal, not all on one line
+    (2D), not all on one plane (3D), up to rounding (the smallest spread is below 1e-9 of the largest).
+
+    A cloud that does not span its space has no unique registration: it can slide or turn without changing its
+    fit (:func:`harmony_icp` raises :class:`~hsmap.errors.DegenerateInputError` for one).
+    """
+    pts = np.asarray(points, dtype=float)
+    d = pts.shape[1]
+    rank = d if rank is None else rank
+    if len(pts) < rank + 1:
+        return False
+    c = pts - pts.mean(axis=0)
+    scale = float(np.abs(c).max())
+    if not scale > 0 or not np.isfinite(scale):
+        return rank == 0
+    ev = np.linalg.eigvalsh((c / scale).T @ (c / scale))  # ascending; spreads squared
+    return bool(ev[d - rank] > 1e-18 * ev[-1])
+
+
 class RegistrationTarget:
     """A target cloud prepared for repeated registrations (distance fields, KD-tree, normals built once).
 
@@ -323,6 +355,7 @@ class RegistrationTarget:
                  normals: ArrayLike | None = None, fields: dict[float, DistanceField] | None = None) -> None:
         self.config = config or RegistrationConfig()
         self.points, self.dropped = _clean_cloud(points, "target")
+        _check_spread(self.points, "target")
         self.dim = self.points.shape[1]
         self._lookups: dict[float, DistanceField | KDTreeLookup] = dict(fields or {})
         self._tree: cKDTree | None = None
@@ -429,6 +462,12 @@ def _check_bounds(bounds: ArrayLike, dof: int) -> NDArray[np.float64]:
     if bad.size:
         i = int(bad[0])
         raise InputError(f"bounds[{i}] is inverted: lower {b[i, 0]} > upper {b[i, 1]}")
+    with np.errstate(over="ignore"):
+        wide = np.flatnonzero(~np.isfinite(b[:, 1] - b[:, 0]))
+    if wide.size:
+        i = int(wide[0])
+        raise InputError(f"bounds[{i}] spans {b[i, 0]:g}..{b[i, 1]:g}, wider than a float can hold; expected a "
+                         "search box of finite width")
     return b
 
 
@@ -618,6 +657,8 @@ def harmony_icp(
     else:
         src, dropped = _clean_cloud(source, "source")
         _clean_cloud(target, "target", src.shape[1])  # shape check with names before building anything
+    _check_spread(src, "source")
+    if not isinstance(target, RegistrationTarget):
         tgt = RegistrationTarget(target, cfg)
     dropped += tgt.dropped
     dim = src.shape[1]
@@ -641,7 +682,10 @@ def harmony_icp(
         b = _check_bounds(bounds, dof)
 
     voxel = cfg.voxel_size or (0.05 if dim == 2 else 0.1)
-    sample = _subsample(src, voxel, cfg.max_points, gen)
+    try:
+        sample = _subsample(src, voxel, cfg.max_points, gen)
+    except InputError as exc:
+        raise type(exc)(f"source: {exc}") from None
     radius = float(np.sqrt(((sample - sample.mean(0)) ** 2).sum(1).mean())) + 1e-9
     iterations = evaluations = 0
     hs: HarmonyResult | None = None

@@ -88,6 +88,7 @@ __all__ = [
     "Room",
     "Segmentation",
     "segment_rooms",
+    "check_scale",
     "points_in_doors",
 ]
 
@@ -302,13 +303,16 @@ def _skeleton_graph(skel: NDArray[np.bool_]) -> tuple[NDArray[np.int64], NDArray
 
 
 def _geodesic_filter(values: NDArray[np.float64], nbr: NDArray[np.int64], steps: int, op) -> NDArray[np.float64]:
-    """min/max of ``values`` within ``steps`` hops on the skeleton graph."""
+    """min/max of ``values`` within ``steps`` hops on the skeleton graph (stops early once nothing changes)."""
     fill = np.inf if op is np.minimum else -np.inf
     m = values.copy()
-    for _ in range(steps):
+    for _ in range(min(steps, len(values))):
         ext = np.append(m, fill)
         red = ext[nbr].min(axis=1) if op is np.minimum else ext[nbr].max(axis=1)
-        m = op(m, red)
+        new = op(m, red)
+        if np.array_equal(new, m):
+            break
+        m = new
     return m
 
 
@@ -560,6 +564,44 @@ def _as_free(grid: OccupancyGrid | ArrayLike, resolution: float | None) -> tuple
     return free, geometry
 
 
+def check_scale(free: NDArray[np.bool_], resolution: float, config: SegmentationConfig | None = None) -> None:
+    """Check that a map's resolution lets the segmentation find doors and rooms at all.
+
+    The configuration speaks in metres (door half widths, the smallest room); the map in pixels. A resolution
+    coarser than the narrowest door half width the configuration looks for cannot show a door; one so fine that
+    the whole free space is smaller than the smallest room kept can show no room (a map read at 1 mm per pixel
+    instead of 5 cm). Both mean the resolution is wrong for this map.
+
+    Parameters
+    ----------
+    free : ndarray of shape (H, W), bool
+        The free space.
+    resolution : float
+        Metres per pixel.
+    config : SegmentationConfig, optional
+
+    Raises
+    ------
+    InputError
+        The message names the resolution and the range it should lie in.
+    """
+    cfg = config or SegmentationConfig()
+    narrowest = (cfg.min_door_half_width if cfg.method == "critical"
+                 else cfg.door_half_width - cfg.door_half_width_tolerance)
+    if not (np.isfinite(resolution) and resolution > 0):
+        raise InputError(f"resolution must be a positive number of metres per pixel, got {resolution}")
+    if resolution > narrowest:
+        raise InputError(f"resolution {resolution:g} m/pixel is coarser than the narrowest door half width the "
+                         f"segmentation looks for ({narrowest:g} m): no door can show; expected at most "
+                         f"{narrowest:g} m/pixel")
+    area = float(np.count_nonzero(free)) * resolution**2
+    smallest = min(cfg.min_room_area, cfg.min_isolated_area)
+    if area < smallest:
+        raise InputError(f"at resolution {resolution:g} m/pixel the map's free space covers only {area:.3g} m^2, "
+                         f"less than the smallest room kept ({smallest:g} m^2): no room can be found; is the "
+                         "resolution right?")
+
+
 def segment_rooms(
     grid: OccupancyGrid | ArrayLike,
     resolution: float | None = None,
@@ -587,10 +629,13 @@ def segment_rooms(
     ------
     EmptyInputError
         The map has no free pixel.
+    InputError
+        The resolution cannot show a door or a room (:func:`check_scale`).
     """
     cfg = config or SegmentationConfig()
     free_full, geometry = _as_free(grid, resolution)
     res = geometry.resolution
+    check_scale(free_full, res, cfg)
     # work on the bounding box of the free space, padded
     rows = np.nonzero(free_full.any(1))[0]
     cols = np.nonzero(free_full.any(0))[0]
@@ -645,7 +690,7 @@ def segment_rooms(
     door_px: list[tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], float]] = []
     max_len = 2.0 * (cfg.max_door_half_width if cfg.method == "critical"
                      else cfg.door_half_width + cfg.door_half_width_tolerance)
-    max_steps = int(np.ceil(1.5 * max_len / res)) + 2
+    max_steps = min(int(np.ceil(1.5 * max_len / res)) + 2, sum(free.shape))  # a march never leaves the image
     wall_steps = max(2, int(round(cfg.wall_continuation / res)))
     for (r, c), u in zip(centres, directions, strict=True):
         p = np.array([r, c], dtype=float)

@@ -54,11 +54,11 @@ from numpy.typing import NDArray
 from ._blas import blas_limited
 from .config import dump_config, to_dict
 from .datasets.frames import Dataset, Frame
-from .errors import ConfigError, EmptyInputError, HsmapWarning, InputError
+from .errors import ConfigError, EmptyInputError, HsmapWarning, InputError, UnusableFrameError
 from .fitness import DistanceField
 from .geometry import compose, pose_to_matrix, relative, transform_points, wrap_angle
 from .harmony import HarmonyConfig, as_rng
-from .io import atomic_path, write_json
+from .io import write_json, write_ply_points
 from .loopclosure import Keyframe, LoopCloser, LoopClosureConfig
 from .mapping import VoxelMap, voxel_downsample
 from .posegraph import EdgeKind, PoseGraph, information_with_floor
@@ -70,6 +70,7 @@ from .registration import (
     drop_degenerate,
     estimate_normals,
     harmony_icp,
+    spans_its_space,
 )
 from .trajectory import Trajectory, write_tum
 
@@ -250,6 +251,7 @@ class SlamResult:
     cpu_seconds: float = float("nan")
     loop_closure: dict = field(default_factory=dict)
     tracked: Trajectory | None = None
+    skipped: list[dict] = field(default_factory=list)
     prior: dict = field(default_factory=dict)
     input_info: dict = field(default_factory=dict)
 
@@ -273,6 +275,8 @@ class SlamResult:
             "inlier_ratio_median": float(np.median([f.inlier_ratio for f in self.frames])) if self.frames else None,
             "frames_retried": int(sum(f.retried for f in self.frames)),
             "frames_unverified": int(sum(not f.verified for f in self.frames)),
+            "skipped_frames": len(self.skipped),
+            "skipped": self.skipped,
             "loop_closure": self.loop_closure.get("status", "disabled"),
             "loops_closed": int(self.loop_closure.get("loops_closed", 0)),
             "loop_closure_detail": self.loop_closure,
@@ -303,12 +307,14 @@ def frame_points(frame: Frame, dof: int, min_range: float = 0.0, max_range: floa
     """
     if dof == 3:
         if frame.scan2d is None:
-            raise InputError(f"frame {frame.index} (stamp {frame.stamp}) has no 2D scan: a 3-DOF run needs them")
+            raise UnusableFrameError(f"frame {frame.index} (stamp {frame.stamp}) has no 2D scan: a 3-DOF run needs "
+                                     "them", frame.index, frame.stamp)
         pts = frame.scan2d.points()
         ext = np.asarray(frame.extrinsic2d, dtype=float)
     else:
         if frame.cloud3d is None:
-            raise InputError(f"frame {frame.index} (stamp {frame.stamp}) has no 3D cloud: a 6-DOF run needs them")
+            raise UnusableFrameError(f"frame {frame.index} (stamp {frame.stamp}) has no 3D cloud: a 6-DOF run needs "
+                                     "them", frame.index, frame.stamp)
         pts = np.asarray(frame.cloud3d, dtype=float)
         ext = np.asarray(frame.extrinsic3d, dtype=float)
     if voxel is not None:
@@ -320,6 +326,21 @@ def frame_points(frame: Frame, dof: int, min_range: float = 0.0, max_range: floa
     if np.any(ext != 0):
         pts = transform_points(pose_to_matrix(ext), pts)
     return pts
+
+
+def _unusable(frame: Frame, cfg: SlamConfig, scan: NDArray[np.float64]) -> str:
+    """Why a frame's scan (or cloud) cannot be registered, counted from its readings."""
+    raw = frame.scan2d.ranges if cfg.dof == 3 else frame.cloud3d
+    n = len(raw)
+    valid = len(frame.scan2d.points()) if cfg.dof == 3 else int(np.isfinite(raw).all(axis=1).sum())
+    near = len(frame_points(frame, cfg.dof, cfg.min_range, cfg.max_range))
+    what = "readings" if cfg.dof == 3 else "points"
+    head = f"frame {frame.index} (stamp {frame.stamp}) has {len(scan)} usable points"
+    why = (f"of its {n} {what}, {n - valid} are NaN, inf or no return and {valid - near} lie outside "
+           f"{cfg.min_range}..{cfg.max_range} m")
+    if len(scan) < 3 * cfg.dim:
+        return f"{head} ({why}); at least {3 * cfg.dim} needed"
+    return f"{head}, all on one {'line' if cfg.dim == 2 else 'plane'} ({why}): nothing to register"
 
 
 def _mean_pose(poses: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -512,9 +533,8 @@ class HsSlam:
         t0 = time.perf_counter()
         cfg = self.config
         scan = frame_points(frame, cfg.dof, cfg.min_range, cfg.max_range, voxel=cfg.effective_scan_voxel())
-        if len(scan) < 3 * cfg.dim:
-            raise EmptyInputError(f"frame {frame.index} (stamp {frame.stamp}) has {len(scan)} usable points "
-                                  f"within {cfg.min_range}..{cfg.max_range} m; at least {3 * cfg.dim} needed")
+        if len(scan) < 3 * cfg.dim or not spans_its_space(scan):
+            raise UnusableFrameError(_unusable(frame, cfg, scan), frame.index, frame.stamp)
         first = not self.poses
         fitness = inlier = rmse = 0.0
         evaluations = 0
@@ -801,6 +821,9 @@ class HsSlam:
         return Trajectory(np.asarray(self.stamps), np.asarray(P).reshape(-1, self.config.dof))
 
 
+_WARN_SKIPPED = 10  # skipped frames warned about one by one; the rest are counted
+
+
 def prior_coverage(prior: Trajectory, stamps, tolerance: float, *, name: str = "prior") -> dict:
     """How many frames (by their ``stamps``) a prior trajectory gives a pose (:meth:`Trajectory.interpolate`).
 
@@ -854,6 +877,7 @@ def run_slam(
     max_frames: int | None = None,
     progress: bool | None = None,
     on_frame: Callable[[Frame, FrameResult, HsSlam], None] | None = None,
+    strict: bool = False,
     prior_name: str = "prior",
 ) -> SlamResult:
     """Run HS-SLAM over a dataset (or any iterable of frames).
@@ -876,11 +900,20 @@ def run_slam(
         Show a progress bar; None shows it only on a terminal.
     on_frame : callable, optional
         Called after each frame with (frame, result, slam), e.g. to log to rerun.
+    strict : bool
+        A frame whose scan or cloud is missing or has too few usable points (:class:`UnusableFrameError`)
+        stops the run. By default it is skipped with a warning naming the input and the cause, and counted
+        (``SlamResult.skipped``, ``skipped_frames`` in the metrics); its stamp has no pose.
     prior_name : str
         What the caller calls the prior, in messages (``--prior FILE`` at the command line).
 
     The metrics' ``input_info`` is the dataset's :meth:`~hsmap.datasets.frames.Dataset.describe` (topics,
     message counts and rates, frames, the sensor offsets and where they came from, warnings).
+
+    Raises
+    ------
+    UnusableFrameError
+        With ``strict``, the first unusable frame; without, when no frame at all is usable.
     """
     from tqdm.auto import tqdm
 
@@ -898,24 +931,43 @@ def run_slam(
     t0, c0 = time.perf_counter(), time.process_time()
     bar = tqdm(total=total, unit="scan", disable=None if progress is None else not progress,
                desc=f"HS-SLAM {slam.config.dof}-DOF")
+    source = str(getattr(dataset, "path", "") or getattr(dataset, "name", "") or "the input")
+    skipped: list[dict] = []
+    n_read = 0
     try:
         for k, frame in enumerate(frames):
             if max_frames is not None and k >= max_frames:
                 break
-            res = slam.process(frame)
+            n_read += 1
+            try:
+                res = slam.process(frame)
+            except UnusableFrameError as exc:
+                if strict:
+                    raise UnusableFrameError(f"{source}: {exc}", exc.index, exc.stamp) from None
+                skipped.append({"index": exc.index, "stamp": exc.stamp, "reason": str(exc)})
+                if len(skipped) <= _WARN_SKIPPED:
+                    more = "; later ones are counted in the metrics" if len(skipped) == _WARN_SKIPPED else ""
+                    warnings.warn(f"{source}: {exc}; frame skipped{more}", HsmapWarning, stacklevel=2)
+                bar.update(1)
+                continue
             if on_frame is not None:
                 on_frame(frame, res, slam)
             bar.update(1)
     finally:
         bar.close()
     if not slam.poses:
+        if skipped:
+            raise UnusableFrameError(f"{source}: none of its {n_read} frames could be used; the first: "
+                                     f"{skipped[0]['reason']}", skipped[0]["index"], skipped[0]["stamp"])
         raise EmptyInputError("the input has no frames")
+    if len(skipped) > _WARN_SKIPPED:
+        warnings.warn(f"{source}: {len(skipped)} of {n_read} frames skipped in all", HsmapWarning, stacklevel=2)
     slam.finish()
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     return SlamResult(slam.trajectory, slam.global_map(), slam.results, slam.config, time.perf_counter() - t0,
                       peak, getattr(dataset, "name", ""), time.process_time() - c0,
-                      loop_closure=slam.loop_summary(), tracked=slam.tracked_trajectory, prior=prior_info,
-                      input_info=dataset.describe() if isinstance(dataset, Dataset) else {})
+                      loop_closure=slam.loop_summary(), tracked=slam.tracked_trajectory, skipped=skipped,
+                      prior=prior_info, input_info=dataset.describe() if isinstance(dataset, Dataset) else {})
 
 
 def write_slam_outputs(result: SlamResult, out_dir: str | Path) -> dict[str, Path]:
@@ -923,8 +975,6 @@ def write_slam_outputs(result: SlamResult, out_dir: str | Path) -> dict[str, Pat
 
     ``metrics.json`` is written last: a folder without it is incomplete.
     """
-    import open3d as o3d
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = {"trajectory": out / "trajectory.tum", "map": out / "map.ply", "config": out / "config.yaml",
@@ -933,9 +983,7 @@ def write_slam_outputs(result: SlamResult, out_dir: str | Path) -> dict[str, Pat
     pts = result.map.points
     if pts.shape[1] == 2:
         pts = np.column_stack([pts, np.zeros(len(pts))])
-    with atomic_path(paths["map"]) as tmp:
-        if not o3d.io.write_point_cloud(str(tmp), o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))):
-            raise OSError(f"open3d could not write {paths['map']}")
+    write_ply_points(paths["map"], pts)
     dump_config(result.config, paths["config"])
     metrics = result.metrics()
     metrics["config"] = to_dict(result.config)

@@ -4,6 +4,9 @@
   (Hokuyo-like: 270 deg, 0.25 deg steps, 1081 beams, 10 m) ray-cast against them.
 - :func:`room_cloud_3d`: points sampled on the surfaces of a furnished room (walls, floor, boxes) seen from a
   viewpoint, the kind of cloud a 3D LiDAR gives in a room.
+- :func:`room_scan_sequence` and :func:`write_scan_bag`: a robot driving through that room as a ROS1 or ROS2 bag
+  of ``sensor_msgs/LaserScan`` (and optionally ``sensor_msgs/PointCloud2``) messages, for the readers' and the
+  command line's tests.
 """
 
 from __future__ import annotations
@@ -14,7 +17,8 @@ from numpy.typing import NDArray
 from .geometry import pose_to_matrix, transform_points
 from .harmony import as_rng
 
-__all__ = ["room_segments", "raycast_2d", "scan_points_2d", "room_boxes_3d", "room_cloud_3d"]
+__all__ = ["room_segments", "raycast_2d", "scan_points_2d", "room_boxes_3d", "room_cloud_3d", "room_scan_sequence",
+           "write_scan_bag"]
 
 
 def _box_segments(cx: float, cy: float, w: float, h: float, yaw: float = 0.0) -> NDArray[np.float64]:
@@ -58,7 +62,7 @@ def raycast_2d(
     e = b - a
     denom = d[:, None, 0] * e[None, :, 1] - d[:, None, 1] * e[None, :, 0]  # (B, K)
     ao = a[None] - o  # (1, K, 2)
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         t = (ao[..., 0] * e[None, :, 1] - ao[..., 1] * e[None, :, 0]) / denom
         u = (ao[..., 0] * d[:, None, 1] - ao[..., 1] * d[:, None, 0]) / denom
     hit = (np.abs(denom) > 1e-12) & (t > 1e-9) & (u >= 0) & (u <= 1)
@@ -185,3 +189,138 @@ def office_route(step: float = 0.2, turn_step: float = np.deg2rad(10)) -> NDArra
     out = np.asarray(poses)
     out[:, 2] = (out[:, 2] + np.pi) % (2 * np.pi) - np.pi
     return out
+
+
+def room_scan_sequence(n: int = 40, step: float = 0.05, *, beams: int = 541, fov: float = np.deg2rad(270.0),
+                       start: tuple[float, float, float] = (2.5, 3.0, 0.0)
+                       ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """A robot driving straight ahead (+x) through :func:`room_segments`, ``step`` metres per scan.
+
+    Returns
+    -------
+    ranges : ndarray of shape (n, beams)
+        Metres, NaN where nothing is hit within 10 m.
+    angles : ndarray of shape (beams,)
+        Radians, evenly spaced over ``fov`` centred on the sensor's x axis.
+    poses : ndarray of shape (n, 3)
+        The true (x, y, yaw) of each scan.
+    """
+    segs = room_segments()
+    poses = np.array([[start[0] + k * step, start[1], start[2]] for k in range(n)])
+    ranges, angles = [], None
+    for p in poses:
+        r, angles = raycast_2d(segs, p, fov=fov, beams=beams)
+        ranges.append(r)
+    return np.asarray(ranges), np.asarray(angles), poses
+
+
+def write_scan_bag(
+    path,
+    ranges: NDArray[np.float64],
+    stamps: NDArray[np.float64],
+    *,
+    angle_min: float,
+    angle_increment: float,
+    range_min: float = 0.05,
+    range_max: float = 10.0,
+    clouds: list[NDArray[np.float64]] | None = None,
+    ros2: bool = False,
+    scan_topic: str = "/scan",
+    cloud_topic: str = "/points",
+    tf: bool = True,
+):
+    """Write a bag of ``sensor_msgs/LaserScan`` messages (one per row of ``ranges``) with ``rosbags``.
+
+    The scans' header frame is ``laser`` (the clouds' ``lidar``); with ``tf`` a ``/tf_static`` message puts both
+    at the origin of ``base_link`` (without it the readers assume that, with a warning).
+    Every field is written as given (no checks: the readers' tests feed it bad geometry on purpose).
+
+    Parameters
+    ----------
+    path : path-like
+        A ``.bag`` file (ROS1) or, with ``ros2``, a bag folder to create.
+    ranges : array_like of shape (N, M)
+        Float32 ranges of each scan (NaN and inf allowed).
+    stamps : array_like of shape (N,)
+        Header stamps, seconds (>= 0).
+    angle_min, angle_increment, range_min, range_max : float
+        The LaserScan geometry fields of every message.
+    clouds : list of ndarray of shape (K, 3), optional
+        One ``sensor_msgs/PointCloud2`` (float32 x, y, z) per scan, on ``cloud_topic``, frame ``lidar``.
+    ros2 : bool
+        Write a ROS2 (sqlite3) bag instead of a ROS1 one.
+    tf : bool
+        Write the sensors' (identity) offsets on ``/tf_static``.
+
+    Returns
+    -------
+    pathlib.Path
+    """
+    import math
+    from pathlib import Path
+
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    path = Path(path)
+    ts = get_typestore(Stores.ROS2_HUMBLE if ros2 else Stores.ROS1_NOETIC)
+    if not ros2 and "tf2_msgs/msg/TFMessage" not in ts.types:
+        ts.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms", "tf2_msgs/msg/TFMessage"))
+    T = ts.types
+
+    def header(t: float, frame: str, seq: int):
+        sec = int(math.floor(t))
+        stamp = T["builtin_interfaces/msg/Time"](sec=sec, nanosec=min(int(round((t - sec) * 1e9)), 999_999_999))
+        if ros2:
+            return T["std_msgs/msg/Header"](stamp=stamp, frame_id=frame)
+        return T["std_msgs/msg/Header"](seq=seq, stamp=stamp, frame_id=frame)
+
+    def cloud_msg(t: float, seq: int, pts: NDArray[np.float64]):
+        PF = T["sensor_msgs/msg/PointField"]
+        data = np.ascontiguousarray(np.asarray(pts, dtype="<f4").reshape(-1, 3))
+        fields = [PF(name=n, offset=4 * i, datatype=7, count=1) for i, n in enumerate("xyz")]
+        return T["sensor_msgs/msg/PointCloud2"](
+            header=header(t, "lidar", seq), height=1, width=len(data), fields=fields, is_bigendian=False,
+            point_step=12, row_step=12 * len(data), data=np.frombuffer(data.tobytes(), dtype=np.uint8),
+            is_dense=False)
+
+    ranges = np.asarray(ranges, dtype=np.float32)
+    stamps = np.asarray(stamps, dtype=float)
+    n = ranges.shape[0]
+    if ros2:
+        from rosbags.rosbag2 import Writer
+
+        writer, serialize = Writer(path, version=9), ts.serialize_cdr
+    else:
+        from rosbags.rosbag1 import Writer
+
+        writer, serialize = Writer(path), ts.serialize_ros1
+    scan_type, cloud_type = "sensor_msgs/msg/LaserScan", "sensor_msgs/msg/PointCloud2"
+    tf_type = "tf2_msgs/msg/TFMessage"
+
+    def identity(t: float, child: str):
+        V, Q = T["geometry_msgs/msg/Vector3"], T["geometry_msgs/msg/Quaternion"]
+        tr = T["geometry_msgs/msg/Transform"](translation=V(x=0.0, y=0.0, z=0.0), rotation=Q(x=0.0, y=0.0, z=0.0,
+                                                                                              w=1.0))
+        return T["geometry_msgs/msg/TransformStamped"](header=header(t, "base_link", 0), child_frame_id=child,
+                                                      transform=tr)
+
+    with writer as w:
+        if tf and n:
+            t_tf = max(float(stamps[0]) - 0.5, 0.0)
+            edges = [identity(t_tf, "laser")] + ([identity(t_tf, "lidar")] if clouds is not None else [])
+            w.write(w.add_connection("/tf_static", tf_type, typestore=ts), int(round(t_tf * 1e9)),
+                    serialize(T[tf_type](transforms=edges), tf_type))
+        conn = w.add_connection(scan_topic, scan_type, typestore=ts)
+        cconn = w.add_connection(cloud_topic, cloud_type, typestore=ts) if clouds is not None else None
+        for k in range(n):
+            msg = T[scan_type](
+                header=header(float(stamps[k]), "laser", k), angle_min=float(angle_min),
+                angle_max=float(angle_min + angle_increment * (ranges.shape[1] - 1)),
+                angle_increment=float(angle_increment), time_increment=0.0, scan_time=0.1,
+                range_min=float(range_min), range_max=float(range_max), ranges=ranges[k],
+                intensities=np.zeros(0, dtype=np.float32))
+            t_ns = int(round(float(stamps[k]) * 1e9)) + 1
+            w.write(conn, t_ns, serialize(msg, scan_type))
+            if cconn is not None:
+                w.write(cconn, t_ns + 1, serialize(cloud_msg(float(stamps[k]), k, clouds[k]), cloud_type))
+    return path

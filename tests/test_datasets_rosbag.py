@@ -95,8 +95,13 @@ class _Msgs:
     def tf(self, t, edges):
         T = self.ts.types
         out = []
-        for parent, child, (x, y, z, r, p, yw) in edges:
-            tr = T["geometry_msgs/msg/Transform"](translation=self.vec(x, y, z), rotation=self.quat(r, p, yw))
+        for parent, child, pose in edges:
+            x, y, z = pose[:3]
+            if len(pose) == 7:  # a quaternion as given (x, y, z, qx, qy, qz, qw)
+                rot = self.ts.types["geometry_msgs/msg/Quaternion"](x=pose[3], y=pose[4], z=pose[5], w=pose[6])
+            else:
+                rot = self.quat(*pose[3:])
+            tr = T["geometry_msgs/msg/Transform"](translation=self.vec(x, y, z), rotation=rot)
             out.append(T["geometry_msgs/msg/TransformStamped"](header=self.header(t, parent), child_frame_id=child, transform=tr))
         return T["tf2_msgs/msg/TFMessage"](transforms=out)
 
@@ -131,11 +136,15 @@ def write_bag(
     extra_scan_topic: bool = False,
     mcap: bool = False,
     laser_roll: float = 0.0,
+    laser_quaternion: tuple[float, float, float, float] | None = None,
+    nan_odom: tuple[int, ...] = (),
     sensor_tf: bool = True,
 ) -> Path:
     """A small bag: /scan (LaserScan), /odom (Odometry at its own rate), /tf_static, /tf, /points (PointCloud2).
 
     ``scan_stamps`` (in seq order) default to a regular 10 Hz sequence; ROS1 seq is the scan's position.
+    ``laser_quaternion`` replaces the laser's rotation in the TF (as given, unnormalised); the odometry messages
+    numbered in ``nan_odom`` get a NaN x.
     """
     ts = _typestore(ros2)
     m = _Msgs(ts, ros2)
@@ -144,10 +153,12 @@ def write_bag(
     records = []  # (bag time, topic, msgtype, message)
     odom_t = np.arange(T0 - 0.2, T0 + SCAN_DT * N_SCANS + 0.2, ODOM_DT)
     for k, t in enumerate(odom_t):
-        records.append((t, "/odom", "nav_msgs/msg/Odometry", m.odom(t, k, odom_offset)))
+        offset = np.array([np.nan, 0.0, 0.0]) if k in nan_odom else odom_offset
+        records.append((t, "/odom", "nav_msgs/msg/Odometry", m.odom(t, k, offset)))
         records.append((t, "/tf", "tf2_msgs/msg/TFMessage", m.tf(t, [("odom", "base_link", (*pose_at(t)[:2], 0, 0, 0, pose_at(t)[2]))])))
     edges = [
-        ("base_link", "laser", (LASER_EXT[0], LASER_EXT[1], 0.3, laser_roll, 0, LASER_EXT[2])),
+        ("base_link", "laser", (LASER_EXT[0], LASER_EXT[1], 0.3, laser_roll, 0, LASER_EXT[2])
+                               if laser_quaternion is None else (LASER_EXT[0], LASER_EXT[1], 0.3, *laser_quaternion)),
         ("base_link", "velodyne", CLOUD_EXT),
     ]
     if not sensor_tf:
@@ -394,6 +405,33 @@ def test_damaged_bags_raise_hsmap_errors_only(tmp_path, rng):
         except (DatasetError, DataFormatError) as exc:
             outcomes.add(type(exc).__name__)
     assert {"DatasetError", "DataFormatError"} <= outcomes  # both kinds of damage were exercised
+
+
+@pytest.mark.parametrize("q", [(0.0, 0.0, 0.0, 0.0), (0.0, 0.0, float("nan"), 1.0)])
+def test_a_tf_quaternion_that_is_zero_or_not_finite_is_one_error_naming_bag_topic_and_frames(tmp_path, capsys, q):
+    """Issue 12 (smaller): an all-zero quaternion printed numpy's RuntimeWarning before the error; now one
+    DataFormatError naming the bag, the topic and the frames, without any warning (the suite turns warnings into
+    errors), and one line from the command line."""
+    from hsmap.cli import main
+
+    b = write_bag(tmp_path / "q.bag", laser_quaternion=q)
+    want = f"{b}: /tf_static transform base_link -> laser: rotation quaternion "
+    with pytest.raises(DataFormatError, match="is zero or not finite$") as err:
+        open_dataset(b)
+    assert str(err.value).startswith(want), err.value
+    assert main(["slam", str(b), "--out", str(tmp_path / "out"), "--quiet"]) == 2
+    assert capsys.readouterr().err.startswith(f"hsmap: error: {want}")
+
+
+def test_odometry_messages_with_a_non_finite_pose_are_ignored_with_a_warning(tmp_path):
+    from hsmap.errors import HsmapWarning
+
+    b = write_bag(tmp_path / "o.bag", nan_odom=(3, 4))
+    with pytest.warns(HsmapWarning, match=r"o\.bag: 2 /odom message\(s\) have a non-finite pose or stamp and are "
+                                          "ignored"):
+        ds = open_dataset(b)
+    assert np.isfinite(ds.odometry.poses).all()
+    np.testing.assert_allclose([f.odometry for f in ds.frames()], [pose_at(t) for t in ds.stamps], atol=1e-9)
 
 
 def test_pointcloud2_with_row_padding_and_big_endian():

@@ -46,3 +46,33 @@ def test_to_plain_is_what_json_and_yaml_take(tmp_path):
     assert json.loads((tmp_path / "v.json").read_text()) == plain
     with pytest.raises(TypeError, match="cannot serialise object"):
         write_json(tmp_path / "w.json", {"x": object()})
+
+
+def test_ply_points_read_back_in_open3d_and_a_failed_write_leaves_nothing(tmp_path, monkeypatch):
+    """hsmap writes its PLY files itself (Open3D's writer returns True on a full disk, prints, and leaves the
+    file open); Open3D reads them back as written."""
+    import errno
+    import os
+
+    import numpy as np
+    import open3d as o3d
+
+    from hsmap.errors import OutputError
+    from hsmap.io import write_ply_points
+
+    pts = np.random.default_rng(0).normal(size=(257, 3))
+    p = write_ply_points(tmp_path / "m.ply", pts)
+    np.testing.assert_array_equal(np.asarray(o3d.io.read_point_cloud(str(p)).points), pts)
+    write_ply_points(tmp_path / "empty.ply", np.zeros((0, 3)))
+    assert (tmp_path / "empty.ply").read_bytes().endswith(b"element vertex 0\nproperty double x\nproperty double y"
+                                                          b"\nproperty double z\nend_header\n")
+
+    def full(fd):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(os, "fsync", full)
+    with pytest.raises(OutputError, match=r"m\.ply: cannot write it \(No space left on device\)$"):
+        write_ply_points(tmp_path / "m.ply", pts[:5])
+    monkeypatch.undo()
+    assert sorted(q.name for q in tmp_path.iterdir()) == ["empty.ply", "m.ply"]
+    np.testing.assert_array_equal(np.asarray(o3d.io.read_point_cloud(str(p)).points), pts)

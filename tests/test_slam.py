@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from hsmap.datasets.frames import Frame, LaserScan2D
-from hsmap.errors import ConfigError, EmptyInputError, InputError
+from hsmap.errors import ConfigError, EmptyInputError, HsmapWarning, InputError, UnusableFrameError
 from hsmap.geometry import compose, relative, wrap_angle
 from hsmap.slam import HsSlam, SlamConfig, run_slam, write_slam_outputs
 from hsmap.testing import office_route, office_segments, raycast_2d, room_cloud_3d, sensor_cloud
@@ -175,16 +175,56 @@ def test_prior_coverage_is_checked_before_the_run(frames):
 
 def test_bad_inputs(frames):
     with pytest.raises(InputError, match="has no 2D scan"):
-        run_slam([Frame(stamp=0.0)], SlamConfig(), progress=False)
+        run_slam([Frame(stamp=0.0)], SlamConfig(), progress=False, strict=True)
     with pytest.raises(InputError, match="has no 3D cloud"):
-        run_slam(frames[:2], SlamConfig(dof=6), progress=False)
+        run_slam(frames[:2], SlamConfig(dof=6), progress=False, strict=True)
     empty = Frame(stamp=0.0, scan2d=LaserScan2D(np.full(10, np.nan), np.linspace(-1, 1, 10)))
-    with pytest.raises(EmptyInputError, match="frame 0 .* has 0 usable points"):
-        run_slam([empty], SlamConfig(), progress=False)
+    with pytest.raises(UnusableFrameError, match=r"frame 0 .* has 0 usable points \(of its 10 readings, 10 are NaN"):
+        run_slam([empty], SlamConfig(), progress=False, strict=True)
+    # not strict: every frame skipped is still an error, naming the first one's cause
+    with pytest.warns(HsmapWarning, match="frame skipped"), \
+            pytest.raises(UnusableFrameError, match="none of its 2 frames could be used; the first: frame 0"):
+        run_slam([empty, empty], SlamConfig(), progress=False)
     with pytest.raises(EmptyInputError, match="the input has no frames"):
         run_slam([], SlamConfig(), progress=False)
     with pytest.raises(InputError, match="initial_pose must have 3 values"):
         HsSlam(SlamConfig(), initial_pose=np.zeros(6))
+
+
+def test_unusable_frames_are_skipped_counted_and_named(frames):
+    """One all-NaN scan, one scan whose points coincide and one frame without a scan in the middle of a run: each
+    is skipped with a warning giving the cause, counted in the metrics, and the other frames are tracked as
+    well as without them; strict=True stops at the first one instead."""
+    bad = dict(enumerate(frames[:40]))
+    n = len(frames[20].scan2d.ranges)
+    bad[20] = dataclasses.replace(frames[20], scan2d=LaserScan2D(np.full(n, np.nan), frames[20].scan2d.angles))
+    bad[25] = dataclasses.replace(frames[25], scan2d=LaserScan2D(np.full(n, 2.0), np.zeros(n)))
+    bad[30] = dataclasses.replace(frames[30], scan2d=None)
+    with pytest.warns(HsmapWarning) as caught:
+        res = run_slam(list(bad.values()), SlamConfig(), rng=1, progress=False)
+    messages = [str(w.message) for w in caught]
+    assert len(messages) == 3 and all(m.endswith("frame skipped") for m in messages)
+    assert "frame 20 (stamp 110.0) has 0 usable points (of its 1081 readings, 1081 are NaN" in messages[0]
+    assert "frame 25 (stamp 112.5) has 1 usable points" in messages[1]
+    assert "frame 30 (stamp 115.0) has no 2D scan" in messages[2]
+    m = res.metrics()
+    assert m["skipped_frames"] == 3 and [k["index"] for k in m["skipped"]] == [20, 25, 30]
+    assert m["frames"] == 37
+    kept = [i for i in range(40) if i not in (20, 25, 30)]
+    np.testing.assert_array_equal(res.trajectory.stamps, [frames[i].stamp for i in kept])
+    err = relative_errors(res.trajectory.poses, ROUTE[kept])
+    assert np.abs(err[:, :2]).max() < 0.03, np.abs(err[:, :2]).max(0)
+    with pytest.raises(UnusableFrameError, match="frame 20 .* has 0 usable points") as info:
+        run_slam(list(bad.values()), SlamConfig(), rng=1, progress=False, strict=True)
+    assert info.value.index == 20 and info.value.stamp == 110.0
+
+
+def test_points_on_one_line_are_unusable():
+    """A scan with plenty of points, all on one straight line (a beam geometry gone wrong), is not registered."""
+    n = 200
+    line = Frame(stamp=1.0, scan2d=LaserScan2D(np.linspace(1.0, 5.0, n), np.full(n, 0.3)), index=1)
+    with pytest.raises(UnusableFrameError, match="all on one line"):
+        HsSlam(SlamConfig()).process(line)
 
 
 @pytest.mark.parametrize("kwargs, match", [
@@ -295,9 +335,9 @@ def test_cli_slam_extrinsic_and_no_loop_closure(tmp_path):
     assert "frames_retried" in m and m["loops_closed"] == 0
 
 
-def test_interrupted_cli_run_leaves_no_complete_looking_output(tmp_path, monkeypatch):
-    """A run stopped half-way (here: an error in the middle of the frames) writes no metrics.json, the marker of a
-    complete output folder, and leaves no temporary files; an older complete run's marker is removed first."""
+def test_interrupted_cli_run_leaves_the_previous_outputs_as_they_were(tmp_path, monkeypatch):
+    """A run stopped half-way (here: Ctrl-C in the middle of the frames) publishes nothing: the previous run's
+    files are left as they were and no temporary file is left behind."""
     import hsmap.slam as slam_mod
     from hsmap.cli import main
 
@@ -315,4 +355,5 @@ def test_interrupted_cli_run_leaves_no_complete_looking_output(tmp_path, monkeyp
 
     monkeypatch.setattr(slam_mod.HsSlam, "process", failing)
     assert main(["slam", str(log), "--out", str(out), "--quiet"]) == 130
-    assert sorted(p.name for p in out.iterdir()) == []
+    assert sorted(p.name for p in out.iterdir()) == ["metrics.json"]
+    assert (out / "metrics.json").read_text() == "{}"

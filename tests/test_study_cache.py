@@ -112,8 +112,15 @@ def test_miss_then_hit_then_stale(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == [".locks", "thing"]  # nothing piles up
 
 
-@pytest.mark.parametrize("damage", ["no_marker", "garbage_marker", "wrong_key", "unreadable_result"])
+@pytest.mark.parametrize("damage", ["no_marker", "garbage_marker", "wrong_key", "missing_file", "truncated_file",
+                                    "altered_file", "does_not_load"])
 def test_a_damaged_folder_is_computed_again(tmp_path, damage):
+    """An incomplete or stale folder is computed again quietly; a damaged one (a file missing, truncated or
+    altered since it was written, or one its loader rejects) with a warning naming the file and the damage."""
+    import warnings
+
+    from hsmap.errors import HsmapWarning
+
     cache = FolderCache(tmp_path)
     calls = []
 
@@ -121,17 +128,40 @@ def test_a_damaged_folder_is_computed_again(tmp_path, damage):
         calls.append(1)
         write_text(folder)
 
-    a = cache.get("thing", {"x": 1}, compute, read_text)
+    loads = []
+
+    def load(folder):
+        loads.append(1)
+        if damage == "does_not_load" and len(loads) == 2:  # the second call reads the published folder
+            raise EOFError("a loader's complaint about the file")
+        return read_text(folder)
+
+    a = cache.get("thing", {"x": 1}, compute, load)
+    out = a.folder / "out.txt"
+    expected = {"missing_file": f"{out} is missing", "truncated_file": f"{out} has 3 bytes, 6 were written (truncated or replaced)",
+                "altered_file": f"{out} was altered since it was written (its SHA-256 differs)", "does_not_load":
+                "it does not load (EOFError: a loader's complaint about the file)"}.get(damage)
     if damage == "no_marker":
         (a.folder / MARKER).unlink()
     elif damage == "garbage_marker":
         (a.folder / MARKER).write_text('{"key": ')
     elif damage == "wrong_key":
         (a.folder / MARKER).write_text(json.dumps({"key": "0" * 64}))
-    else:
-        (a.folder / "out.txt").unlink()
-    b = cache.get("thing", {"x": 1}, compute, read_text)
+    elif damage == "missing_file":
+        out.unlink()
+    elif damage == "truncated_file":
+        out.write_text("res")
+    elif damage == "altered_file":
+        out.write_text("RESULT")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        b = cache.get("thing", {"x": 1}, compute, load)
     assert not b.cached and len(calls) == 2 and b.value == "result"
+    messages = [str(w.message) for w in caught if issubclass(w.category, HsmapWarning)]
+    if expected is None:
+        assert messages == []
+    else:
+        assert messages == [f"cache folder {a.folder} is damaged: {expected}; computing it again"]
 
 
 def test_an_interrupted_computation_publishes_nothing(tmp_path):

@@ -75,3 +75,23 @@ def test_a_dataset_is_reused_and_a_changed_scenario_simulated_again(tmp_path):
     changed = simulated_dataset(scn, 1, root=root)
     assert changed.path == full.path and (Path(changed.path) / "dataset.yaml").stat().st_mtime_ns != stamp
     assert not np.allclose(changed.odometry.poses, full.odometry.poses)
+
+
+@pytest.mark.parametrize("damaged", ["scans2d.npz", "clouds3d/000002.npz"])
+def test_a_damaged_dataset_is_simulated_again_with_a_warning_naming_the_file(tmp_path, damaged):
+    """Issue 12: a truncated scans2d.npz (or 3D frame) made every later run fail with BadZipFile; now the cache
+    sees that the file is not the one written, says so and simulates the dataset again."""
+    from hsmap.errors import HsmapWarning
+
+    scn = _small_scenario(tmp_path)
+    root = tmp_path / "generated"
+    ds = simulated_dataset(scn, 1, max_frames=4, root=root)
+    path = Path(ds.path) / damaged
+    size = path.stat().st_size
+    with open(path, "r+b") as fh:
+        fh.truncate(size // 2)
+    with pytest.warns(HsmapWarning, match=f"cache folder .*scn-seed1-first4 is damaged: {path} has {size // 2} bytes, "
+                                          f"{size} were written"):
+        again = simulated_dataset(scn, 1, max_frames=4, root=root)
+    assert path.stat().st_size == size
+    np.testing.assert_array_equal(again.cloud3d(2), ds.cloud3d(2))

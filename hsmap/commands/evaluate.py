@@ -15,6 +15,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p = sub.add_parser("relations", help="Freiburg relations metric (Kümmerle et al. 2009)")
     p.add_argument("trajectory", help="estimated trajectory, TUM format")
     p.add_argument("relations", help="ground-truth .relations file")
+    p.add_argument("--skip-unmatched", action="store_true",
+                   help="score only the relations whose stamps lie within the trajectory's time span (a partial "
+                        "run, e.g. hsmap slam --max-frames); the output says how many were used")
     p.set_defaults(_evaluate=_relations)
     p = sub.add_parser("trajectory", help="per-DOF errors, ATE and RPE against a ground-truth trajectory")
     p.add_argument("estimate", help="estimated trajectory, TUM format")
@@ -41,7 +44,7 @@ def _relations(args: argparse.Namespace) -> dict:
 
     traj = read_tum(args.trajectory)
     relations = read_relations(args.relations)
-    result = relations_error(traj, relations).as_dict()
+    result = relations_error(traj, relations, skip_unmatched=args.skip_unmatched).as_dict()
     return {"trajectory": str(args.trajectory), "relations": str(args.relations), **result}
 
 

@@ -1,7 +1,8 @@
 """Run the study: every notebooks/NN-name.ipynb executed by papermill into reports/ (executed notebook,
 HTML report, figures, metrics.json, rerun recordings) and reports/index.html listing them all with their
 headline numbers beside the paper's. A failing notebook does not stop the others; the command exits 1 when
-any notebook failed."""
+any notebook failed. A notebook's previous report is replaced only by a complete new one (an interrupted run
+leaves it as it was), and two batches into the same folder keep each other's entries in the index."""
 
 from __future__ import annotations
 
@@ -72,11 +73,13 @@ def _list(notebooks_dir, only) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..io import prepare_output_dir
     from ..study.batch import load_parameters_file, parse_value, run_notebooks
 
     notebooks_dir = _notebooks_dir(args.notebooks)
     if args.list:
         return _list(notebooks_dir, args.only)
+    prepare_output_dir(args.out, "--out", create=False)
     common, per = ({}, {})
     if args.parameters_file:
         common, per = load_parameters_file(args.parameters_file)

@@ -28,50 +28,68 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--steps", action="store_true", help="also write steps.png (a panel per step)")
 
 
+#: The files ``hsmap segment`` writes into --out.
+OUTPUTS = ("rooms.png", "doors.json", "topology.json", "topology.graphml", "topology.txt", "segmentation.png",
+           "segmentation_config.yaml", "steps.png")
+
+
 def run(args: argparse.Namespace) -> int:
     import dataclasses
+    import warnings
     from pathlib import Path
 
     from PIL import Image
 
     from ..config import dump_config, load_config
-    from ..errors import InputError
+    from ..errors import HsmapWarning, InputError
     from ..grid import read_map, write_label_image
-    from ..io import atomic_path, write_json
-    from ..segmentation import SegmentationConfig, segment_rooms
+    from ..io import atomic_path, prepare_output_dir, staged_outputs, sweep_stale_temporaries, write_json
+    from ..segmentation import SegmentationConfig, check_scale, segment_rooms
     from ..topology import room_graph, topology_listing, write_topology
     from ..viz.colors import label_overlay
 
-    if args.resolution is not None and not args.resolution > 0:
-        raise InputError(f"--resolution must be > 0 metres per pixel, got {args.resolution}")
+    if args.resolution is not None and not (args.resolution > 0 and args.resolution < float("inf")):
+        raise InputError(f"--resolution must be a finite number > 0 of metres per pixel, got {args.resolution}")
     cfg = load_config(SegmentationConfig, args.config) if args.config else SegmentationConfig()
     if args.method:
         cfg = dataclasses.replace(cfg, method=args.method)
     if args.furniture:
         cfg = dataclasses.replace(cfg, assign_furniture=True)
+    out = prepare_output_dir(args.out, "--out", create=False)
     grid = read_map(args.map, args.resolution)
+    try:
+        check_scale(grid.free, grid.geometry.resolution, cfg)
+    except InputError as exc:
+        src = "--resolution" if args.resolution is not None else (
+            f"{args.map}: 'resolution'" if Path(args.map).suffix.lower() in (".yaml", ".yml")
+            else "the default resolution 0.05 (set it with --resolution)")
+        raise InputError(f"{src}: {exc}") from None
     seg = segment_rooms(grid, config=cfg, keep_steps=args.steps)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    write_label_image(out / "rooms.png", seg.labels)
-    write_json(out / "doors.json", {
-        "map": str(args.map),
-        "frame": "map (world x, y in metres; map_server origin convention)",
-        "resolution": grid.geometry.resolution,
-        "origin": list(grid.geometry.origin),
-        "doors": [d.as_dict() for d in seg.doors],
-    })
+    if seg.n_rooms == 0:
+        warnings.warn(f"{args.map}: no room found (free space {int(grid.free.sum())} pixels at "
+                      f"{grid.geometry.resolution:g} m/pixel); is the map or its resolution right?", HsmapWarning,
+                      stacklevel=2)
     g = room_graph(seg)
-    write_topology(g, out)
-    with atomic_path(out / "segmentation.png") as tmp:
-        Image.fromarray(label_overlay(seg.labels, grid.free, doors=seg.doors)).save(tmp, format="PNG")
-    dump_config(cfg, out / "segmentation_config.yaml")
-    if args.steps:
-        from ..viz.map_figures import voronoi_steps_figure
+    sweep_stale_temporaries(out, OUTPUTS)
+    with staged_outputs(out) as stage:
+        write_label_image(stage / "rooms.png", seg.labels)
+        write_json(stage / "doors.json", {
+            "map": str(args.map),
+            "frame": "map (world x, y in metres; map_server origin convention)",
+            "resolution": grid.geometry.resolution,
+            "origin": list(grid.geometry.origin),
+            "doors": [d.as_dict() for d in seg.doors],
+        })
+        write_topology(g, stage)
+        with atomic_path(stage / "segmentation.png") as tmp:
+            Image.fromarray(label_overlay(seg.labels, grid.free, doors=seg.doors)).save(tmp, format="PNG")
+        dump_config(cfg, stage / "segmentation_config.yaml")
+        if args.steps:
+            from ..viz.map_figures import voronoi_steps_figure
 
-        fig = voronoi_steps_figure(grid, seg, title=Path(args.map).name)
-        with atomic_path(out / "steps.png") as tmp:
-            fig.savefig(tmp, dpi=110)
+            fig = voronoi_steps_figure(grid, seg, title=Path(args.map).name)
+            with atomic_path(stage / "steps.png") as tmp:
+                fig.savefig(tmp, dpi=110)
     print(topology_listing(g), end="")
     print(f"wrote {out}/rooms.png, doors.json, topology.json, topology.graphml, segmentation.png")
     return 0

@@ -59,6 +59,9 @@ def run(args: argparse.Namespace) -> int:
         from ..study.paths import generated_dir
 
         args.out = generated_dir() / scn.name
+    from ..io import prepare_output_dir
+
+    prepare_output_dir(args.out, "--out", create=False)
     summary = simulate(scn, args.out, args.seed, max_frames=args.max_frames,
                        label_resolution=args.label_resolution, figures=args.figures)
     print(json.dumps(summary.as_dict(), indent=2))

@@ -1,14 +1,19 @@
 """Run HS-SLAM on a simulator folder, a ROS1/ROS2 bag, a CARMEN log or a folder of point clouds.
 
 Writes into --out: trajectory.tum (stamps = the input's scan stamps), map.ply, metrics.json (per-scan time,
-fitness, inlier ratio; totals; peak memory), config.yaml (the effective configuration) and slam.rrd (a rerun
-recording: robot pose, scans and the growing map on a `scan` timeline; in 3-DOF also the final occupancy grid
-in its 2D map view). With --dof 6 the frames are the 3D clouds (a 2D LiDAR usually runs faster: its nearest scan
-within --sync-tolerance is attached), and --prior's 2D poses are interpolated at each cloud's stamp; a prior
-that gives no cloud a pose is an error, one that gives some is warned about, and metrics.json records its
-coverage. metrics.json also records what was read (input_info: topics, message counts, rates, frames, the
-sensor offsets and where each came from, warnings such as a missing transform). Every file is written atomically
-and metrics.json last, so an interrupted run leaves no output that looks complete.
+fitness, inlier ratio; totals; peak memory; skipped frames), config.yaml (the effective configuration) and
+slam.rrd (a rerun recording: robot pose, scans and the growing map on a `scan` timeline; in 3-DOF also the
+final occupancy grid in its 2D map view). With --dof 6 the frames are the 3D clouds (a 2D LiDAR usually runs
+faster: its nearest scan within --sync-tolerance is attached), and --prior's 2D poses are interpolated at each
+cloud's stamp; a prior that gives no cloud a pose is an error, one that gives some is warned about, and
+metrics.json records its coverage. metrics.json also records what was read (input_info: topics, message counts, rates, frames, the
+sensor offsets and where each came from, warnings such as a missing transform). A frame whose scan (cloud) is
+missing or has too few usable points is skipped with a warning and counted (--strict stops instead).
+
+--out is checked before the long work starts (a folder, or creatable, and writable). The outputs are written
+into a hidden staging folder inside --out and moved into place together when all of them are complete
+(metrics.json last), so a failed or interrupted run leaves the previous run's files as they were; a killed
+run's leftovers are removed by the next run into the same folder.
 """
 
 from __future__ import annotations
@@ -16,7 +21,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
 
 from .inputs import parse_vector  # noqa: F401  (its home was here)
 
@@ -30,7 +34,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("input", help=INPUT_HELP)
     parser.add_argument("--out", required=True, help="output folder")
     parser.add_argument("--dof", type=int, choices=(3, 6), help="3: 2D scans, 6: 3D clouds (default: the config's, 3)")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument("--seed", type=int, default=0, help="random seed, >= 0 (default 0)")
     parser.add_argument("--config", help="YAML file of SlamConfig fields (see config.yaml of any run)")
     parser.add_argument("--no-odometry", action="store_true", help="ignore the input's odometry (no odometry seed)")
     parser.add_argument("--prior", help="6-DOF: a TUM trajectory of a 2D run whose poses, interpolated at each "
@@ -40,7 +44,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-loop-closure", action="store_true",
                         help="track only: no pose graph, no loop closure (one global tracking map)")
     parser.add_argument("--no-recording", action="store_true", help="do not write slam.rrd")
+    parser.add_argument("--strict", action="store_true",
+                        help="stop at the first frame whose scan or cloud is missing or has too few usable points "
+                             "(default: skip it with a warning and count it in metrics.json)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+
+
+#: The files ``hsmap slam`` writes into --out (their stale temporaries are removed by the next run).
+OUTPUTS = ("trajectory.tum", "map.ply", "config.yaml", "metrics.json", "slam.rrd")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -48,9 +59,12 @@ def run(args: argparse.Namespace) -> int:
 
     from ..config import load_config
     from ..errors import InputError
+    from ..io import prepare_output_dir, staged_outputs, sweep_stale_temporaries
     from ..slam import SlamConfig, run_slam, write_slam_outputs
     from ..trajectory import read_tum
 
+    if args.seed < 0:
+        raise InputError(f"--seed must be >= 0, got {args.seed}")
     cfg = load_config(SlamConfig, args.config) if args.config else SlamConfig()
     if args.dof is not None:
         cfg = dataclasses.replace(cfg, dof=args.dof)  # validated like any SlamConfig
@@ -65,56 +79,56 @@ def run(args: argparse.Namespace) -> int:
     if args.max_frames is not None and args.max_frames < 1:
         raise InputError(f"--max-frames must be >= 1, got {args.max_frames}")
     prior = read_tum(args.prior) if args.prior else None
+    if prior is not None and cfg.dof != 6:
+        raise InputError("--prior seeds 6-DOF runs only (--dof 6)")
+    out = prepare_output_dir(args.out, "--out", create=False)  # before the long work: a bad folder is reported now
     dataset = open_input(args, drive="cloud" if cfg.dof == 6 else "scan", progress=False if args.quiet else None)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "metrics.json").unlink(missing_ok=True)  # the marker of a complete folder goes first
+    sweep_stale_temporaries(out, OUTPUTS)  # left by a killed run
 
-    rec = None
-    on_frame = None
-    if not args.no_recording:
-        from ..viz import rerun as hv
-
-        # a 2D map view only where there is a 2D map: the occupancy grid of a 3-DOF run, logged at the end
-        rec = hv.open_recording(out / "slam.rrd", application_id="hsmap_slam",
-                                blueprint=hv.default_blueprint(graph=False, map2d=cfg.dof == 3, legend=True))
-        hv.log_legend(rec, _legend(cfg.dof))
-        map_logger = hv.PointMapLogger(rec, block=10, voxel=0.05 if cfg.dof == 3 else 0.15)
-
-        keyscans: list = []  # 3-DOF: the keyframes' scans, for the grid at their final poses
-
-        def on_frame(frame, result, slam):
-            hv.log_frame(rec, frame, result.pose, cloud_voxel=0.25)
-            if result.keyframe and cfg.dof == 3:
-                keyscans.append(frame)
-            if result.keyframe:
-                from ..geometry import pose_to_matrix, transform_points
-                from ..slam import frame_points
-
-                pts = frame_points(frame, cfg.dof, cfg.min_range, cfg.max_range)
-                map_logger.add(transform_points(pose_to_matrix(result.pose), pts))
-
-    try:
-        result = run_slam(dataset, cfg, rng=args.seed, prior=prior, max_frames=args.max_frames,
-                          progress=False if args.quiet else None, on_frame=on_frame,
-                          prior_name=f"--prior {args.prior}")
-        if rec is not None:
-            map_logger.flush()
+    with staged_outputs(out, last="metrics.json") as stage:
+        rec = None
+        on_frame = None
+        if not args.no_recording:
             from ..viz import rerun as hv
 
-            _log_replay(rec, keyscans, result)
-    except BaseException:
+            # a 2D map view only where there is a 2D map: the occupancy grid of a 3-DOF run, logged at the end
+            rec = hv.open_recording(stage / "slam.rrd", application_id="hsmap_slam",
+                                    blueprint=hv.default_blueprint(graph=False, map2d=cfg.dof == 3, legend=True))
+            hv.log_legend(rec, _legend(cfg.dof))
+            map_logger = hv.PointMapLogger(rec, block=10, voxel=0.05 if cfg.dof == 3 else 0.15)
+
+            keyscans: list = []  # 3-DOF: the keyframes' scans, for the grid at their final poses
+
+            def on_frame(frame, result, slam):
+                hv.log_frame(rec, frame, result.pose, cloud_voxel=0.25)
+                if result.keyframe and cfg.dof == 3:
+                    keyscans.append(frame)
+                if result.keyframe:
+                    from ..geometry import pose_to_matrix, transform_points
+                    from ..slam import frame_points
+
+                    pts = frame_points(frame, cfg.dof, cfg.min_range, cfg.max_range)
+                    map_logger.add(transform_points(pose_to_matrix(result.pose), pts))
+
+        try:
+            result = run_slam(dataset, cfg, rng=args.seed, prior=prior, max_frames=args.max_frames,
+                              progress=False if args.quiet else None, on_frame=on_frame,
+                              prior_name=f"--prior {args.prior}", strict=args.strict)
+            if rec is not None:
+                map_logger.flush()
+                _log_replay(rec, keyscans, result)
+        except BaseException:
+            if rec is not None:
+                rec.abort()
+            raise
         if rec is not None:
-            rec.abort()
-        raise
-    if rec is not None:
-        rec.close()
-    write_slam_outputs(result, out)
+            rec.close()
+        write_slam_outputs(result, stage)
     if not args.quiet:
         m = result.metrics()
-        summary = {k: m[k] for k in ("input", "dof", "frames", "keyframes", "map_points", "seconds_total",
-                                     "seconds_per_frame_median", "real_time_factor", "peak_memory_mb",
-                                     "loop_closure", "loops_closed", "frames_retried")}
+        summary = {k: m[k] for k in ("input", "dof", "frames", "skipped_frames", "keyframes", "map_points",
+                                     "seconds_total", "seconds_per_frame_median", "real_time_factor",
+                                     "peak_memory_mb", "loop_closure", "loops_closed", "frames_retried")}
         json.dump(summary, sys.stderr, indent=2)
         sys.stderr.write(f"\nwrote {out}/{{trajectory.tum, map.ply, metrics.json, config.yaml"
                          f"{'' if args.no_recording else ', slam.rrd'}}}\n")

@@ -210,6 +210,9 @@ class CarmenDataset(Dataset):
         o = 10 + n + m
         tail = _finite(self._floats(parts[o : o + 12], p, lineno, kind), p, lineno, kind)
         _finite(head[[1, 2, 3]], p, lineno, kind)
+        if head[3] == 0 or abs(head[3]) * max(n - 1, 0) > 2 * math.pi + 1e-3:
+            raise DataFormatError(f"{p}:{lineno}: {kind}: angular_resolution is {head[3]!r}; expected a non-zero "
+                                  f"angle step (radians) with which its {n} beams span at most a full turn")
         # head: type start_angle fov ang_res max_range accuracy remission_mode
         return float(tail[11]), ranges, head, tail[0:3], tail[3:6]
 
@@ -219,9 +222,12 @@ class CarmenDataset(Dataset):
         if v is None:
             return None
         try:
-            return float(v)
+            x = float(v)
         except ValueError:
             raise DataFormatError(f"{self.path}: PARAM {name} is not a number: {v!r}") from None
+        if not math.isfinite(x):
+            raise DataFormatError(f"{self.path}: PARAM {name} is {v!r}; expected a finite number")
+        return x
 
     def _build_flaser(self, rows: list, laser_offset: float | None, fov_deg: float | None) -> None:
         side = LASER_MESSAGES[self.message]
@@ -234,7 +240,11 @@ class CarmenDataset(Dataset):
         self.extrinsic_sources["2d"] = ("laser_offset" if laser_offset is not None else
                                         f"PARAM robot_{side}laser_offset" if off is not None else "default")
         fov = fov_deg if fov_deg is not None else self._param(f"laser_{side}_laser_fov")
-        self.fov = math.radians(fov if fov is not None else 180.0)
+        fov = 180.0 if fov is None else fov
+        if not (math.isfinite(fov) and 0 < fov <= 360):
+            what = "fov_deg" if fov_deg is not None else f"{self.path}: PARAM laser_{side}_laser_fov"
+            raise DataFormatError(f"{what} is {fov!r}; expected a field of view in (0, 360] degrees")
+        self.fov = math.radians(fov)
         max_range = self._param(f"robot_{side}_laser_max")
         self._geometry = [(-self.fov / 2.0, self.fov, max_range if max_range else np.inf)] * len(rows)
         self._extrinsics = None

@@ -84,7 +84,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import DataFormatError, DatasetError, InputError
+from ..errors import DataFormatError, DatasetError, HsmapWarning, InputError
 from ..geometry import invert_matrix, matrix_to_pose, quaternion_to_matrix, wrap_angle
 from ..trajectory import Trajectory, nearest_index
 from .frames import SOURCE_DEFAULT, Dataset, Frame, LaserScan2D
@@ -233,6 +233,33 @@ def _ros1_odom(raw) -> tuple[int, float, str, tuple[float, float, float]]:
     return seq, stamp, child, (x, y, yaw)
 
 
+def _check_scan_geometry(geom: tuple[float, float, float, float], n: int, where: str) -> None:
+    """Reject LaserScan geometry that cannot be right: it would put the beams at wrong angles or keep impossible
+    (negative) ranges, giving a wrong map without any other sign.
+
+    Raises
+    ------
+    DataFormatError
+        Naming ``where`` (file, topic, message), the field and what was expected.
+    """
+    amin, inc, rmin, rmax = geom
+
+    def bad(field: str, value: float, expected: str) -> DataFormatError:
+        return DataFormatError(f"{where}: LaserScan {field} is {value!r}; expected {expected}")
+
+    if not math.isfinite(amin):
+        raise bad("angle_min", amin, "a finite angle (radians)")
+    if not math.isfinite(inc) or inc == 0.0:
+        raise bad("angle_increment", inc, "a finite, non-zero angle step (radians) between beams")
+    if n > 1 and abs(inc) * (n - 1) > 2 * math.pi + 1e-3:
+        raise bad("angle_increment", inc, f"at most 2 pi / {n - 1} rad: its {n} beams would span "
+                                          f"{abs(inc) * (n - 1):.3f} rad, more than a full turn")
+    if not math.isfinite(rmin) or rmin < 0:
+        raise bad("range_min", rmin, "a finite distance >= 0 (metres): ranges are never negative")
+    if math.isnan(rmax) or rmax <= rmin:
+        raise bad("range_max", rmax, f"a distance (metres) above range_min ({rmin!r})")
+
+
 def _stamp(header) -> float:
     return float(header.stamp.sec) + float(header.stamp.nanosec) * 1e-9
 
@@ -241,11 +268,16 @@ def _frame_id(name: str) -> str:
     return name.lstrip("/")
 
 
-def _transform_matrix(tf) -> NDArray[np.float64]:
+def _transform_matrix(tf, where: str = "transform") -> NDArray[np.float64]:
     t, q = tf.translation, tf.rotation
     T = np.eye(4)
-    T[:3, :3] = quaternion_to_matrix([q.x, q.y, q.z, q.w])
+    try:
+        T[:3, :3] = quaternion_to_matrix([q.x, q.y, q.z, q.w])
+    except InputError as exc:
+        raise DataFormatError(f"{where}: rotation {exc}") from None
     T[:3, 3] = [t.x, t.y, t.z]
+    if not np.all(np.isfinite(T)):
+        raise DataFormatError(f"{where}: translation {[t.x, t.y, t.z]} is not finite")
     return T
 
 
@@ -506,7 +538,8 @@ class RosbagDataset(Dataset):
         if conns:
             for c, _, raw in self._messages(reader, conns):
                 for t in self._deserialize(reader, raw, c).transforms:
-                    tf.add(t.header.frame_id, t.child_frame_id, _transform_matrix(t.transform))
+                    where = f"{self.path}: {c.topic} transform {t.header.frame_id} -> {t.child_frame_id}"
+                    tf.add(t.header.frame_id, t.child_frame_id, _transform_matrix(t.transform, where))
         return tf
 
     def _read(self, reader) -> None:
@@ -520,6 +553,8 @@ class RosbagDataset(Dataset):
         odom: list[tuple[float, float, float, float]] = []
         self._odom_child = None
         fast = {id(c) for c in scan_c + odom_c if c.digest in (_ROS1_SCAN_MD5, _ROS1_ODOM_MD5)}
+        checked: set = set()  # scan geometries found sound
+        bad_odom = 0
         from tqdm.auto import tqdm
 
         total = sum(int(c.msgcount) for c in scan_c + cloud_c + odom_c)
@@ -552,6 +587,10 @@ class RosbagDataset(Dataset):
                     pose = (p.x, p.y, yaw)
                     frame = msg.child_frame_id
             if is_scan:
+                if (geom, len(ranges)) not in checked:
+                    _check_scan_geometry(geom, len(ranges), f"{self.path}: {c.topic} message {len(scans['stamp'])} "
+                                                            f"(stamp {stamp:.6f})")
+                    checked.add((geom, len(ranges)))
                 scans["stamp"].append(stamp)
                 scans["seq"].append(seq)
                 scans["frame"].append(frame)
@@ -562,10 +601,18 @@ class RosbagDataset(Dataset):
                 clouds["seq"].append(seq)
                 clouds["frame"].append(frame)
             else:
+                if not all(math.isfinite(v) for v in (stamp, *pose)):
+                    bad_odom += 1
+                    continue
                 odom.append((stamp, *pose))
                 if self._odom_child is None:
                     self._odom_child = frame
         bar.close()
+        if bad_odom:
+            import warnings
+
+            warnings.warn(f"{self.path}: {bad_odom} {self.odom_topic} message(s) have a non-finite pose or stamp and "
+                          "are ignored", HsmapWarning, stacklevel=3)
         if self.scan_topic and not scans["stamp"]:
             raise DatasetError(f"{self.path}: topic {self.scan_topic!r} has no messages")
         if self.cloud_topic and not clouds["stamp"]:
@@ -652,7 +699,8 @@ class RosbagDataset(Dataset):
             for t in self._deserialize(reader, raw, c).transforms:
                 child = _frame_id(t.child_frame_id)
                 if child != base and child not in tf.parent:
-                    tf.add(t.header.frame_id, child, _transform_matrix(t.transform))
+                    where = f"{self.path}: {c.topic} transform {t.header.frame_id} -> {t.child_frame_id}"
+                    tf.add(t.header.frame_id, child, _transform_matrix(t.transform, where))
                     added = True
             if added and all(f == base or tf.lookup(base, f) is not None for f in sensors):
                 return

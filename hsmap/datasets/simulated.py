@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import json
 import os
+import zipfile
+import zlib
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -28,6 +30,24 @@ FORMAT = "hsmap-simulated-dataset"
 FORMAT_VERSION = 1
 SUPPORTED_VERSIONS = (1,)
 RANGE_UNIT = 0.001  # metres per count in stored 3D range images
+
+
+def _load_npz(path: Path, names: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """The arrays ``names`` of an ``.npz`` file; a damaged (truncated, corrupted) file raises
+    :class:`DataFormatError` naming it, a missing one :class:`DatasetError`."""
+    if not path.is_file():
+        raise DatasetError(f"{path}: missing (the dataset folder is damaged)")
+    try:
+        with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as z:  # our handle: closed if np.load fails
+            missing = [n for n in names if n not in z.files]
+            if missing:
+                raise DataFormatError(f"{path}: missing array(s) {missing} (the file is damaged)")
+            return {n: np.asarray(z[n]) for n in names}
+    except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError) as exc:
+        if isinstance(exc, DataFormatError):
+            raise
+        raise DataFormatError(f"{path}: damaged or truncated ({type(exc).__name__}: {exc}); simulate the dataset "
+                              "again") from None
 
 
 def is_simulated_dataset(path: str | os.PathLike) -> bool:
@@ -74,8 +94,10 @@ class SimulatedDataset(Dataset):
                                "the simulation did not finish); run `hsmap simulate` again")
         try:
             meta = yaml.safe_load(meta_path.read_text(encoding="utf-8"))
-        except yaml.YAMLError as exc:
-            raise DataFormatError(f"{meta_path}: not valid YAML: {exc}") from None
+        except (yaml.YAMLError, UnicodeDecodeError) as exc:
+            raise DataFormatError(f"{meta_path}: not valid YAML: {' '.join(str(exc).split())}") from None
+        except OSError as exc:
+            raise DatasetError(f"{meta_path}: cannot read it ({exc.strerror})") from None
         if not isinstance(meta, dict) or meta.get("format") != FORMAT:
             raise DataFormatError(f"{meta_path}: not a simulated dataset description (format must be {FORMAT!r})")
         if meta.get("format_version") not in SUPPORTED_VERSIONS:
@@ -84,26 +106,27 @@ class SimulatedDataset(Dataset):
         self.root = root
         self.meta = meta
         self.name = str(meta.get("scenario", root.name))
-        self.sensors = meta["sensors"]
+        self.sensors = meta.get("sensors")
         try:
             self.extrinsic2d = np.asarray(self.sensors["lidar2d"]["extrinsic"], dtype=float).reshape(3)
             self.extrinsic3d = np.asarray(self.sensors["lidar3d"]["extrinsic"], dtype=float).reshape(6)
             s3 = self.sensors["lidar3d"]
             self._shape3d = (int(s3["channels"]), int(s3["columns"]))
+            s2 = self.sensors["lidar2d"]
+            for key in ("range_min", "range_max"):
+                float(s2[key])
             self.extrinsic_sources.update({"2d": "dataset.yaml", "3d": "dataset.yaml"})
         except (KeyError, TypeError, ValueError) as exc:
             raise DataFormatError(f"{meta_path}: bad sensor description: {exc}") from None
         scans = root / "scans2d.npz"
-        if not scans.is_file():
-            raise DatasetError(f"{scans}: missing (the dataset folder is damaged)")
-        with np.load(scans) as z:
-            try:
-                self.stamps = np.asarray(z["stamps"], dtype=float)
-                self._ranges = np.asarray(z["ranges"])
-                self.angles = np.asarray(z["angles"], dtype=float)
-            except KeyError as exc:
-                raise DataFormatError(f"{scans}: missing array {exc}") from None
-        n = int(meta.get("frames", len(self.stamps)))
+        z = _load_npz(scans, ("stamps", "ranges", "angles"))
+        try:
+            self.stamps = np.asarray(z["stamps"], dtype=float).reshape(-1)
+            self._ranges = np.asarray(z["ranges"])
+            self.angles = np.asarray(z["angles"], dtype=float).reshape(-1)
+            n = int(meta.get("frames", len(self.stamps)))
+        except (TypeError, ValueError) as exc:
+            raise DataFormatError(f"{scans}: unexpected contents ({exc})") from None
         if self._ranges.shape != (n, len(self.angles)) or len(self.stamps) != n:
             raise DataFormatError(f"{scans}: expected {n} scans of {len(self.angles)} beams, got ranges "
                                   f"{self._ranges.shape} and {len(self.stamps)} stamps")
@@ -146,10 +169,7 @@ class SimulatedDataset(Dataset):
         if not 0 <= index < len(self):
             raise IndexError(f"frame {index} out of range 0..{len(self) - 1}")
         p = self.root / "clouds3d" / f"{index:06d}.npz"
-        if not p.is_file():
-            raise DatasetError(f"{p}: missing 3D frame (the dataset folder is damaged)")
-        with np.load(p) as z:
-            img = z["range_mm"]
+        img = _load_npz(p, ("range_mm",))["range_mm"]
         if img.shape != self._shape3d or img.dtype != np.uint16:
             raise DataFormatError(f"{p}: expected a {self._shape3d} uint16 range image, got {img.shape} {img.dtype}")
         return img

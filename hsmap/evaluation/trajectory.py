@@ -576,7 +576,8 @@ def relations_error(
             f"{int((~used).sum())} of {len(relations)} relations could not be matched to the trajectory: "
             f"{len(bad_stamps)} relation stamps lie outside its stamp range [{ts[0]:.6f}, {ts[-1]:.6f}] "
             f"(relations span [{rel_all.min():.6f}, {rel_all.max():.6f}])"
-            + ("" if skip_unmatched or not used.any() else "; skip_unmatched=True scores the others")
+            + ("" if skip_unmatched or not used.any() else "; skip_unmatched=True (hsmap evaluate relations "
+               "--skip-unmatched) scores the others")
         )
     R = pose_to_matrix(relations.poses[used])
     E = invert_matrix(Pi[used]) @ Pj[used] @ invert_matrix(R)

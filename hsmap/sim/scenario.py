@@ -545,7 +545,9 @@ def load_scenario(path: str | os.PathLike, check: bool = True) -> Scenario:
     try:
         data = yaml.safe_load(text.decode("utf-8"))
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise ScenarioError(f"{path}: not valid YAML: {exc}") from None
+        from ..config import yaml_error_text
+
+        raise ScenarioError(f"{path}: not valid YAML: {yaml_error_text(exc)}") from None
     scn = parse_scenario(data, str(path), check=check)
     scn.sha256 = hashlib.sha256(text).hexdigest()
     return scn

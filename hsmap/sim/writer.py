@@ -32,7 +32,7 @@ from .. import __version__
 from ..config import to_dict
 from ..datasets.simulated import FORMAT, FORMAT_VERSION, encode_range_image, range_image_to_points
 from ..errors import DatasetError, ScenarioError
-from ..io import atomic_path, write_json, write_text
+from ..io import atomic_path, sweep_stale_temporaries, write_json, write_text
 from ..trajectory import Trajectory, write_tum
 from . import layout
 from .catalog import resolve_scenario
@@ -162,6 +162,8 @@ def simulate(scenario: Scenario | str | os.PathLike, out: str | os.PathLike, see
         raise DatasetError(f"{out}: exists and is not a folder")
     out.mkdir(parents=True, exist_ok=True)
     (out / "dataset.yaml").unlink(missing_ok=True)  # incomplete from now on
+    sweep_stale_temporaries(out, [*FILE_DESCRIPTIONS, "figures"])  # left by a killed run
+    sweep_stale_temporaries(out / "clouds3d")
     timings: dict[str, float] = {}
 
     t = time.perf_counter()

@@ -17,9 +17,17 @@ data (run hsmap data fetch)"); a skipped notebook does not fail the batch. The b
 Each notebook gets the parameters ``quick`` (bool) and ``out_dir`` (the reports folder, absolute) plus any
 overrides, runs in a fresh kernel of the current interpreter (with ``RERUN_ANALYTICS=0`` and
 ``$HSMAP_NOTEBOOK`` = NAME) with the notebook's folder as working directory. A notebook that fails does not
-stop the others; :func:`run_notebooks` reports it and the command exits non-zero at the end. Every file is
-written atomically, and a notebook's previous outputs are removed before it runs, so nothing stale or
-half-written can pass for a result. Recordings are checked with ``rerun rrd verify``.
+stop the others; :func:`run_notebooks` reports it and the command exits non-zero at the end. Recordings are
+checked with ``rerun rrd verify``.
+
+A notebook runs into a hidden, locked staging folder of the reports folder (its ``out_dir`` parameter points
+there) and its report replaces the previous one, as a whole, only once it is complete (ok or failed): an
+interrupted run (Ctrl-C) or a broken machine leaves the previous report as it was, and nothing of an older run
+survives beside a newer one. A killed batch's staging folders are removed by the next batch. The index is
+rewritten under the reports folder's lock, merged with what concurrent batches wrote (two ``hsmap
+reproduce`` at once keep each other's entries). Kernels run with their stderr in ``NAME/kernel-stderr.txt``
+(kept when not empty) and are shut down without the interrupt that made them log errors; Ctrl-C ends the batch
+with one line.
 """
 
 from __future__ import annotations
@@ -44,8 +52,8 @@ from pathlib import Path
 from typing import Any
 
 from .. import __version__
-from ..errors import ConfigError, DependencyError, InputError
-from ..io import write_json, write_text
+from ..errors import ConfigError, DependencyError, InputError, OutputError
+from ..io import atomic_open, write_json, write_text
 from .report import NOTEBOOK_ENV, read_metrics
 
 __all__ = [
@@ -264,6 +272,7 @@ class NotebookRun:
     recordings: list[str] = field(default_factory=list)
     metrics: dict[str, Any] | None = None
     warnings: list[str] = field(default_factory=list)
+    pid: int | None = None  # of the batch that has it pending or running (a dead one's entry is stale)
 
     @property
     def ok(self) -> bool:
@@ -283,15 +292,70 @@ def _now() -> str:
     return dt.datetime.now().astimezone().isoformat(timespec="seconds")
 
 
-def _clear_previous(out_dir: Path, name: str) -> None:
-    """Remove a notebook's outputs of an earlier run, so that none of them can pass for this run's."""
-    folder = out_dir / name
-    if folder.is_symlink() or folder.is_file():
-        folder.unlink()
-    elif folder.is_dir():
-        shutil.rmtree(folder)
-    for suffix in (".html", ".ipynb"):
-        (out_dir / f"{name}{suffix}").unlink(missing_ok=True)
+def _staging_prefix(name: str) -> str:
+    """Prefix of the hidden staging folders of notebook ``name`` in the reports folder."""
+    from ..io import STAGING_PREFIX
+
+    return f"{STAGING_PREFIX}{name}-"
+
+
+def _publish(stage: Path, out_dir: Path, name: str) -> None:
+    """Replace the notebook's report in ``out_dir`` (``NAME/``, ``NAME.ipynb``, ``NAME.html``) by the complete
+    one in ``stage``, under the reports folder's lock (a concurrent batch publishing the same notebook waits).
+
+    The previous folder is moved aside (into ``stage``, deleted with it) and the new one renamed into place; the
+    two files are replaced by renames. Nothing of the old run survives beside the new one.
+    """
+    from ..io import folder_lock
+
+    old, aside = out_dir / name, stage / ".previous"
+    with folder_lock(out_dir):
+        moved = False
+        if old.is_symlink() or old.is_file():
+            old.unlink()
+        elif old.exists():
+            os.rename(old, aside)
+            moved = True
+        try:
+            os.rename(stage / name, old)
+        except OSError:
+            if moved:
+                os.rename(aside, old)
+            raise
+        for suffix in (".ipynb", ".html"):
+            os.replace(stage / f"{name}{suffix}", out_dir / f"{name}{suffix}")
+
+
+def _kernel_manager_class(stderr_path: Path):
+    """The batch's kernel manager: a kernel's stderr goes to ``stderr_path`` (the report keeps it when it is not
+    empty) instead of the terminal, and shutting a kernel down does not interrupt it first: jupyter_client sends
+    SIGINT before its shutdown request, which a kernel between two messages reports as "[IPKernelApp] ERROR |
+    KeyboardInterrupt caught in kernel." after every notebook, and one whose parent was interrupted answers with
+    a ZMQ traceback."""
+    from jupyter_client.manager import AsyncKernelManager
+
+    class BatchKernelManager(AsyncKernelManager):
+        async def _async_interrupt_kernel(self) -> None:
+            if self.shutting_down:
+                return
+            await super()._async_interrupt_kernel()
+
+        async def _async_launch_kernel(self, kernel_cmd, **kw):
+            with open(stderr_path, "ab") as err:  # the kernel gets its own copy of the descriptor
+                kw["stderr"] = err
+                await super()._async_launch_kernel(kernel_cmd, **kw)
+
+    return BatchKernelManager
+
+
+def _retarget(nb: Any, stage: Path, out_dir: Path) -> Any:
+    """The executed notebook with the staging folder's path replaced by the reports folder's (the injected
+    ``out_dir`` parameter, any printed path)."""
+    import nbformat
+
+    text = nbformat.writes(nb)
+    old, new = json.dumps(str(stage))[1:-1], json.dumps(str(out_dir))[1:-1]
+    return nbformat.reads(text.replace(old, new), as_version=4) if old in text else nb
 
 
 def _died_at_start(exc: BaseException) -> bool:
@@ -432,7 +496,7 @@ def _sweep_temporaries(folder: Path) -> list[str]:
     return left
 
 
-def _open_recordings_in_viewer(run: NotebookRun, out_dir: Path) -> None:
+def _open_recordings_in_viewer(run: NotebookRun, folder: Path) -> None:
     """Open each recording in the headless viewer (where a graphics stack allows): a view that reports an
     error, or that should show something and is empty, fails the notebook. Where the viewer cannot run, the
     run says so in its warnings."""
@@ -451,7 +515,7 @@ def _open_recordings_in_viewer(run: NotebookRun, out_dir: Path) -> None:
     with viewer:
         for rel in run.recordings:
             try:
-                check = viewer.screenshots(out_dir / rel, None, positions=("end",))
+                check = viewer.screenshots(folder / rel, None, positions=("end",))
                 errors = check.errors
             except Exception as exc:  # noqa: BLE001 - a recording the viewer cannot open fails the notebook
                 errors = [f"{type(exc).__name__}: {exc}"]
@@ -481,23 +545,27 @@ def execute_notebook(
     import nbformat
     import papermill
 
+    from ..io import locked_staging_folder
+
     out_dir = Path(out_dir).resolve()
     out_dir.mkdir(parents=True, exist_ok=True)
     run = NotebookRun(name=spec.name, notebook=str(spec.path), title=spec.title(), status="running",
                       started=_now(), parameters=dict(parameters))
-    _clear_previous(out_dir, spec.name)
-    folder = out_dir / spec.name
-    fd, tmp = tempfile.mkstemp(prefix=f".{spec.name}.", suffix=".running.ipynb", dir=out_dir)
-    os.close(fd)
-    tmp_ipynb = Path(tmp)
+    # everything is written into a locked staging folder and published when complete: an interrupted or broken
+    # run leaves the previous report as it was, and a killed one leaves a folder the next batch removes
+    lock_fd, stage = locked_staging_folder(out_dir, _staging_prefix(spec.name))
+    folder = stage / spec.name
+    tmp_ipynb = stage / f"{spec.name}.ipynb"
+    kernel_log = stage / "kernel-stderr.txt"
+    staged_parameters = {**parameters, "out_dir": str(stage)} if "out_dir" in parameters else dict(parameters)
     try:
         t0 = time.perf_counter()
         for attempt in (1, 2):
             try:
                 papermill.execute_notebook(
-                    str(spec.path), str(tmp_ipynb), parameters=dict(parameters), kernel_name=kernel_name,
-                    language="python",
-                    cwd=str(spec.path.parent), progress_bar=False, log_output=False, execution_timeout=timeout,
+                    str(spec.path), str(tmp_ipynb), parameters=staged_parameters, kernel_name=kernel_name,
+                    language="python", cwd=str(spec.path.parent), progress_bar=False, log_output=False,
+                    execution_timeout=timeout, kernel_manager_class=_kernel_manager_class(kernel_log),
                 )
                 run.status = "ok"
             except Exception as exc:  # the notebook failed (or its kernel died): record it, carry on
@@ -514,9 +582,14 @@ def execute_notebook(
         left = _sweep_temporaries(folder)
         if left:
             run.warnings.append(f"temporary files left behind and removed (an output not closed?): {left}")
+        if kernel_log.is_file() and kernel_log.stat().st_size > 0:
+            folder.mkdir(exist_ok=True)
+            os.replace(kernel_log, folder / kernel_log.name)
+            if not run.ok:
+                run.warnings.append(f"the kernel wrote to stderr: {spec.name}/{kernel_log.name}")
         if folder.is_dir():
-            run.figures = sorted(str(p.relative_to(out_dir)) for p in folder.rglob("*.png"))
-            run.recordings = sorted(str(p.relative_to(out_dir)) for p in folder.rglob("*.rrd"))
+            run.figures = sorted(str(p.relative_to(stage)) for p in folder.rglob("*.png"))
+            run.recordings = sorted(str(p.relative_to(stage)) for p in folder.rglob("*.rrd"))
         run.metrics = read_metrics(folder / "metrics.json")
         if run.ok and run.metrics is None:
             run.warnings.append("the notebook wrote no metrics.json (study.metrics(...))")
@@ -533,19 +606,19 @@ def execute_notebook(
             else:
                 for rel in run.recordings:
                     try:
-                        verify_rrd(out_dir / rel)
+                        verify_rrd(stage / rel)
                     except Exception as exc:
                         if run.ok:
-                            msg = str(exc).replace(f"{out_dir / rel}: ", "")
+                            msg = str(exc).replace(f"{stage / rel}: ", "")
                             run.status, run.error = "failed", f"recording {rel} does not verify: {msg}"
             if run.ok:
-                _open_recordings_in_viewer(run, out_dir)
+                _open_recordings_in_viewer(run, stage)
 
         # the executed notebook and its HTML, marked with the run's status
         nb = None
         if tmp_ipynb.exists() and tmp_ipynb.stat().st_size > 0:
             try:
-                nb = nbformat.read(str(tmp_ipynb), as_version=4)
+                nb = _retarget(nbformat.read(str(tmp_ipynb), as_version=4), stage, out_dir)
             except Exception as exc:  # papermill died before writing a whole notebook
                 run.warnings.append(f"executed notebook unreadable: {exc}")
         if nb is None:
@@ -561,16 +634,21 @@ def execute_notebook(
                     f"<p>HTML conversion failed too: {_escape(str(exc))}</p></body></html>")
         nb.metadata["hsmap"]["status"] = run.status
         nb.metadata["hsmap"]["error"] = run.error
-        nbformat.write(nb, str(tmp_ipynb))
-        os.chmod(tmp_ipynb, 0o644)
-        os.replace(tmp_ipynb, out_dir / f"{spec.name}.ipynb")
-        write_text(out_dir / f"{spec.name}.html", html)
         run.ipynb, run.html = f"{spec.name}.ipynb", f"{spec.name}.html"
-        write_json(folder / "run.json", run.to_dict())
+        try:
+            with atomic_open(tmp_ipynb, "w", encoding="utf-8") as fh:
+                nbformat.write(nb, fh)
+            write_text(stage / f"{spec.name}.html", html)
+            write_json(folder / "run.json", run.to_dict())
+            _publish(stage, out_dir, spec.name)
+        except OSError as exc:  # name the report where it was to appear, not its staging copy
+            if not isinstance(exc, OutputError):
+                exc = OutputError(f"{out_dir / spec.name}: cannot publish the report ({exc.strerror or exc})")
+            raise OutputError(str(exc).replace(str(stage), str(out_dir))) from None
         return run
-    except BaseException:  # interrupted (Ctrl-C) or the machinery failed: leave no temporary behind
-        tmp_ipynb.unlink(missing_ok=True)
-        raise
+    finally:  # published, or interrupted (Ctrl-C) or the machinery failed: no temporary is left behind
+        shutil.rmtree(stage, ignore_errors=True)
+        os.close(lock_fd)
 
 
 def _escape(s: str) -> str:
@@ -579,10 +657,52 @@ def _escape(s: str) -> str:
     return html.escape(s)
 
 
+_busy = False  # a batch worker is running a notebook
+
+
+def _on_sigterm(signum, frame) -> None:
+    if _busy:
+        raise KeyboardInterrupt  # execute_notebook shuts the kernel down and removes its staging folder
+    os._exit(128 + signum)  # idle: nothing to clean up, and no traceback from the pool's queue
+
+
+def _worker_signals() -> None:
+    """A batch worker: Ctrl-C in the terminal is the batch's to handle (the worker would print a traceback of
+    its own); SIGTERM from the batch interrupts it so that it shuts its kernel down and removes its staging
+    folder."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, _on_sigterm)
+
+
+def _stop_workers(pool: cf.ProcessPoolExecutor) -> None:
+    """Cancel what has not started and interrupt the workers (SIGTERM: they clean up), then wait for them."""
+    import signal
+
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for p in procs:
+        try:
+            if p.is_alive():
+                os.kill(p.pid, signal.SIGTERM)
+        except (OSError, ValueError, AttributeError):
+            pass
+    for p in procs:
+        try:
+            p.join(timeout=30)
+            if p.is_alive():
+                p.kill()
+        except (OSError, ValueError, AssertionError, AttributeError):
+            pass
+
+
 def _worker(spec: NotebookSpec, out_dir: str, parameters: dict[str, Any], env: dict[str, str],
             timeout: float | None, verify: bool, versions: dict[str, str]) -> dict[str, Any]:
     """Process-pool entry point: one notebook in this worker's environment."""
+    global _busy
     with _environ(env):
+        _busy = True
         try:
             run = execute_notebook(spec, out_dir, parameters, timeout=timeout, verify_recordings=verify,
                                    versions=versions)
@@ -590,6 +710,8 @@ def _worker(spec: NotebookSpec, out_dir: str, parameters: dict[str, Any], env: d
             run = NotebookRun(name=spec.name, notebook=str(spec.path), title=spec.title(), status="failed",
                               error=f"hsmap reproduce: {type(exc).__name__}: {exc}", started=_now(),
                               parameters=parameters)
+        finally:
+            _busy = False
     return run.to_dict()
 
 
@@ -675,8 +797,51 @@ def _previous_run(out_dir: Path, spec: NotebookSpec) -> NotebookRun | None:
     p = out_dir / spec.name / "run.json"
     try:
         return NotebookRun.from_dict(json.loads(p.read_text(encoding="utf-8")))
-    except (OSError, ValueError, TypeError):
+    except (OSError, ValueError, TypeError, AttributeError):
         return None
+
+
+def _read_index(out_dir: Path) -> dict[str, NotebookRun]:
+    """The entries of ``out_dir/index.json`` by name (none when it is missing or unreadable)."""
+    try:
+        doc = json.loads((out_dir / "index.json").read_text(encoding="utf-8"))
+        return {e["name"]: NotebookRun.from_dict(e) for e in doc.get("notebooks", [])}
+    except (OSError, ValueError, TypeError, KeyError, AttributeError):
+        return {}
+
+
+def _alive(pid: int | None) -> bool:
+    if pid is None:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # exists, not ours
+        return True
+    return True
+
+
+def _latest(out_dir: Path, spec: NotebookSpec, listed: NotebookRun | None) -> NotebookRun:
+    """A notebook another batch (or an earlier one) owns: its index entry while that batch runs it, else the
+    newer of its index entry and its run.json, else "not run"."""
+    if listed is not None and listed.status in ("pending", "running") and _alive(listed.pid):
+        return listed
+    if listed is not None and listed.status in ("pending", "running"):
+        listed = None  # its batch died
+    prev = _previous_run(out_dir, spec)
+    candidates = [e for e in (listed, prev) if e is not None]
+    if not candidates:
+        return NotebookRun(name=spec.name, notebook=str(spec.path), title=spec.title(), status="not run")
+
+    def when(e: NotebookRun) -> dt.datetime:
+        try:
+            t = dt.datetime.fromisoformat(e.started or "")
+            return t if t.tzinfo else t.astimezone()
+        except ValueError:
+            return dt.datetime.min.replace(tzinfo=dt.UTC)
+
+    return max(candidates, key=when)
 
 
 def run_notebooks(
@@ -746,27 +911,33 @@ def run_notebooks(
 
     common = _absolute_paths(common)
     per_nb = {k: _absolute_paths(v) for k, v in per_nb.items()}
-    out = Path(out_dir).resolve()
-    out.mkdir(parents=True, exist_ok=True)
+    from ..io import folder_lock, prepare_output_dir, sweep_stale_temporaries
+
+    out = prepare_output_dir(Path(out_dir).resolve(), "reports folder")
     versions = environment_info(Path(notebooks_dir).resolve())
     started = _now()
     t0 = time.perf_counter()
+    me = os.getpid()
 
-    entries: dict[str, NotebookRun] = {}
-    for s in specs:
-        prev = _previous_run(out, s) if s not in chosen else None
-        entries[s.name] = prev or NotebookRun(name=s.name, notebook=str(s.path), title=s.title(),
-                                              status="pending" if s in chosen else "not run")
+    entries: dict[str, NotebookRun] = {
+        s.name: NotebookRun(name=s.name, notebook=str(s.path), title=s.title(), status="pending", pid=me)
+        for s in chosen}
     index_path = out / "index.html"
 
-    def write_index(final: bool) -> None:
+    def write_index(final: bool) -> list[NotebookRun]:
+        """Rewrite the index under the folder's lock, merging what other batches wrote: this batch's entries for
+        the notebooks it runs, for the others the newer of the index's entry (unless its batch died) and the
+        notebook's run.json."""
         from .report import render_index
 
         meta = {"started": started, "duration_s": time.perf_counter() - t0, "quick": quick, "jobs": jobs,
                 "final": final, "versions": versions, "ran": [s.name for s in chosen]}
-        ordered = [entries[s.name] for s in specs]
-        write_text(index_path, render_index([e.to_dict() for e in ordered], meta))
-        write_json(out / "index.json", {**meta, "notebooks": [e.to_dict() for e in ordered]})
+        with folder_lock(out):
+            listed = _read_index(out)
+            ordered = [entries[s.name] if s.name in entries else _latest(out, s, listed.get(s.name)) for s in specs]
+            write_text(index_path, render_index([e.to_dict() for e in ordered], meta))
+            write_json(out / "index.json", {**meta, "notebooks": [e.to_dict() for e in ordered]})
+        return ordered
 
     # longest first (by the previous run's duration, else the notebook's metadata hsmap.expected_seconds) keeps
     # the parallel batch short
@@ -782,6 +953,8 @@ def run_notebooks(
 
     order = sorted(chosen, key=previous_duration) if jobs > 1 else list(chosen)
     runs: dict[str, NotebookRun] = {}
+    # leftovers of a killed batch (staging folders, temporaries) nobody holds any more
+    sweep_stale_temporaries(out, ["index.html", "index.json", *(s.name for s in specs)])
     write_index(final=False)
 
     def finished(run: NotebookRun) -> None:
@@ -795,24 +968,28 @@ def run_notebooks(
                 msg += f"\n    warning: {w}"
             log(msg)
 
-    for stale in out.glob(".*.running.ipynb"):  # left by a run that was killed
-        stale.unlink(missing_ok=True)
     try:
         _run_all(order, out, common, per_nb, quick, jobs, timeout, verify_recordings, versions, entries,
                  started, finished, write_index)
     except KeyboardInterrupt:
         for s in chosen:
             if s.name not in runs:
-                entries[s.name] = NotebookRun(name=s.name, notebook=str(s.path), title=s.title(),
-                                              status="interrupted", error="the run was interrupted")
+                prev = _previous_run(out, s)
+                if prev is not None:  # its previous report is still there, untouched
+                    prev.warnings = [*prev.warnings, f"a rerun started {started} was interrupted; this is the "
+                                                     "previous run"]
+                    entries[s.name] = prev
+                else:
+                    entries[s.name] = NotebookRun(name=s.name, notebook=str(s.path), title=s.title(),
+                                                  status="interrupted", error="the run was interrupted")
                 runs[s.name] = entries[s.name]
         write_index(final=True)
         raise
 
-    write_index(final=True)
+    merged = write_index(final=True)
     return BatchResult(
         runs=[runs[s.name] for s in chosen],
-        entries=[entries[s.name] for s in specs],
+        entries=merged,
         started=started,
         duration_s=time.perf_counter() - t0,
         quick=quick,
@@ -849,8 +1026,13 @@ def _run_all(order, out, common, per_nb, quick, jobs, timeout, verify_recordings
                 finished(NotebookRun.from_dict(_worker(*t)))
         else:
             ctx = multiprocessing.get_context("spawn")
-            with cf.ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=ctx) as pool:
+            pool = cf.ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=ctx,
+                                          initializer=_worker_signals)
+            try:
                 futures = {pool.submit(_worker, *t): t for t in tasks}
+                for t in tasks[: min(jobs, len(tasks))]:
+                    entries[t[0].name].status = "running"
+                write_index(final=False)
                 for fut in cf.as_completed(futures):
                     s, params = futures[fut][0], futures[fut][2]
                     try:
@@ -860,3 +1042,10 @@ def _run_all(order, out, common, per_nb, quick, jobs, timeout, verify_recordings
                                           error=f"worker process failed: {type(exc).__name__}: {exc}",
                                           started=started, parameters=params)
                     finished(run)
+                    waiting = [futures[f][0].name for f in futures if not f.done()]
+                    for name in waiting[: jobs]:
+                        entries[name].status = "running"
+            except BaseException:
+                _stop_workers(pool)
+                raise
+            pool.shutdown(wait=True)

@@ -22,8 +22,10 @@ would otherwise slip into, or out of, the key unnoticed), or a file it listed bu
 **A lookup** holds an exclusive lock (the ``filelock`` library: ``flock`` on POSIX, ``msvcrt`` on Windows) on
 ``root/.locks/SLOT.lock`` for its whole duration, so parallel notebooks (``hsmap reproduce --jobs 2``) compute a
 slot once: the second caller waits, then reads what the first wrote. The folder is **validated on load**: its
-``cache.json`` must name the key, and the caller's ``load`` must read it without error (a damaged or
-incomplete folder is removed and computed again). A computation writes into ``root/.SLOT.tmp-PID``,
+``cache.json`` must name the key, every file it lists (with its size and SHA-256, recorded at publication) must
+be there unchanged, and the caller's ``load`` must read it without error. A damaged folder (a truncated or
+altered file, one that does not load) is removed and computed again, with an
+:class:`~hsmap.errors.HsmapWarning` naming the file and what is wrong with it. A computation writes into ``root/.SLOT.tmp-PID``,
 ``cache.json`` last, and renames it into place (**atomic publication**): an interrupted run leaves no folder
 that passes for a result, and its temporary folder is swept by the next caller of the slot.
 """
@@ -38,6 +40,9 @@ import json
 import os
 import shutil
 import threading
+import warnings
+import zipfile
+import zlib
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -46,7 +51,7 @@ from typing import Any, Generic, TypeVar
 from filelock import FileLock, Timeout
 
 from .. import __version__
-from ..errors import CacheError, HsmapError
+from ..errors import CacheError, HsmapError, HsmapWarning
 from ..io import to_plain, write_json
 
 __all__ = ["EXCLUDED", "MARKER", "Cached", "FolderCache", "code_digest", "description_digest", "slug"]
@@ -61,6 +66,11 @@ MARKER = "cache.json"
 T = TypeVar("T")
 
 _digest_memo: dict[tuple, str] = {}
+_file_memo: dict[tuple, str] = {}
+
+#: What a damaged folder's ``load`` may raise (besides HsmapError): a truncated ``.npz`` raises BadZipFile or
+#: EOFError, a corrupted one zlib.error, a cut-off JSON ValueError.
+_DAMAGE = (HsmapError, OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error)
 
 
 def _package_root() -> Path:
@@ -121,6 +131,42 @@ def _source_digest(fn: Callable[..., Any]) -> str:
         return hashlib.sha256(Path(path).read_bytes()).hexdigest()
     except OSError as exc:
         raise CacheError(f"{path}: cannot read it for the cache key ({exc.strerror})") from None
+
+
+def _file_sha256(path: Path) -> str:
+    """SHA-256 of a file, remembered per (path, size, modification time) for this process."""
+    st = path.stat()
+    memo = (str(path), st.st_size, st.st_mtime_ns)
+    if memo not in _file_memo:
+        h = hashlib.sha256()
+        with open(path, "rb") as fh:
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                h.update(block)
+        _file_memo[memo] = h.hexdigest()
+    return _file_memo[memo]
+
+
+def _manifest(folder: Path) -> dict[str, list]:
+    """``{relative path: [size, sha256]}`` of every file in ``folder`` but its marker."""
+    out = {}
+    for p in sorted(folder.rglob("*")):
+        if p.is_file() and not p.is_symlink() and p.relative_to(folder).as_posix() != MARKER:
+            out[p.relative_to(folder).as_posix()] = [p.stat().st_size, _file_sha256(p)]
+    return out
+
+
+def _damage(folder: Path, files: Mapping[str, Any]) -> str | None:
+    """What is wrong with the files a folder's marker lists (None when they are all there, unchanged)."""
+    for rel, (size, sha) in files.items():
+        p = folder / rel
+        if not p.is_file():
+            return f"{p} is missing"
+        actual = p.stat().st_size
+        if actual != size:
+            return f"{p} has {actual} bytes, {size} were written (truncated or replaced)"
+        if _file_sha256(p) != sha:
+            return f"{p} was altered since it was written (its SHA-256 differs)"
+    return None
 
 
 def description_digest(description: Any) -> str:
@@ -194,17 +240,28 @@ class FolderCache:
             lock.release()
 
     def _read(self, folder: Path, key: str, load: Callable[[Path], T]) -> T | None:
-        """``load(folder)`` when the folder is published under ``key`` and reads without error, else None."""
+        """``load(folder)`` when the folder is published under ``key``, its files are the ones written and it
+        reads without error; else None (with a warning naming what is damaged, when it is)."""
         try:
             stored = json.loads((folder / MARKER).read_text(encoding="utf-8"))
         except (OSError, ValueError):
             return None
         if not isinstance(stored, dict) or stored.get("key") != key:
             return None
+        files = stored.get("files")
         try:
-            return load(folder)
-        except (HsmapError, OSError, ValueError, KeyError):  # damaged or incomplete: computed again
-            return None
+            problem = ("its cache.json lists no files" if not isinstance(files, dict)
+                       else _damage(folder, files))
+        except (OSError, TypeError, ValueError) as exc:
+            problem = f"its files cannot be checked ({exc})"
+        if problem is None:
+            try:
+                return load(folder)
+            except _DAMAGE as exc:
+                problem = f"it does not load ({type(exc).__name__}: {' '.join(str(exc).split())})"
+        warnings.warn(f"cache folder {folder} is damaged: {problem}; computing it again", HsmapWarning,
+                      stacklevel=3)
+        return None
 
     def lookup(self, slot: str, description: Mapping[str, Any], compute: Callable[[Path], Any],
                load: Callable[[Path], T]) -> Cached[T] | None:
@@ -251,6 +308,7 @@ class FolderCache:
                 compute(tmp)
                 write_json(tmp / MARKER, {
                     "key": key, "slot": slot, "description": to_plain(description), "code_digest": code_digest(),
+                    "files": _manifest(tmp),
                     "hsmap_version": __version__,
                     "created": dt.datetime.now().astimezone().isoformat(timespec="seconds"),
                 })
@@ -260,6 +318,6 @@ class FolderCache:
                 raise
             try:
                 value = load(folder)
-            except (HsmapError, OSError, ValueError, KeyError) as exc:
+            except _DAMAGE as exc:
                 raise CacheError(f"{folder}: the folder just computed does not read back: {exc}") from exc
             return Cached(value, folder, key, False)

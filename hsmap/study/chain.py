@@ -43,7 +43,7 @@ import numpy as np
 from ..datasets.frames import Dataset, Frame
 from ..errors import InputError
 from ..grid import GridGeometry, OccupancyGrid
-from ..io import atomic_path, to_plain, write_json, write_text
+from ..io import atomic_path, to_plain, write_json, write_ply_points, write_text
 from ..segmentation import Door, Segmentation, SegmentationConfig
 from ..slam import SlamConfig
 from ..trajectory import Trajectory
@@ -477,12 +477,7 @@ def _sensor_height(ds: Dataset) -> float:
 
 
 def _write_ply(path: Path, points: np.ndarray) -> None:
-    import open3d as o3d
-
-    with atomic_path(path, suffix=".ply") as tmp:
-        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, dtype=float).reshape(-1, 3)))
-        if not o3d.io.write_point_cloud(str(tmp), pc):
-            raise OSError(f"open3d could not write {path}")
+    write_ply_points(path, np.asarray(points, dtype=float).reshape(-1, 3))
 
 
 def _figures(figdir: Path, ds2, run2, run3, grids, fusion, segs, graphs, doors, pts2, pts3, h2, z) -> dict:

@@ -1,7 +1,7 @@
 """rerun recordings of hsmap runs (rerun-sdk 0.41, pinned: its API moves between releases).
 
 One recording per run, written to one ``.rrd`` file through a file sink (no viewer, no network; analytics
-off). Open one with ``.venv/bin/rerun FILE.rrd``. Entity layout::
+off); hsmap writes the bytes into the file itself (see :class:`Recording`). Open one with ``.venv/bin/rerun FILE.rrd``. Entity layout::
 
     world/                      ViewCoordinates RIGHT_HAND_Z_UP (x forward/east, y left/north, z up), metres
       robot                     Transform3D: the robot base pose, on the timelines
@@ -35,7 +35,7 @@ import re
 import shutil
 import subprocess
 import sys
-import tempfile
+import threading
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
@@ -47,9 +47,10 @@ import rerun as rr  # noqa: E402
 import rerun.blueprint as rrb  # noqa: E402
 from numpy.typing import ArrayLike, NDArray  # noqa: E402
 
-from ..errors import DataFormatError, HsmapError, InputError, ShapeError  # noqa: E402
+from ..errors import DataFormatError, HsmapError, InputError, OutputError, ShapeError  # noqa: E402
 from ..geometry import euler_to_matrix, matrix_to_quaternion  # noqa: E402
 from ..grid import GridGeometry  # noqa: E402
+from ..io import locked_temporary, publish_file, write_failure_reason  # noqa: E402
 from ..mapping import first_per_voxel  # noqa: E402
 from .colors import ROOM_PALETTE, VIEWER_SERIES_COLORS, height_colors, label_color, label_colors  # noqa: E402
 from .occupancy import _ros_to_image, occupancy_to_image, occupancy_to_ros  # noqa: E402
@@ -104,13 +105,6 @@ ROBOT_COLOR = (255, 140, 0)
 _UNIX_TIME_THRESHOLD = 1e8  # seconds: stamps above this (after 1973) are taken as Unix times
 
 
-def _default_file_mode() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return 0o666 & ~mask
-
-
-_FILE_MODE = _default_file_mode()
 
 
 def _stream(rec: Any) -> rr.RecordingStream:
@@ -121,6 +115,58 @@ def _stream(rec: Any) -> rr.RecordingStream:
     if isinstance(rec, rr.RecordingStream):
         return rec
     raise InputError(f"expected an hsmap Recording or a rerun.RecordingStream, got {type(rec).__name__}")
+
+
+class _FileFeed:
+    """The bytes of a rerun file sink, written into an open file descriptor by a thread of ours.
+
+    rerun's file sink writes from a background thread of its own and, when the write fails (a full disk), only
+    logs it, and sometimes (rerun-sdk 0.41) never wakes the ``flush`` or ``disconnect`` that waits for it: the
+    run, and then the interpreter's exit, hang. So the sink writes into a pipe (``/dev/fd/N``), which cannot fail;
+    this thread copies the pipe into the file, remembers the first ``OSError`` and keeps draining the pipe after
+    it, so rerun always finishes. :meth:`close` returns the error, if any.
+    """
+
+    def __init__(self, fd: int):
+        self._out = fd
+        self.error: Exception | None = None
+        self._read, self._write = os.pipe()
+        try:
+            import fcntl
+
+            fcntl.fcntl(self._write, fcntl.F_SETPIPE_SZ, 1 << 20)  # fewer wake-ups; the default 64 KiB works too
+        except (ImportError, AttributeError, OSError):
+            pass
+        self.sink_path = f"/dev/fd/{self._write}"
+        self._thread = threading.Thread(target=self._copy, name="hsmap-rrd-writer", daemon=True)
+        self._thread.start()
+
+    @staticmethod
+    def available() -> bool:
+        return sys.platform.startswith("linux") and os.path.isdir("/dev/fd")
+
+    def _copy(self) -> None:
+        while True:
+            data = os.read(self._read, 1 << 20)
+            if not data:
+                return
+            if self.error is None:
+                try:
+                    self._put(data)
+                except Exception as exc:  # OSError (a full disk); whatever it is, keep draining the pipe
+                    self.error = exc
+
+    def _put(self, data: bytes) -> None:
+        view = memoryview(data)
+        while view:
+            view = view[os.write(self._out, view):]
+
+    def close(self) -> Exception | None:
+        """After rerun has closed its end (``disconnect``): wait for the last bytes; the write error, if any."""
+        os.close(self._write)
+        self._thread.join()
+        os.close(self._read)
+        return self.error
 
 
 class Recording:
@@ -160,10 +206,7 @@ class Recording:
         self.path = Path(path)
         if self.path.suffix != ".rrd":
             raise InputError(f"a rerun recording file must end in .rrd, got {self.path}")
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp.rrd", dir=self.path.parent)
-        os.close(fd)
-        self._tmp = Path(tmp)
+        self._fd, self._tmp = locked_temporary(self.path, ".tmp.rrd")  # locked: a rerun can tell it from a leftover
         self.closed = False
         self.rig_logged = False
         # rerun wants application ids that are entry names: letters, digits, '-' and '_'
@@ -171,7 +214,9 @@ class Recording:
         self.stream = rr.RecordingStream(self.application_id, recording_id=recording_id)
         self.stream.set_log_time_enabled(False)  # only our timelines: scan and time
         self.stream.set_log_tick_enabled(False)
-        self.stream.set_sinks(rr.FileSink(str(self._tmp)), default_blueprint=blueprint)
+        self._feed = _FileFeed(self._fd) if _FileFeed.available() else None
+        sink = self._feed.sink_path if self._feed is not None else str(self._tmp)
+        self.stream.set_sinks(rr.FileSink(sink), default_blueprint=blueprint)
         self.stream.log(WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True, strict=True)
         atexit.register(self.close)
 
@@ -193,14 +238,37 @@ class Recording:
             self.abort()
 
     def close(self) -> Path:
-        """Flush, close the file and move it to :attr:`path`; returns the path. Idempotent."""
+        """Flush, close the file and move it to :attr:`path` once it checks out complete (synced, rerun's footer
+        present: :func:`hsmap.io.verify_output`); returns the path. Idempotent.
+
+        Raises
+        ------
+        OutputError
+            The recording could not be written completely (e.g. no space left); the temporary file is deleted
+            and :attr:`path` is left as it was.
+        """
         if not self.closed:
             self.closed = True
             atexit.unregister(self.close)
-            self.stream.flush()
-            self.stream.disconnect()
-            os.chmod(self._tmp, _FILE_MODE)  # mkstemp makes it private; a report is for reading
-            os.replace(self._tmp, self.path)
+            try:
+                try:
+                    try:
+                        self.stream.flush()
+                    finally:
+                        self.stream.disconnect()
+                except RuntimeError as exc:  # rerun's own file writer stopped (no feed): it only logs why
+                    why = write_failure_reason(self.path.parent, f"rerun: {exc}")
+                    raise OutputError(f"{self.path}: cannot write it ({why})") from None
+                finally:
+                    error = self._feed.close() if self._feed is not None else None
+                if error is not None:
+                    raise OutputError(f"{self.path}: cannot write it ({getattr(error, 'strerror', None) or error})")
+                publish_file(self._tmp, self.path)
+            except BaseException:
+                self._tmp.unlink(missing_ok=True)
+                raise
+            finally:
+                os.close(self._fd)
         return self.path
 
     def abort(self) -> None:
@@ -211,7 +279,10 @@ class Recording:
             try:
                 self.stream.disconnect()
             finally:
+                if self._feed is not None:
+                    self._feed.close()
                 self._tmp.unlink(missing_ok=True)
+                os.close(self._fd)
 
 
 def open_recording(path: str | os.PathLike, **kwargs: Any) -> Recording:

@@ -11,11 +11,19 @@ UV_VERSION := 0.13.9
 export RERUN_ANALYTICS := 0
 export MPLBACKEND := Agg
 export PYTHONHASHSEED := 0
-# third-party benchmark data (read in place, never copied); tests and notebook 08 skip, saying why, without it
-HSMAP_DATASETS ?= $(abspath ../shared/datasets)
+# third-party benchmark data (read in place, never copied): $HSMAP_DATASETS when set, else ../shared/datasets
+# when it exists, else what `make data` (hsmap data fetch) downloaded into the user cache; tests and notebook 08
+# skip, saying why, without it
+ifeq ($(origin HSMAP_DATASETS),undefined)
+ifneq ($(wildcard ../shared/datasets),)
+HSMAP_DATASETS := $(abspath ../shared/datasets)
 export HSMAP_DATASETS
+endif
+else
+export HSMAP_DATASETS
+endif
 
-.PHONY: setup system-libs reproduce test bench lint clean lock
+.PHONY: setup system-libs reproduce test bench lint clean lock data
 
 setup: system-libs $(STAMP)
 
@@ -37,6 +45,10 @@ REPRODUCE_ARGS ?= --jobs 2
 reproduce: setup
 	$(BIN)/hsmap reproduce $(REPRODUCE_ARGS)
 
+# the public benchmark data (Freiburg logs, Bormann maps), hash-checked, into the user cache
+data: setup
+	$(BIN)/hsmap data fetch
+
 test: setup
 	$(BIN)/python -m pytest -n 2 $(PYTEST_ARGS)
 
@@ -53,7 +65,7 @@ lint: setup
 # Re-resolve the pinned versions (needs the registry); commit requirements.lock afterwards.
 lock:
 	@test -x $(BIN)/uv || (test -x $(BIN)/python || $(PYTHON) -m venv $(VENV); $(BIN)/python -m pip install --quiet uv==$(UV_VERSION))
-	$(BIN)/uv pip compile pyproject.toml --extra dev --python-version 3.11 --universal -o requirements.lock
+	$(BIN)/uv pip compile pyproject.toml --extra study --extra dev --python-version 3.11 --universal -o requirements.lock
 
 clean:
 	rm -rf $(VENV) reports/* .pytest_cache

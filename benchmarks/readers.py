@@ -65,9 +65,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--out", default=str(ROOT / "reports" / "benchmarks" / "readers.json"))
     args = ap.parse_args(argv)
-    data = Path(os.environ.get("HSMAP_DATASETS", ROOT.parent / "shared" / "datasets"))
+    from hsmap.study.paths import datasets_dir
+
+    data = datasets_dir()  # $HSMAP_DATASETS, else what hsmap data fetch downloaded, else ../shared/datasets
     if not data.is_dir():
-        print(f"datasets folder {data} not found (set HSMAP_DATASETS)", file=sys.stderr)
+        print(f"datasets folder {data} not found (run hsmap data fetch, or set HSMAP_DATASETS)", file=sys.stderr)
         return 2
     results = {}
     for name, rel_path, relations in INPUTS:

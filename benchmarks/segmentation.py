@@ -92,7 +92,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     folder = Path(args.datasets) / "ipa_room_segmentation"
     if not folder.is_dir():
-        print(f"benchmark data not found: {folder} (set HSMAP_DATASETS)", file=sys.stderr)
+        print(f"benchmark data not found: {folder} (run hsmap data fetch, or set HSMAP_DATASETS)", file=sys.stderr)
         return 2
     maps = [m for m in args.maps.split(",") if m]
     configs = {

@@ -242,7 +242,9 @@ def main(argv=None) -> int:
     ap.add_argument("--no-loop-closure", action="store_true", help="tracking only, for comparison")
     ap.add_argument("--out", default=str(ROOT / "reports/benchmarks/slam.json"))
     args = ap.parse_args(argv)
-    datasets = Path(os.environ.get("HSMAP_DATASETS", ROOT.parent / "shared/datasets"))
+    from hsmap.study.paths import datasets_dir
+
+    datasets = datasets_dir()  # $HSMAP_DATASETS, else what hsmap data fetch downloaded, else ../shared/datasets
     out = {
         "benchmark": "slam",
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": sys.version.split()[0],
@@ -256,7 +258,7 @@ def main(argv=None) -> int:
             out[name] = bench_freiburg(name, datasets, args.seeds, args.max_frames, args.jobs,
                                        not args.no_loop_closure)
         else:
-            out[name] = {"skipped": f"no Freiburg data at {datasets}/slam2d (set HSMAP_DATASETS)"}
+            out[name] = {"skipped": f"no Freiburg data at {datasets}/slam2d (run hsmap data fetch, or set HSMAP_DATASETS)"}
             print(out[name]["skipped"])
     out["machine"]["load_average_at_end"] = os.getloadavg()
     write_json(args.out, out)

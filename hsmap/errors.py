@@ -20,6 +20,7 @@ __all__ = [
     "ScenarioError",
     "HsmapWarning",
     "CacheError",
+    "DependencyError",
     "OutputError",
 ]
 
@@ -94,3 +95,8 @@ class OutputError(HsmapError, OSError):
 class CacheError(HsmapError):
     """A cached result cannot be looked up or published: its lock is not free in time, or the code digest that
     keys it cannot be computed (a file it expects is missing)."""
+
+
+class DependencyError(HsmapError):
+    """An optional part of hsmap is used without the packages it needs; the message says what to install
+    (e.g. ``pip install 'hsmap[study]'`` for the notebooks)."""

@@ -19,11 +19,14 @@ def rng() -> np.random.Generator:
 
 @pytest.fixture(scope="session")
 def datasets_dir() -> Path:
-    """The third-party datasets folder from $HSMAP_DATASETS; skips the test with the reason when absent."""
-    env = os.environ.get("HSMAP_DATASETS")
-    if not env:
-        pytest.skip("HSMAP_DATASETS is not set (CI sets it to ../shared/datasets)")
-    path = Path(env)
-    if not path.is_dir():
-        pytest.skip(f"HSMAP_DATASETS={env} is not a directory")
+    """The third-party datasets folder (``slam2d/``, ``ipa_room_segmentation/``) where the study finds it:
+    $HSMAP_DATASETS, else what ``hsmap data fetch`` downloaded, else ../shared/datasets beside the checkout
+    (:func:`hsmap.study.paths.datasets_dir`). Skips the test, saying why, unless both datasets are complete there."""
+    from hsmap.study.paths import datasets_dir as find
+    from hsmap.study.public_data import missing_data_reason
+
+    path = find()
+    reason = missing_data_reason(["freiburg", "bormann"], path)
+    if reason:
+        pytest.skip(reason)
     return path

@@ -249,8 +249,10 @@ def test_slam_6dof_on_a_recording_with_a_faster_2d_lidar(tmp_path):
     from hsmap.viz.rerun import recording_contents, rerun_binary
 
     if rerun_binary() is not None:  # a 6-DOF run has no 2D map: its recording has the 3D view and the legend
-        views = [e for e in recording_contents(out / "slam.rrd") if e.count("/") == 2 and e.startswith("/view/")]
+        contents = recording_contents(out / "slam.rrd")
+        views = [e for e in contents if e.count("/") == 2 and e.startswith("/view/")]
         assert len(views) == 2
+        assert not any(e.startswith("/map/") for e in contents)
     # a prior that covers half the clouds: a warning, and its coverage in metrics.json
     half = Trajectory(t2.stamps[: len(t2) // 2], t2.poses[: len(t2) // 2])
     write_tum(tmp_path / "half.tum", half)

@@ -45,7 +45,11 @@ def every_file(folder):
 def test_batch_runs_every_notebook_and_marks_the_failures(tmp_path):
     nbdir = tmp_path / "notebooks"
     shutil.copytree(DATA, nbdir)
-    shutil.copy(REPO / "notebooks" / "template.ipynb", nbdir / "05-template.ipynb")
+    # the template made into a study notebook as its README says: copied, and its name put in
+    template = (REPO / "notebooks" / "template.ipynb").read_text(encoding="utf-8")
+    assert template.count('NotebookReport(out_dir, \\"NN-name\\")') == 1
+    (nbdir / "05-template.ipynb").write_text(template.replace('\\"NN-name\\"', '\\"05-template\\"'),
+                                             encoding="utf-8")
     shutil.copy(DATA / "03-second.ipynb", nbdir / "scratch.ipynb")  # not NN-name: not part of the study
     out = tmp_path / "reports"
     # outputs of an earlier run that must not survive: a failing notebook must never look complete
@@ -245,6 +249,13 @@ def test_study_notebooks_are_committed_clean_with_one_parameters_cell(path):
     first = nb["cells"][0]
     assert first["cell_type"] == "markdown" and "".join(first["source"]).startswith("# "), (
         f"{path.name}: the first cell must be a Markdown title '# NN: ...'")
+    if path.stem != "template":
+        # it names itself, so that it runs outside 'hsmap reproduce' too (plain papermill, nbconvert, JupyterLab)
+        body = "".join("".join(c["source"]) for c in code)
+        assert f'NotebookReport(out_dir, "{path.stem}")' in body, (
+            f"{path.name}: make its report with NotebookReport(out_dir, \"{path.stem}\")")
+    if path.stem[:2] in ("04", "05", "06", "07"):  # the maps' notebooks take a user's recording
+        assert 'dataset: str = ""' in src and "dataset=dataset" in "".join("".join(c["source"]) for c in code)
 
 
 def test_an_interrupted_run_leaves_no_temporaries_and_says_so(tmp_path, monkeypatch):
@@ -299,3 +310,75 @@ def test_kernels_run_blas_on_hsmap_blas_threads_unless_the_caller_chose(monkeypa
     monkeypatch.setenv("OPENBLAS_NUM_THREADS", "4")
     env = _kernel_env("01-x", jobs=2)
     assert "OPENBLAS_NUM_THREADS" not in env and env["OMP_NUM_THREADS"] == str(max(1, (os.cpu_count() or 1) // 2))
+
+
+# --- notebooks whose inputs are missing ------------------------------------------------------------------
+
+
+def _notebook(cells: list[str], title: str) -> dict:
+    return {"cells": [{"cell_type": "markdown", "id": "c0", "metadata": {}, "source": [f"# {title}"]}]
+            + [{"cell_type": "code", "execution_count": None, "id": f"c{k + 1}",
+                "metadata": {"tags": ["parameters"]} if k == 0 else {}, "outputs": [], "source": [src]}
+               for k, src in enumerate(cells)],
+            "metadata": {"kernelspec": {"display_name": "Python 3", "language": "python", "name": "python3"},
+                         "language_info": {"name": "python"}}, "nbformat": 4, "nbformat_minor": 5}
+
+
+@pytest.mark.slow
+def test_a_notebook_without_its_data_is_marked_skipped_not_ok(tmp_path, capsys):
+    nbdir = tmp_path / "notebooks"
+    nbdir.mkdir()
+    cells = ['quick: bool = False\nout_dir: str = ""',
+             'from hsmap.study import NotebookReport\nreport = NotebookReport(out_dir, "01-needs-data")\n'
+             'report.skip("no data (run hsmap data fetch): the maps", part="maps")\n'
+             'report.skip("no data (run hsmap data fetch): nothing to show")\n'
+             'report.metrics({"datasets_available": False})']
+    (nbdir / "01-needs-data.ipynb").write_text(json.dumps(_notebook(cells, "Needs data")), encoding="utf-8")
+    out = tmp_path / "reports"
+    assert main(["reproduce", "--notebooks", str(nbdir), "--out", str(out), "--no-verify"]) == 0  # not a failure
+    assert "0 of 1 notebooks ok, 1 skipped (inputs missing)" in capsys.readouterr().out
+    (entry,) = json.loads((out / "index.json").read_text())["notebooks"]
+    assert entry["status"] == "skipped" and entry["error"] == "no data (run hsmap data fetch): nothing to show"
+    assert entry["warnings"] == ["skipped maps: no data (run hsmap data fetch): the maps"]
+    page = (out / "index.html").read_text()
+    assert "<span class='status skipped'>skipped</span>" in page and "no data (run hsmap data fetch)" in page
+    assert "complete: 0 of 1 notebooks ok, 1 skipped" in page
+    assert "hsmap-banner skipped" in (out / "01-needs-data.html").read_text()
+
+
+def test_reproduce_says_what_to_install_without_the_study_tooling(monkeypatch, capsys):
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "papermill" else real(name, *a))
+    for args in (["reproduce", "--notebooks", str(DATA), "--list"], ["reproduce", "--notebooks", str(DATA)]):
+        assert main(args) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "papermill is not installed: pip install 'hsmap[study]'" in err
+
+
+def test_a_kernel_that_dies_before_it_starts_gets_one_more_try(tmp_path, monkeypatch):
+    import papermill
+
+    from hsmap.study.batch import discover, execute_notebook
+
+    nbdir = tmp_path / "notebooks"
+    nbdir.mkdir()
+    shutil.copy(DATA / "03-second.ipynb", nbdir / "03-second.ipynb")
+    (spec,) = discover(nbdir)
+    calls = []
+
+    def flaky(*args, **kwargs):
+        calls.append(1)
+        if len(calls) <= deaths:
+            raise RuntimeError("Kernel died before replying to kernel_info")
+
+    monkeypatch.setattr(papermill, "execute_notebook", flaky)
+    deaths = 1
+    run = execute_notebook(spec, tmp_path / "reports", {"quick": True}, verify_recordings=False)
+    assert run.status == "ok" and len(calls) == 2
+    assert any("started again" in w for w in run.warnings)
+    calls.clear()
+    deaths = 2
+    run = execute_notebook(spec, tmp_path / "reports", {"quick": True}, verify_recordings=False)
+    assert run.status == "failed" and len(calls) == 2 and "died before replying" in run.error

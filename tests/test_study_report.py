@@ -102,3 +102,21 @@ def test_readable_label():
     assert readable_label("hsslam_final_error_m") == "HS-SLAM final error"
     assert readable_label("odometry_map_error_p95_m") == "odometry map error 95th percentile"
     assert readable_label("rooms") == "rooms"
+
+
+def test_report_defaults_to_the_reports_folder_and_records_skips(tmp_path, no_notebook_env, monkeypatch, capsys):
+    from hsmap.study import paths
+
+    monkeypatch.setattr(paths, "reports_dir", lambda: tmp_path / "default-reports")
+    report = NotebookReport("", "08-real-benchmarks")  # the notebooks' default out_dir
+    assert report.dir == tmp_path / "default-reports" / "08-real-benchmarks" and report.dir.is_dir()
+    report.skip("no data (run hsmap data fetch):\n  freiburg", part="relations")
+    report.metrics({"datasets_available": False})
+    report.skip("no data (run hsmap data fetch)")
+    doc = json.loads((report.dir / "metrics.json").read_text())
+    assert doc["skipped"] == "no data (run hsmap data fetch)"
+    assert doc["skipped_parts"] == {"relations": "no data (run hsmap data fetch): freiburg"}  # one line
+    assert doc["metrics"] == {"datasets_available": False}
+    assert "SKIPPED: no data (run hsmap data fetch)" in capsys.readouterr().out
+    with pytest.raises(InputError, match="reason"):
+        report.skip("  ")

@@ -23,7 +23,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="notebooks run at once, each in its own process (default 1)")
     parser.add_argument("--out", default="reports", metavar="DIR", help="reports folder (default reports/)")
     parser.add_argument("--notebooks", default=None, metavar="DIR",
-                        help="folder of the study notebooks (default notebooks/ here, else the checkout's)")
+                        help="folder of the study notebooks (default notebooks/ here, else the checkout's, else "
+                             "the ones installed with hsmap)")
     parser.add_argument("-p", "--parameter", nargs=2, action="append", default=[], metavar=("KEY", "VALUE"),
                         help="extra parameter for every notebook, VALUE read as YAML (repeatable)")
     parser.add_argument("--parameters-file", metavar="YAML",
@@ -39,20 +40,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _notebooks_dir(arg: str | None):
     from pathlib import Path
 
-    from ..study.paths import repository_root
+    from ..study.paths import notebooks_dir
 
     if arg is not None:
         return Path(arg)
     here = Path("notebooks")
     if here.is_dir():
         return here
-    checkout = repository_root() / "notebooks"
-    return checkout if checkout.is_dir() else here
+    return notebooks_dir()  # the checkout's, else the ones installed with hsmap
 
 
 def _list(notebooks_dir, only) -> int:
-    from ..study.batch import discover, inspect_parameters, select
+    from ..study.batch import discover, inspect_parameters, require_study_tooling, select
 
+    require_study_tooling()
     specs = select(discover(notebooks_dir), only)
     if not specs:
         print(f"no study notebooks (NN-name.ipynb) in {notebooks_dir}")
@@ -95,8 +96,9 @@ def run(args: argparse.Namespace) -> int:
     from ..study.report import format_duration
 
     n = len(result.runs)
-    print(f"{n - len(result.failed)} of {n} notebooks ok in {format_duration(result.duration_s)}; "
-          f"index: {result.index}")
+    skipped = f", {len(result.skipped)} skipped (inputs missing)" if result.skipped else ""
+    print(f"{n - len(result.failed) - len(result.skipped)} of {n} notebooks ok{skipped} in "
+          f"{format_duration(result.duration_s)}; index: {result.index}")
     if result.failed:
         print("failed: " + ", ".join(r.name for r in result.failed), file=sys.stderr)
         return 1

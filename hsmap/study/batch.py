@@ -9,6 +9,11 @@ For each ``notebooks/NN-name.ipynb`` (NAME = its file stem) a run writes:
 - ``reports/index.html`` and ``index.json``: every notebook with its status, headline numbers beside the
   paper's, duration and date, the versions, the total duration.
 
+A notebook's status is "ok", "failed", or "skipped" when it ran through but said its inputs were missing
+(:meth:`hsmap.study.report.NotebookReport.skip`, e.g. notebook 08 without the public benchmarks: "skipped: no
+data (run hsmap data fetch)"); a skipped notebook does not fail the batch. The batch needs the study tooling
+(papermill, nbconvert, ipykernel: ``pip install 'hsmap[study]'``), which the library does not.
+
 Each notebook gets the parameters ``quick`` (bool) and ``out_dir`` (the reports folder, absolute) plus any
 overrides, runs in a fresh kernel of the current interpreter (with ``RERUN_ANALYTICS=0`` and
 ``$HSMAP_NOTEBOOK`` = NAME) with the notebook's folder as working directory. A notebook that fails does not
@@ -47,7 +52,7 @@ from pathlib import Path
 from typing import Any
 
 from .. import __version__
-from ..errors import ConfigError, InputError, OutputError
+from ..errors import ConfigError, DependencyError, InputError, OutputError
 from ..io import atomic_open, write_json, write_text
 from .report import NOTEBOOK_ENV, read_metrics
 
@@ -64,13 +69,35 @@ __all__ = [
     "notebook_to_html",
     "environment_info",
     "KERNEL_NAME",
+    "require_study_tooling",
 ]
 
 NOTEBOOK_RE = re.compile(r"^(\d{2})-([a-z0-9][a-z0-9_-]*)\.ipynb$")
 KERNEL_NAME = "hsmap-python"
 #: Parameters every notebook receives.
 STANDARD_PARAMETERS = ("quick", "out_dir")
+#: Parameters that name a file or folder: a relative one is taken from the caller's working directory (a notebook
+#: runs in its own folder), e.g. ``hsmap reproduce -p dataset my-recording.bag``.
+PATH_PARAMETERS = ("dataset", "datasets")
 _BLAS_VARS = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+#: The study tooling the batch imports, and the distribution each comes from.
+STUDY_TOOLING = {"papermill": "papermill", "nbformat": "nbformat", "nbconvert": "nbconvert",
+                 "ipykernel": "ipykernel"}
+
+
+def require_study_tooling() -> None:
+    """Raise :class:`~hsmap.errors.DependencyError` (one line: what to install) when the study tooling is
+    missing: ``pip install hsmap`` gives the library and the commands without Jupyter."""
+    import importlib.util
+
+    missing = [dist for mod, dist in STUDY_TOOLING.items() if importlib.util.find_spec(mod) is None]
+    if missing:
+        raise DependencyError(
+            f"running the study notebooks needs the study tooling, and {', '.join(missing)} "
+            f"{'is' if len(missing) == 1 else 'are'} not installed: pip install 'hsmap[study]' "
+            "(a checkout's 'make setup' installs it)")
 
 
 def _lighten_jupyter_imports() -> None:
@@ -175,6 +202,7 @@ def select(specs: Sequence[NotebookSpec], only: Sequence[str] | None) -> list[No
 
 def inspect_parameters(spec: NotebookSpec | str | os.PathLike) -> dict[str, dict[str, Any]]:
     """The notebook's ``parameters`` cell as papermill reads it: name -> {inferred_type_name, default, help}."""
+    require_study_tooling()
     _lighten_jupyter_imports()
     import papermill
 
@@ -232,7 +260,7 @@ class NotebookRun:
     name: str
     notebook: str
     title: str = ""
-    status: str = "not run"  # "ok", "failed", "running", "pending", "not run"
+    status: str = "not run"  # "ok", "skipped", "failed", "running", "pending", "not run", "interrupted"
     error: str | None = None
     error_cell: int | None = None
     started: str | None = None
@@ -248,7 +276,8 @@ class NotebookRun:
 
     @property
     def ok(self) -> bool:
-        return self.status == "ok"
+        """Ran through: "ok", or "skipped" (its inputs are missing, and it said so)."""
+        return self.status in ("ok", "skipped")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -329,6 +358,12 @@ def _retarget(nb: Any, stage: Path, out_dir: Path) -> Any:
     return nbformat.reads(text.replace(old, new), as_version=4) if old in text else nb
 
 
+def _died_at_start(exc: BaseException) -> bool:
+    """Whether the kernel died before it ran anything (jupyter_client's "Kernel died before replying to
+    kernel_info"): the notebook itself is not at fault."""
+    return "died before replying to kernel_info" in str(exc)
+
+
 def _error_text(exc: BaseException) -> tuple[str, int | None]:
     from papermill.exceptions import PapermillExecutionError
 
@@ -350,6 +385,7 @@ _HTML_TEMPLATE = r"""
   .hsmap-banner { margin: 0 0 1.2em 0; padding: 0.7em 1em; border-radius: 4px; font-family: sans-serif;
                   font-size: 14px; background: #e8f4ea; border-left: 6px solid #2e7d32; }
   .hsmap-banner.failed { background: #fdecea; border-left-color: #c62828; }
+  .hsmap-banner.skipped { background: #fff8e1; border-left-color: #a66b00; }
   .hsmap-banner h2 { margin: 0 0 0.3em 0; font-size: 18px; }
   .hsmap-banner pre { white-space: pre-wrap; margin: 0.4em 0; }
   .hsmap-banner table td { padding: 0 1em 0 0; }
@@ -365,8 +401,10 @@ _HTML_TEMPLATE = r"""
 {{ super() }}
 {%- set h = resources.hsmap -%}
 <div class="hsmap-banner {{ h.status }}">
-  <h2>{{ h.title | e }} &mdash; {% if h.status == 'ok' %}ok{% else %}FAILED{% endif %}</h2>
-  {% if h.status != 'ok' %}<pre>{{ h.error | e }}</pre>
+  <h2>{{ h.title | e }} &mdash; {% if h.status == 'ok' %}ok{% elif h.status == 'skipped' %}skipped{% else %}FAILED{% endif %}</h2>
+  {% if h.status == 'skipped' %}<pre>{{ h.error | e }}</pre>
+  <p>The notebook ran, but its inputs are missing: it shows nothing.</p>
+  {% elif h.status != 'ok' %}<pre>{{ h.error | e }}</pre>
   <p>{% if h.error_cell %}The notebook stopped at cell [{{ h.error_cell }}]: this report is incomplete.
   {%- else %}Its results are not to be trusted.{% endif %}</p>{% endif %}
   <table>
@@ -525,16 +563,23 @@ def execute_notebook(
     staged_parameters = {**parameters, "out_dir": str(stage)} if "out_dir" in parameters else dict(parameters)
     try:
         t0 = time.perf_counter()
-        try:
-            papermill.execute_notebook(
-                str(spec.path), str(tmp_ipynb), parameters=staged_parameters, kernel_name=kernel_name,
-                language="python", cwd=str(spec.path.parent), progress_bar=False, log_output=False,
-                execution_timeout=timeout, kernel_manager_class=_kernel_manager_class(kernel_log),
-            )
-            run.status = "ok"
-        except Exception as exc:  # the notebook failed (or its kernel died): record it, carry on
-            run.status = "failed"
-            run.error, run.error_cell = _error_text(exc)
+        for attempt in (1, 2):
+            try:
+                papermill.execute_notebook(
+                    str(spec.path), str(tmp_ipynb), parameters=staged_parameters, kernel_name=kernel_name,
+                    language="python", cwd=str(spec.path.parent), progress_bar=False, log_output=False,
+                    execution_timeout=timeout, kernel_manager_class=_kernel_manager_class(kernel_log),
+                )
+                run.status = "ok"
+            except Exception as exc:  # the notebook failed (or its kernel died): record it, carry on
+                if attempt == 1 and _died_at_start(exc):
+                    # no cell ran: a kernel that could not start (on a busy machine, parallel kernels can race
+                    # for the same ports) gets one more try
+                    run.warnings.append(f"the kernel died before it started ({exc}); started again")
+                    continue
+                run.status = "failed"
+                run.error, run.error_cell = _error_text(exc)
+            break
         run.duration_s = round(time.perf_counter() - t0, 3)
 
         left = _sweep_temporaries(folder)
@@ -551,6 +596,11 @@ def execute_notebook(
         run.metrics = read_metrics(folder / "metrics.json")
         if run.ok and run.metrics is None:
             run.warnings.append("the notebook wrote no metrics.json (study.metrics(...))")
+        if run.ok and run.metrics is not None:
+            if run.metrics.get("skipped"):
+                run.status, run.error = "skipped", str(run.metrics["skipped"])
+            for part, why in (run.metrics.get("skipped_parts") or {}).items():
+                run.warnings.append(f"skipped {part}: {why}")
         if run.recordings and verify_recordings:
             from ..viz.rerun import rerun_binary, verify_rrd
 
@@ -734,11 +784,16 @@ class BatchResult:
 
     @property
     def ok(self) -> bool:
+        """No notebook run now failed (skipped ones did not fail)."""
         return all(r.ok for r in self.runs)
 
     @property
     def failed(self) -> list[NotebookRun]:
         return [r for r in self.runs if not r.ok]
+
+    @property
+    def skipped(self) -> list[NotebookRun]:
+        return [r for r in self.runs if r.status == "skipped"]
 
 
 def _previous_run(out_dir: Path, spec: NotebookSpec) -> NotebookRun | None:
@@ -831,6 +886,7 @@ def run_notebooks(
     BatchResult
         ``.ok`` is False when any notebook run now failed.
     """
+    require_study_tooling()
     if int(jobs) < 1:
         raise InputError(f"jobs must be >= 1, got {jobs}")
     jobs = int(jobs)
@@ -856,6 +912,8 @@ def run_notebooks(
             if h.name in per_nb:
                 per_nb[h.name].update(params)
 
+    common = _absolute_paths(common)
+    per_nb = {k: _absolute_paths(v) for k, v in per_nb.items()}
     from ..io import folder_lock, prepare_output_dir, sweep_stale_temporaries
 
     out = prepare_output_dir(Path(out_dir).resolve(), "reports folder")
@@ -907,7 +965,7 @@ def run_notebooks(
         write_index(final=False)
         if log is not None:
             msg = f"[{len(runs)}/{len(chosen)}] {run.name}: {run.status} in {run.duration_s or 0:.1f} s"
-            if not run.ok:
+            if run.status != "ok" and run.error:
                 msg += f": {run.error}"
             for w in run.warnings:
                 msg += f"\n    warning: {w}"
@@ -941,6 +999,16 @@ def run_notebooks(
         versions=versions,
         index=index_path,
     )
+
+
+def _absolute_paths(params: dict[str, Any]) -> dict[str, Any]:
+    """``params`` with the relative paths of :data:`PATH_PARAMETERS` made absolute (from the working directory)."""
+    out = dict(params)
+    for k in PATH_PARAMETERS:
+        v = out.get(k)
+        if isinstance(v, str) and v.strip() and not Path(v).expanduser().is_absolute():
+            out[k] = str(Path(v).expanduser().resolve())
+    return out
 
 
 def _run_all(order, out, common, per_nb, quick, jobs, timeout, verify_recordings, versions, entries, started,

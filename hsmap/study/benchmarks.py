@@ -1,8 +1,8 @@
 """The public benchmarks of the study: HS-SLAM on the Freiburg logs (relations metric, Kümmerle et al. 2009) and
 room segmentation on the IPA maps (Bormann et al. 2016), beside the published numbers of other methods.
 
-The published numbers live in a data file, ``data/published.yaml`` (:func:`published_references`), with their
-sources; nothing here hard-codes them. :func:`freiburg_relations` runs (cached) HS-SLAM on each log and scores
+The published numbers live in a data file shipped with the package, ``hsmap/study/published.yaml``
+(:func:`published_references`), with their sources; nothing here hard-codes them. :func:`freiburg_relations` runs (cached) HS-SLAM on each log and scores
 it and the raw odometry; :func:`room_segmentation_benchmark` segments each building's plain and furnished map
 and scores it; :func:`real_benchmark_metrics` turns both into notebook 08's metrics, with the published method
 the index shows beside each headline number.
@@ -23,7 +23,6 @@ from ..config import read_yaml
 from ..errors import ConfigError, InputError
 from ..segmentation import SegmentationConfig
 from ..slam import SlamConfig
-from .paths import data_dir
 from .runs import SlamRun, cached_slam
 
 __all__ = [
@@ -56,7 +55,7 @@ BORMANN_BUILDINGS = ("lab_ipa", "lab_c_scan", "Freiburg52_scan", "Freiburg79_sca
 
 
 def published_references(path: str | os.PathLike | None = None) -> dict:
-    """The published numbers (``data/published.yaml`` of the repository, or ``path``).
+    """The published numbers (``published.yaml`` of this package, or ``path``).
 
     Returns
     -------
@@ -65,7 +64,12 @@ def published_references(path: str | os.PathLike | None = None) -> dict:
         ``rotation_deg`` as [mean, std] or None; ``cartographer_wall_clock``) and ``room_segmentation``
         (``methods``: recall and precision in percent per map kind, seconds per map).
     """
-    p = Path(path) if path is not None else data_dir() / "published.yaml"
+    if path is None:
+        from importlib import resources
+
+        with resources.as_file(resources.files(__package__).joinpath("published.yaml")) as p:
+            return published_references(p)
+    p = Path(path)
     doc = read_yaml(p, "published numbers")
     for key in ("freiburg_relations", "room_segmentation"):
         if not isinstance(doc, dict) or not isinstance(doc.get(key), dict) or "methods" not in doc[key]:

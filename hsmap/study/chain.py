@@ -565,12 +565,30 @@ img{{max-width:100%}}figure{{margin:1.5em 0}}.warn{{color:#a40}}</style></head><
 """
 
 
+MAP_LEGEND = """### hsmap map: the paper's chain on one recording
+- **coloured cells**: the rooms found on the 3D map's slice, one colour per room; the graph floats above the
+  map (rooms and doors, each edge's length at its middle)
+- **height-coloured points**: the 6-DOF HS-SLAM 3D map below 2.4 m (`world/map/ceiling`, above it, is hidden at
+  first; the eye icon in the blueprint panel shows it)
+- **red points** at the 2D LiDAR's height: the 2D HS-SLAM map; `world/map/floor`, its grid, is hidden at first
+- **red / black points** in a door: the door's points in the 3D / 2D map (`world/doors/D<k>`)
+- **blue line**: the 6-DOF trajectory (estimate); **yellow line**: the 2D trajectory; **orange box**: the robot
+"""
+
+
 def _record(path: Path, run2, run3, grids, fusion, seg, graph, doors, pts2, pts3, h2) -> None:
     from ..viz import map_figures
     from ..viz import rerun as hv
+    from .recording import _bounds_of_grid
 
     g = grids["slice"]
-    with hv.open_recording(path, application_id="hsmap_map", blueprint=hv.default_blueprint()) as rec:
+    blueprint = hv.default_blueprint(
+        legend=True, eye=hv.eye_for_bounds(*_bounds_of_grid(g.geometry, (0.0, 3.0))),
+        hidden=("world/map/ceiling", "world/map/floor"),
+        names={"3D world": "3D map, rooms, doors and graph (Figures 15/16)", "2D map": "slice: rooms and doors",
+               "Room graph": "room/door graph (Figure 16)"})
+    with hv.open_recording(path, application_id="hsmap_map", blueprint=blueprint) as rec:
+        hv.log_legend(rec, MAP_LEGEND)
         hv.log_occupancy_grid(rec, g.data, g.geometry)
         f = fusion["floor"]
         hv.log_occupancy_grid(rec, f.data, f.geometry, entity="world/map/floor", map_entity=None, z=h2,
@@ -578,7 +596,11 @@ def _record(path: Path, run2, run3, grids, fusion, seg, graph, doors, pts2, pts3
         hv.log_room_labels(rec, seg.labels, g.geometry)
         if graph.number_of_nodes():
             hv.log_room_graph(rec, map_figures.graph_for_plot(graph), geometry=g.geometry, z=2.9)
-        hv.log_points(rec, "world/map/points3d", run3.map_points, color_by_height=True, z_range=(0.0, 2.8),
+        m3 = np.asarray(run3.map_points, dtype=float)
+        low = m3[:, 2] <= 2.4 if len(m3) else np.zeros(0, bool)
+        hv.log_points(rec, "world/map/points3d", m3[low], color_by_height=True, z_range=(0.0, 2.8),
+                      voxel=0.1, static=True, radius=0.015)
+        hv.log_points(rec, "world/map/ceiling", m3[~low], color_by_height=True, z_range=(0.0, 2.8),
                       voxel=0.1, static=True, radius=0.015)
         m2 = run2.map_points
         hv.log_points(rec, "world/map/points2d", np.column_stack([m2, np.full(len(m2), h2)]), colors=(214, 39, 40),

@@ -18,6 +18,14 @@ simulated run shared by notebooks 04-07 (computed once, then cached).
 The maps are a folder of :class:`hsmap.study.cache.FolderCache` under ``data/generated/maps/`` (``maps.npz``),
 keyed on the dataset, the SLAM runs' keys, the grid parameters and the code; the SLAM runs are the cached runs
 every other notebook shares.
+
+``two_lidar_maps(dataset=PATH)`` makes the same maps of a recording instead of a scenario: any input
+:func:`hsmap.datasets.open.open_dataset` reads (a folder written by ``hsmap simulate``, a ROS1 or ROS2 bag, ...)
+with 2D scans and 3D clouds. Its 2D and 6-DOF HS-SLAM runs (the 6-DOF one seeded by the 2D poses) use the
+command line's default configuration (``hsmap slam``: the odometry when the recording has it) and start at its
+first ground-truth pose when it has a ground truth (a simulator folder), else at the origin. A recording without
+ground truth has no true rooms or doors (:meth:`TwoLidarMaps.true_doors` is None): the notebooks then show the
+maps and their segmentation without scoring them.
 """
 
 from __future__ import annotations
@@ -48,7 +56,8 @@ from .paths import generated_dir
 from .runs import SimulatedRuns, simulated_slam_runs
 
 __all__ = ["point_maps", "point_map", "scan_grid", "map_distances", "TwoLidarMaps", "two_lidar_maps",
-           "default_maps_dir"]
+           "recording_maps", "default_maps_dir", "MapSegmentations", "segment_maps", "door_errors",
+           "true_room_names"]
 
 
 def default_maps_dir() -> Path:
@@ -223,19 +232,21 @@ def map_distances(points: ArrayLike, reference: ArrayLike) -> NDArray[np.float64
 
 @dataclass
 class TwoLidarMaps:
-    """The maps of one simulated run (see the module docstring). World frame = the ground truth's.
+    """The maps of one simulated run or recording (see the module docstring). World frame = the ground
+    truth's, or the first 2D HS-SLAM pose's for a recording without ground truth.
 
     Attributes
     ----------
-    dataset : SimulatedDataset
+    dataset : Dataset
+        A SimulatedDataset for a scenario; for a recording, what ``open_dataset`` returned.
     frames : int
         Frames used (the first ``frames`` of the dataset).
-    groundtruth : Trajectory
-        (frames, 3) true robot poses.
+    groundtruth : Trajectory or None
+        (K, 3) true robot poses (None for a recording without ground truth).
     slam2d : Trajectory
-        (frames, 3) 2D HS-SLAM poses of the robot base (the true poses with ``poses="groundtruth"``).
+        (K, 3) 2D HS-SLAM poses of the robot base (the true poses with ``poses="groundtruth"``).
     slam3d : Trajectory
-        (frames, 6) 6-DOF HS-SLAM poses of the robot base (the true poses with ``poses="groundtruth"``).
+        (K, 6) 6-DOF HS-SLAM poses of the robot base (the true poses with ``poses="groundtruth"``).
     map2d : ndarray of shape (N, 2)
         The 2D HS-SLAM map (keyframe scans, one point per 5 cm cell); empty with ``poses="groundtruth"``.
     map3d : ndarray of shape (M, 3)
@@ -264,9 +275,9 @@ class TwoLidarMaps:
         True when this call read a stored result.
     """
 
-    dataset: SimulatedDataset
+    dataset: Dataset
     frames: int
-    groundtruth: Trajectory
+    groundtruth: Trajectory | None
     slam2d: Trajectory
     slam3d: Trajectory
     map2d: NDArray[np.float64]
@@ -284,6 +295,24 @@ class TwoLidarMaps:
     key: str = ""
     folder: Path | None = None
     cached: bool = False
+
+    def true_doors(self) -> list[dict] | None:
+        """The world's doors (``doors.json`` of a simulated dataset: name, center, width, ...); None when the
+        dataset has none (a recording)."""
+        return self.dataset.doors() if isinstance(self.dataset, SimulatedDataset) else None
+
+    def true_rooms(self) -> tuple[NDArray[np.uint16], GridGeometry, dict[int, str]] | None:
+        """The world's room labels (image, its geometry, label -> name) of a simulated dataset; None without."""
+        return self.dataset.labels() if isinstance(self.dataset, SimulatedDataset) else None
+
+    @property
+    def sensor2d_height(self) -> float | None:
+        """Mounting height (m) of the 2D LiDAR when the dataset says it (the simulator does), else None."""
+        sensors = getattr(self.dataset, "sensors", None)
+        try:
+            return float(sensors["lidar2d"]["mount_height"])
+        except (TypeError, KeyError, ValueError):
+            return None
 
 
 def _grid_arrays(prefix: str, g: OccupancyGrid) -> dict[str, np.ndarray]:
@@ -370,6 +399,148 @@ def _maps_loader(ds: SimulatedDataset, z_range: tuple[float, float], poses: str)
     return load
 
 
+def _compute_recording_maps(dataset, open_kwargs: Mapping[str, Any] | None, n: int, runs: tuple,
+                            z_range: tuple[float, float], resolution: float, bins: int, every: int):
+    """The maps' folder writer for a recording (any Dataset, matched to the SLAM poses by stamp)."""
+
+    def compute(folder: Path) -> None:
+        from ..datasets.open import open_dataset
+        from ..fusion import slice_scans
+        from ..grid import scans_to_points
+        from ..io import write_json
+
+        ds = dataset if isinstance(dataset, Dataset) else open_dataset(dataset, **dict(open_kwargs or {}))
+        run3, run6 = runs
+        seconds = {"slam2d": run3.seconds, "slam3d": run6.seconds}
+        t = time.perf_counter()
+        stamps, scans, ext2, idx = [], [], [], []
+        for k, f in enumerate(_frames(ds, clouds=False, every=1, max_frames=n)):
+            if k % every == 0 and f.scan2d is not None:
+                stamps.append(f.stamp)
+                scans.append(f.scan2d)
+                ext2.append(f.extrinsic2d)
+                idx.append(k)
+        if not scans:
+            raise InputError(f"{ds.name}: no frame with a 2D scan among the first {n}: the floor map needs them")
+        stamps_a = np.asarray(stamps, dtype=float)
+        p2, ok2 = run3.trajectory.at(stamps_a)
+        if not ok2.any():
+            raise InputError(f"{ds.name}: no 2D scan has a 2D HS-SLAM pose (stamps differ?)")
+        keep2 = np.flatnonzero(ok2)
+        floor_scans = [scans[i] for i in keep2]
+        ext = np.asarray([ext2[i] for i in keep2], dtype=float)
+        floor = grid_from_scans(floor_scans, p2, resolution, extrinsic=ext)
+        floor_pts = _thin(scans_to_points(floor_scans, p2, ext), 0.02)
+        seconds["floor"] = time.perf_counter() - t
+
+        t = time.perf_counter()
+        p3, ok3 = run6.trajectory.at(stamps_a)
+        if not ok3.any():
+            raise InputError(f"{ds.name}: no frame has a 6-DOF HS-SLAM pose (stamps differ?)")
+        wanted = {idx[i] for i in np.flatnonzero(ok3)}
+        sliced = (f for k, f in enumerate(_frames(ds, clouds=True, every=1, max_frames=n)) if k in wanted)
+        sscans, spos = slice_scans(sliced, p3, z_min=z_range[0], z_max=z_range[1], bins=bins)
+        slice_ = grid_from_scans(sscans, spos, resolution)
+        slice_pts = _thin(scans_to_points(sscans, spos), 0.02)
+        seconds["slice"] = time.perf_counter() - t
+
+        gt = getattr(ds, "groundtruth", None)
+        gt_poses, gt_stamps = np.empty((0, 3)), np.empty(0)
+        if gt is not None:
+            gt_poses, ok = gt.as_3dof().at(stamps_a)
+            gt_stamps = stamps_a[ok]
+        np.savez(folder / "maps.npz", slam2d_stamps=stamps_a[ok2], slam2d=p2, slam3d_stamps=stamps_a[ok3],
+                 slam3d=p3, groundtruth_stamps=gt_stamps, groundtruth=gt_poses, map2d=run3.map_points,
+                 map3d=run6.map_points, floor_points=floor_pts, slice_points=slice_pts,
+                 slice_scan_points=np.vstack(sscans) if sscans else np.empty((0, 2)),
+                 slice_scan_sizes=np.array([len(a) for a in sscans], dtype=np.int64), slice_poses=spos,
+                 **_grid_arrays("floor", floor), **_grid_arrays("slice", slice_))
+        write_json(folder / "meta.json", {"seconds": seconds, "frames": int(n), "dataset": ds.name,
+                                          "slam_metrics": {"2d": _slam_summary(run3), "3d": _slam_summary(run6)}})
+
+    return compute
+
+
+def _recording_loader(ds: Dataset, z_range: tuple[float, float]):
+    def load(folder: Path) -> TwoLidarMaps:
+        meta = json.loads((folder / "meta.json").read_text(encoding="utf-8"))
+        with np.load(folder / "maps.npz") as z:
+            gt = (Trajectory(z["groundtruth_stamps"], z["groundtruth"]) if len(z["groundtruth_stamps"]) else None)
+            return TwoLidarMaps(
+                dataset=ds, frames=int(meta["frames"]), groundtruth=gt,
+                slam2d=Trajectory(z["slam2d_stamps"], z["slam2d"]), slam3d=Trajectory(z["slam3d_stamps"], z["slam3d"]),
+                map2d=z["map2d"], map3d=z["map3d"], floor=_grid_from(z, "floor"), slice=_grid_from(z, "slice"),
+                floor_points=z["floor_points"], slice_points=z["slice_points"],
+                slice_scans=np.split(z["slice_scan_points"], np.cumsum(z["slice_scan_sizes"])[:-1]),
+                slice_poses=z["slice_poses"], z_range=z_range, poses="slam", seconds=meta["seconds"],
+                slam_metrics=meta["slam_metrics"], folder=folder)
+
+    return load
+
+
+def recording_maps(
+    dataset: str | os.PathLike | Dataset,
+    seed: int = 1,
+    *,
+    max_frames: int | None = None,
+    z_range: tuple[float, float] = (1.7, 1.8),
+    resolution: float = 0.05,
+    slice_bins: int = 720,
+    every: int = 1,
+    use_odometry: bool | None = None,
+    open_kwargs: Mapping[str, Any] | None = None,
+    cache_dir: str | os.PathLike | None = None,
+) -> TwoLidarMaps:
+    """The maps of :func:`two_lidar_maps` made from a recording (see the module docstring).
+
+    Parameters
+    ----------
+    dataset : path or Dataset
+        Anything :func:`hsmap.datasets.open.open_dataset` opens (``open_kwargs`` are its keywords) that has 2D
+        scans and 3D clouds.
+    use_odometry : bool, optional
+        Default: the command line's (:class:`hsmap.slam.SlamConfig`), which uses the odometry when there is one.
+
+    Other parameters are those of :func:`two_lidar_maps`.
+    """
+    from ..datasets.open import open_dataset
+    from ..slam import SlamConfig
+    from .runs import cached_slam, dataset_fingerprint
+
+    if isinstance(dataset, (str, os.PathLike)) and not str(dataset).strip():
+        raise InputError("dataset: empty path")
+    if int(every) < 1:
+        raise InputError(f"every must be >= 1, got {every}")
+    if max_frames is not None and int(max_frames) < 1:
+        raise InputError(f"max_frames must be >= 1, got {max_frames}")
+    ds = dataset if isinstance(dataset, Dataset) else open_dataset(dataset, **dict(open_kwargs or {}))
+    n = len(ds) if max_frames is None else min(int(max_frames), len(ds))
+    if n < 1:
+        raise InputError(f"{ds.name}: the recording has no frames")
+    # the key names the input as given (a path: its contents and options), the runs and maps share it
+    src = ds if isinstance(dataset, Dataset) else dataset
+    kw = None if isinstance(dataset, Dataset) else open_kwargs
+    base = SlamConfig()
+    odo = base.use_odometry if use_odometry is None else bool(use_odometry)
+    gt = getattr(ds, "groundtruth", None)
+    start = None if gt is None else gt.as_3dof().poses[0]
+    run3 = cached_slam(src, SlamConfig(dof=3, use_odometry=odo), seed, max_frames=n, initial_pose=start,
+                       open_kwargs=kw)
+    start6 = None if gt is None else gt.as_6dof().poses[0]
+    run6 = cached_slam(src, SlamConfig(dof=6, use_odometry=odo), seed, max_frames=n, initial_pose=start6,
+                       prior=run3.trajectory, open_kwargs=kw)
+    z = (float(z_range[0]), float(z_range[1]))
+    params = {"z_range": list(z), "resolution": float(resolution), "slice_bins": int(slice_bins),
+              "every": int(every), "use_odometry": odo, "frames": int(n), "seed": int(seed)}
+    desc = {"dataset": dataset_fingerprint(src, kw), "params": params, "slam": [run3.key, run6.key]}
+    slot = f"{slug(ds.name.split('.')[0])}-rec-seed{int(seed)}-{n}f-{description_digest(desc)[:16]}"
+    cache = FolderCache(cache_dir if cache_dir is not None else default_maps_dir())
+    got = cache.get(slot, desc, _compute_recording_maps(src, kw, n, (run3, run6), z, float(resolution),
+                                                        int(slice_bins), int(every)),
+                    _recording_loader(ds, z))
+    return dataclasses.replace(got.value, key=got.key, cached=got.cached)
+
+
 def two_lidar_maps(
     scenario: str = "two-rooms",
     seed: int = 1,
@@ -382,6 +553,7 @@ def two_lidar_maps(
     every: int = 1,
     use_odometry: bool = False,
     cache_dir: str | os.PathLike | None = None,
+    dataset: str | os.PathLike | Dataset | None = None,
 ) -> TwoLidarMaps:
     """The 2D and 3D HS-SLAM maps of a simulated run and the grids made from them (see the module docstring).
 
@@ -389,6 +561,10 @@ def two_lidar_maps(
     ----------
     scenario : str
         A shipped scenario (``two-rooms``, ``slam-office``) or a scenario file.
+    dataset : path or Dataset, optional
+        A recording to map instead of the scenario (:func:`recording_maps`; empty or None: the scenario). It is
+        mapped with HS-SLAM at the command line's defaults (``use_odometry`` does not apply; ``poses`` must be
+        ``"slam"``).
     seed : int
         Simulator seed and HS-SLAM seed.
     max_frames : int, optional
@@ -419,6 +595,11 @@ def two_lidar_maps(
 
     if poses not in ("slam", "groundtruth"):
         raise InputError(f"poses must be 'slam' or 'groundtruth', got {poses!r}")
+    if dataset is not None and (isinstance(dataset, Dataset) or str(dataset).strip()):
+        if poses != "slam":
+            raise InputError("a recording's maps are made at its HS-SLAM poses: poses must be 'slam'")
+        return recording_maps(dataset, seed, max_frames=max_frames, z_range=z_range, resolution=resolution,
+                              slice_bins=slice_bins, every=every, cache_dir=cache_dir)
     if int(every) < 1:
         raise InputError(f"every must be >= 1, got {every}")
     z = (float(z_range[0]), float(z_range[1]))
@@ -438,3 +619,120 @@ def two_lidar_maps(
     got = cache.get(slot, desc, _compute_maps(ds, n, runs, z, float(resolution), int(slice_bins), int(every)),
                     _maps_loader(ds, z, poses))
     return dataclasses.replace(got.value, key=got.key, cached=got.cached)
+
+
+# --- the maps' rooms, scored against the world's where it is known ----------------------------------------
+
+def door_errors(doors: Iterable[Any], true_doors: Iterable[Mapping[str, Any]] | None) -> list[float] | None:
+    """Distance (m) from each found door's centre to the nearest true door centre (``doors.json``'s
+    ``center``); None when there are no true doors to compare with (a recording without ground truth).
+
+    Parameters
+    ----------
+    doors : iterable of hsmap.segmentation.Door
+    true_doors : iterable of mapping, or None
+    """
+    if true_doors is None:
+        return None
+    centres = np.array([d["center"] for d in true_doors], dtype=float).reshape(-1, 2)
+    if len(centres) == 0:
+        return None
+    return [float(np.hypot(*(centres - np.asarray(d.centre, dtype=float)).T).min()) for d in doors]
+
+
+@dataclass
+class MapSegmentations:
+    """Both maps of a :class:`TwoLidarMaps` segmented with one configuration (:func:`segment_maps`).
+
+    Attributes
+    ----------
+    segmentations : dict
+        ``"floor"`` and ``"slice"``: :class:`hsmap.segmentation.Segmentation`.
+    scores : dict or None
+        The same keys: :class:`hsmap.evaluation.segmentation.SegmentationScores` against the world's rooms;
+        None without ground truth.
+    coverage : dict or None
+        The same keys: the share of the true rooms' floor each map sees free; None without ground truth.
+    truth : tuple or None
+        The world's room labels (image, geometry, label -> name), as :meth:`TwoLidarMaps.true_rooms`.
+    """
+
+    segmentations: dict
+    scores: dict | None
+    coverage: dict | None
+    truth: tuple | None
+
+    def title(self, key: str) -> str:
+        """``"precision P, recall R"`` of a map, or its room and door count without ground truth."""
+        if self.scores is not None:
+            s = self.scores[key]
+            return f"precision {s.precision:.3f}, recall {s.recall:.3f}"
+        seg = self.segmentations[key]
+        return f"{seg.n_rooms} rooms, {len(seg.doors)} doors (no ground truth)"
+
+
+def segment_maps(maps: TwoLidarMaps, config: Any = None, *,
+                 log: Any = print) -> MapSegmentations:
+    """Segment the floor-level map and the slice with one configuration and, where the world's rooms are known,
+    score both (Bormann et al.'s precision and recall, :func:`hsmap.evaluation.segmentation_scores`, on the
+    ground truth's grid) and measure how much of the true rooms' floor each map sees free.
+
+    Parameters
+    ----------
+    maps : TwoLidarMaps
+    config : hsmap.segmentation.SegmentationConfig, optional
+    log : callable or None
+        Receives one line per map.
+    """
+    from ..evaluation import segmentation_scores
+    from ..fusion import resample_grid
+    from ..segmentation import segment_rooms
+
+    truth = maps.true_rooms()
+    segs, scores, coverage = {}, {}, {}
+    name = getattr(maps.dataset, "name", "")
+    for key, grid in (("floor", maps.floor), ("slice", maps.slice)):
+        seg = segment_rooms(grid, config=config)
+        segs[key] = seg
+        line = f"{name} {key:5s}: {seg.n_rooms} rooms, {len(seg.doors)} doors"
+        if truth is not None:
+            gt, gt_geo, _ = truth
+            gt = gt.astype(np.int32)
+            labels = resample_grid(seg.labels.astype(np.int32), seg.geometry, gt_geo, fill=0)
+            sc = scores[key] = segmentation_scores(labels, gt, gt_is_labels=True)
+            free = resample_grid(grid.free.astype(np.uint8), grid.geometry, gt_geo, fill=0).astype(bool)
+            coverage[key] = float(free[gt > 0].mean()) if (gt > 0).any() else 0.0
+            line += (f"; precision {sc.precision:.4f}, recall {sc.recall:.4f} (area-weighted "
+                     f"{sc.precision_area:.4f} / {sc.recall_area:.4f}); free {100 * coverage[key]:.1f}% of the "
+                     "true rooms' floor")
+        else:
+            line += " (no ground truth: not scored)"
+        if log is not None:
+            log(line)
+    if truth is None:
+        return MapSegmentations(segs, None, None, None)
+    return MapSegmentations(segs, scores, coverage, truth)
+
+
+def true_room_names(segmentation: Any, truth: tuple | None) -> dict[int, str]:
+    """Our rooms named after the world's: for each label of ``segmentation``, the name of the true room it
+    overlaps most (``"outside"`` when it overlaps none); empty without ground truth (``truth`` None).
+
+    Parameters
+    ----------
+    segmentation : hsmap.segmentation.Segmentation
+    truth : tuple or None
+        (label image, its GridGeometry, label -> name), as :meth:`TwoLidarMaps.true_rooms`.
+    """
+    if truth is None:
+        return {}
+    from ..fusion import resample_grid
+
+    gt, gt_geo, gt_names = truth
+    ours = resample_grid(segmentation.labels.astype(np.int32), segmentation.geometry, gt_geo, fill=0)
+    names = {}
+    for lab in range(1, segmentation.n_rooms + 1):
+        hit = gt[ours == lab]
+        hit = hit[hit > 0]
+        names[lab] = gt_names.get(int(np.bincount(hit).argmax()), "?") if hit.size else "outside"
+    return names

@@ -10,14 +10,21 @@ into its own folder ``out_dir/NAME/``::
     with report.recording("slam") as rec:             # NAME/slam.rrd (a rerun recording)
         ...
 
-``hsmap reproduce`` (:mod:`hsmap.study.batch`) sets ``$HSMAP_NOTEBOOK`` to the notebook's name, so the name
-can be left out there; when both are given they must agree. Every file is written atomically.
+A study notebook names itself (its file stem), so that it runs the same under ``hsmap reproduce``, plain
+papermill, ``jupyter nbconvert --execute`` and JupyterLab. ``hsmap reproduce`` (:mod:`hsmap.study.batch`) also
+sets ``$HSMAP_NOTEBOOK`` to the name it runs the notebook as; when both are there they must agree. An empty
+``out_dir`` is the default reports folder (:func:`hsmap.study.paths.reports_dir`). Every file is written
+atomically.
+
+A notebook whose inputs are missing (notebook 08 without the public benchmarks) calls :meth:`NotebookReport.skip`:
+``metrics.json`` then says ``skipped`` with the reason, and the batch marks the notebook "skipped", not "ok".
 
 ``metrics.json`` holds one JSON object::
 
     {"notebook": NAME, "metrics": {key: value}, "paper": {key: value},
      "reference": {key: {"value": v, "source": "who published it"}}, "headline": [key, ...],
-     "units": {key: unit}, "labels": {key: "what it is"}, "notes": "..."}
+     "units": {key: unit}, "labels": {key: "what it is"}, "notes": "...",
+     "skipped": "why the whole notebook did not run" (only then), "skipped_parts": {part: "why"} (only then)}
 
 ``paper`` holds the paper's own numbers; ``reference`` other published numbers, each with its source (the
 paper has no result on the public benchmarks). ``headline`` lists the keys the index shows, ours beside the
@@ -227,12 +234,14 @@ class NotebookReport:
     Parameters
     ----------
     out_dir : str or path-like
-        The reports folder (the notebook's ``out_dir`` parameter).
+        The reports folder (the notebook's ``out_dir`` parameter); empty or None: the default reports folder
+        (:func:`hsmap.study.paths.reports_dir`: a checkout's ``reports/``, else ``./reports``).
     name : str, optional
-        The notebook's name, its file stem (``"01-odometry-vs-slam"``). By default it comes from
-        ``$HSMAP_NOTEBOOK`` (set by ``hsmap reproduce``) or from the front end (Jupyter, VS Code). When
-        given while ``$HSMAP_NOTEBOOK`` is set, the two must agree (a renamed notebook that kept its old
-        name would otherwise write where nobody looks).
+        The notebook's name, its file stem (``"01-odometry-vs-slam"``). Study notebooks pass it, so that they
+        run anywhere (plain papermill and nbconvert tell a kernel nothing about its notebook). Left out, it comes
+        from ``$HSMAP_NOTEBOOK`` (set by ``hsmap reproduce``) or from the front end (a Jupyter server, VS
+        Code). When given while ``$HSMAP_NOTEBOOK`` is set, the two must agree (a renamed notebook that kept
+        its old name would otherwise write where nobody looks).
 
     Attributes
     ----------
@@ -241,15 +250,14 @@ class NotebookReport:
         ``out_dir/name``, created.
     """
 
-    def __init__(self, out_dir: str | os.PathLike, name: str | None = None):
+    def __init__(self, out_dir: str | os.PathLike | None = None, name: str | None = None):
         env = os.environ.get(NOTEBOOK_ENV) or None
         if name is None:
             name = env or _notebook_file_stem()
             if name is None:
                 raise ConfigError(
-                    "NotebookReport cannot tell the notebook's name here: pass it, NotebookReport(out_dir, 'NN-name'), "
-                    "or run "
-                    f"the notebook with 'hsmap reproduce', which sets ${NOTEBOOK_ENV}"
+                    "NotebookReport cannot tell the notebook's name here: pass it, "
+                    "NotebookReport(out_dir, 'NN-name') with the notebook's file stem"
                 )
         _check_name(name, "NotebookReport name")
         if env is not None and env != name:
@@ -258,6 +266,10 @@ class NotebookReport:
                 "make the name in NotebookReport(...) match the file name"
             )
         self.name = name
+        if out_dir is None or str(out_dir) == "":
+            from .paths import reports_dir
+
+            out_dir = reports_dir()
         self.out_dir = Path(out_dir)
         self.dir = self.out_dir / name
         self.dir.mkdir(parents=True, exist_ok=True)
@@ -382,6 +394,31 @@ class NotebookReport:
         write_json(self.dir / "metrics.json", self._doc)
         return MetricsTable(self._doc)
 
+    def skip(self, reason: str, part: str | None = None) -> None:
+        """Say that the notebook (or one ``part`` of it) did not run for want of its inputs.
+
+        Recorded in ``metrics.json`` (``skipped``, or ``skipped_parts[part]``) and printed. ``hsmap reproduce``
+        marks a skipped notebook "skipped: REASON" in its index instead of "ok", and a skipped part as a
+        warning. Call it before the notebook's :meth:`metrics` calls or after: the document keeps both.
+
+        Parameters
+        ----------
+        reason : str
+            One line: what is missing and how to get it (e.g. "no data (run hsmap data fetch)").
+        part : str, optional
+            The part that did not run (e.g. "Freiburg relations"); None: the whole notebook.
+        """
+        if not isinstance(reason, str) or not reason.strip():
+            raise InputError("skip needs a reason: what is missing and how to get it")
+        reason = " ".join(reason.split())
+        if part is None:
+            self._doc["skipped"] = reason
+            print(f"SKIPPED: {reason}")
+        else:
+            self._doc.setdefault("skipped_parts", {})[str(part)] = reason
+            print(f"SKIPPED {part}: {reason}")
+        write_json(self.dir / "metrics.json", self._doc)
+
     @property
     def metrics_doc(self) -> dict[str, Any]:
         """The metrics document as written so far."""
@@ -435,6 +472,7 @@ table.notebooks > tbody > tr > td { vertical-align: top; border-bottom: 1px soli
 .status { font-weight: bold; white-space: nowrap; }
 .status.ok { color: #2e7d32; } .status.failed, .status.interrupted { color: #c62828; }
 .status.pending, .status.running, .status.notrun { color: #888; }
+.status.skipped { color: #a66b00; } .skip { color: #a66b00; font-size: 12px; max-width: 30em; }
 pre.error { white-space: pre-wrap; color: #c62828; font-size: 12px; max-width: 30em; margin: 0.3em 0; }
 .warn { color: #a66b00; font-size: 12px; }
 .earlier { color: #888; font-size: 12px; }
@@ -502,13 +540,18 @@ def render_index(entries: Sequence[Mapping[str, Any]], meta: Mapping[str, Any]) 
     this_run = [e for e in entries if e.get("name") in ran]
     final = bool(meta.get("final"))
     n_ok = sum(e.get("status") == "ok" for e in this_run)
+    n_skipped = sum(e.get("status") == "skipped" for e in this_run)
     done = ("failed", "interrupted") if not final else None
-    n_failed = sum((e.get("status") in done) if done else (e.get("status") != "ok") for e in this_run)
+    n_failed = sum((e.get("status") in done) if done else (e.get("status") not in ("ok", "skipped"))
+                   for e in this_run)
     mode = "quick" if meta.get("quick") else "full"
+    skipped = f", {n_skipped} skipped" if n_skipped else ""
     if not final:
-        cls, state = "running", f"in progress: {n_ok + n_failed} of {len(this_run)} notebooks done"
+        cls, state = "running", f"in progress: {n_ok + n_skipped + n_failed} of {len(this_run)} notebooks done"
     elif n_failed:
-        cls, state = "failed", f"FAILED: {n_failed} of {len(this_run)} notebooks failed, {n_ok} ok"
+        cls, state = "failed", f"FAILED: {n_failed} of {len(this_run)} notebooks failed, {n_ok} ok{skipped}"
+    elif n_skipped:
+        cls, state = "ok", f"complete: {n_ok} of {len(this_run)} notebooks ok{skipped} (inputs missing)"
     else:
         cls, state = "ok", f"complete: all {len(this_run)} notebooks ok"
     summary = (f"<div class='summary {cls}'><b>{esc(state)}</b><br>"
@@ -529,6 +572,8 @@ def render_index(entries: Sequence[Mapping[str, Any]], meta: Mapping[str, Any]) 
             err = err if len(err) <= 1500 else err[:1500] + " ..."
             cell = f" at cell [{e['error_cell']}]" if e.get("error_cell") else ""
             st += f"<pre class='error'>{esc(err)}{esc(cell)}</pre>"
+        if status == "skipped" and e.get("error"):
+            st += f"<div class='skip'>{esc(str(e['error']))}</div>"
         for w in e.get("warnings") or []:
             st += f"<div class='warn'>warning: {esc(str(w))}</div>"
         if name not in ran and status not in ("not run",):

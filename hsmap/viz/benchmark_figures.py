@@ -1,7 +1,7 @@
 """Figures of the public benchmarks (notebook 08): our relations errors on the Freiburg logs beside the
 published methods, and our per-map room-segmentation scores beside Bormann et al.'s methods.
 
-Inputs are the plain rows of :mod:`hsmap.study.benchmarks` and the published numbers of ``data/published.yaml``
+Inputs are the plain rows of :mod:`hsmap.study.benchmarks` and the published numbers of ``hsmap/study/published.yaml``
 (:func:`hsmap.study.benchmarks.published_references`); drawn with the object API, like :mod:`hsmap.viz.figures`.
 """
 

@@ -1,0 +1,269 @@
+"""The public benchmark data (Freiburg SLAM logs, Bormann et al.'s room segmentation maps): where each file
+comes from, its SHA-256, and ``hsmap data fetch``, which downloads them into the user cache.
+
+The registry is package data, ``hsmap/study/public_data.yaml``: per dataset its folder in the datasets layout
+(``slam2d/``, ``ipa_room_segmentation/``), citation, licence and sources, and per file the URL of the original
+at a pinned commit of its public repository and the SHA-256 of its bytes. :func:`fetch` downloads with
+`pooch <https://www.fatiando.org/pooch/>`_ (a download goes to a temporary file, is hash-checked and only then
+moved into place; a file whose hash differs is deleted and refused) into :func:`fetch_dir`, under a
+``filelock`` lock, so that two fetches at once do not trip over each other.
+
+``$HSMAP_DATA_MIRROR`` (or ``mirror=``) replaces the original URLs with one base URL that serves the datasets
+layout (``MIRROR/slam2d/intel/intel.orig.bag``): an institute's mirror, or the tests' local HTTP server.
+
+Readers of the data (notebook 08, the tests, the benchmark scripts) find it through
+:func:`hsmap.study.paths.datasets_dir` and :func:`dataset_folder`, which says where a whole dataset is, or None.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+from ..errors import ConfigError, DatasetError, InputError
+
+__all__ = [
+    "PublicFile",
+    "PublicDataset",
+    "FetchResult",
+    "registry",
+    "fetch",
+    "fetch_dir",
+    "dataset_folder",
+    "missing_data_reason",
+    "MIRROR_ENV",
+    "NO_DATA",
+]
+
+#: A base URL that replaces the original URLs (it serves the datasets layout).
+MIRROR_ENV = "HSMAP_DATA_MIRROR"
+#: What a notebook or test says when a public dataset is missing.
+NO_DATA = "no data (run hsmap data fetch)"
+
+
+@dataclass(frozen=True)
+class PublicFile:
+    """One file of a public dataset.
+
+    Attributes
+    ----------
+    path : str
+        Relative to the dataset's folder (``intel/intel.orig.bag``).
+    url : str
+        The original file at a pinned commit.
+    sha256 : str
+    size : int
+        Bytes.
+    """
+
+    path: str
+    url: str
+    sha256: str
+    size: int
+
+
+@dataclass(frozen=True)
+class PublicDataset:
+    """A public dataset of the registry (``hsmap/study/public_data.yaml``)."""
+
+    name: str
+    title: str
+    folder: str
+    citation: str
+    licence: str
+    sources: tuple[str, ...]
+    files: tuple[PublicFile, ...]
+
+    @property
+    def size(self) -> int:
+        return sum(f.size for f in self.files)
+
+
+@dataclass(frozen=True)
+class FetchResult:
+    """What :func:`fetch` did for one dataset: files downloaded now, files already there (hash checked), files
+    that were there with a wrong hash and were replaced, and the dataset's folder."""
+
+    dataset: PublicDataset
+    folder: Path
+    downloaded: tuple[str, ...]
+    present: tuple[str, ...]
+    replaced: tuple[str, ...]
+
+
+def registry() -> dict[str, PublicDataset]:
+    """The public datasets by name (``freiburg``, ``bormann``), read from the package's ``public_data.yaml``."""
+    import yaml
+
+    where = "hsmap/study/public_data.yaml"
+    text = resources.files(__package__).joinpath("public_data.yaml").read_text(encoding="utf-8")
+    doc = yaml.safe_load(text)
+    if not isinstance(doc, dict) or not isinstance(doc.get("datasets"), dict):
+        raise ConfigError(f"{where}: expected a mapping 'datasets'")
+    out = {}
+    for name, d in doc["datasets"].items():
+        try:
+            files = tuple(PublicFile(str(p), str(f["url"]), str(f["sha256"]).lower(), int(f["size"]))
+                          for p, f in d["files"].items())
+            out[str(name)] = PublicDataset(str(name), str(d["title"]), str(d["folder"]), str(d["citation"]),
+                                           str(d["licence"]), tuple(map(str, d.get("sources") or ())), files)
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise ConfigError(f"{where}: dataset {name!r}: malformed entry ({exc})") from None
+    return out
+
+
+def fetch_dir() -> Path:
+    """Where :func:`fetch` puts the data: ``datasets/`` in hsmap's user cache (``$HSMAP_CACHE``, else e.g.
+    ``~/.cache/hsmap``), laid out as ``$HSMAP_DATASETS`` is."""
+    from .paths import user_cache_dir
+
+    return user_cache_dir() / "datasets"
+
+
+def _choose(names: Sequence[str] | None) -> list[PublicDataset]:
+    reg = registry()
+    if not names:
+        return list(reg.values())
+    unknown = [n for n in names if n not in reg]
+    if unknown:
+        raise InputError(f"unknown dataset {', '.join(map(repr, unknown))}; the public datasets are: "
+                         f"{', '.join(reg)}")
+    return [reg[n] for n in dict.fromkeys(names)]
+
+
+def dataset_folder(name: str, root: str | os.PathLike | None = None) -> Path | None:
+    """The folder of public dataset ``name`` under ``root`` (default :func:`hsmap.study.paths.datasets_dir`)
+    when every file of it is there (not hash-checked: :func:`fetch` checked them), else None."""
+    from .paths import datasets_dir
+
+    ds = _choose([name])[0]
+    folder = Path(root if root is not None else datasets_dir()) / ds.folder
+    if all((folder / f.path).is_file() for f in ds.files):
+        return folder
+    return None
+
+
+def missing_data_reason(names: Sequence[str], root: str | os.PathLike | None = None) -> str:
+    """One line saying which public datasets are missing under ``root``, and how to get them ('' if none)."""
+    from .paths import datasets_dir
+
+    base = Path(root if root is not None else datasets_dir())
+    missing = [n for n in names if dataset_folder(n, base) is None]
+    if not missing:
+        return ""
+    return (f"{NO_DATA}: {' and '.join(missing)} not found in {base} (or set HSMAP_DATASETS to a folder "
+            "holding them)")
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def fetch(
+    names: Sequence[str] | None = None,
+    *,
+    dest: str | os.PathLike | None = None,
+    mirror: str | None = None,
+    timeout: float = 120.0,
+    log: Callable[[str], None] | None = None,
+) -> list[FetchResult]:
+    """Download the public datasets ``names`` (default all) into ``dest``, each file hash-checked.
+
+    Files already there with the right hash are kept; one with a wrong hash is deleted and downloaded again.
+
+    Parameters
+    ----------
+    names : sequence of str, optional
+        ``freiburg`` and/or ``bormann``.
+    dest : path, optional
+        Default :func:`fetch_dir`.
+    mirror : str, optional
+        Base URL serving the datasets layout, replacing the original URLs (default ``$HSMAP_DATA_MIRROR``).
+    timeout : float
+        Seconds per request.
+    log : callable, optional
+        Receives a line per file downloaded or replaced.
+
+    Returns
+    -------
+    list of FetchResult
+
+    Raises
+    ------
+    DatasetError
+        A download failed, or a downloaded file's SHA-256 differs from the registry's: the message names the
+        file and where it came from; nothing of that file is stored.
+    """
+    import pooch
+    from filelock import FileLock, Timeout
+
+    chosen = _choose(names)
+    dest = Path(dest) if dest is not None else fetch_dir()
+    mirror = mirror if mirror is not None else (os.environ.get(MIRROR_ENV) or None)
+    if mirror is not None and not re.match(r"^(https?|ftp)://", mirror):
+        raise InputError(f"mirror must be an http(s):// or ftp:// URL, got {mirror!r}")
+    dest.mkdir(parents=True, exist_ok=True)
+    logger = pooch.get_logger()
+    level = logger.level
+    logger.setLevel("WARNING")  # pooch says "Downloading file ..." for every file; we say it once per dataset
+    results = []
+    try:
+        with FileLock(str(dest / ".fetch.lock"), timeout=3600):
+            for ds in chosen:
+                results.append(_fetch_one(ds, dest, mirror, timeout, log, pooch))
+    except Timeout:
+        raise DatasetError(f"{dest}: another 'hsmap data fetch' holds {dest / '.fetch.lock'}") from None
+    finally:
+        logger.setLevel(level)
+    return results
+
+
+def _fetch_one(ds: PublicDataset, dest: Path, mirror: str | None, timeout: float,
+               log: Callable[[str], None] | None, pooch) -> FetchResult:
+    folder = dest / ds.folder
+    urls = {f.path: (f"{mirror.rstrip('/')}/{ds.folder}/{f.path}" if mirror else f.url) for f in ds.files}
+    store = pooch.create(path=folder, base_url="", registry={f.path: f"sha256:{f.sha256}" for f in ds.files},
+                         urls=urls, retry_if_failed=1)
+    downloader = pooch.HTTPDownloader(progressbar=False, timeout=timeout)
+    downloaded, present, replaced = [], [], []
+    for f in ds.files:
+        local = folder / f.path
+        if local.is_file():
+            if _sha256(local) == f.sha256:
+                present.append(f.path)
+                continue
+            local.unlink()  # a damaged or outdated copy: never leave it where readers would take it
+            replaced.append(f.path)
+        rel = f"{ds.folder}/{f.path}"
+        try:
+            store.fetch(f.path, downloader=downloader)
+        except ValueError as exc:
+            if "hash" not in str(exc):
+                raise DatasetError(f"{rel}: download from {urls[f.path]} failed: {_one_line(exc)}") from None
+            got = re.search(r"but got ([0-9a-fA-F]+)", str(exc))
+            raise DatasetError(
+                f"{rel}: refused: the SHA-256 of the file from {urls[f.path]} is "
+                f"{got.group(1) if got else 'different'}, the registry's is {f.sha256} (nothing stored)"
+            ) from None
+        except Exception as exc:  # requests' connection and HTTP errors, OSError
+            raise DatasetError(f"{rel}: download from {urls[f.path]} failed: {_one_line(exc)}") from None
+        if f.path not in replaced:
+            downloaded.append(f.path)
+        if log is not None:
+            size = f"{f.size / 1e6:.1f} MB" if f.size >= 100_000 else f"{f.size / 1e3:.0f} kB"
+            log(f"  {rel}: {'replaced a damaged copy' if f.path in replaced else 'downloaded'}, {size}, SHA-256 ok")
+    return FetchResult(ds, folder, tuple(downloaded), tuple(present), tuple(replaced))

@@ -1,0 +1,195 @@
+"""hsmap data fetch (hsmap.study.public_data) against a local HTTP server on 127.0.0.1 that serves the files of
+$HSMAP_DATASETS (the original URLs cannot be reached from the test machine): an empty cache is filled and every
+file's SHA-256 checked, a second fetch downloads nothing, a corrupted file is refused with one line naming it and
+is not stored, a damaged local copy is replaced; the registry's hashes are those of the files the study uses."""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import http.server
+import os
+import threading
+from pathlib import Path
+
+import pytest
+
+from hsmap.cli import main
+from hsmap.errors import DatasetError, InputError
+from hsmap.study import public_data
+from hsmap.study.paths import datasets_dir as find_datasets
+from hsmap.study.public_data import dataset_folder, fetch, fetch_dir, missing_data_reason, registry
+
+
+class _Quiet(http.server.SimpleHTTPRequestHandler):
+    def log_message(self, *args):  # no request lines in the test output
+        pass
+
+
+@pytest.fixture
+def serve():
+    """serve(folder) -> base URL of a local HTTP server on 127.0.0.1 serving ``folder``; stopped afterwards."""
+    servers = []
+
+    def start(folder: Path) -> str:
+        handler = functools.partial(_Quiet, directory=str(folder))
+        server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+        threading.Thread(target=server.serve_forever, daemon=True).start()
+        servers.append(server)
+        return f"http://127.0.0.1:{server.server_address[1]}"
+
+    yield start
+    for s in servers:
+        s.shutdown()
+        s.server_close()
+
+
+@pytest.fixture
+def cache(tmp_path, monkeypatch):
+    """An empty user cache, no $HSMAP_DATASETS, no mirror from the environment."""
+    monkeypatch.setenv("HSMAP_CACHE", str(tmp_path / "cache"))
+    monkeypatch.delenv("HSMAP_DATASETS", raising=False)
+    monkeypatch.delenv(public_data.MIRROR_ENV, raising=False)
+    return tmp_path / "cache"
+
+
+def _sha(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _mirror_copy(src: Path, dst: Path, names=("bormann",)) -> Path:
+    """The registry's files of ``names`` linked from ``src`` into ``dst`` (so one can be replaced)."""
+    for name in names:
+        ds = registry()[name]
+        for f in ds.files:
+            target = dst / ds.folder / f.path
+            target.parent.mkdir(parents=True, exist_ok=True)
+            os.symlink(src / ds.folder / f.path, target)
+    return dst
+
+
+def test_registry_lists_both_datasets_with_pinned_sources():
+    reg = registry()
+    assert list(reg) == ["freiburg", "bormann"]
+    assert len(reg["bormann"].files) == 45 and reg["bormann"].folder == "ipa_room_segmentation"
+    assert {f.path for f in reg["freiburg"].files} >= {"intel/intel.orig.bag", "intel/intel.relations",
+                                                         "fr079/fr079.orig.bag", "fr-clinic/fr-clinic.relations"}
+    for ds in reg.values():
+        assert ds.citation and ds.licence and ds.sources
+        for f in ds.files:
+            # a pinned commit (40 hex digits) of a public repository, and a SHA-256
+            assert f.url.startswith("https://raw.githubusercontent.com/"), f.url
+            assert len(f.url.split("/")[5]) == 40, f.url
+            assert len(f.sha256) == 64 and f.size > 0
+
+
+@pytest.mark.datasets
+def test_registry_hashes_are_those_of_the_study_data(datasets_dir):
+    for ds in registry().values():
+        for f in ds.files:
+            local = datasets_dir / ds.folder / f.path
+            assert local.stat().st_size == f.size, f.path
+            assert _sha(local) == f.sha256, f.path
+
+
+@pytest.mark.datasets
+def test_fetch_fills_an_empty_cache_and_verifies_every_file(datasets_dir, cache, serve, capsys):
+    url = serve(datasets_dir)
+    assert not fetch_dir().exists()
+    assert missing_data_reason(["freiburg", "bormann"], fetch_dir()).startswith("no data (run hsmap data fetch)")
+
+    assert main(["data", "fetch", "--mirror", url]) == 0
+    out = capsys.readouterr().out
+    assert "freiburg: 10 files" in out and "bormann: 45 files" in out and "(45 downloaded, 0 already there)" in out
+    for ds in registry().values():
+        for f in ds.files:
+            got = cache / "datasets" / ds.folder / f.path
+            assert _sha(got) == f.sha256, f.path
+    # found where readers look, without $HSMAP_DATASETS
+    assert fetch_dir() == cache / "datasets" and find_datasets() == cache / "datasets"
+    assert dataset_folder("freiburg") == cache / "datasets" / "slam2d"
+    assert missing_data_reason(["freiburg", "bormann"]) == ""
+    # nothing is downloaded twice; no temporary file is left behind
+    (again,) = fetch(["bormann"], mirror=url)
+    assert again.downloaded == () and len(again.present) == 45
+    assert not [p for p in (cache / "datasets").rglob("*") if p.is_file() and p.name.startswith("tmp")]
+
+
+@pytest.mark.datasets
+def test_a_corrupted_file_is_refused_with_one_line_naming_it(datasets_dir, cache, serve, tmp_path, capsys):
+    served = _mirror_copy(datasets_dir, tmp_path / "served")
+    bad = served / "ipa_room_segmentation" / "NLB.png"
+    data = bytearray(bad.read_bytes())
+    data[100] ^= 0xFF  # one flipped byte
+    bad.unlink()
+    bad.write_bytes(bytes(data))
+    url = serve(served)
+
+    assert main(["data", "fetch", "bormann", "--mirror", url]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("hsmap: error: ipa_room_segmentation/NLB.png: refused") and err.count("\n") == 1
+    assert hashlib.sha256(bytes(data)).hexdigest() in err
+    assert not (cache / "datasets" / "ipa_room_segmentation" / "NLB.png").exists()  # nothing stored
+    assert dataset_folder("bormann", fetch_dir()) is None
+
+    # a damaged copy in the cache is replaced by a good download
+    bad.unlink()
+    os.symlink(datasets_dir / "ipa_room_segmentation" / "NLB.png", bad)
+    fetch(["bormann"], mirror=url)
+    local = cache / "datasets" / "ipa_room_segmentation" / "office_a.png"
+    local.write_bytes(b"damaged")
+    (res,) = fetch(["bormann"], mirror=url)
+    assert res.replaced == ("office_a.png",) and _sha(local) == _sha(datasets_dir / "ipa_room_segmentation" /
+                                                                      "office_a.png")
+
+
+@pytest.mark.datasets
+def test_a_missing_file_and_bad_arguments_fail_with_one_line(datasets_dir, cache, serve, tmp_path, capsys):
+    served = _mirror_copy(datasets_dir, tmp_path / "served")
+    (served / "ipa_room_segmentation" / "office_b.png").unlink()
+    url = serve(served)
+    with pytest.raises(DatasetError, match=r"^ipa_room_segmentation/office_b.png: download from http://127\.0\.0"
+                                           r"\.1:\d+/ipa_room_segmentation/office_b.png failed: .*404"):
+        fetch(["bormann"], mirror=url)
+    with pytest.raises(InputError, match="unknown dataset 'kitti'; the public datasets are: freiburg, bormann"):
+        fetch(["kitti"])
+    for args, words in ((["kitti"], "unknown dataset 'kitti'"), (["--mirror", "127.0.0.1:1"], "mirror must be")):
+        assert main(["data", "fetch", *args]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("hsmap: error:") and words in err and err.count("\n") == 1
+
+
+def test_hsmap_datasets_overrides_the_cache(tmp_path, monkeypatch):
+    (tmp_path / "cache" / "datasets" / "slam2d").mkdir(parents=True)
+    monkeypatch.setenv("HSMAP_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setenv("HSMAP_DATASETS", str(tmp_path / "mine"))
+    assert find_datasets() == tmp_path / "mine"
+    monkeypatch.delenv("HSMAP_DATASETS")
+    assert find_datasets() == tmp_path / "cache" / "datasets"  # the cache holds something: it is used
+
+
+@pytest.mark.slow
+@pytest.mark.datasets
+def test_notebook_08_is_skipped_without_the_data_and_runs_once_fetched(datasets_dir, cache, serve, tmp_path,
+                                                                       monkeypatch):
+    from hsmap.study.batch import run_notebooks
+
+    repo = Path(__file__).resolve().parent.parent
+    monkeypatch.setenv("HSMAP_GENERATED", str(tmp_path / "generated"))
+    # the notebook's kernel is told the (empty) download folder; left to itself in this checkout it would find
+    # ../shared/datasets
+    params = {"datasets": str(fetch_dir()), "slam_logs": "intel"}  # one log is enough here
+    out = tmp_path / "reports"
+    (run,) = run_notebooks(repo / "notebooks", out, only=["08"], quick=True, parameters=params, log=None).runs
+    assert run.status == "skipped", run.error
+    assert run.error.startswith("no data (run hsmap data fetch): freiburg and bormann not found in ")
+    assert "skipped" in (out / "index.html").read_text()
+
+    fetch(mirror=serve(datasets_dir))
+    result = run_notebooks(repo / "notebooks", out, only=["08"], quick=True, parameters=params, log=None)
+    (run,) = result.runs
+    assert result.ok and run.status == "ok", run.error
+    m = run.metrics["metrics"]
+    assert m["datasets_available"] is True and "skipped" not in run.metrics
+    assert m["intel_hsslam_trans_m"] < 0.1  # HS-SLAM on the first 300 scans of the fetched intel log
+    assert (out / "08-real-benchmarks" / "segmentation_pr.png").is_file()

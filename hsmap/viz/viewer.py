@@ -17,6 +17,7 @@ import contextlib
 import glob
 import os
 import socket
+import tempfile
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -109,10 +110,21 @@ class HeadlessViewer:
 
         from .rerun import rerun_binary
 
-        os.environ.setdefault("XDG_RUNTIME_DIR", "/tmp")
         self.port = _free_port()
-        self.client = ViewerClient.spawn(headless=True, port=self.port, hide_welcome_screen=True,
-                                         executable_path=str(rerun_binary()))
+        # the viewer inherits the environment: quiet (its INFO log would fill the batch's terminal) and with a
+        # runtime folder; the host's environment is given back at once
+        saved = {k: os.environ.get(k) for k in ("RUST_LOG", "XDG_RUNTIME_DIR")}
+        os.environ["RUST_LOG"] = saved["RUST_LOG"] or "error"
+        os.environ["XDG_RUNTIME_DIR"] = saved["XDG_RUNTIME_DIR"] or tempfile.gettempdir()
+        try:
+            self.client = ViewerClient.spawn(headless=True, port=self.port, hide_welcome_screen=True,
+                                             executable_path=str(rerun_binary()))
+        finally:
+            for k, v in saved.items():
+                if v is None:
+                    os.environ.pop(k, None)
+                else:
+                    os.environ[k] = v
         deadline = time.monotonic() + startup_timeout
         while True:
             try:

@@ -27,7 +27,6 @@ for a bag (:mod:`hsmap.datasets.rosbag`). A folder has no transforms: the sensor
 
 from __future__ import annotations
 
-import copy
 import math
 import os
 from collections.abc import Iterator
@@ -218,9 +217,9 @@ class CloudFolderDataset(Dataset):
                 what = "2D scans" if key == "2d" else "3D clouds"
                 self._warn(f"{self.path}: a folder has no transforms: the offset of the {what} in the robot base "
                            f"frame is taken as zero; give it with {names['extrinsic' + key]} {sig}")
-        self._build(drive or ("scan" if self._scans is not None else "cloud"))
+        self._build_frames(drive or ("scan" if self._scans is not None else "cloud"))
 
-    def _build(self, driver: str) -> None:
+    def _build_frames(self, driver: str) -> None:
         if driver == "scan" and self._scans is None:
             raise DatasetError(f"{self.path}: frames made by 2D scans need a folder of them ({self._names['scans']} DIR)")
         self.driver = driver
@@ -233,16 +232,6 @@ class CloudFolderDataset(Dataset):
             self.stamps = self._scans.stamps.copy()
             self._scan_index = np.arange(len(self.stamps))
             self._cloud_index = nearest_index(self._clouds.stamps, self.stamps, self.sync_tolerance)
-
-    def driven_by(self, sensor: str) -> CloudFolderDataset:
-        super().driven_by(sensor)
-        if sensor == self.driver:
-            return self
-        view = copy.copy(self)
-        view.__dict__["_warnings"] = list(self.warnings)
-        view.__dict__["_extrinsic_sources"] = dict(self.extrinsic_sources)
-        view._build(sensor)
-        return view
 
     def __len__(self) -> int:
         return len(self.stamps)

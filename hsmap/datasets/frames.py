@@ -148,7 +148,19 @@ class Dataset:
             from ..errors import InputError
 
             raise InputError(f"sensor must be 'scan' or 'cloud', got {sensor!r}")
-        return self
+        if self.driver is None or sensor == self.driver:
+            return self
+        import copy
+
+        view = copy.copy(self)  # shares the messages read; its own frames, warnings and offset sources
+        view.__dict__["_warnings"] = list(self.warnings)
+        view.__dict__["_extrinsic_sources"] = dict(self.extrinsic_sources)
+        view._build_frames(sensor)
+        return view
+
+    def _build_frames(self, driver: str) -> None:
+        """Make the frames from ``driver``'s messages (readers with a :attr:`driver` implement it)."""
+        raise NotImplementedError(f"{type(self).__name__} cannot make its frames from {driver!r} messages")
 
     def describe(self) -> dict:
         """What was read and how, JSON-ready (``input_info`` of a SLAM run's metrics.json).

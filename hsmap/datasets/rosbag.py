@@ -73,7 +73,6 @@ default ``no_return=80.0`` m catches both. Pass ``no_return=None`` to trust ``ra
 from __future__ import annotations
 
 import contextlib
-import copy
 import enum
 import functools
 import math
@@ -744,18 +743,6 @@ class RosbagDataset(Dataset):
         ok = ~np.isnan(self._odometry[:, 0])
         self.odometry = Trajectory(self.stamps[ok], self._odometry[ok]) if ok.any() else None
         self._angle_cache: dict = {}
-
-    def driven_by(self, sensor: str) -> RosbagDataset:
-        """The same bag with frames made by ``sensor``'s messages (``"scan"`` or ``"cloud"``), the other
-        sensor's nearest message attached within ``sync_tolerance``; see :class:`Dataset`."""
-        super().driven_by(sensor)
-        if sensor == self.driver:
-            return self
-        view = copy.copy(self)
-        view.__dict__["_warnings"] = list(self.warnings)
-        view.__dict__["_extrinsic_sources"] = dict(self.extrinsic_sources)
-        view._build_frames(sensor)
-        return view
 
     def _describe(self) -> dict:
         topics = {}

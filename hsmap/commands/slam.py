@@ -171,7 +171,6 @@ def _log_replay(rec, keyscans, result, grid_updates: int = 10, path_updates: int
         kept = [f for f, ok in zip(keyscans, found, strict=True) if ok]
         if kept:
             scans = [f.scan2d for f in kept]
-            kposes = np.asarray(kposes)[np.asarray(found, dtype=bool)] if len(kposes) != len(kept) else kposes
             ext = np.asarray([f.extrinsic2d for f in kept], dtype=float)
             kstamps = np.array([f.stamp for f in kept])
             grid = grid_from_scans(scans, kposes, 0.05, extrinsic=ext)

@@ -91,11 +91,11 @@ def test_compiled_harmony_rounds_match_the_python_loop(rng, dim, variant):
     fast = FieldObjective(src, field, 1.0)
     bounds = [[-0.5, 0.5]] * (3 if dim == 2 else 6)
     cfg = HarmonyConfig(batch_size=8, max_iterations=100, patience=15, variant=variant)
-    from hsmap._blas import limited_blas
-
-    with limited_blas():  # as in harmony_icp: multi-threaded BLAS may sum in another order (1e-16 apart)
-        a = harmony_search(fast, bounds, config=cfg, rng=4)
-        b = harmony_search(lambda X: fast(X), bounds, config=cfg, rng=4)  # a plain callable: the Python loop
-    np.testing.assert_array_equal(a.x, b.x)
-    np.testing.assert_array_equal(a.history, b.history)
+    a = harmony_search(fast, bounds, config=cfg, rng=4)
+    b = harmony_search(lambda X: fast(X), bounds, config=cfg, rng=4)  # a plain callable: the Python loop
+    # the same random stream and decisions; the fitness sums are compiled with fastmath, whose vectorised
+    # reductions may add in an order that depends on the arrays' memory alignment: full test runs in fresh
+    # clones saw the two paths 1.1e-16 apart in 3-D
+    np.testing.assert_allclose(a.x, b.x, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(a.history, b.history, rtol=0, atol=1e-12)
     assert (a.iterations, a.evaluations, a.stop_reason) == (b.iterations, b.evaluations, b.stop_reason)

@@ -486,13 +486,15 @@ def folder_lock(folder: str | os.PathLike) -> Iterator[Path]:
 
 
 @contextlib.contextmanager
-def staged_outputs(out: str | os.PathLike, *, last: str | None = None) -> Iterator[Path]:
+def staged_outputs(out: str | os.PathLike, *, last: str | None = None, folders: bool = False) -> Iterator[Path]:
     """Yield a locked staging folder inside ``out``; on success move every file written there into ``out``.
 
     A run writes its outputs into the staging folder; they appear in ``out`` only when the ``with`` block ends
     without an error, so a failure or an interrupt leaves the previous run's files in ``out`` as they were.
     Publishing removes ``out/last`` first and moves it in last: while files are being moved, the folder reads
-    as incomplete (``last`` is the marker of a complete folder, e.g. ``metrics.json``).
+    as incomplete (``last`` is the marker of a complete folder, e.g. ``metrics.json``). With ``folders``, a
+    folder staged (``figures/``) replaces the one of that name in ``out`` as a whole (the old one is moved
+    aside into the staging folder, then deleted with it).
 
     Raises
     ------
@@ -512,7 +514,7 @@ def staged_outputs(out: str | os.PathLike, *, last: str | None = None) -> Iterat
             raise
         files = sorted(p.name for p in stage.iterdir())
         dirs = [f for f in files if (stage / f).is_dir()]
-        if dirs:
+        if dirs and not folders:
             shutil.rmtree(stage, ignore_errors=True)
             raise OutputError(f"{out}: staged outputs must be files, got folder(s) {dirs}")
         order = [f for f in files if f != last] + ([last] if last in files else [])
@@ -520,6 +522,12 @@ def staged_outputs(out: str | os.PathLike, *, last: str | None = None) -> Iterat
             if last is not None:
                 (out / last).unlink(missing_ok=True)
             for f in order:
+                if f in dirs:
+                    old = out / f
+                    if old.is_dir() and not old.is_symlink():
+                        os.replace(old, stage / f".replaced-{f}")
+                    elif old.exists() or old.is_symlink():
+                        old.unlink()
                 os.replace(stage / f, out / f)
         except OSError as exc:
             shutil.rmtree(stage, ignore_errors=True)

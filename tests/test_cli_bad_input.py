@@ -289,3 +289,75 @@ def test_an_all_zero_quaternion_is_one_line(tmp_path, capsys):
     tum.write_text("1 0 0 0 0 0 0 0\n2 1 0 0 0 0 0 1\n")
     assert main(["evaluate", "trajectory", str(tum), str(tum)]) == 2
     assert one_line(capsys.readouterr().err) == f"{tum}: quaternion [0.0, 0.0, 0.0, 0.0] is zero or not finite"
+
+
+# issue 13's flags and readers: each bad value is one line naming the flag or file and what was expected ------
+
+
+@pytest.fixture(scope="module")
+def recording_inputs(tmp_path_factory):
+    """A one-second ROS2 bag (lone .mcap) of the simulated robot, and folders of KITTI clouds and 2D scans."""
+    from hsmap.sim import Lidar3DConfig
+    from hsmap.sim.bag import write_simulated_bag
+
+    d = tmp_path_factory.mktemp("issue13")
+    write_simulated_bag("two-rooms", d / "b.mcap", duration=1.0, lidar3d=Lidar3DConfig(channels=4, columns=16))
+    cloud = np.array([[1.0, 2.0, 3.0, 1.0], [2.0, 1.0, 0.5, 1.0], [0.0, 3.0, 1.0, 1.0]], dtype="<f4")
+    for name, times in [("clouds", None), ("c_count", "0.0\n0.1\n0.2\n"), ("c_nan", "0.0\nabc\n"),
+                        ("c_order", "0.1\n0.0\n"), ("c_short", "0.0\n")]:
+        (d / name).mkdir()
+        for k in range(1 if name == "c_short" else 2):
+            data = cloud.tobytes()[:10] if name == "c_short" else cloud.tobytes()
+            (d / name / f"{k:06d}.bin").write_bytes(data)
+        if times is not None:
+            (d / name / "times.txt").write_text(times)
+    (d / "scans").mkdir()
+    (d / "scans" / "000000.csv").write_text("garbage\n")
+    (d / "junk.mcap").write_bytes(b"not an mcap file")
+    (d / "junk.db3").write_bytes(b"not a database")
+    (d / "empty.mcap").write_bytes(b"")
+    return d
+
+
+ISSUE13 = [
+    # bag: flags of the base frame, the synchronisation and the offsets; flags of other inputs
+    ("b.mcap", ["--base-frame", "bse_link"], "b.mcap: --base-frame bse_link: no such frame in the bag's TF"),
+    ("b.mcap", ["--sync-tolerance", "-1"], "--sync-tolerance must be a number of seconds >= 0, got -1.0"),
+    ("b.mcap", ["--sync-tolerance", "nan"], "--sync-tolerance must be a number of seconds >= 0, got nan"),
+    ("b.mcap", ["--extrinsic2d", "0,0"], "--extrinsic2d must be 3 comma-separated finite numbers, got '0,0'"),
+    ("b.mcap", ["--extrinsic2d", "a,b,c"], "--extrinsic2d must be 3 comma-separated numbers, got 'a,b,c'"),
+    ("b.mcap", ["--extrinsic2d=0,0,inf"], "--extrinsic2d must be 3 comma-separated finite numbers"),
+    ("b.mcap", ["--extrinsic3d", "0,0,1"], "--extrinsic3d must be 6 comma-separated finite numbers, got '0,0,1'"),
+    ("b.mcap", ["--cloud-rate", "10"], "b.mcap: --cloud-rate do not apply to a ROS bag"),
+    ("b.mcap", ["--scan-rate", "10"], "b.mcap: --scan-rate do not apply to a ROS bag"),
+    # cloud folders: times.txt or --cloud-rate, a folder of 2D scans
+    ("clouds", [], "clouds: no times.txt in the folder or beside it; give the clouds' rate with --cloud-rate HZ"),
+    ("clouds", ["--cloud-rate", "0"], "--cloud-rate must be a rate in Hz > 0, got 0.0"),
+    ("clouds", ["--cloud-rate", "10", "--scan-rate", "5"], "--scan-rate needs a folder of 2D scans (--scans DIR)"),
+    ("clouds", ["--cloud-rate", "10", "--scans", "nowhere"], "--scans nowhere: no such folder; expected a folder of scan files"),
+    ("clouds", ["--cloud-rate", "10", "--scans", "scans"], "scans: no times.txt in the folder or beside it; give the "
+                                                           "scans' rate with --scan-rate HZ"),
+    ("clouds", ["--cloud-rate", "10", "--scans", "scans", "--scan-rate", "5"], "scans/000000.csv:1: expected numbers"),
+    ("c_count", [], "c_count/times.txt: 3 stamps for the 2 cloud files of c_count; expected one per file"),
+    ("c_nan", [], "c_nan/times.txt:2: not a number in 'abc'"),
+    ("c_order", [], "c_order/times.txt: stamps must be finite and increase from line to line"),
+    # (hsmap map refuses a folder of clouds without --scans before it reads a cloud)
+    ("c_short", [], "c_short/000000.bin: 10 bytes is not a whole number of KITTI points (16 bytes"),
+    # lone ROS2 storage files that are not bags
+    ("junk.mcap", [], "junk.mcap: cannot read as a ROS1/ROS2 bag"),
+    ("junk.db3", [], "junk.db3: cannot read as a ROS1/ROS2 bag"),
+    ("empty.mcap", [], "empty.mcap: cannot read as a ROS1/ROS2 bag"),
+]
+
+
+@pytest.mark.parametrize("command", ["slam", "map"])
+@pytest.mark.parametrize("name, args, message", ISSUE13, ids=[f"{n}{''.join(a)}"[:40] for n, a, _ in ISSUE13])
+def test_issue13_flags_and_readers(recording_inputs, tmp_path, capsys, monkeypatch, command, name, args, message):
+    if command == "map" and name == "c_short":
+        message = "hsmap map needs 2D scans and 3D clouds: c_short: frames made by 2D scans need a folder of them"
+    monkeypatch.chdir(recording_inputs)
+    extra = ["--dof", "6"] if command == "slam" else []
+    assert main([command, name, "--out", str(tmp_path / "o"), "--quiet", "--no-recording", *extra, *args]) == 2
+    assert message in one_line(capsys.readouterr().err)
+    out = tmp_path / "o"
+    assert not out.exists() or [p.name for p in out.iterdir()] in ([], [".stages"])  # no output, no temporary

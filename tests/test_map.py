@@ -88,7 +88,9 @@ def test_map_of_a_robot_recording(recording):
     print(f"2D HS-SLAM: {100 * e2:.2f} cm, {y2:.3f} deg; 6-DOF: {100 * e3:.2f} cm, {y3:.3f} deg")
     assert e3 < 0.02 and y3 < 0.5
     assert np.abs(t3.poses[:, 2]).max() < 0.02 and np.degrees(np.abs(t3.poses[:, 3:5]).max()) < 0.5
-    assert e2 < 0.035 and y2 < 0.5  # see the closing note of issue 13: 2D is at 2-3 cm here
+    # issue 13 asks 2 cm; 2D HS-SLAM is at 3.1 cm here (and 3-7 cm on other seeds of the run): a heading drift in
+    # the second room from the registrations' noise (1 cm range noise; noise-free scans give 0.5 cm), not the reader
+    assert e2 < 0.035 and y2 < 0.5
 
     # rooms and doors of the slice: the world's three rooms and two doors
     assert m["slice"]["rooms"] == 3 and m["slice"]["doors"] == 2
@@ -142,6 +144,96 @@ def test_map_again_skips_unchanged_stages(recording):
     assert code == 0, err
     stages = json.loads((out / "metrics.json").read_text())["stages"]
     assert [k for k, v in stages.items() if not v["unchanged"]] == ["rooms", "outputs"]
+
+
+def _outputs(folder):
+    """Every file of ``folder`` but the stages' caches, and its bytes."""
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*"))
+            if p.is_file() and ".stages" not in p.relative_to(folder).parts}
+
+
+@pytest.mark.parametrize("where", ["rooms", "outputs"])
+def test_map_failing_midway_keeps_the_stages_done_and_the_previous_outputs(recording, tmp_path, monkeypatch,
+                                                                            where):
+    """A run that fails half-way (a full disk while a stage computes, or while the outputs are written): one line
+    naming the file, exit 2; the previous run's outputs as they were, no temporary or staging folder left, and the
+    stages finished before the failure kept: the next run reads them back."""
+    import errno
+    import os
+    import shutil
+
+    import hsmap.segmentation
+    import hsmap.study.chain
+
+    bag, done, _ = recording
+    out = tmp_path / "out"
+    shutil.copytree(done, out)
+    shutil.rmtree(out / ".stages" / "rooms")  # the rooms stage runs again (and without map.rrd, so do the outputs)
+    before = _outputs(out)
+    if where == "rooms":  # the rooms stage fails in its second map
+        real, calls = hsmap.segmentation.segment_rooms, []
+
+        def segment_rooms(*a, **k):
+            calls.append(1)
+            if len(calls) == 2:
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), "rooms.npz")
+            return real(*a, **k)
+
+        monkeypatch.setattr(hsmap.segmentation, "segment_rooms", segment_rooms)
+    else:  # the figures, after the trajectories, grids, rooms and point maps were written
+        def figures(figdir, *a, **k):
+            assert {"trajectory2d.tum", "slice.yaml", "rooms.png", "map3d.ply"} <= {p.name for p in
+                                                                                   figdir.parent.iterdir()}
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(figdir / "trajectories.png"))
+
+        monkeypatch.setattr(hsmap.study.chain, "_figures", figures)
+    args = ("map", str(bag.path), "--out", str(out), "--sync-tolerance", "0.2", "--quiet", "--no-recording")
+    code, err = run_cli(*args)
+    assert code == 2 and err.startswith("hsmap: error: ") and "No space left on device" in err, err
+    assert len(err.strip().splitlines()) == 1
+    assert _outputs(out) == before  # nothing published, nothing half-written
+    assert [p.name for p in out.iterdir() if p.name.startswith(".")] == [".stages"]
+    assert not [p for p in (out / ".stages").rglob("*") if ".tmp" in p.name or p.name.startswith(".hsmap-stage")]
+    monkeypatch.undo()
+    code, err = run_cli(*args)
+    assert code == 0, err
+    stages = json.loads((out / "metrics.json").read_text())["stages"]
+    again = ["rooms", "outputs"] if where == "rooms" else ["outputs"]
+    assert [k for k, v in stages.items() if not v["unchanged"]] == again
+    assert not (out / "map.rrd").exists() and (out / "figures" / "rooms.png").is_file()
+    assert [p.name for p in out.iterdir() if p.name.startswith(".")] == [".stages"]
+
+
+def test_map_out_is_checked_before_any_work(tiny_bag, tmp_path, monkeypatch):
+    """--out that is a file, or a folder that cannot be written: one line naming --out, before the input is read."""
+    import errno
+    import os
+    import tempfile
+
+    import hsmap.commands.inputs
+
+    opened = []
+    monkeypatch.setattr(hsmap.commands.inputs, "open_input", lambda *a, **k: opened.append(1))
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    code, err = run_cli("map", str(tiny_bag.path), "--out", str(afile))
+    assert code == 2 and err == f"hsmap: error: --out {afile}: exists and is not a folder\n"
+    code, err = run_cli("map", str(tiny_bag.path), "--out", str(afile / "sub"))
+    assert code == 2 and err == f"hsmap: error: --out {afile / 'sub'}: cannot create the folder ({afile} is not a " \
+        "folder)\n"
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    real = tempfile.mkstemp
+
+    def refuse(*a, dir=None, **k):  # a read-only folder, as root sees one too
+        if dir is not None and os.fspath(dir) == os.fspath(ro):
+            raise OSError(errno.EROFS, os.strerror(errno.EROFS))
+        return real(*a, dir=dir, **k)
+
+    monkeypatch.setattr(tempfile, "mkstemp", refuse)
+    code, err = run_cli("map", str(tiny_bag.path), "--out", str(ro))
+    assert code == 2 and err == f"hsmap: error: --out {ro}: cannot write into the folder (Read-only file system)\n"
+    assert opened == [] and list(ro.iterdir()) == []
 
 
 def test_a_recording_without_tf_warns_and_says_so(tmp_path):

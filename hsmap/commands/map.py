@@ -8,7 +8,10 @@ both point maps; map2d.ply and map3d.ply; summary.html with the figures and numb
 the offsets and their sources, warnings, every stage's numbers); map.rrd, one rerun recording of it all.
 
 Every stage shows a progress bar and is kept in --out/.stages/: run again with the same inputs and the stages
-are read back ("unchanged"); change a flag and only the stages after it run again.
+are read back ("unchanged"); change a flag and only the stages after it run again. --out is checked before
+the long work starts (a folder, or creatable, and writable). The outputs are written into a hidden staging
+folder inside --out and moved into place together when all of them are complete (metrics.json last), so a
+failed or interrupted run leaves the previous run's outputs as they were, and the stages it finished for the next.
 """
 
 from __future__ import annotations
@@ -40,9 +43,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import dataclasses
     import math
-    from pathlib import Path
 
     from ..errors import InputError
+    from ..io import prepare_output_dir
     from ..segmentation import SegmentationConfig
     from ..slam import SlamConfig
     from ..study.chain import map_recording
@@ -55,9 +58,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--slice must be ZMIN,ZMAX with ZMIN < ZMAX (metres), got {args.slice!r}")
     if not (math.isfinite(args.resolution) and args.resolution > 0):
         raise InputError(f"--resolution must be > 0 metres per cell, got {args.resolution}")
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"--out {out}: exists and is not a folder")
+    # before the long work: a file, a folder that cannot be created or written is reported now
+    out = prepare_output_dir(args.out, "--out", create=False)
     slam2d, slam3d = SlamConfig(dof=3), SlamConfig(dof=6)
     if args.no_odometry:
         slam2d, slam3d = (dataclasses.replace(c, use_odometry=False) for c in (slam2d, slam3d))

@@ -118,7 +118,8 @@ class _Stream:
 
     def __init__(self, folder: Path, rate: float | None, what: str, folder_flag: str, rate_flag: str) -> None:
         if not folder.is_dir():
-            raise DatasetError(f"{folder_flag} {folder}: no such folder")
+            raise DatasetError(f"{folder_flag} {folder}: no such folder; expected a folder of {what} files "
+                               f"({', '.join(CLOUD_SUFFIXES)})")
         self.folder = folder
         self.files = _point_files(folder)
         if not self.files:

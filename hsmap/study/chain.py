@@ -19,7 +19,9 @@ Each stage is a folder of :class:`hsmap.study.cache.FolderCache` under ``DIR/.st
 code: a second run with the same inputs reads every stage back ("unchanged") and only rewrites the outputs.
 Every stage shows a progress bar.
 
-Outputs in ``DIR`` (each written atomically; ``metrics.json`` last, so a folder without it is incomplete):
+Outputs in ``DIR``, written into a staging folder inside it and moved into place together when all are complete
+(``metrics.json`` last, so a folder without it is incomplete; a failure leaves the previous run's outputs as they
+were, and the stages kept so far):
 ``trajectory2d.tum``, ``trajectory3d.tum``; ``floor.pgm``/``floor.yaml`` and ``slice.pgm``/``slice.yaml``
 (map_server maps, loadable by Nav2's map_server) with ``floor.png``/``slice.png``; ``overlay.png``; for the
 slice ``rooms.png`` (16-bit labels), ``doors.json``, ``topology.json``, ``topology.graphml``,
@@ -43,7 +45,16 @@ import numpy as np
 from ..datasets.frames import Dataset, Frame
 from ..errors import InputError
 from ..grid import GridGeometry, OccupancyGrid
-from ..io import atomic_path, to_plain, write_json, write_ply_points, write_text
+from ..io import (
+    atomic_path,
+    prepare_output_dir,
+    staged_outputs,
+    sweep_stale_temporaries,
+    to_plain,
+    write_json,
+    write_ply_points,
+    write_text,
+)
 from ..segmentation import Door, Segmentation, SegmentationConfig
 from ..slam import SlamConfig
 from ..trajectory import Trajectory
@@ -267,10 +278,8 @@ def map_recording(
         raise InputError(f"z_range must be two heights low < high (metres), got {z_range}")
     if not (np.isfinite(resolution) and resolution > 0):
         raise InputError(f"resolution must be > 0 metres per cell, got {resolution}")
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"{out}: exists and is not a folder")
-    out.mkdir(parents=True, exist_ok=True)
+    out = prepare_output_dir(out)  # a file, or a folder that cannot be written: said now, not after the runs
+    sweep_stale_temporaries(out, OUTPUTS)  # what a killed run left (its staging folder, temporaries)
     ds2 = dataset.driven_by("scan")
     ds3 = dataset.driven_by("cloud")
     stages = _Stages(progress)
@@ -330,16 +339,21 @@ def map_recording(
         previous["seconds_total"] = round(time.perf_counter() - t_start, 3)
         write_json(out / "metrics.json", previous)
         return previous
-    (out / "metrics.json").unlink(missing_ok=True)  # the marker of a complete folder goes first
     t = time.perf_counter()
     bar = stages.bar("outputs", 6)
-    metrics = _write_outputs(out, dataset, ds2, ds3, run2, run3, grids, fusion, segs, z, door_depth, door_margin,
-                             recording, bar)
-    stages.done("outputs", False, time.perf_counter() - t, bar)
-    metrics["stages"] = stages.info
-    metrics["key"] = final_key
-    metrics["seconds_total"] = round(time.perf_counter() - t_start, 3)
-    write_json(out / "metrics.json", metrics)
+    # every output is written into a staging folder inside ``out`` and moved into place when all are complete
+    # (metrics.json, the marker of a complete folder, last): a failure or an interrupt on the way leaves the
+    # previous run's outputs as they were, and the stages' caches in .stages/ for the next run
+    with staged_outputs(out, last="metrics.json", folders=True) as stage:
+        metrics = _write_outputs(stage, dataset, ds2, ds3, run2, run3, grids, fusion, segs, z, door_depth,
+                                 door_margin, recording, bar)
+        stages.done("outputs", False, time.perf_counter() - t, bar)
+        metrics["stages"] = stages.info
+        metrics["key"] = final_key
+        metrics["seconds_total"] = round(time.perf_counter() - t_start, 3)
+        write_json(stage / "metrics.json", metrics)
+    if not recording:
+        (out / "map.rrd").unlink(missing_ok=True)  # not this run's
     return metrics
 
 
@@ -370,8 +384,6 @@ def _segmentation_record(seg: Segmentation, graph) -> dict:
 def _write_outputs(out: Path, dataset: Dataset, ds2: Dataset, ds3: Dataset, run2, run3, grids: dict, fusion: dict,
                    segs: dict, z: tuple[float, float], door_depth: float, door_margin: float, recording: bool,
                    bar) -> dict:
-    import shutil
-
     from PIL import Image
 
     from ..grid import write_label_image, write_map
@@ -426,9 +438,7 @@ def _write_outputs(out: Path, dataset: Dataset, ds2: Dataset, ds3: Dataset, run2
 
     # figures and the summary page
     figdir = out / "figures"
-    if figdir.exists():
-        shutil.rmtree(figdir)
-    figdir.mkdir()
+    figdir.mkdir(exist_ok=True)
     figs = _figures(figdir, ds2, run2, run3, grids, fusion, segs, graphs, doors, pts2, pts3, h2, z)
     bar.update(1)
 
@@ -458,8 +468,6 @@ def _write_outputs(out: Path, dataset: Dataset, ds2: Dataset, ds3: Dataset, run2
 
     if recording:
         _record(out / "map.rrd", run2, run3, grids, fusion, segs["slice"], graphs["slice"], doors, pts2, pts3, h2)
-    else:
-        (out / "map.rrd").unlink(missing_ok=True)
     bar.update(1)
     return to_plain(metrics)
 

@@ -98,6 +98,7 @@ def freiburg_run(name: str, datasets: str, seed: int, max_frames: int | None, lo
         "loops_closed": m["loops_closed"],
         "loop_closure_detail": m["loop_closure_detail"],
         "frames_retried": m["frames_retried"],
+        "odometry_model": m["odometry_model"],
         "relations": {
             "all": {"translation_m": _stats(err.translation), "rotation_deg": _stats(rot)},
             "dt_le_10s": {"translation_m": _stats(err.translation[dt <= 10]), "rotation_deg": _stats(rot[dt <= 10])},

@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .errors import ConfigError
-from .geometry import pose_to_matrix, relative, transform_points, wrap_angle
+from .geometry import compose, pose_to_matrix, relative, transform_points, wrap_angle
 from .harmony import HarmonyConfig
 from .mapping import VoxelMap
 from .posegraph import PoseGraph, information_with_floor
@@ -40,7 +40,7 @@ from .registration import (
     harmony_icp,
 )
 
-__all__ = ["LoopClosureConfig", "Keyframe", "LoopCandidate", "LoopClosure", "LoopCloser"]
+__all__ = ["LoopClosureConfig", "Keyframe", "LoopCandidate", "LoopClosure", "LoopCloser", "correlative_match_2d"]
 
 
 def _loop_registration() -> RegistrationConfig:
@@ -104,6 +104,26 @@ class LoopClosureConfig:
         Optimise at least this often (keyframes) while closures are pending, and at the end.
     registration : RegistrationConfig
         Harmony-ICP parameters of the loop matches.
+    far_search : bool
+        2D: also search submaps whose uncertainty the window above cannot cover (the window's uncapped half-width
+        exceeds ``max_window_translation``: the robot comes back after a long excursion). Such a *far* candidate is
+        searched exhaustively (:func:`correlative_match_2d`) over ``min(window, max_far_window_translation)``
+        and ``max_window_rotation``, refined and verified by Harmony-ICP, and becomes a loop edge only when a
+        second far match, from a keyframe at most ``far_corroborate_within`` keyframes apart, agrees with it (within
+        ``far_agreement_translation`` / ``far_agreement_rotation`` once both are carried to one keyframe by
+        tracking). Corroborated far edges are not under the robust kernel (a correction of metres is what they
+        are for; the kernel would discard it); the chi-square gate still judges them.
+    max_far_window_translation : float
+        Largest half-width of a far search.
+    far_every : int
+        Far search at every this many keyframes.
+    far_resolution, far_angle_step : float
+        Grid resolution (m) and rotation step (rad) of the exhaustive search.
+    far_ambiguity : float
+        A far match is ambiguous (a look-alike place, a corridor) when the best pose more than ``2 m`` from it
+        scores at least this fraction of its score.
+    far_corroborate_within : int
+    far_agreement_translation, far_agreement_rotation : float
     """
 
     enabled: bool = True
@@ -133,6 +153,15 @@ class LoopClosureConfig:
     optimize_threshold_rotation: float = float(np.deg2rad(0.3))
     optimize_every: int = 25
     registration: RegistrationConfig = field(default_factory=_loop_registration)
+    far_search: bool = True
+    max_far_window_translation: float = 50.0
+    far_every: int = 5
+    far_resolution: float = 0.2
+    far_angle_step: float = float(np.deg2rad(1.0))
+    far_ambiguity: float = 0.9
+    far_corroborate_within: int = 20
+    far_agreement_translation: float = 0.5
+    far_agreement_rotation: float = float(np.deg2rad(2.0))
 
     def __post_init__(self) -> None:
         if isinstance(self.registration, dict):
@@ -143,17 +172,21 @@ class LoopClosureConfig:
                      "window_rotation", "window_rotation_growth", "max_window_rotation", "window_z",
                      "window_roll_pitch", "max_sigma_translation", "max_sigma_rotation", "edge_sigma_translation",
                      "edge_sigma_rotation", "tracking_path_distance", "optimize_threshold_translation",
-                     "optimize_threshold_rotation"):
+                     "optimize_threshold_rotation", "max_far_window_translation", "far_agreement_translation",
+                     "far_agreement_rotation"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float, np.floating)) and np.isfinite(v) and v >= 0):
                 raise ConfigError(f"slam.loop_closure.{name} must be a finite number >= 0, got {v!r}")
-        for name in ("edge_sigma_translation", "edge_sigma_rotation"):
-            if not getattr(self, name) > 0:
-                raise ConfigError(f"slam.loop_closure.{name} must be > 0, got {getattr(self, name)!r}")
+        for name in ("edge_sigma_translation", "edge_sigma_rotation", "far_resolution", "far_angle_step"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float, np.floating)) and np.isfinite(v) and v > 0):
+                raise ConfigError(f"slam.loop_closure.{name} must be a finite number > 0, got {v!r}")
+        if not 0.0 < self.far_ambiguity <= 1.0:
+            raise ConfigError(f"slam.loop_closure.far_ambiguity must be in (0, 1], got {self.far_ambiguity!r}")
         if not 0.0 <= self.min_inlier_ratio <= 1.0:
             raise ConfigError(f"slam.loop_closure.min_inlier_ratio must be in [0, 1], got {self.min_inlier_ratio!r}")
         for name in ("submap_keyframes", "source_keyframes", "min_separation", "attempts_per_keyframe",
-                     "search_every", "retry_after", "optimize_every"):
+                     "search_every", "retry_after", "optimize_every", "far_every", "far_corroborate_within"):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
                 raise ConfigError(f"slam.loop_closure.{name} must be an integer >= 1, got {v!r}")
@@ -189,6 +222,80 @@ class LoopClosure:
     registration: RegistrationResult
 
 
+def correlative_match_2d(source: NDArray[np.float64], target: NDArray[np.float64], predicted: NDArray[np.float64],
+                         half_translation: float, half_rotation: float, resolution: float = 0.2,
+                         angle_step: float = float(np.deg2rad(1.0)), separation: float = 2.0,
+                         ) -> tuple[NDArray[np.float64], float, float]:
+    """Exhaustive 2D scan matching over a window (Olson's correlative scan matching, 2009).
+
+    Every rotation in ``predicted[2] +/- half_rotation`` (steps of ``angle_step``) and every translation in
+    ``predicted[:2] +/- half_translation`` (steps of ``resolution``) is scored by the mean, over the source's
+    occupied cells, of a likelihood field of the target (a Gaussian of the distance to the nearest target point,
+    sigma = ``resolution``); the translations of one rotation are scored at once by an FFT cross-correlation. No
+    initial guess is needed inside the window, however wide; a wide window costs memory and time in proportion
+    to its area.
+
+    Returns ``(pose, score, ambiguity)``: the best pose of the source in the target's frame (x, y, yaw), its score
+    in [0, 1], and the best score of any pose more than ``separation`` metres from it divided by its score (near
+    1: a look-alike place or a corridor, the match says little).
+    """
+    from scipy.ndimage import distance_transform_edt
+    from scipy.signal import fftconvolve
+
+    src = np.asarray(source, dtype=float)[:, :2]
+    tgt = np.asarray(target, dtype=float)[:, :2]
+    res = float(resolution)
+    # the target's likelihood field; arrays here are indexed (x cell, y cell), not image (row, col)
+    t0 = tgt.min(axis=0) - 3 * res
+    shape = np.floor((tgt.max(axis=0) + 3 * res - t0) / res).astype(int) + 1
+    occ = np.zeros(shape, bool)
+    ti = np.floor((tgt - t0) / res).astype(int)
+    occ[ti[:, 0], ti[:, 1]] = True
+    dist = distance_transform_edt(~occ)
+    field = np.exp(-0.5 * dist**2)  # sigma of one cell
+    field[dist > 3] = 0.0
+    centre = np.asarray(predicted[:2], dtype=float)
+    n_rot = int(np.floor(half_rotation / angle_step))
+    angles = predicted[2] + angle_step * np.arange(-n_rot, n_rot + 1)
+    per_angle = []  # (score, x, y, runner-up score beyond `separation` within this rotation)
+    sep = max(int(np.ceil(separation / res)), 1)
+    for yaw in angles:
+        c, s_ = np.cos(yaw), np.sin(yaw)
+        p = src @ np.array([[c, s_], [-s_, c]])
+        s0 = p.min(axis=0)
+        si = np.floor((p - s0) / res).astype(int)
+        h, w = si.max(axis=0) + 1
+        img = np.zeros((h, w))
+        img[si[:, 0], si[:, 1]] = 1.0
+        n = img.sum()
+        corr = fftconvolve(field, img[::-1, ::-1], mode="full")
+        # translation of output cell (m, k): t0 - s0 + (m - h + 1, k - w + 1) * res
+        off = t0 - s0 - np.array([h - 1, w - 1]) * res
+        lo = np.ceil((centre - half_translation - off) / res).astype(int)
+        hi = np.floor((centre + half_translation - off) / res).astype(int)
+        lo = np.maximum(lo, 0)
+        hi = np.minimum(hi, np.array(corr.shape) - 1)
+        if np.any(hi < lo):
+            continue
+        win = corr[lo[0]:hi[0] + 1, lo[1]:hi[1] + 1] / n
+        m, k = np.unravel_index(int(np.argmax(win)), win.shape)
+        best = float(win[m, k])
+        masked = win.copy()
+        masked[max(m - sep, 0):m + sep + 1, max(k - sep, 0):k + sep + 1] = -np.inf
+        runner = float(masked.max()) if np.isfinite(masked.max()) else 0.0
+        xy = off + (lo + np.array([m, k])) * res
+        per_angle.append((best, xy[0], xy[1], yaw, runner))
+    if not per_angle:
+        return np.asarray(predicted, dtype=float).copy(), 0.0, 1.0
+    arr = np.array(per_angle)
+    b = int(np.argmax(arr[:, 0]))
+    best, bx, by, byaw = arr[b, :4]
+    far = np.hypot(arr[:, 1] - bx, arr[:, 2] - by) > separation
+    others = np.r_[arr[:, 4], arr[far, 0]]
+    ambiguity = float(others.max() / best) if best > 0 else 1.0
+    return np.array([bx, by, byaw]), float(best), ambiguity
+
+
 class LoopCloser:
     """Finds and verifies loop closures between the newest keyframe and older submaps.
 
@@ -212,6 +319,10 @@ class LoopCloser:
         self.attempts = 0
         self.accepted = 0
         self.rejections: dict[str, int] = {}
+        self.far_attempts = 0
+        self.far_accepted = 0
+        self._last_far_try: dict[int, int] = {}
+        self._far_pending: list[LoopClosure] = []
 
     # ------------------------------------------------------------------------------------------ candidates
     def submap_members(self, s: int, n_keyframes: int) -> range:
@@ -317,27 +428,108 @@ class LoopCloser:
                     guesses.append(g)
         res = harmony_icp(source, target, bounds=bounds, initial_guesses=np.asarray(guesses),
                           config=cfg.registration, rng=rng)
-        # checks
+        return self._checked(res, anchor, newest, predicted, predicted, half)
+
+    def _checked(self, res: RegistrationResult, anchor: int, newest: int, predicted: NDArray[np.float64],
+                 centre: NDArray[np.float64], half: NDArray[np.float64], prefix: str = "") -> LoopClosure | None:
+        """The closure if ``res`` passes the checks (inliers, constrained, not on the edge of the box
+        ``centre +/- half``), else None with the rejection counted."""
+        cfg = self.config
         if res.inlier_ratio < cfg.min_inlier_ratio:
-            self._reject("inliers")
+            self._reject(prefix + "inliers")
             return None
         information = drop_degenerate(res.information, cfg.degenerate_ratio)
         cov = _safe_inverse(information)
         st = float(np.sqrt(max(np.linalg.eigvalsh(cov[: self.dim, : self.dim]).max(), 0.0)))
         sr = float(np.sqrt(max(np.linalg.eigvalsh(cov[self.dim:, self.dim:]).max(), 0.0)))
         if not (st <= cfg.max_sigma_translation and sr <= cfg.max_sigma_rotation):
-            self._reject("unconstrained")
+            self._reject(prefix + "unconstrained")
             return None
-        off = res.pose - predicted
+        off = res.pose - centre
         off[self.dim:] = wrap_angle(off[self.dim:])
         if np.any(np.abs(off) > 0.95 * half):
-            self._reject("window_edge")
+            self._reject(prefix + "window_edge")
             return None
         info = information_with_floor(information, cfg.edge_sigma_translation, cfg.edge_sigma_rotation)
         self.accepted += 1
         corr = relative(predicted, res.pose)
         return LoopClosure(anchor, newest, res.pose.copy(), info, float(np.linalg.norm(corr[: self.dim])),
                            float(np.abs(wrap_angle(corr[self.dim:])).max()), res)
+
+    # ------------------------------------------------------------------------------------------ far search
+    def _far_windows(self, path: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Uncapped (up to ``max_far_window_translation``) translation half-width and the rotation one."""
+        cfg = self.config
+        p = np.asarray(path, dtype=float)
+        t = np.minimum(cfg.window_translation + cfg.window_growth * p, cfg.max_far_window_translation)
+        return t, self.window(p)[1]
+
+    def far_candidates(self, graph: PoseGraph, newest: int, path: NDArray[np.float64]) -> list[LoopCandidate]:
+        """Submaps whose uncertainty relative to keyframe ``newest`` exceeds the regular window, nearest first."""
+        cfg = self.config
+        if not cfg.far_search or self.dof != 3:
+            return []
+        K = cfg.submap_keyframes
+        n_sub = (newest - cfg.min_separation + 1) // K
+        if n_sub <= 0:
+            return []
+        P = np.asarray(graph.poses[: n_sub * K])
+        d = np.linalg.norm(P[:, :2] - graph.poses[newest][:2], axis=1).reshape(n_sub, K).min(axis=1)
+        g = path[: n_sub * K].reshape(n_sub, K)
+        g = np.where(np.isfinite(g), g, 1e9).min(axis=1)
+        wide = cfg.window_translation + cfg.window_growth * g
+        ok = (wide > cfg.max_window_translation) & (d <= cfg.max_distance + self._far_windows(g)[0])
+        out = []
+        for s_ in np.flatnonzero(ok):
+            if newest - self._last_far_try.get(int(s_), -10**9) < cfg.retry_after * cfg.far_every:
+                continue
+            out.append(LoopCandidate(int(s_), float(d[s_]), float(g[s_])))
+        out.sort(key=lambda c: c.distance)
+        return out
+
+    def attempt_far(self, graph: PoseGraph, keyframes: list[Keyframe], newest: int, candidate: LoopCandidate,
+                    rng: np.random.Generator) -> LoopClosure | None:
+        """Search a far candidate exhaustively, refine with Harmony-ICP, check; the match (not yet an edge)."""
+        cfg = self.config
+        self.attempts += 1
+        self.far_attempts += 1
+        self._last_far_try[candidate.submap] = newest
+        anchor = self.submap_members(candidate.submap, len(keyframes)).start
+        target = self._submap_target(candidate.submap, graph, keyframes)
+        source = self._source(graph, keyframes, newest)
+        predicted = relative(graph.poses[anchor], graph.poses[newest])
+        wt, wr = (float(v) for v in self._far_windows(candidate.path))
+        found, score, ambiguity = correlative_match_2d(source, target.points, predicted, wt, wr,
+                                                       cfg.far_resolution, cfg.far_angle_step)
+        if ambiguity >= cfg.far_ambiguity:
+            self._reject("far_ambiguous")
+            return None
+        half = np.array([2 * cfg.far_resolution, 2 * cfg.far_resolution, 2 * cfg.far_angle_step])
+        res = harmony_icp(source, target, bounds=np.column_stack([found - half, found + half]),
+                          initial_guesses=found[None], config=cfg.registration, rng=rng)
+        return self._checked(res, anchor, newest, predicted, found, half, prefix="far_")
+
+    def corroborate(self, closure: LoopClosure, graph: PoseGraph) -> list[LoopClosure]:
+        """The far matches that ``closure`` and an earlier one now corroborate (both), or [] (kept pending)."""
+        cfg = self.config
+        self._far_pending = [c for c in self._far_pending if closure.j - c.j <= cfg.far_corroborate_within]
+        P = graph.poses
+        for prev in reversed(self._far_pending):
+            if prev.j == closure.j:
+                continue
+            # the newer keyframe in the older match's anchor frame: by the older match and tracking, and by the
+            # (locally consistent) old map and the newer match
+            a = np.asarray(compose(prev.measurement, relative(P[prev.j], P[closure.j])))
+            b = np.asarray(compose(relative(P[prev.i], P[closure.i]), closure.measurement))
+            d = relative(a, b)
+            if (np.linalg.norm(d[: self.dim]) <= cfg.far_agreement_translation
+                    and np.abs(wrap_angle(d[self.dim:])).max() <= cfg.far_agreement_rotation):
+                self._far_pending.remove(prev)
+                self.far_accepted += 2
+                return [prev, closure]
+        self._far_pending.append(closure)
+        self._reject("far_uncorroborated")
+        return []
 
     def forget(self) -> None:
         """Drop cached submaps (their keyframes moved)."""

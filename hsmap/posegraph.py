@@ -55,6 +55,7 @@ class Edge:
     kind: EdgeKind
     active: bool = True
     chi2: float = float("nan")  # whitened squared residual after the last optimisation
+    robust: bool = True  # loop edges: under the Cauchy kernel (off: a corroborated closure that must pull fully)
 
 
 @dataclass
@@ -143,7 +144,7 @@ class PoseGraph:
         return self._n - 1
 
     def add_edge(self, i: int, j: int, measurement: ArrayLike, information: ArrayLike,
-                 kind: EdgeKind | str = EdgeKind.ODOMETRY) -> int:
+                 kind: EdgeKind | str = EdgeKind.ODOMETRY, *, robust: bool = True) -> int:
         """Add a measurement of node j's pose in node i's frame; returns the edge index."""
         kind = EdgeKind(kind)
         n = self._n
@@ -158,7 +159,7 @@ class PoseGraph:
                              f"({self.dof}, {self.dof}), got {z.shape} and {info.shape}")
         if not (np.all(np.isfinite(z)) and np.all(np.isfinite(info))):
             raise InputError(f"edge ({i}, {j}): measurement and information must be finite")
-        self.edges.append(Edge(int(i), int(j), z, 0.5 * (info + info.T), kind))
+        self.edges.append(Edge(int(i), int(j), z, 0.5 * (info + info.T), kind, robust=bool(robust)))
         self._factors.append(None)
         return len(self.edges) - 1
 
@@ -308,7 +309,7 @@ class PoseGraph:
         f = self._factors[k]
         if f is None:
             e = self.edges[k]
-            noise = self._noise(gtsam, e.information, robust=e.kind == EdgeKind.LOOP)
+            noise = self._noise(gtsam, e.information, robust=e.kind == EdgeKind.LOOP and e.robust)
             z = self._to_gtsam(gtsam, e.measurement)
             if e.kind == EdgeKind.PRIOR:
                 f = (gtsam.PriorFactorPose2 if self.dof == 3 else gtsam.PriorFactorPose3)(e.i, z, noise)

@@ -44,6 +44,7 @@ from __future__ import annotations
 import resource
 import time
 import warnings
+from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -129,6 +130,17 @@ class SlamConfig:
         Uncertainty of a wheel-odometry prediction over one frame: translation sigma = a + b * distance, rotation
         sigma = c + d * |turn| + e * distance, as (a [m], b, c [rad], d, e [rad/m]); the default is loose
         (2 cm + 5 % of the distance, 1 deg + 5 % of the turn + 1 deg per metre): wheel odometry varies.
+    learn_odometry_sigma : bool
+        Learn how good this robot's odometry is as the run goes: the first registration of each frame (searched
+        in a box that does not depend on these sigmas) is compared with the odometry's prediction, and the
+        translation and rotation sigmas are scaled by the robust spread of the disagreements, normalised by the
+        model above (the median absolute value, as a Gaussian's sigma), over the last ``odometry_window``
+        frames. The disagreement holds the registration's error too, so the scale is an upper bound on the
+        odometry's. Off: ``odometry_sigma`` as given.
+    odometry_window : int
+        Frames whose disagreements set the scale (it is 1 until ``odometry_window // 10`` of them are in).
+    odometry_scale_bounds : tuple of 2 floats
+        The learned scale stays within these bounds.
     motion_sigma : tuple of 5 floats
         The same for the constant-velocity prediction (no odometry).
     prior_sigma : tuple of 5 floats
@@ -159,6 +171,9 @@ class SlamConfig:
     min_range: float = 0.1
     max_range: float = 30.0
     odometry_sigma: tuple[float, ...] = (0.02, 0.05, float(np.deg2rad(1.0)), 0.05, float(np.deg2rad(1.0)))
+    learn_odometry_sigma: bool = True
+    odometry_window: int = 400
+    odometry_scale_bounds: tuple[float, float] = (0.1, 5.0)
     motion_sigma: tuple[float, ...] = (0.1, 0.5, float(np.deg2rad(5.0)), 0.5, float(np.deg2rad(5.0)))
     prior_sigma: tuple[float, ...] = (0.01, 0.02, float(np.deg2rad(0.2)), 0.02, float(np.deg2rad(0.5)))
     verify_sigmas: float = 3.0
@@ -197,7 +212,12 @@ class SlamConfig:
                 raise ConfigError(f"slam.{name} must be a finite number >= 0, got {v!r}")
         if self.max_range <= self.min_range:
             raise ConfigError(f"slam.max_range ({self.max_range}) must exceed slam.min_range ({self.min_range})")
-        for name in ("recent_poses", "warmup_frames"):
+        lo_hi = np.asarray(self.odometry_scale_bounds, dtype=float)
+        if lo_hi.shape != (2,) or not np.all(np.isfinite(lo_hi)) or not 0 < lo_hi[0] <= lo_hi[1]:
+            raise ConfigError(f"slam.odometry_scale_bounds must be two numbers 0 < low <= high, got "
+                              f"{self.odometry_scale_bounds!r}")
+        self.odometry_scale_bounds = (float(lo_hi[0]), float(lo_hi[1]))
+        for name in ("recent_poses", "warmup_frames", "odometry_window"):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or v < 1:
                 raise ConfigError(f"slam.{name} must be an integer >= 1, got {v!r}")
@@ -254,6 +274,7 @@ class SlamResult:
     skipped: list[dict] = field(default_factory=list)
     prior: dict = field(default_factory=dict)
     input_info: dict = field(default_factory=dict)
+    odometry: dict = field(default_factory=dict)
 
     def metrics(self) -> dict:
         """Per-frame and total metrics, JSON-ready."""
@@ -275,6 +296,7 @@ class SlamResult:
             "inlier_ratio_median": float(np.median([f.inlier_ratio for f in self.frames])) if self.frames else None,
             "frames_retried": int(sum(f.retried for f in self.frames)),
             "frames_unverified": int(sum(not f.verified for f in self.frames)),
+            "odometry_model": self.odometry or None,
             "skipped_frames": len(self.skipped),
             "skipped": self.skipped,
             "loop_closure": self.loop_closure.get("status", "disabled"),
@@ -430,6 +452,9 @@ class HsSlam:
         self._field_centre = np.zeros(self.dim)
         self._last_key: NDArray[np.float64] | None = None
         self._prev_odom: NDArray[np.float64] | None = None
+        # the odometry's disagreements with the registrations, normalised by the sigma model: (translation, yaw)
+        self._odometry_disagreement: deque[tuple[float, float]] = deque(maxlen=cfg.odometry_window)
+        self._odometry_scale = np.ones(2)
         # pose graph and loop closure
         lc = cfg.loop_closure
         self.graph = PoseGraph(cfg.dof)
@@ -497,8 +522,12 @@ class HsSlam:
             return np.array([t, t, y])
         return np.array([t, t, reg.z_range, reg.roll_pitch_range, reg.roll_pitch_range, y])
 
-    def prediction(self, frame: Frame) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+    def prediction(self, frame: Frame, gate: bool = False) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
         """The predicted pose of ``frame`` and the sigmas (translation, yaw) of its x/y and yaw, or None.
+
+        ``gate``: the sigmas of the check that sends a registration to be retried; for odometry they are never
+        tighter than the configured model (a learned scale below 1 describes the core of the odometry's errors,
+        and wheel slips are what the check is for: there the registration decides).
 
         The previous pose moved by: (6-DOF) the prior trajectory's motion between the two stamps, a 2D run being
         odometry of high quality (``prior_sigma``); else the odometry increment (``odometry_sigma``); else the
@@ -513,7 +542,7 @@ class HsSlam:
             step, model = relative(prior_prev, prior_now), cfg.prior_sigma
             step[2:5] = 0.0  # the prior knows x, y and yaw only
         elif (odo := self._odometry_step(frame)) is not None:
-            step, model = odo, cfg.odometry_sigma
+            step, model = odo, self.odometry_sigma(gate)
         elif len(self.poses) >= 2:
             step, model = relative(self.poses[-2], prev), cfg.motion_sigma
         if step is None:
@@ -526,6 +555,50 @@ class HsSlam:
         pred = pred.copy()
         pred[self.dim:] = prev[self.dim:] + wrap_angle(pred[self.dim:] - prev[self.dim:])
         return pred, sig
+
+    def odometry_sigma(self, gate: bool = False) -> tuple[float, ...]:
+        """The odometry's sigma model (``SlamConfig.odometry_sigma``) scaled by what this run has learned
+        (``gate``: never below the configured model, see :meth:`prediction`)."""
+        a, b, c, d, e = self.config.odometry_sigma
+        st, sr = np.maximum(self._odometry_scale, 1.0) if gate else self._odometry_scale
+        return a * st, b * st, c * sr, d * sr, e * sr
+
+    def _learn_odometry(self, frame: Frame, res: RegistrationResult) -> None:
+        """Record how far the frame's first registration lies from the odometry's prediction; update the scale.
+
+        The first registration is searched in a box set by ``registration``'s ranges, not by the odometry's
+        sigmas, so what it finds does not depend on the scale it feeds (a tighter scale would otherwise keep only
+        the registrations that agree and tighten itself further).
+        """
+        cfg = self.config
+        if not cfg.learn_odometry_sigma or self._prior is not None:
+            return
+        step = self._odometry_step(frame)
+        if step is None:
+            return
+        a, b, c, d, e = cfg.odometry_sigma
+        dist = float(np.linalg.norm(step[: self.dim]))
+        turn = float(np.abs(wrap_angle(step[self.dim:])).max())
+        off = relative(compose(self.poses[-1], step), res.pose)
+        self._odometry_disagreement.append((float(np.linalg.norm(off[:2])) / (a + b * dist),
+                                            float(abs(wrap_angle(off[-1]))) / (c + d * turn + e * dist)))
+        n = len(self._odometry_disagreement)
+        if n < max(cfg.odometry_window // 10, 1):
+            return
+        r = np.asarray(self._odometry_disagreement)
+        lo, hi = cfg.odometry_scale_bounds
+        # as Gaussian sigmas: a 2-D offset's squared norm has median 2 ln 2 sigma^2; |yaw| has median 0.6745 sigma
+        st = np.sqrt(np.median(r[:, 0] ** 2) / (2 * np.log(2)))
+        sr = np.median(r[:, 1]) / 0.6745
+        self._odometry_scale = np.clip([st, sr], lo, hi)
+
+    def odometry_summary(self) -> dict:
+        """The learned odometry scale and how many frames taught it (JSON-ready)."""
+        return {"learned": bool(self.config.learn_odometry_sigma and len(self._odometry_disagreement) > 0),
+                "frames": len(self._odometry_disagreement),
+                "scale_translation": float(self._odometry_scale[0]),
+                "scale_rotation": float(self._odometry_scale[1]),
+                "sigma": [float(v) for v in self.odometry_sigma()]}
 
     # ---------------------------------------------------------------------------------------------- loop
     def process(self, frame: Frame) -> FrameResult:
@@ -550,6 +623,7 @@ class HsSlam:
             bounds = np.column_stack([guesses.min(0) - half, guesses.max(0) + half])
             res = harmony_icp(scan, self._target, bounds=bounds, initial_guesses=guesses,
                               config=cfg.registration, rng=self.rng)
+            self._learn_odometry(frame, res)
             res, retried, verified = self._verify(frame, scan, res)
             pose, information = self._fuse(frame, res)
             fitness, inlier, rmse, evaluations, cost = (res.fitness, res.inlier_ratio, res.rmse, res.evaluations,
@@ -580,7 +654,7 @@ class HsSlam:
         Returns the registration to keep, whether it was retried, and whether its pose is confirmed.
         """
         cfg = self.config
-        pred = self.prediction(frame)
+        pred = self.prediction(frame, gate=True)
         if pred is None:
             return res, False, True
         centre, sig = pred
@@ -680,6 +754,16 @@ class HsSlam:
             self._pending += 1
             urgent |= (closure.correction_translation > lc.optimize_threshold_translation
                        or closure.correction_rotation > lc.optimize_threshold_rotation)
+        if k % lc.far_every == 0:
+            for cand in closer.far_candidates(self.graph, k, self._path)[: lc.attempts_per_keyframe]:
+                closure = closer.attempt_far(self.graph, self.keyframes, k, cand, self.rng)
+                if closure is None:
+                    continue
+                for c in closer.corroborate(closure, self.graph):
+                    self.graph.add_edge(c.i, c.j, c.measurement, c.information, EdgeKind.LOOP, robust=False)
+                    self._pending += 1
+                    urgent = True
+                break
         self._since_optimized += 1
         if self._pending and (urgent or self._since_optimized >= lc.optimize_every):
             self._optimize()
@@ -748,6 +832,8 @@ class HsSlam:
             "loops_closed": len(loops),
             "attempts": 0 if closer is None else closer.attempts,
             "rejected_by_checks": {} if closer is None else dict(closer.rejections),
+            "far_attempts": 0 if closer is None else closer.far_attempts,
+            "far_closures": 0 if closer is None else closer.far_accepted,
             "rejected_by_graph": self._rejected,
             "optimizations": self._optimizations,
             "keyframes": len(self.keyframes),
@@ -967,7 +1053,8 @@ def run_slam(
     return SlamResult(slam.trajectory, slam.global_map(), slam.results, slam.config, time.perf_counter() - t0,
                       peak, getattr(dataset, "name", ""), time.process_time() - c0,
                       loop_closure=slam.loop_summary(), tracked=slam.tracked_trajectory, skipped=skipped,
-                      prior=prior_info, input_info=dataset.describe() if isinstance(dataset, Dataset) else {})
+                      prior=prior_info, input_info=dataset.describe() if isinstance(dataset, Dataset) else {},
+                      odometry=slam.odometry_summary())
 
 
 def write_slam_outputs(result: SlamResult, out_dir: str | Path) -> dict[str, Path]:

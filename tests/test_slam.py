@@ -61,6 +61,42 @@ def test_slam_2d_tracks_the_route(frames, use_odometry):
     assert np.median([f.inlier_ratio for f in res.frames[1:]]) > 0.9
 
 
+def make_noisy_odometry_frames(yaw_sigma, seed=0, n=120):
+    """The first ``n`` frames of the office route, odometry with white heading noise of ``yaw_sigma`` per step."""
+    rng = np.random.default_rng(seed)
+    frames, odom = [], ROUTE[0].copy()
+    for i, pose in enumerate(ROUTE[:n]):
+        if i > 0:
+            step = relative(ROUTE[i - 1], pose)
+            step[2] += rng.normal(0, yaw_sigma)
+            odom = compose(odom, step)
+        r, a = raycast_2d(SEGMENTS, pose, noise=0.01, rng=rng)
+        frames.append(Frame(stamp=100.0 + 0.5 * i, scan2d=LaserScan2D(r, a, 0.05, 10.0), odometry=odom.copy(),
+                            index=i))
+    return frames
+
+
+def test_odometry_sigma_is_learned_from_the_run():
+    """Precise odometry earns a tighter sigma than the loose default, poor odometry a looser one; metrics say so."""
+    good = run_slam(make_noisy_odometry_frames(np.deg2rad(0.05)), SlamConfig(), rng=1, progress=False)
+    bad = run_slam(make_noisy_odometry_frames(np.deg2rad(4.0)), SlamConfig(), rng=1, progress=False)
+    g, b = good.metrics()["odometry_model"], bad.metrics()["odometry_model"]
+    assert g["learned"] and b["learned"] and g["frames"] == b["frames"] == 119
+    assert g["scale_rotation"] < 0.5 < 1.5 < b["scale_rotation"], (g, b)
+    assert g["sigma"][2] == pytest.approx(SlamConfig().odometry_sigma[2] * g["scale_rotation"])
+    # the retry check never gets tighter than the configured model: slips are what it is for
+    slam = HsSlam(SlamConfig())
+    configured = np.array(SlamConfig().odometry_sigma)
+    slam._odometry_scale = np.array([0.2, 0.3])
+    np.testing.assert_allclose(slam.odometry_sigma(gate=True), configured)
+    np.testing.assert_allclose(slam.odometry_sigma(), configured * [0.2, 0.2, 0.3, 0.3, 0.3])
+    slam._odometry_scale = np.array([2.0, 3.0])
+    np.testing.assert_allclose(slam.odometry_sigma(gate=True), configured * [2, 2, 3, 3, 3])
+    fixed = run_slam(make_noisy_odometry_frames(np.deg2rad(4.0))[:30], SlamConfig(learn_odometry_sigma=False),
+                     rng=1, progress=False).metrics()["odometry_model"]
+    assert not fixed["learned"] and fixed["scale_rotation"] == 1.0
+
+
 def test_odometry_alone_drifts(frames):
     odom = np.array([f.odometry for f in frames])
     err = relative_errors(odom, ROUTE)
@@ -233,6 +269,8 @@ def test_points_on_one_line_are_unusable():
     (dict(max_range=0.05), r"slam.max_range \(0.05\) must exceed slam.min_range"),
     (dict(warmup_frames=0), "slam.warmup_frames must be an integer >= 1"),
     (dict(map_voxel=0.0), "slam.map_voxel must be None or > 0"),
+    (dict(odometry_scale_bounds=(2.0, 1.0)), "slam.odometry_scale_bounds must be two numbers 0 < low <= high"),
+    (dict(odometry_window=0), "slam.odometry_window must be an integer >= 1"),
 ])
 def test_bad_config(kwargs, match):
     with pytest.raises(ConfigError, match=match):

@@ -1,5 +1,6 @@
 """HS-SLAM loop closure on a square corridor ring: the loop closes, a look-alike place does not, failures fall back."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -148,3 +149,98 @@ def test_graph_failure_falls_back(ring, monkeypatch):
     m = res.metrics()
     assert m["loop_closure"] == "failed"
     np.testing.assert_allclose(res.trajectory.poses, res.tracked.poses, atol=1e-9)
+
+
+# ------------------------------------------------------------------------------------------ far closures
+def _office_scan(pose, seed=0):
+    from hsmap.testing import office_segments
+
+    r, a = raycast_2d(office_segments(), pose, noise=0.01, rng=seed)
+    ok = np.isfinite(r)
+    return np.column_stack([r[ok] * np.cos(a[ok]), r[ok] * np.sin(a[ok])])
+
+
+def test_correlative_match_finds_a_pose_far_from_the_guess_and_flags_a_corridor():
+    from hsmap.loopclosure import correlative_match_2d
+
+    anchor, newest = np.array([2.0, 2.0, 0.3]), np.array([3.0, 2.5, 1.0])
+    true = relative(anchor, newest)
+    guess = compose(true, [6.0, -4.0, np.deg2rad(12.0)])  # 7 m and 12 deg off
+    pose, score, ambiguity = correlative_match_2d(_office_scan(newest), _office_scan(anchor, 1), guess, 10.0,
+                                                  np.deg2rad(20.0))
+    assert np.linalg.norm(pose[:2] - true[:2]) < 0.2 and abs(wrap_angle(pose[2] - true[2])) < np.deg2rad(1.5)
+    assert score > 0.5 and ambiguity < 0.8
+    # outside the window it cannot be found
+    pose, _, _ = correlative_match_2d(_office_scan(newest), _office_scan(anchor, 1), guess, 3.0, np.deg2rad(20.0))
+    assert np.linalg.norm(pose[:2] - true[:2]) > 2.0
+    # a featureless corridor: poses along it score almost alike, and the match is refused
+    world = np.array([[[-20, -0.8], [20, -0.8]], [[-20, 0.8], [20, 0.8]]], dtype=float)
+    scans = []
+    for x in (0.0, 6.0):
+        r, a = raycast_2d(world, np.array([x, 0.0, 0.0]), noise=0.005, rng=1)
+        ok = np.isfinite(r)
+        scans.append(np.column_stack([r[ok] * np.cos(a[ok]), r[ok] * np.sin(a[ok])]))
+    _, _, ambiguity = correlative_match_2d(scans[1], scans[0], np.array([4.0, 0.0, 0.0]), 10.0, np.deg2rad(10.0))
+    assert ambiguity > 0.75
+    g = PoseGraph(3)
+    g.add_node(np.zeros(3))
+    g.add_node(np.array([4.0, 0.0, 0.0]))
+    closer = LoopCloser(LoopClosureConfig(submap_keyframes=1, source_keyframes=1, min_separation=1), 3, 0.05)
+    cand = closer.far_candidates(g, 1, np.array([300.0, 0.0]))
+    assert [c.submap for c in cand] == [0]
+    assert closer.attempt_far(g, [_keyframe(scans[0]), _keyframe(scans[1])], 1, cand[0],
+                              np.random.default_rng(0)) is None
+    assert set(closer.rejections) <= {"far_ambiguous", "far_unconstrained"} and sum(closer.rejections.values()) == 1
+
+
+def _far_setup(error):
+    """Keyframes 0-1 in room A of the office; keyframes 2-3 in the same place after a long excursion whose
+    estimate is off by ``error`` (x, y, yaw); graph distances as after 300 m."""
+    truth = [np.array([1.5, 1.5, 0.2]), np.array([2.0, 1.6, 0.3]), np.array([2.2, 2.0, 1.0]),
+             np.array([2.6, 2.2, 1.1])]
+    g = PoseGraph(3)
+    for p in truth[:2]:
+        g.add_node(p)
+    for p in truth[2:]:
+        g.add_node(compose(error, p))
+    kfs = [_keyframe(_office_scan(p, seed=k)) for k, p in enumerate(truth)]
+    cfg = LoopClosureConfig(submap_keyframes=1, source_keyframes=1, min_separation=1, far_every=1)
+    path = np.array([300.0, 300.0, 0.0, 0.0])
+    return truth, g, kfs, LoopCloser(cfg, 3, 0.05), path
+
+
+def test_far_closure_needs_a_second_match_that_agrees():
+    error = np.array([9.0, -6.0, np.deg2rad(10.0)])
+    truth, g, kfs, closer, path = _far_setup(error)
+    assert [c.submap for c in closer.candidates(g, 2, path)] == []  # beyond the regular window
+    cands = closer.far_candidates(g, 2, path)
+    assert sorted(c.submap for c in cands) == [0, 1]
+    first = closer.attempt_far(g, kfs, 2, cands[0], np.random.default_rng(0))
+    assert first is not None
+    np.testing.assert_allclose(first.measurement, relative(truth[first.i], truth[2]), atol=0.05)
+    assert first.correction_translation > 3.0
+    assert closer.corroborate(first, g) == []  # one match alone is not enough
+    assert closer.rejections["far_uncorroborated"] == 1
+    second = closer.attempt_far(g, kfs, 3, closer.far_candidates(g, 3, path)[0], np.random.default_rng(1))
+    both = closer.corroborate(second, g)
+    assert [c.j for c in both] == [2, 3] and all(c.i in (0, 1) for c in both)
+    # the two corroborated far edges, outside the robust kernel, pull the graph the whole way
+    for i in range(3):
+        g.add_edge(i, i + 1, relative(g.poses[i], g.poses[i + 1]) if i != 1 else relative(truth[1], truth[2]),
+                   np.diag([1e2, 1e2, 1e2]) if i == 1 else np.diag([1e4, 1e4, 1e5]))
+    for c in both:
+        g.add_edge(c.i, c.j, c.measurement, c.information, "loop", robust=False)
+    assert g.optimize().status == "ok"
+    for k in (2, 3):
+        assert np.linalg.norm(g.poses[k][:2] - truth[k][:2]) < 0.1
+
+
+def test_far_matches_that_disagree_are_not_corroborated():
+    error = np.array([9.0, -6.0, np.deg2rad(10.0)])
+    truth, g, kfs, closer, path = _far_setup(error)
+    first = closer.attempt_far(g, kfs, 2, closer.far_candidates(g, 2, path)[0], np.random.default_rng(0))
+    # a second "match" that puts keyframe 3 1 m away from where the first one and tracking put it
+    fake = dataclasses.replace(first, j=3, measurement=compose(relative(truth[1], truth[3]), [1.0, 0.0, 0.0]), i=1)
+    assert closer.corroborate(first, g) == []
+    assert closer.corroborate(fake, g) == []
+    assert closer.rejections["far_uncorroborated"] == 2

@@ -130,7 +130,7 @@ class SlamConfig:
         Uncertainty of a wheel-odometry prediction over one frame: translation sigma = a + b * distance, rotation
         sigma = c + d * |turn| + e * distance, as (a [m], b, c [rad], d, e [rad/m]); the default is loose
         (2 cm + 5 % of the distance, 1 deg + 5 % of the turn + 1 deg per metre): wheel odometry varies.
-    learn_odometry_sigma : bool
+    learn_odometry : bool
         Learn how good this robot's odometry is as the run goes: the first registration of each frame (searched
         in a box that does not depend on what is learned) is compared with the raw odometry's prediction; the
         disagreements, normalised by the model above, over the last ``odometry_window`` frames give a bias (their
@@ -176,7 +176,7 @@ class SlamConfig:
     min_range: float = 0.1
     max_range: float = 30.0
     odometry_sigma: tuple[float, ...] = (0.02, 0.05, float(np.deg2rad(1.0)), 0.05, float(np.deg2rad(1.0)))
-    learn_odometry_sigma: bool = True
+    learn_odometry: bool = True
     odometry_window: int = 400
     odometry_scale_bounds: tuple[float, float] = (0.1, 5.0)
     motion_sigma: tuple[float, ...] = (0.1, 0.5, float(np.deg2rad(5.0)), 0.5, float(np.deg2rad(5.0)))
@@ -597,7 +597,7 @@ class HsSlam:
         creeps); the scale is the robust spread around it.
         """
         cfg = self.config
-        if not cfg.learn_odometry_sigma or self._prior is not None:
+        if not cfg.learn_odometry or self._prior is not None:
             return
         step = self._odometry_step(frame)
         if step is None:
@@ -618,7 +618,7 @@ class HsSlam:
 
     def odometry_summary(self) -> dict:
         """The learned odometry scale and how many frames taught it (JSON-ready)."""
-        return {"learned": bool(self.config.learn_odometry_sigma and len(self._odometry_disagreement) > 0),
+        return {"learned": bool(self.config.learn_odometry and len(self._odometry_disagreement) > 0),
                 "frames": len(self._odometry_disagreement),
                 "scale_rotation": float(self._odometry_scale[1]),
                 "bias": [float(v) for v in self._odometry_bias],  # x, y, yaw in sigmas of the configured model

@@ -92,7 +92,7 @@ def test_odometry_sigma_is_learned_from_the_run():
     np.testing.assert_allclose(slam.odometry_sigma(), configured * [0.2, 0.2, 0.3, 0.3, 0.3])
     slam._odometry_scale = np.array([2.0, 3.0])
     np.testing.assert_allclose(slam.odometry_sigma(gate=True), configured * [2, 2, 3, 3, 3])
-    fixed = run_slam(make_noisy_odometry_frames(np.deg2rad(4.0))[:30], SlamConfig(learn_odometry_sigma=False),
+    fixed = run_slam(make_noisy_odometry_frames(np.deg2rad(4.0))[:30], SlamConfig(learn_odometry=False),
                      rng=1, progress=False).metrics()["odometry_model"]
     assert not fixed["learned"] and fixed["scale_rotation"] == 1.0
 

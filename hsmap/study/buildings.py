@@ -208,8 +208,8 @@ def run_buildings(maps: str | os.PathLike, out: str | os.PathLike, *, only: Sequ
         if missing:
             raise DatasetError(f"--only {' '.join(missing)}: not a floor plan in {maps} (there: {', '.join(names)})")
         names = [n for n in names if n in set(only)]
-    jobs = [Job(n, STAGES, {"name": n, "maps": str(maps), "out": str(out), "seed": int(seed), "quick": bool(quick)})
-            for n in names]
+    jobs = [Job(n, STAGES, {"name": n, "maps": str(maps), "out": str(out), "seed": int(seed), "quick": bool(quick)},
+                priority=_free_pixels(maps, n)) for n in names]  # the largest buildings first
     records = run_jobs(jobs, out, workers=workers, scheduler=scheduler, progress=progress, log=log, client=client)
     clean = [{k: v for k, v in r.items() if k not in ("traceback", "skipped")} for r in records]
     results = {"schema": SCHEMA_VERSION, "maps": str(maps), "quick": bool(quick), "seed": int(seed),
@@ -217,6 +217,13 @@ def run_buildings(maps: str | os.PathLike, out: str | os.PathLike, *, only: Sequ
     write_json(out / "results.json", results)
     write_text(out / "table.md", buildings_table(results, _paper_table2()))
     return results
+
+
+def _free_pixels(maps: Path, name: str) -> int:
+    from ..grid import IMAGE_FREE_MIN, read_image_gray
+    from ..sim.floorplan import floor_plan_files
+
+    return int((read_image_gray(floor_plan_files(maps, name)[0]) >= IMAGE_FREE_MIN).sum())
 
 
 def _paper_table2() -> dict | None:

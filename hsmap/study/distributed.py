@@ -44,6 +44,7 @@ class Job:
     name: str
     stages: Sequence[tuple[str, Callable[..., Any]]]
     kwargs: dict = field(default_factory=dict)
+    priority: int = 0  # higher first (start the longest jobs early)
 
 
 def read_result(path: str | Path) -> dict | None:
@@ -144,9 +145,11 @@ def run_jobs(jobs: Sequence[Job], out: str | Path, *, workers: int | None = 2, s
             for k, (stage, fn) in enumerate(job.stages):
                 key = f"{job.name}/{stage}-{time.time_ns()}"
                 if k == 0:
-                    f = client.submit(_call, fn, job.kwargs, key=key, retries=retries, pure=False)
+                    f = client.submit(_call, fn, job.kwargs, key=key, retries=retries, pure=False,
+                                      priority=job.priority)
                 else:
-                    f = client.submit(_call_on, fn, prev, key=key, retries=retries, pure=False)
+                    f = client.submit(_call_on, fn, prev, key=key, retries=retries, pure=False,
+                                      priority=job.priority)
                 futs.append((stage, f))
                 prev = f
             finals[prev] = job

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import _floorplans as fp
 import numpy as np
 import pytest
 from PIL import Image
@@ -15,8 +16,6 @@ from hsmap.sim.floorplan import (
     mask_rectangles,
     read_floor_plan,
 )
-
-import _floorplans as fp
 
 
 @pytest.fixture

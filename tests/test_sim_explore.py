@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
+import _floorplans as fp
 import numpy as np
 import pytest
 from scipy import ndimage as ndi
 
-import _floorplans as fp
 from hsmap.errors import EmptyInputError
 from hsmap.sim.building import BuildingRunConfig, building_motion, simulate_building
 from hsmap.sim.explore import ExploreConfig, plan_exploration

@@ -75,7 +75,7 @@ def _client(workers: int | None, scheduler: str | None):
     n = int(workers or 2)
     if n < 1:
         raise ConfigError(f"--workers must be >= 1, got {workers}")
-    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
                            silence_logs=40)
     return Client(cluster), cluster
 

@@ -68,6 +68,7 @@ def test_quick_mode_scores_the_rooms_against_the_ground_truth(batch):
     assert tiny["rooms"] == 3 and tiny["frames"] > 20 and tiny["route_m"] > 5
     # the slice (above the furniture) finds the three rooms of the ground truth
     assert tiny["slice"]["recall"] >= 0.85 and tiny["slice"]["precision"] >= 0.85
+    assert tiny["slice"]["recall_reached"] == tiny["slice"]["recall"]  # every room reached
     assert tiny["pose_error"]["2d"]["max_translation_m"] < 0.1
     assert tiny["pose_error"]["6dof"]["max_translation_m"] < 0.1
     out = batch["out"]

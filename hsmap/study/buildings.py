@@ -9,7 +9,9 @@ For each building of a folder of floor plans in the Bormann et al. format (``NAM
    by it, both with loop closure, the floor-level grid and the 1.7-1.8 m slice grid from the estimated poses,
    one segmentation on both) into ``OUT/NAME/chain``;
 3. ``score``: both segmentations sampled onto the ground truth's pixels and scored with Bormann's per-room mean
-   precision and recall (:func:`hsmap.evaluation.segmentation_scores`); both paths against the ground truth
+   precision and recall (:func:`hsmap.evaluation.segmentation_scores`; ``recall_reached`` beside it: the mean
+   recall over the rooms the route reached, as some ground truths count regions the robot cannot enter, e.g.
+   fragments outside the walls); both paths against the ground truth
    (:func:`hsmap.evaluation.pose_errors`); ``OUT/NAME/result.json``.
 
 :func:`run_buildings` runs them and writes ``OUT/results.json`` (schema in its docstring) and ``OUT/table.md``.
@@ -110,8 +112,11 @@ def score_stage(state: dict) -> dict:
         labels = read_label_image(folder / "chain" / f"{prefix}rooms.png")
         on_gt = resample_labels(labels, grid.geometry, plan.geometry)
         s = segmentation_scores(on_gt, plan.rooms, gt_is_labels=True)
+        # the ground truth's rooms are 1..R, all counted: room_recall[k - 1] is room k's
+        reached = [r for k, r in enumerate(s.room_recall, start=1) if str(k) not in state["unreachable"]]
         rec[kind] = {"precision": round(s.precision, 4), "recall": round(s.recall, 4),
                      "precision_area": round(s.precision_area, 4), "recall_area": round(s.recall_area, 4),
+                     "recall_reached": round(float(np.mean(reached)), 4) if reached else 0.0,
                      "segments": s.n_segments, "rooms": s.n_rooms}
     gt = SimulatedDataset(folder / "data").groundtruth
     rec["pose_error"] = {"2d": _pose_error_record(read_tum(folder / "chain" / "trajectory2d.tum", dof=3), gt),
@@ -140,6 +145,7 @@ def summarise(records: Sequence[dict]) -> dict:
         "buildings_ok": len(ok), "buildings": len(records),
         "floor": {"precision": mean(lambda r: r["floor"]["precision"]), "recall": mean(lambda r: r["floor"]["recall"])},
         "slice": {"precision": mean(lambda r: r["slice"]["precision"]), "recall": mean(lambda r: r["slice"]["recall"])},
+        "recall_reached": {k: mean(lambda r, k=k: r[k].get("recall_reached", r[k]["recall"])) for k in ("floor", "slice")},
         "recall_gain": round(float(np.mean(gain)), 4),
         "buildings_with_recall_gain": int(sum(g > 0 for g in gain)),
         "pose_error": {"2d_max_translation_m": mean(lambda r: r["pose_error"]["2d"]["max_translation_m"]),

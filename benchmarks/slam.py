@@ -2,7 +2,8 @@
 
 1. ``intel``, ``fr079`` and ``fr-clinic`` (the ROS1 ``.orig.bag`` files of $HSMAP_DATASETS/slam2d): 2D HS-SLAM
    with the command line's default configuration (odometry from the bag, loop closure on) over the whole log, one
-   run per seed (``--seeds``, default 1-5), each in a fresh process (so that its peak memory is its own). Per
+   run per seed (``--seeds``, default 1-5), the seeds a batch of the study's Dask runner (``--jobs`` worker
+   processes, the runner of ``hsmap benchmark buildings``; each seed's record in ``reports/benchmarks/slam/runs/``). Per
    seed: the Freiburg relations error (mean and sample sd, translational and rotational; also for relations with
    dt <= 10 s and dt > 60 s), loops closed, frames retried, wall and CPU time, real-time factor (log duration /
    wall time), peak memory; and over the seeds the mean, sd and worst of the relations errors. fr079 states its
@@ -139,16 +140,29 @@ def summarise_seeds(runs: list[dict], spec: dict) -> dict:
     return out
 
 
+def _freiburg_job(*, name: str, datasets: str, seed: int, max_frames: int | None, loop_closure: bool) -> dict:
+    return freiburg_run(name, datasets, seed, max_frames, loop_closure)
+
+
 def bench_freiburg(name: str, datasets: Path, seeds: list[int], max_frames: int | None, jobs: int,
-                   loop_closure: bool) -> dict:
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor
+                   loop_closure: bool, runs_dir: Path) -> dict:
+    """The seeds of one log as a batch of the study's Dask runner (:func:`hsmap.study.distributed.run_jobs`, the
+    runner of ``hsmap benchmark buildings``): one job per seed on ``jobs`` worker processes, each seed's record
+    written atomically into ``runs_dir/NAME-seedS/result.json`` as it finishes; every run is fresh (a benchmark
+    measures this code, so finished seeds are not read back). ``peak_memory_mb`` is the peak of the worker process
+    that ran the seed (the runs of one log are alike)."""
+    from hsmap.errors import HsmapError
+    from hsmap.study.distributed import Job, run_jobs
 
     spec = FREIBURG[name]
-    ctx = mp.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, max_tasks_per_child=1) as pool:
-        futures = [pool.submit(freiburg_run, name, str(datasets), s, max_frames, loop_closure) for s in seeds]
-        runs = [f.result() for f in futures]
+    batch = [Job(f"{name}-seed{s}", [("slam", _freiburg_job)],
+                 {"name": name, "datasets": str(datasets), "seed": s, "max_frames": max_frames,
+                  "loop_closure": loop_closure}) for s in seeds]
+    records = run_jobs(batch, runs_dir, workers=jobs, retries=0, skip_finished=False, progress=False)
+    failed = [r for r in records if r["status"] != "ok"]
+    if failed:
+        raise HsmapError(f"{name}: {len(failed)} of {len(records)} seeds failed; first: {failed[0]['error']}")
+    runs = [{k: v for k, v in r.items() if k not in ("name", "status", "skipped", "finished")} for r in records]
     summary = summarise_seeds(runs, spec)
     t, r = summary["all.translation_m"], summary["all.rotation_deg"]
     print(f"{name} over seeds {seeds}: {t['mean']:.4f} +/- {t['sd']:.4f} m (worst {t['worst']:.4f}), "
@@ -257,7 +271,7 @@ def main(argv=None) -> int:
             out["3d_slam_office"] = bench_3d(args.max_frames)
         elif (datasets / "slam2d").is_dir():
             out[name] = bench_freiburg(name, datasets, args.seeds, args.max_frames, args.jobs,
-                                       not args.no_loop_closure)
+                                       not args.no_loop_closure, Path(args.out).with_suffix("") / "runs")
         else:
             out[name] = {"skipped": f"no Freiburg data at {datasets}/slam2d (run hsmap data fetch, or set HSMAP_DATASETS)"}
             print(out[name]["skipped"])

@@ -35,6 +35,7 @@ __all__ = [
     "read_image_gray",
     "read_label_image",
     "write_label_image",
+    "resample_labels",
     "grid_from_scans",
     "scans_to_points",
     "grid_from_point_slice",
@@ -252,6 +253,21 @@ def write_label_image(path: str | os.PathLike, labels: ArrayLike) -> None:
         raise InputError(f"labels must lie in 0..65535 for a 16-bit PNG, got {lab.min()}..{lab.max()}")
     with atomic_path(path, suffix=".png") as tmp:
         Image.fromarray(lab.astype(np.uint16)).save(tmp, format="PNG")
+
+
+def resample_labels(labels: ArrayLike, geometry: GridGeometry, target: GridGeometry) -> NDArray[np.int32]:
+    """A label image (H, W) lying at ``geometry`` sampled onto the pixels of ``target`` (nearest pixel; 0 where
+    ``target``'s pixel centre falls outside the image): e.g. rooms found on a SLAM map, scored in a ground truth's
+    own pixel grid."""
+    lab = np.asarray(labels)
+    if lab.shape != geometry.shape:
+        raise ShapeError(f"labels {lab.shape} do not match their geometry {geometry.shape}")
+    rows, cols = np.indices(target.shape)
+    rc = geometry.world_to_index(target.pixel_to_world(np.stack([rows, cols], -1)))
+    ok = geometry.inside(rc)
+    out = np.zeros(target.shape, dtype=np.int32)
+    out[ok] = lab[rc[ok][:, 0], rc[ok][:, 1]]
+    return out
 
 
 def read_map(path: str | os.PathLike, resolution: float | None = None) -> OccupancyGrid:

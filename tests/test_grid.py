@@ -231,3 +231,17 @@ def test_grid_from_point_slice(rng):
         grid_from_point_slice(walls, z_min=1.8, z_max=1.7)
     with pytest.raises(ShapeError):
         grid_from_point_slice(walls[:, :2])
+
+
+def test_resample_labels_onto_another_grid():
+    from hsmap.grid import GridGeometry, resample_labels
+
+    src = GridGeometry((4, 6), 0.5, (1.0, 2.0))  # x 1..4, y 2..4
+    lab = np.arange(24, dtype=np.int32).reshape(4, 6)
+    assert np.array_equal(resample_labels(lab, src, src), lab)
+    fine = GridGeometry((8, 12), 0.25, (1.0, 2.0))  # the same area, twice as fine
+    out = resample_labels(lab, src, fine)
+    assert np.array_equal(out, np.repeat(np.repeat(lab, 2, 0), 2, 1))
+    shifted = GridGeometry((4, 6), 0.5, (0.0, 2.0))  # one metre to the left: two columns outside
+    out = resample_labels(lab, src, shifted)
+    assert (out[:, :2] == 0).all() and np.array_equal(out[:, 2:], lab[:, :4])

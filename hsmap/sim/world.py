@@ -26,7 +26,8 @@ class World:
     Parameters
     ----------
     scenario : Scenario
-        A parsed scenario (:func:`hsmap.sim.load_scenario`).
+        A parsed scenario (:func:`hsmap.sim.load_scenario`); :meth:`from_boxes` builds one from boxes instead
+        (``scenario`` is then None).
 
     Attributes
     ----------
@@ -38,17 +39,34 @@ class World:
     """
 
     def __init__(self, scenario: Scenario):
-        import open3d as o3d
-
         self.scenario = scenario
         boxes, kinds = layout.solid_boxes(scenario)
+        lo, hi = layout.bounds(scenario)
+        self._build(boxes, kinds, lo, hi, scenario.ceiling_height)
+
+    @classmethod
+    def from_boxes(cls, boxes: ArrayLike, kinds: list[str], bounds: tuple[ArrayLike, ArrayLike],
+                   ceiling_height: float | None) -> World:
+        """A world of solid boxes (B, 7) (:mod:`hsmap.sim.shapes`) named by ``kinds`` (B,), a floor plane over
+        ``bounds`` ((x, y) low and high corners, metres) plus 2 m and, unless ``ceiling_height`` is None, a
+        ceiling over ``bounds`` (the floor-plan worlds of :mod:`hsmap.sim.floorplan`)."""
+        world = cls.__new__(cls)
+        world.scenario = None
+        b = np.asarray(boxes, dtype=float).reshape(-1, 7)
+        if len(kinds) != len(b):
+            raise ShapeError(f"{len(b)} boxes but {len(kinds)} kinds")
+        world._build(b, list(kinds), np.asarray(bounds[0], float), np.asarray(bounds[1], float), ceiling_height)
+        return world
+
+    def _build(self, boxes, kinds, lo, hi, ceiling_height) -> None:
+        import open3d as o3d
+
         self.boxes = boxes
         self.box_kinds = kinds
-        v, t = boxes_to_mesh_arrays(boxes)
-        lo, hi = layout.bounds(scenario)
+        v, t = boxes_to_mesh_arrays(boxes) if len(boxes) else (np.zeros((0, 3)), np.zeros((0, 3), np.int64))
         planes = [("floor", 0.0, lo - 2.0, hi + 2.0)]
-        if scenario.ceiling_height is not None:
-            planes.append(("ceiling", scenario.ceiling_height, lo, hi))
+        if ceiling_height is not None:
+            planes.append(("ceiling", ceiling_height, lo, hi))
         verts, tris = [v], [t]
         n = len(v)
         for _, z, a, b in planes:

@@ -39,7 +39,8 @@ from .catalog import resolve_scenario
 from .robot import Motion, simulate_motion
 from .scenario import Scenario, load_scenario
 
-__all__ = ["FORMAT", "FORMAT_VERSION", "SimulationSummary", "simulate", "save_npz", "motion_for", "noise_rngs"]
+__all__ = ["FORMAT", "FORMAT_VERSION", "SimulationSummary", "simulate", "save_npz", "motion_for", "noise_rngs",
+           "write_sensor_frames"]
 
 
 FILE_DESCRIPTIONS = {
@@ -175,42 +176,9 @@ def simulate(scenario: Scenario | str | os.PathLike, out: str | os.PathLike, see
     world = World(scn)
     timings["world"] = time.perf_counter() - t
 
-    t = time.perf_counter()
-    ranges2d = np.empty((n, scn.lidar2d.beams), dtype=np.float32)
-    for a in range(0, n, 256):
-        b = min(n, a + 256)
-        ranges2d[a:b] = world.scan2d(motion.groundtruth[a:b], scn.lidar2d, noise_rngs(seed, 2, range(a, b)))
-    save_npz(out / "scans2d.npz", stamps=motion.stamps, ranges=ranges2d, angles=scn.lidar2d.angles())
-    timings["scan2d"] = time.perf_counter() - t
-
-    t = time.perf_counter()
-    cdir = out / "clouds3d"
-    cdir.mkdir(exist_ok=True)
+    ranges2d = write_sensor_frames(out, world, motion, scn.lidar2d, scn.lidar3d, seed, timings,
+                                   batch_frames=batch_frames, compresslevel=compresslevel)
     dirs = scn.lidar3d.directions()
-    t_cast = 0.0
-
-    def write_frame(k: int, img: np.ndarray) -> None:
-        save_npz(cdir / f"{k:06d}.npz", compresslevel, range_mm=encode_range_image(img),
-                 stamp=np.float64(motion.stamps[k]))
-
-    # ray-cast batch i+1 while a writer thread compresses batch i (zlib releases the GIL)
-    with ThreadPoolExecutor(max_workers=1) as pool:
-        pending: list = []
-        for a in range(0, n, batch_frames):
-            b = min(n, a + batch_frames)
-            tc = time.perf_counter()
-            imgs = world.scan3d(motion.groundtruth[a:b], scn.lidar3d, noise_rngs(seed, 3, range(a, b)), dirs)
-            t_cast += time.perf_counter() - tc
-            for f in pending:
-                f.result()
-            pending = [pool.submit(write_frame, k, imgs[k - a]) for k in range(a, b)]
-        for f in pending:
-            f.result()
-    for stale in cdir.glob("*.npz"):
-        if not stale.stem.isdigit() or int(stale.stem) >= n:
-            stale.unlink()
-    timings["scan3d"] = time.perf_counter() - t
-    timings["scan3d_raycast"] = t_cast
 
     t = time.perf_counter()
     gt = Trajectory(motion.stamps, motion.groundtruth)
@@ -282,6 +250,52 @@ def simulate(scenario: Scenario | str | os.PathLike, out: str | os.PathLike, see
     timings["total"] = time.perf_counter() - t_start
     write_text(out / "dataset.yaml", yaml.safe_dump(meta, sort_keys=False, width=110))
     return summary
+
+
+def write_sensor_frames(out: Path, world, motion: Motion, lidar2d, lidar3d, seed: int, timings: dict, *,
+                        batch_frames: int = 8, compresslevel: int = 1) -> np.ndarray:
+    """Cast both LiDARs along a motion and write ``scans2d.npz`` and ``clouds3d/`` into ``out`` (atomically, the
+    3D frames ray-cast while the previous batch is compressed); the timings go into ``timings``. Returns the 2D
+    ranges (N, M). Shared by :func:`simulate` and the floor-plan worlds (:func:`hsmap.sim.building.simulate_building`)."""
+    n = len(motion)
+    t = time.perf_counter()
+    ranges2d = np.empty((n, lidar2d.beams), dtype=np.float32)
+    for a in range(0, n, 256):
+        b = min(n, a + 256)
+        ranges2d[a:b] = world.scan2d(motion.groundtruth[a:b], lidar2d, noise_rngs(seed, 2, range(a, b)))
+    save_npz(out / "scans2d.npz", stamps=motion.stamps, ranges=ranges2d, angles=lidar2d.angles())
+    timings["scan2d"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    cdir = out / "clouds3d"
+    cdir.mkdir(exist_ok=True)
+    dirs = lidar3d.directions()
+    t_cast = 0.0
+
+    def write_frame(k: int, img: np.ndarray) -> None:
+        save_npz(cdir / f"{k:06d}.npz", compresslevel, range_mm=encode_range_image(img),
+                 stamp=np.float64(motion.stamps[k]))
+
+    # ray-cast batch i+1 while a writer thread compresses batch i (zlib releases the GIL)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        pending: list = []
+        for a in range(0, n, batch_frames):
+            b = min(n, a + batch_frames)
+            tc = time.perf_counter()
+            imgs = world.scan3d(motion.groundtruth[a:b], lidar3d, noise_rngs(seed, 3, range(a, b)), dirs)
+            t_cast += time.perf_counter() - tc
+            for f in pending:
+                f.result()
+            pending = [pool.submit(write_frame, k, imgs[k - a]) for k in range(a, b)]
+        for f in pending:
+            f.result()
+    for stale in cdir.glob("*.npz"):
+        if not stale.stem.isdigit() or int(stale.stem) >= n:
+            stale.unlink()
+    timings["scan3d"] = time.perf_counter() - t
+    timings["scan3d_raycast"] = t_cast
+
+    return ranges2d
 
 
 def _write_png16(path: Path, labels: np.ndarray) -> None:

@@ -1,5 +1,6 @@
 """Figures of the public benchmarks (notebook 08): our relations errors on the Freiburg logs beside the
-published methods, and our per-map room-segmentation scores beside Bormann et al.'s methods.
+published methods, and our per-map room-segmentation scores beside Bormann et al.'s methods; and of the building
+benchmark (notebook 09): floor level vs slice per building, one page per building.
 
 Inputs are the plain rows of :mod:`hsmap.study.benchmarks` and the published numbers of ``hsmap/study/published.yaml``
 (:func:`hsmap.study.benchmarks.published_references`); drawn with the object API, like :mod:`hsmap.viz.figures`.
@@ -7,7 +8,9 @@ Inputs are the plain rows of :mod:`hsmap.study.benchmarks` and the published num
 
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -16,7 +19,8 @@ from matplotlib.figure import Figure
 from ..errors import InputError
 from .figures import new_figure
 
-__all__ = ["relations_figure", "relations_dt_figure", "precision_recall_figure"]
+__all__ = ["relations_figure", "relations_dt_figure", "precision_recall_figure", "buildings_gain_figure",
+           "building_page_figure"]
 
 
 def relations_figure(rows: Sequence[Mapping[str, Any]], published: Sequence[Mapping[str, Any]], *,
@@ -148,4 +152,67 @@ def precision_recall_figure(rows: Sequence[Mapping[str, Any]], summary: Mapping[
                  f"(grey, means over {published.get('maps', '?')} maps)")
     ax.grid(True, lw=0.3)
     ax.legend(fontsize=7, loc="lower left")
+    return fig
+
+
+def buildings_gain_figure(buildings: Sequence[Mapping[str, Any]], paper: Mapping[str, float] | None = None):
+    """Per building: floor-level and slice precision/recall (bars) and the recall gain of the slice, the paper's
+    Table 2 as lines. ``buildings``: the records of ``results.json`` (failed ones are left out)."""
+    ok = [b for b in buildings if b.get("status") == "ok"]
+    fig, axes = new_figure(2, 1, size=(max(8.0, 0.7 * len(ok) + 3), 8.0))
+    x = np.arange(len(ok))
+    names = [b["name"] for b in ok]
+    for ax, key in zip(axes, ("recall", "precision"), strict=True):
+        ax.bar(x - 0.2, [b["floor"][key] for b in ok], 0.4, label=f"floor-level map {key}", color="#999999")
+        ax.bar(x + 0.2, [b["slice"][key] for b in ok], 0.4, label=f"1.7-1.8 m slice {key}", color="#1f77b4")
+        if paper:
+            ax.axhline(paper[f"floor_{key}"], color="#999999", ls="--", lw=1, label=f"paper floor {key}")
+            ax.axhline(paper[f"slice_{key}"], color="#1f77b4", ls="--", lw=1, label=f"paper slice {key}")
+        ax.set_xticks(x, names, rotation=40, ha="right")
+        ax.set_ylim(0, 1.05)
+        ax.set_ylabel(key)
+        ax.legend(loc="lower right", fontsize=8)
+    for k, b in enumerate(ok):
+        gain = b["slice"]["recall"] - b["floor"]["recall"]
+        axes[0].text(k, 1.01, f"{gain:+.2f}", ha="center", fontsize=8, color="green" if gain > 0 else "red")
+    axes[0].set_title("per-building recall (the slice's gain over the floor level above each pair)")
+    axes[1].set_title("per-building precision")
+    return fig
+
+
+def building_page_figure(folder: str | os.PathLike, plan, record: Mapping[str, Any] | None = None):
+    """One building of the benchmark on one page: the route over the ground truth, the floor-level map segmented,
+    the slice segmented, the ground-truth rooms. ``folder``: the building's folder (``data/``, ``chain/``);
+    ``plan``: its :class:`hsmap.sim.floorplan.FloorPlan`."""
+    from ..grid import read_label_image, read_map
+    from ..trajectory import read_tum
+    from .figures import plot_labels, plot_trajectories
+
+    folder = Path(folder)
+    fig, axes = new_figure(2, 2, size=(14.0, 11.0))
+    axes = np.asarray(axes).ravel()
+    g = plan.geometry
+    base = np.where(plan.plain_free, 254, 0).astype(np.uint8)
+    gt = read_tum(folder / "data" / "groundtruth.tum", dof=3)
+    est = read_tum(folder / "chain" / "trajectory2d.tum", dof=3)
+    plot_labels(np.zeros(g.shape, np.int32), g, base=base, ax=axes[0])
+    plot_trajectories({"ground truth": gt, "2D HS-SLAM": est}, ax=axes[0], linewidth=0.8, markers=False)
+    title = f"{plan.name}: the route"
+    if record:
+        title += f" ({record.get('route_m', 0):.0f} m, {record.get('frames', 0)} frames"
+        title += f", {len(record['unreachable'])} rooms unreachable)" if record.get("unreachable") else ")"
+    axes[0].set_title(title)
+    for ax, kind, prefix in ((axes[1], "floor", "floor_"), (axes[2], "slice", "")):
+        grid = read_map(folder / "chain" / f"{kind}.yaml")
+        labels = read_label_image(folder / "chain" / f"{prefix}rooms.png")
+        plot_labels(labels, grid.geometry, base=grid.data, annotate=False, ax=ax)
+        what = "floor-level map" if kind == "floor" else "1.7-1.8 m slice"
+        score = (f": P {record[kind]['precision']:.2f}, R {record[kind]['recall']:.2f}, "
+                 f"{record[kind]['segments']} segments") if record and kind in record else ""
+        ax.set_title(f"{what} segmented{score}")
+    plot_labels(plan.rooms, g, base=base, annotate=False, ax=axes[3])
+    axes[3].set_title(f"ground truth: {plan.n_rooms} rooms")
+    for ax in axes:
+        ax.set_xlim(*g.extent()[:2])
+        ax.set_ylim(*g.extent()[2:])
     return fig

@@ -14,6 +14,12 @@ __all__ = ["field_score", "hs_chunk_field", "splat_field_2d", "splat_field_3d", 
 
 _OPTS = dict(fastmath=True, cache=True, nogil=True)
 
+#: A round's batch is scored in parallel (numba's threads) when it holds at least this many point look-ups
+#: (harmonies x points); smaller batches (tracking: 16 x 150) are scored on the calling thread: a parallel region
+#: costs more than their ~0.1 ms of work, many times more when the cores are busy with other processes.
+#: Which path runs depends on the problem's size only, never on the number of threads.
+PARALLEL_MIN_WORK = 32768
+
 
 @nb.njit(cache=True, nogil=True, fastmath=True)
 def _score_pose(pose, pts, flat, shape, origin, inv_res, tau):  # pragma: no cover - JIT
@@ -93,18 +99,39 @@ def _score_pose(pose, pts, flat, shape, origin, inv_res, tau):  # pragma: no cov
     return acc / npts, inl / npts
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, parallel=True)
 def field_score(poses, pts, flat, shape, origin, inv_res, tau, out_mean, out_inl):  # pragma: no cover - JIT
-    """Mean truncated distance and inlier ratio for each of B poses (2D or 3D, by the points' width)."""
-    for b in range(poses.shape[0]):
-        out_mean[b], out_inl[b] = _score_pose(poses[b], pts, flat, shape, origin, inv_res, tau)
+    """Mean truncated distance and inlier ratio for each of B poses (2D or 3D, by the points' width).
+
+    The poses are shared between numba's threads, each pose scored wholly by one thread: the result does not
+    depend on the number of threads.
+    """
+    if poses.shape[0] * pts.shape[0] < PARALLEL_MIN_WORK:
+        for b in range(poses.shape[0]):
+            out_mean[b], out_inl[b] = _score_pose(poses[b], pts, flat, shape, origin, inv_res, tau)
+        return
+    for b in nb.prange(poses.shape[0]):
+        m, r = _score_pose(poses[b], pts, flat, shape, origin, inv_res, tau)
+        out_mean[b] = m
+        out_inl[b] = r
+
+
+@nb.njit(cache=True, nogil=True, parallel=True)
+def _score_batch_field(new, f_new, pts, flat, shape, origin, inv_res, tau, weight):  # pragma: no cover - JIT
+    """f_new[b] = the two-term fitness of harmony b, the batch shared between numba's threads (one harmony each:
+    the same sums, in the same order, whatever the number of threads)."""
+    for b in nb.prange(new.shape[0]):
+        m, r = _score_pose(new[b], pts, flat, shape, origin, inv_res, tau)
+        f = m / tau + weight * (1.0 - r)
+        f_new[b] = f if np.isfinite(f) else np.inf
 
 
 @nb.njit(cache=True, nogil=True)
 def hs_chunk_field(memory, fun, pick, consider, adjust_u, step, rand, par, bw, lo, hi, span, history, state,
                    global_best, patience, convergence_tol, min_improvement,
                    pts, flat, shape, origin, inv_res, tau, weight):  # pragma: no cover - JIT
-    """hsmap.harmony._run_chunk with the two-term field fitness inline (same arithmetic, same order)."""
+    """hsmap.harmony._run_chunk with the two-term field fitness compiled (same arithmetic, same order); each
+    round's batch is scored in parallel (:func:`_score_batch_field`)."""
     hms, dim = memory.shape
     nchunk, batch, _ = pick.shape
     new = np.empty((batch, dim))
@@ -126,9 +153,13 @@ def hs_chunk_field(memory, fun, pick, consider, adjust_u, step, rand, par, bw, l
                 else:
                     v = rand[k, b, j]
                 new[b, j] = min(max(v, lo[j]), hi[j])
-            m, r = _score_pose(new[b], pts, flat, shape, origin, inv_res, tau)
-            f = m / tau + weight * (1.0 - r)
-            f_new[b] = f if np.isfinite(f) else np.inf
+        if batch * pts.shape[0] >= PARALLEL_MIN_WORK:
+            _score_batch_field(new, f_new, pts, flat, shape, origin, inv_res, tau, weight)
+        else:
+            for b in range(batch):
+                m, r = _score_pose(new[b], pts, flat, shape, origin, inv_res, tau)
+                f = m / tau + weight * (1.0 - r)
+                f_new[b] = f if np.isfinite(f) else np.inf
         all_x[:hms] = memory
         all_x[hms:] = new
         all_f[:hms] = fun

@@ -194,9 +194,10 @@ class DistanceField:
 
 
 class KDTreeLookup:
-    """Exact truncated nearest-neighbour distances with scipy's cKDTree."""
+    """Exact truncated nearest-neighbour distances with scipy's cKDTree (``workers``: query threads, scipy's
+    meaning; None: hsmap's compute threads for large queries, :func:`hsmap.registration.query_workers`)."""
 
-    def __init__(self, points: ArrayLike, truncation: float, workers: int = 1) -> None:
+    def __init__(self, points: ArrayLike, truncation: float, workers: int | None = 1) -> None:
         if not truncation > 0:
             raise InputError(f"threshold must be > 0 m, got {truncation}")
         self.points = np.asarray(points, dtype=float)
@@ -210,8 +211,13 @@ class KDTreeLookup:
         return d.mean(axis=1), (d < self.truncation * (1 - 1e-6)).mean(axis=1)
 
     def __call__(self, points: NDArray[np.floating]) -> NDArray[np.float64]:
-        d, _ = self.tree.query(points.reshape(-1, points.shape[-1]), k=1, distance_upper_bound=self.truncation,
-                               workers=self.workers)
+        flat = points.reshape(-1, points.shape[-1])
+        workers = self.workers
+        if workers is None:  # the compute threads for a large query (hsmap.registration.query_workers)
+            from .registration import query_workers
+
+            workers = query_workers(len(flat))
+        d, _ = self.tree.query(flat, k=1, distance_upper_bound=self.truncation, workers=workers)
         return np.minimum(d, self.truncation).reshape(points.shape[:-1])
 
 

@@ -23,6 +23,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
 from ._blas import blas_limited
+from ._threads import current_threads, threads_limited
 from .errors import ConfigError, DegenerateInputError, EmptyInputError, InputError, ShapeError
 from .fitness import DistanceField, FieldObjective, KDTreeLookup, score
 from .geometry import dof_of_dim, matrix_to_pose, pose_to_matrix, transform_points, wrap_angle
@@ -395,13 +396,14 @@ class RegistrationTarget:
     def exact(self, truncation: float) -> KDTreeLookup:
         """Exact (KD-tree) truncated distances, sharing this target's tree."""
         lk = KDTreeLookup.__new__(KDTreeLookup)
-        lk.points, lk.tree, lk.truncation, lk.workers = self.points, self.tree, float(truncation), 1
+        lk.points, lk.tree, lk.truncation, lk.workers = self.points, self.tree, float(truncation), None
         return lk
 
     @property
     def tree(self) -> cKDTree:
         if self._tree is None:
-            self._tree = cKDTree(self.points)
+            # sliding-midpoint splits: half the build time of a balanced tree, the same exact answers
+            self._tree = cKDTree(self.points, balanced_tree=False, compact_nodes=False)
         return self._tree
 
     @property
@@ -471,6 +473,17 @@ def _check_bounds(bounds: ArrayLike, dof: int) -> NDArray[np.float64]:
     return b
 
 
+#: KD-tree queries of at least this many points are split between the compute threads
+#: (:func:`hsmap._threads.current_threads`); each point's answer is its own, so the result does not depend on the
+#: number of threads. Smaller ones (a 2D scan's few hundred points) stay on the calling thread.
+PARALLEL_MIN_QUERIES = 2000
+
+
+def query_workers(n: int) -> int:
+    """Threads for a KD-tree query of ``n`` points (1 below :data:`PARALLEL_MIN_QUERIES`)."""
+    return current_threads() if n >= PARALLEL_MIN_QUERIES else 1
+
+
 def _subsample(points: NDArray[np.float64], voxel: float, n: int, gen: np.random.Generator) -> NDArray[np.float64]:
     pts = voxel_downsample(points, voxel)
     if len(pts) > n:
@@ -528,7 +541,7 @@ def refine_icp(
     for dist in schedule:
         for _ in range(per_stage):
             moved = transform_points(T, source)
-            d, idx = target.tree.query(moved, k=1, distance_upper_bound=dist)
+            d, idx = target.tree.query(moved, k=1, distance_upper_bound=dist, workers=query_workers(len(moved)))
             ok = np.isfinite(d)
             if ok.sum() < 2 * dim:
                 break
@@ -555,7 +568,8 @@ def _alignment_cost(pose: NDArray[np.float64], source: NDArray[np.float64], targ
     """Mean truncated residual / threshold: point-to-plane (point-to-line) distances of the correspondences within
     ``threshold``, or point distances; a point with no correspondence costs 1."""
     moved = transform_points(pose_to_matrix(pose), source)
-    d, idx = target.tree.query(moved, k=1, distance_upper_bound=threshold)
+    d, idx = target.tree.query(moved, k=1, distance_upper_bound=threshold,
+                                 workers=query_workers(len(moved)))
     ok = np.isfinite(d)
     if plane:
         d[ok] = np.abs(np.einsum("ij,ij->i", target.normals[idx[ok]], moved[ok] - target.points[idx[ok]]))
@@ -595,7 +609,8 @@ def _information_and_cost(source, target, pose, threshold, robust_kernel=0.0, mi
     dof = dof_of_dim(dim)
     T = pose_to_matrix(pose)
     moved = transform_points(T, source)
-    d, idx = target.tree.query(moved, k=1, distance_upper_bound=threshold)
+    d, idx = target.tree.query(moved, k=1, distance_upper_bound=threshold,
+                                 workers=query_workers(len(moved)))
     ok = np.isfinite(d)
     n = int(ok.sum())
     if n < 2 * dim:
@@ -615,6 +630,7 @@ def _information_and_cost(source, target, pose, threshold, robust_kernel=0.0, mi
 
 
 @blas_limited
+@threads_limited
 def harmony_icp(
     source: ArrayLike,
     target: ArrayLike | RegistrationTarget,

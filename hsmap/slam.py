@@ -52,6 +52,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._blas import blas_limited
+from ._threads import threads_limited
 from .config import dump_config, to_dict
 from .datasets.frames import Dataset, Frame
 from .errors import ConfigError, EmptyInputError, HsmapWarning, InputError, UnusableFrameError
@@ -70,6 +71,7 @@ from .registration import (
     drop_degenerate,
     estimate_normals,
     harmony_icp,
+    query_workers,
     spans_its_space,
 )
 from .trajectory import Trajectory, write_tum
@@ -355,7 +357,7 @@ def _residuals(scan: NDArray[np.float64], target: RegistrationTarget, pose: NDAr
                threshold: float) -> NDArray[np.float64]:
     """Point-to-plane residual of each scan point at ``pose`` (NaN: no target point within ``threshold``)."""
     moved = transform_points(pose_to_matrix(pose), scan)
-    d, idx = target.tree.query(moved, k=1, distance_upper_bound=threshold)
+    d, idx = target.tree.query(moved, k=1, distance_upper_bound=threshold, workers=query_workers(len(moved)))
     out = np.full(len(scan), np.nan)
     ok = np.isfinite(d)
     out[ok] = np.abs(np.einsum("ij,ij->i", target.normals[idx[ok]], moved[ok] - target.points[idx[ok]]))
@@ -867,6 +869,7 @@ def prior_coverage(prior: Trajectory, stamps, tolerance: float, *, name: str = "
 
 
 @blas_limited
+@threads_limited
 def run_slam(
     dataset: Dataset | Iterable[Frame],
     config: SlamConfig | None = None,
@@ -906,6 +909,9 @@ def run_slam(
         (``SlamResult.skipped``, ``skipped_frames`` in the metrics); its stamp has no pose.
     prior_name : str
         What the caller calls the prior, in messages (``--prior FILE`` at the command line).
+    threads : int, optional
+        Compute threads (keyword only; default ``$HSMAP_THREADS``, else every core): a speed setting only, the
+        result is the same for any count (:mod:`hsmap._threads`).
 
     The metrics' ``input_info`` is the dataset's :meth:`~hsmap.datasets.frames.Dataset.describe` (topics,
     message counts and rates, frames, the sensor offsets and where they came from, warnings).

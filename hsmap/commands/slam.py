@@ -47,6 +47,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--strict", action="store_true",
                         help="stop at the first frame whose scan or cloud is missing or has too few usable points "
                              "(default: skip it with a warning and count it in metrics.json)")
+    parser.add_argument("--threads", type=int, default=None,
+                        help="compute threads (default: $HSMAP_THREADS, else every core); the result is the same "
+                             "for any count")
     parser.add_argument("--quiet", action="store_true", help="no progress bar or summary")
 
 
@@ -76,6 +79,8 @@ def run(args: argparse.Namespace) -> int:
 
     if sync_tolerance(args) is not None:
         cfg = dataclasses.replace(cfg, sync_tolerance=args.sync_tolerance)
+    if args.threads is not None and args.threads < 1:
+        raise InputError(f"--threads must be >= 1, got {args.threads}")
     if args.max_frames is not None and args.max_frames < 1:
         raise InputError(f"--max-frames must be >= 1, got {args.max_frames}")
     prior = read_tum(args.prior) if args.prior else None
@@ -113,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             result = run_slam(dataset, cfg, rng=args.seed, prior=prior, max_frames=args.max_frames,
                               progress=False if args.quiet else None, on_frame=on_frame,
-                              prior_name=f"--prior {args.prior}", strict=args.strict)
+                              prior_name=f"--prior {args.prior}", strict=args.strict, threads=args.threads)
             if rec is not None:
                 map_logger.flush()
                 _log_replay(rec, keyscans, result)

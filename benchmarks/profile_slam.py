@@ -84,6 +84,7 @@ def main(argv=None) -> int:
         cfg, prior = SlamConfig(dof=6, use_odometry=False), run2d.trajectory
     else:
         from slam import FREIBURG  # benchmarks/slam.py
+
         from hsmap.study.paths import datasets_dir
 
         spec = FREIBURG[args.input]

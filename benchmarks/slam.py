@@ -157,13 +157,13 @@ def bench_freiburg(name: str, datasets: Path, seeds: list[int], max_frames: int 
             "extrinsic2d": spec["extrinsic2d"], "loop_closure": loop_closure, "jobs": jobs}
 
 
-def bench_3d(max_frames: int | None) -> dict:
+def bench_3d(max_frames: int | None, folder: str | None = None) -> dict:
     from kiss_icp.config import KISSConfig
     from kiss_icp.kiss_icp import KissICP
 
     from hsmap.study import simulated_dataset
 
-    ds = open_dataset(simulated_dataset("slam-office", 1).path)
+    ds = open_dataset(folder or simulated_dataset("slam-office", 1).path)
     n = min(len(ds), max_frames or len(ds))
     t0 = time.perf_counter()
     frames = [f for _, f in zip(range(n), ds.frames(clouds=True), strict=False)]
@@ -240,6 +240,9 @@ def main(argv=None) -> int:
     ap.add_argument("--jobs", type=int, default=1, help="runs at once (1: times free of each other's load)")
     ap.add_argument("--max-frames", type=int, default=None, help="cut every input (smoke runs)")
     ap.add_argument("--no-loop-closure", action="store_true", help="tracking only, for comparison")
+    ap.add_argument("--dataset3d", default=None,
+                    help="3d: this simulator folder instead of the study's slam-office seed 1 (a copy of it: the "
+                         "study's cache simulates it anew after every code change)")
     ap.add_argument("--out", default=str(ROOT / "reports/benchmarks/slam.json"))
     args = ap.parse_args(argv)
     from hsmap.study.paths import datasets_dir
@@ -253,7 +256,7 @@ def main(argv=None) -> int:
     }
     for name in args.only:
         if name == "3d":
-            out["3d_slam_office"] = bench_3d(args.max_frames)
+            out["3d_slam_office"] = bench_3d(args.max_frames, args.dataset3d)
         elif (datasets / "slam2d").is_dir():
             out[name] = bench_freiburg(name, datasets, args.seeds, args.max_frames, args.jobs,
                                        not args.no_loop_closure)

@@ -385,10 +385,10 @@ class RegistrationTarget:
         return lk
 
     def nearest_field(self, reach: float) -> DistanceField | None:
-        """A 2D field of this target that keeps nearest points and reaches at least ``reach`` metres, if any."""
+        """A field of this target that keeps nearest points and reaches at least ``reach`` metres, if any."""
         best = None
         for lk in self._lookups.values():
-            if (isinstance(lk, DistanceField) and lk.nearest is not None and lk.truncation >= reach
+            if (isinstance(lk, DistanceField) and lk.keeps_nearest and lk.truncation >= reach
                     and (best is None or lk.resolution < best.resolution)):
                 best = lk
         return best
@@ -530,13 +530,19 @@ def refine_icp(
     except ValueError:
         raise InputError(f"method must be one of {[r.value for r in Refinement]}, got {method!r}") from None
     normals = target.normals if method is Refinement.POINT_TO_PLANE else None
-    field = target.nearest_field(schedule[0]) if normals is not None and dim == 2 else None
+    field = target.nearest_field(schedule[0]) if normals is not None else None
     if field is not None:
         # correspondences from the field's nearest points (one look-up each, compiled); then a few iterations
         # with exact nearest neighbours at the final distance polish what the field's cells rounded
-        T = _kernels.refine_on_field_2d(np.ascontiguousarray(source, dtype=float), T, field.nearest,
-                                        field.origin, field.resolution, np.asarray(schedule, dtype=float),
-                                        per_stage, tolerance, robust_kernel)
+        src = np.ascontiguousarray(source, dtype=float)
+        sched = np.asarray(schedule, dtype=float)
+        if dim == 2:
+            T = _kernels.refine_on_field_2d(src, T, field.nearest, field.origin, field.resolution, sched,
+                                            per_stage, tolerance, robust_kernel)
+        else:
+            T = _kernels.refine_on_field_3d(src, T, field.nearest_index, field.nearest_points,
+                                            field.nearest_normals, field.origin, field.resolution, sched,
+                                            per_stage, tolerance, robust_kernel)
         schedule, per_stage = schedule[-1:], min(per_stage, 3)
     for dist in schedule:
         for _ in range(per_stage):

@@ -661,7 +661,7 @@ class HsSlam:
         world = transform_points(T, dense)
         added, added_normals = self.map.add(world, normals @ T[: self.dim, : self.dim].T, return_normals=True)
         if self._field is not None and len(added):
-            self._field.add(added, added_normals if self._field.nearest is not None else None)
+            self._field.add(added, added_normals if self._field.keeps_nearest else None)
         self._last_key = pose
         self._target = None  # the refinement target (KD-tree) is rebuilt before the next registration
         if self._closer is not None:
@@ -797,7 +797,7 @@ class HsSlam:
             hi = np.r_[centre[:2] + half, pts[:, 2].max() + 1.0] if self.dim == 3 else centre[:2] + half
             res = reg.field_resolution or (max(0.02, reg.search_threshold / 10) if self.dim == 2
                                            else reg.search_threshold / 3)
-            plane = self.dim == 2 and reg.refinement is Refinement.POINT_TO_PLANE
+            plane = reg.refinement is Refinement.POINT_TO_PLANE  # nearest points for the refinement
             self._field = DistanceField(pts, res, reg.search_threshold, bounds=[lo, hi],
                                         normals=normals if plane else None)
             self._field_centre = centre.copy()

@@ -101,11 +101,13 @@ def run(args: argparse.Namespace) -> int:
                                     blueprint=hv.default_blueprint(graph=False, map2d=cfg.dof == 3, legend=True))
             hv.log_legend(rec, _legend(cfg.dof))
             map_logger = hv.PointMapLogger(rec, block=10, voxel=0.05 if cfg.dof == 3 else 0.15)
+            # the frames are logged in blocks, as columns: a few calls per block instead of a few per frame
+            frame_logger = hv.FrameLogger(rec, block=64, cloud_voxel=0.25)
 
             keyscans: list = []  # 3-DOF: the keyframes' scans, for the grid at their final poses
 
             def on_frame(frame, result, slam):
-                hv.log_frame(rec, frame, result.pose, cloud_voxel=0.25)
+                frame_logger.add(frame, result.pose)
                 if result.keyframe and cfg.dof == 3:
                     keyscans.append(frame)
                 if result.keyframe:
@@ -113,6 +115,7 @@ def run(args: argparse.Namespace) -> int:
                     from ..slam import frame_points
 
                     pts = frame_points(frame, cfg.dof, cfg.min_range, cfg.max_range)
+                    hv.set_frame_time(rec, frame.index, frame.stamp)  # the map block's time
                     map_logger.add(transform_points(pose_to_matrix(result.pose), pts))
 
         try:
@@ -120,6 +123,9 @@ def run(args: argparse.Namespace) -> int:
                               progress=False if args.quiet else None, on_frame=on_frame,
                               prior_name=f"--prior {args.prior}", strict=args.strict, threads=args.threads)
             if rec is not None:
+                frame_logger.flush()
+                if result.frames:
+                    hv.set_frame_time(rec, result.frames[-1].index, result.frames[-1].stamp)
                 map_logger.flush()
                 _log_replay(rec, keyscans, result)
         except BaseException:

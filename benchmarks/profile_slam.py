@@ -65,6 +65,8 @@ def main(argv=None) -> int:
     ap.add_argument("--max-frames", type=int, default=None)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--top", type=int, default=25, help="also print the top functions by own time")
+    ap.add_argument("--dataset3d", default=None, help="3d: this simulator folder instead of the study's slam-office "
+                                                      "seed 1 (benchmarks/slam.py --dataset3d)")
     ap.add_argument("--out", default=None)
     args = ap.parse_args(argv)
 
@@ -77,7 +79,7 @@ def main(argv=None) -> int:
     if args.input == "3d":
         from hsmap.study import simulated_dataset
 
-        ds = open_dataset(simulated_dataset("slam-office", 1).path)
+        ds = open_dataset(args.dataset3d or simulated_dataset("slam-office", 1).path)
         n = min(len(ds), args.max_frames or len(ds))
         frames = [f for _, f in zip(range(n), ds.frames(clouds=True), strict=False)]
         run2d = run_slam(frames, SlamConfig(dof=3, use_odometry=False), rng=args.seed, progress=False)

@@ -569,17 +569,30 @@ def refine_icp(
     return matrix_to_pose(T)
 
 
+def _match(pose: NDArray[np.float64], source: NDArray[np.float64], target: RegistrationTarget,
+           threshold: float) -> tuple:
+    """Nearest target points of ``source`` moved by ``pose`` within ``threshold``: (T, moved, d, idx), d inf
+    where none (one KD-tree query, shared by the cost, the information and the fitness at a pose)."""
+    T = pose_to_matrix(pose)
+    moved = transform_points(T, source)
+    d, idx = target.tree.query(moved, k=1, distance_upper_bound=threshold, workers=query_workers(len(moved)))
+    return T, moved, d, idx
+
+
+def _cost_of(match: tuple, target: RegistrationTarget, threshold: float, plane: bool) -> float:
+    _, moved, d, idx = match
+    ok = np.isfinite(d)
+    r = d.copy()
+    if plane:
+        r[ok] = np.abs(np.einsum("ij,ij->i", target.normals[idx[ok]], moved[ok] - target.points[idx[ok]]))
+    return float(np.where(ok, np.minimum(r, threshold), threshold).mean() / threshold)
+
+
 def _alignment_cost(pose: NDArray[np.float64], source: NDArray[np.float64], target: RegistrationTarget,
                     threshold: float, plane: bool) -> float:
     """Mean truncated residual / threshold: point-to-plane (point-to-line) distances of the correspondences within
     ``threshold``, or point distances; a point with no correspondence costs 1."""
-    moved = transform_points(pose_to_matrix(pose), source)
-    d, idx = target.tree.query(moved, k=1, distance_upper_bound=threshold,
-                                 workers=query_workers(len(moved)))
-    ok = np.isfinite(d)
-    if plane:
-        d[ok] = np.abs(np.einsum("ij,ij->i", target.normals[idx[ok]], moved[ok] - target.points[idx[ok]]))
-    return float(np.where(ok, np.minimum(d, threshold), threshold).mean() / threshold)
+    return _cost_of(_match(pose, source, target, threshold), target, threshold, plane)
 
 
 def alignment_cost(source: NDArray[np.float64], target: RegistrationTarget, pose: NDArray[np.float64],
@@ -607,16 +620,14 @@ def alignment_information(source: NDArray[np.float64], target: RegistrationTarge
     return info, sigma, n
 
 
-def _information_and_cost(source, target, pose, threshold, robust_kernel=0.0, min_sigma=1e-3):
-    """:func:`alignment_information` and :func:`alignment_cost` (point-to-plane) from one correspondence search."""
+def _information_and_cost(source, target, pose, threshold, robust_kernel=0.0, min_sigma=1e-3, match=None):
+    """:func:`alignment_information` and :func:`alignment_cost` (point-to-plane) from one correspondence search
+    (``match``: :func:`_match`'s at ``pose``, when already made)."""
     from . import _kernels
 
     dim = source.shape[1]
     dof = dof_of_dim(dim)
-    T = pose_to_matrix(pose)
-    moved = transform_points(T, source)
-    d, idx = target.tree.query(moved, k=1, distance_upper_bound=threshold,
-                                 workers=query_workers(len(moved)))
+    T, moved, d, idx = match if match is not None else _match(pose, source, target, threshold)
     ok = np.isfinite(d)
     n = int(ok.sum())
     if n < 2 * dim:
@@ -740,30 +751,37 @@ def harmony_icp(
 
     full = src if len(src) <= cfg.refine_points else src[np.sort(gen.choice(len(src), cfg.refine_points,
                                                                             replace=False))]
-    exact = tgt.exact(cfg.threshold)
     refined = False
+    match = None  # the correspondences at `pose` (one KD-tree query serves the cost, information and fitness)
     if cfg.refinement is not Refinement.NONE and cfg.refine_iterations > 0:
         # Keep a refinement unless it made the alignment worse, judged by its own (point-to-plane) metric: the
         # point-to-point fitness is biased towards poses where the scan's sampling pattern (a LiDAR's rings on
         # the floor) repeats the map's, i.e. towards no motion.
         plane = cfg.refinement is Refinement.POINT_TO_PLANE
-        best_cost = _alignment_cost(pose, full, tgt, cfg.threshold, plane)
+        match = _match(pose, full, tgt, cfg.threshold)
+        best_cost = _cost_of(match, tgt, cfg.threshold, plane)
         starts = [pose] + ([] if guesses is None else list(guesses[: cfg.refine_seeds]))
         for start in starts:
             cand = refine_icp(full, tgt, start, max_distance=cfg.threshold, start_distance=cfg.search_threshold,
                               iterations=cfg.refine_iterations, method=cfg.refinement,
                               robust_kernel=cfg.robust_kernel)
-            cost = _alignment_cost(cand, full, tgt, cfg.threshold, plane)
+            cand_match = _match(cand, full, tgt, cfg.threshold)
+            cost = _cost_of(cand_match, tgt, cfg.threshold, plane)
             if cost <= best_cost + 1e-12:
-                pose, best_cost, refined = cand, cost, True
+                pose, best_cost, refined, match = cand, cost, True, cand_match
     pose = pose.copy()
-    pose[dim:] = wrap_angle(pose[dim:])
-    d = exact(transform_points(pose_to_matrix(pose), src))
+    pose[dim:] = wrap_angle(pose[dim:])  # the same transform: `match` still holds
+    if match is None:
+        match = _match(pose, full, tgt, cfg.threshold)
+    if full is src:
+        d = np.minimum(match[2], cfg.threshold)  # what tgt.exact(cfg.threshold) gives for the same query
+    else:
+        d = tgt.exact(cfg.threshold)(transform_points(pose_to_matrix(pose), src))
     inl = d < cfg.threshold * (1 - 1e-6)
     inlier_ratio = float(inl.mean())
     fitness = float(d.mean() / cfg.threshold + cfg.inlier_weight * (1.0 - inlier_ratio))
     rmse = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else float("nan")
-    information, _, _, cost = _information_and_cost(full, tgt, pose, cfg.threshold, cfg.robust_kernel)
+    information, _, _, cost = _information_and_cost(full, tgt, pose, cfg.threshold, cfg.robust_kernel, match=match)
     return RegistrationResult(
         transformation=pose_to_matrix(pose),
         pose=pose,

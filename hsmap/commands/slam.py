@@ -166,7 +166,7 @@ def _log_replay(rec, keyscans, result, grid_updates: int = 10, path_updates: int
     robot in the 2D map view."""
     import numpy as np
 
-    from ..grid import grid_from_scans
+    from ..grid import grid_from_scans, grids_from_scan_prefixes
     from ..viz import rerun as hv
 
     traj = result.trajectory
@@ -189,6 +189,13 @@ def _log_replay(rec, keyscans, result, grid_updates: int = 10, path_updates: int
     grid_at = set(np.linspace(0, n - 1, grid_updates).round().astype(int)) if geo is not None else set()
     path_at = set(np.linspace(0, n - 1, path_updates).round().astype(int))
     robot_every = max(1, n // 600)
+    grids = {}
+    if grid_at:  # the growing grid at every update, all in one pass over the scans
+        at = sorted(r for r in grid_at if r < n - 1)
+        counts = [int((kstamps <= stamps[r]).sum()) for r in at]  # keyframes come in stamp order
+        grids = dict(zip(at, grids_from_scan_prefixes(scans, kposes, counts, extrinsic=ext, geometry=geo),
+                         strict=True))
+        grids[n - 1] = grid
     for r in range(n):
         g, p, robot = r in grid_at, r in path_at, geo is not None and r % robot_every == 0
         if not (g or p or robot):
@@ -201,12 +208,6 @@ def _log_replay(rec, keyscans, result, grid_updates: int = 10, path_updates: int
             if geo is not None:
                 hv.log_map2d_path(rec, "estimate", poses[: r + 1], geo, static=False)
         if g:
-            upto = kstamps <= stamps[r]
-            if r == n - 1:
-                now = grid
-            elif upto.any():
-                now = grid_from_scans([s for s, u in zip(scans, upto, strict=True) if u], kposes[upto],
-                                      extrinsic=ext[upto], geometry=geo)
-            else:
+            if r < n - 1 and not (kstamps <= stamps[r]).any():
                 continue
-            hv.log_occupancy_grid(rec, now.data, geo, static=False)
+            hv.log_occupancy_grid(rec, grids[r].data, geo, static=False)

@@ -673,6 +673,9 @@ def harmony_icp(
     config : RegistrationConfig, optional
     rng : int or numpy.random.Generator, optional
         Seed or generator for every random choice (default seed 0).
+    threads : int, optional
+        Compute threads (keyword only; default: the enclosing run's, else ``$HSMAP_THREADS``, else every core):
+        a speed setting only, the result is the same for any count (:mod:`hsmap._threads`).
 
     Returns
     -------

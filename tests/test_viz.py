@@ -420,3 +420,22 @@ def test_frame_logger_logs_what_log_frame_logs(tmp_path):
     assert cols["/world/robot"]["rows"] == n + 1 and cols["/world/robot/lidar2d/scan"]["rows"] == n - 1
     with pytest.raises(InputError, match="block"):
         hr.FrameLogger(None, block=0)
+
+
+@needs_rerun_binary
+def test_map2d_robots_in_one_call_log_what_one_per_time_logs(tmp_path):
+    geo = GridGeometry((80, 200), 0.05, (-1.0, -2.0))
+    poses = np.column_stack([np.linspace(0, 8, 12), np.zeros(12), np.linspace(0, 1, 12)])
+    stamps = 0.5 * np.arange(12)
+    with hr.open_recording(tmp_path / "rows.rrd") as rec:
+        for i, p in enumerate(poses):
+            hr.set_frame_time(rec, i, stamps[i])
+            hr.log_map2d_robot(rec, p, geo)
+    with hr.open_recording(tmp_path / "columns.rrd") as rec:
+        hr.log_map2d_robots(rec, poses, geo, np.arange(12), stamps)
+    hr.verify_rrd(tmp_path / "columns.rrd")
+    rows, cols = (hr.recording_contents(tmp_path / name)["/map/robot"] for name in ("rows.rrd", "columns.rrd"))
+    assert cols["rows"] == rows["rows"] == 12
+    assert rows["columns"] <= cols["columns"] | {"log_tick", "log_time"}
+    with pytest.raises(ShapeError, match="as many"):
+        hr.log_map2d_robots(None, poses, geo, np.arange(3), stamps)

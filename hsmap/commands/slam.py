@@ -166,7 +166,7 @@ def _log_replay(rec, keyscans, result, grid_updates: int = 10, path_updates: int
     robot in the 2D map view."""
     import numpy as np
 
-    from ..grid import grid_from_scans, grids_from_scan_prefixes
+    from ..grid import grids_from_scan_prefixes
     from ..viz import rerun as hv
 
     traj = result.trajectory
@@ -177,6 +177,7 @@ def _log_replay(rec, keyscans, result, grid_updates: int = 10, path_updates: int
     stamps = np.asarray(traj.stamps, dtype=float)
     poses = np.asarray(traj.poses, dtype=float)
     grid = geo = None
+    grids: dict = {}
     if keyscans and result.config.dof == 3:
         kposes, found = traj.as_3dof().at([f.stamp for f in keyscans], max_dt=1e-3)
         kept = [f for f, ok in zip(keyscans, found, strict=True) if ok]
@@ -184,25 +185,23 @@ def _log_replay(rec, keyscans, result, grid_updates: int = 10, path_updates: int
             scans = [f.scan2d for f in kept]
             ext = np.asarray([f.extrinsic2d for f in kept], dtype=float)
             kstamps = np.array([f.stamp for f in kept])
-            grid = grid_from_scans(scans, kposes, 0.05, extrinsic=ext)
+            # the growing grid at every update and the final one, all in one pass over the scans (keyframes
+            # come in stamp order: the scans up to a time are a prefix)
+            at = sorted(set(np.linspace(0, n - 1, grid_updates).round().astype(int)) - {n - 1})
+            counts = [int((kstamps <= stamps[r]).sum()) for r in at]
+            *partial, grid = grids_from_scan_prefixes(scans, kposes, [*counts, len(kept)], 0.05, extrinsic=ext)
             geo = grid.geometry
-    grid_at = set(np.linspace(0, n - 1, grid_updates).round().astype(int)) if geo is not None else set()
+            grids = {**dict(zip(at, partial, strict=True)), n - 1: grid}
+    grid_at = set(grids) if geo is not None else set()
     path_at = set(np.linspace(0, n - 1, path_updates).round().astype(int))
     robot_every = max(1, n // 600)
-    grids = {}
-    if grid_at:  # the growing grid at every update, all in one pass over the scans
-        at = sorted(r for r in grid_at if r < n - 1)
-        counts = [int((kstamps <= stamps[r]).sum()) for r in at]  # keyframes come in stamp order
-        grids = dict(zip(at, grids_from_scan_prefixes(scans, kposes, counts, extrinsic=ext, geometry=geo),
-                         strict=True))
-        grids[n - 1] = grid
+    if geo is not None:  # the robot in the 2D map view, as columns (one call)
+        hv.log_map2d_robots(rec, poses[::robot_every], geo, idx[::robot_every], stamps[::robot_every])
     for r in range(n):
-        g, p, robot = r in grid_at, r in path_at, geo is not None and r % robot_every == 0
-        if not (g or p or robot):
+        g, p = r in grid_at, r in path_at
+        if not (g or p):
             continue
         hv.set_frame_time(rec, int(idx[r]), stamps[r])
-        if robot:
-            hv.log_map2d_robot(rec, poses[r], geo)
         if p and r > 0:
             hv.log_path(rec, "estimate", poses[: r + 1], static=False)
             if geo is not None:

@@ -66,6 +66,7 @@ __all__ = [
     "series_legend",
     "log_rgba_grid",
     "log_map2d_robot",
+    "log_map2d_robots",
     "log_map2d_points",
     "set_frame_time",
     "pose_transform",
@@ -933,6 +934,38 @@ def log_map2d_robot(rec: Any, pose: ArrayLike, geometry: GridGeometry, *, entity
     s = _stream(rec)
     s.log(entity, rr.Arrows2D(origins=[a], vectors=[b - a], colors=color, radii=1.5, draw_order=40.0),
           rr.Points2D([a], colors=color, radii=4.0, draw_order=40.0), strict=True)
+
+
+def log_map2d_robots(rec: Any, poses: ArrayLike, geometry: GridGeometry, indexes: ArrayLike, stamps: ArrayLike, *,
+                     entity: str = f"{MAP2D}/robot", length: float = 0.6, color: ArrayLike = ROBOT_COLOR) -> None:
+    """:func:`log_map2d_robot` at many times in one call (columns): the robot at ``poses[i]`` at frame
+    ``indexes[i]`` (the ``scan`` timeline) and ``stamps[i]`` seconds (``time``)."""
+    p = _pose6(poses)
+    if p.ndim != 2:
+        raise ShapeError(f"poses must be (K, 3) or (K, 6), got shape {np.shape(poses)}")
+    idx = np.asarray(indexes, dtype=np.int64)
+    st = np.asarray(stamps, dtype=float)
+    if not (len(idx) == len(st) == len(p)):
+        raise ShapeError(f"{len(p)} poses, {len(idx)} indexes and {len(st)} stamps: expected as many of each")
+    if len(p) == 0:
+        return
+    x, y, yaw = p[:, 0], p[:, 1], p[:, 5]
+    a = world_to_map2d(geometry, np.column_stack([x, y]))
+    b = world_to_map2d(geometry, np.column_stack([x + length * np.cos(yaw), y + length * np.sin(yaw)]))
+    unix = st > _UNIX_TIME_THRESHOLD
+    for part in (np.flatnonzero(unix), np.flatnonzero(~unix)):
+        if not len(part):
+            continue
+        when = (rr.TimeColumn("time", timestamp=st[part]) if unix[part[0]]
+                else rr.TimeColumn("time", duration=st[part]))
+        k = len(part)
+        cols = [*rr.Arrows2D.columns(origins=a[part], vectors=(b - a)[part],
+                                     colors=np.tile(np.asarray(color, dtype=np.uint8), (k, 1)),
+                                     radii=np.full(k, 1.5, dtype=np.float32), draw_order=np.full(k, 40.0)),
+                *rr.Points2D.columns(positions=a[part], colors=np.tile(np.asarray(color, dtype=np.uint8), (k, 1)),
+                                     radii=np.full(k, 4.0, dtype=np.float32), draw_order=np.full(k, 40.0))]
+        _stream(rec).send_columns(entity, indexes=[rr.TimeColumn("scan", sequence=idx[part]), when], columns=cols,
+                                  strict=True)
 
 
 def log_map2d_points(rec: Any, name: str, points_world: ArrayLike, geometry: GridGeometry, *,

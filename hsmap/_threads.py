@@ -16,12 +16,14 @@ import contextlib
 import functools
 import os
 import threading
+import warnings
 from collections.abc import Callable, Iterator
 from typing import Any, TypeVar
 
 from .errors import ConfigError
 
-__all__ = ["THREADS_ENV", "compute_threads", "current_threads", "using_threads", "threads_limited"]
+__all__ = ["THREADS_ENV", "compute_threads", "current_threads", "using_threads", "threads_limited",
+           "start_threading_layer"]
 
 #: Environment variable naming the compute threads of hsmap's hot loops.
 THREADS_ENV = "HSMAP_THREADS"
@@ -60,6 +62,27 @@ def current_threads() -> int:
     return getattr(_local, "threads", 1)
 
 
+def _get_num_threads() -> int:
+    """numba's thread count; the first call starts numba's threading layer, whose choice may warn (an old TBB
+    loaded by another library, e.g. Open3D's, is passed over for OpenMP): that is no concern of the caller's."""
+    import numba
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", numba.NumbaWarning)
+        return numba.get_num_threads()
+
+
+def start_threading_layer() -> None:
+    """Start numba's threading layer quietly (see :func:`_get_num_threads`) before a parallel kernel runs."""
+    global _started
+    if not _started:
+        _get_num_threads()
+        _started = True
+
+
+_started = False
+
+
 @contextlib.contextmanager
 def using_threads(threads: int | None = None) -> Iterator[int]:
     """Run the block with ``threads`` compute threads (see :func:`compute_threads`); an inner block without an
@@ -68,7 +91,7 @@ def using_threads(threads: int | None = None) -> Iterator[int]:
 
     outer = getattr(_local, "threads", None)
     n = outer if (threads is None and outer is not None) else compute_threads(threads)
-    before = numba.get_num_threads()
+    before = _get_num_threads()
     _local.threads = n
     numba.set_num_threads(n)
     try:

@@ -182,7 +182,9 @@ class DistanceField:
     def score_batch(self, poses: NDArray[np.float64], points: NDArray[np.float64]) -> tuple[NDArray, NDArray]:
         """Mean truncated distance (B,) and inlier ratio (B,) of ``points`` moved by each of the B ``poses``."""
         from . import _kernels
+        from ._threads import start_threading_layer
 
+        start_threading_layer()
         poses = np.ascontiguousarray(poses, dtype=np.float64)
         points = np.ascontiguousarray(points, dtype=np.float64)
         mean = np.empty(poses.shape[0])
@@ -258,7 +260,9 @@ class FieldObjective:
 
     def run_chunk(self, *args) -> None:
         from . import _kernels
+        from ._threads import start_threading_layer
 
+        start_threading_layer()
         f = self.field
         _kernels.hs_chunk_field(*args, self.source, f._flat, f._pshape, f.origin, 1.0 / f.resolution,
                                 f.truncation, self.inlier_weight)

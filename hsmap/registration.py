@@ -543,7 +543,10 @@ def refine_icp(
             T = _kernels.refine_on_field_3d(src, T, field.nearest_index, field.nearest_points,
                                             field.nearest_normals, field.origin, field.resolution, sched,
                                             per_stage, tolerance, robust_kernel)
-        schedule, per_stage = schedule[-1:], min(per_stage, 3)
+        # 2D: a few exact iterations polish what the 2-3 cm cells rounded; 3D (10 cm cells): the final stage
+        # with exact correspondences until it converges, as without the field (three left the 6-DOF route's
+        # roll and pitch errors at 0.095 / 0.062 deg, against 0.055 / 0.045 without the field)
+        schedule, per_stage = schedule[-1:], (min(per_stage, 3) if dim == 2 else per_stage)
     for dist in schedule:
         for _ in range(per_stage):
             moved = transform_points(T, source)

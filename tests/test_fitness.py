@@ -152,3 +152,25 @@ def test_thread_count_from_the_environment(monkeypatch):
         monkeypatch.setenv("HSMAP_THREADS", bad)
         with pytest.raises(ConfigError, match="HSMAP_THREADS"):
             compute_threads()
+
+
+def test_3d_field_keeps_each_nodes_nearest_point(rng):
+    """With normals, a 3D field keeps per node the index of the point nearest to the node's centre (the
+    correspondences of a point-to-plane refinement at one look-up), also for points added later."""
+    a, b = rng.uniform(0, 2, (300, 3)), rng.uniform(0, 2, (200, 3))
+    na, nb = rng.normal(size=(300, 3)), rng.normal(size=(200, 3))
+    f = DistanceField(a, 0.1, 0.3, bounds=[np.zeros(3), np.full(3, 2.0)], normals=na)
+    assert f.keeps_nearest and f.nearest is None and f.nearest_index.dtype == np.int32
+    f.add(b, nb)
+    pts, nrm = np.vstack([a, b]), np.vstack([na, nb])
+    np.testing.assert_array_equal(f.nearest_points, pts)
+    np.testing.assert_array_equal(f.nearest_normals, nrm)
+    cells = np.argwhere(f.nearest_index >= 0)
+    assert len(cells) > 0.5 * f.nearest_index.size
+    centres = f.origin + (cells + 0.5) * f.resolution
+    d = np.linalg.norm(centres[:, None, :] - pts[None], axis=2)
+    got = f.nearest_index[tuple(cells.T)]
+    np.testing.assert_allclose(d[np.arange(len(cells)), got], d.min(axis=1), atol=1e-6)
+    np.testing.assert_allclose(f.values[tuple(cells.T)], d.min(axis=1), atol=1e-6)  # float32
+    with pytest.raises(InputError, match="normals"):
+        f.add(b)

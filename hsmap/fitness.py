@@ -72,10 +72,12 @@ class DistanceField:
     bounds : array_like of shape (2, d), optional
         [lower corner, upper corner] of the volume in world metres; default: the points' bounding box grown by
         the truncation. Points outside the volume do not count.
-    normals : ndarray of shape (M, 2), optional
-        2D only: unit normals of the points. The field then also keeps, per node, the nearest point and its
-        normal (:attr:`nearest`, (nx, ny, 4) float32, NaN where none is within the band): correspondences for a
-        point-to-line refinement at the cost of one look-up (:func:`hsmap.registration.refine_icp`).
+    normals : ndarray of shape (M, d), optional
+        Unit normals of the points. The field then also keeps, per node, the nearest point and its normal:
+        correspondences for a point-to-line (point-to-plane) refinement at the cost of one look-up
+        (:func:`hsmap.registration.refine_icp`). 2D: :attr:`nearest`, (nx, ny, 4) float32 (x, y, nx, ny), NaN
+        where none is within the band; 3D: :attr:`nearest_index`, (nx, ny, nz) int32 rows of
+        :attr:`nearest_points` and :attr:`nearest_normals` (-1 where none), a quarter of the memory.
 
     Notes
     -----
@@ -120,11 +122,20 @@ class DistanceField:
         self._flat = self._padded.ravel()
         self._radius = int(np.ceil(truncation / resolution)) + 1
         self.nearest = None
+        self.nearest_index = None
+        self.nearest_points = np.empty((0, self.dim))
+        self.nearest_normals = np.empty((0, self.dim))
         if normals is not None:
-            if self.dim != 2:
-                raise InputError("a nearest-point field (normals) is 2D only")
-            self.nearest = np.full(self.shape + (4,), np.nan, dtype=np.float32)
+            if self.dim == 2:
+                self.nearest = np.full(self.shape + (4,), np.nan, dtype=np.float32)
+            else:
+                self.nearest_index = np.full(self.shape, -1, dtype=np.int32)
         self.add(pts, normals)
+
+    @property
+    def keeps_nearest(self) -> bool:
+        """Whether the field keeps each node's nearest point and normal (it was built with normals)."""
+        return self.nearest is not None or self.nearest_index is not None
 
     def add(self, points: ArrayLike, normals: ArrayLike | None = None) -> None:
         """Lower the field around new target points (N, d); points outside the volume are ignored.
@@ -137,14 +148,23 @@ class DistanceField:
         pts = np.ascontiguousarray(points, dtype=float)
         if len(pts) == 0:
             return
-        if self.nearest is not None:
+        if self.keeps_nearest:
             if normals is None:
                 raise InputError("this field keeps nearest points: add() needs their normals too")
             nrm = np.ascontiguousarray(normals, dtype=float)
             if nrm.shape != pts.shape:
                 raise InputError(f"normals must have the shape of the points {pts.shape}, got {nrm.shape}")
-            _kernels.splat_nearest_2d(pts, nrm, self.origin, self.resolution, self.values, self.nearest,
-                                      self._radius)
+            if self.nearest is not None:
+                _kernels.splat_nearest_2d(pts, nrm, self.origin, self.resolution, self.values, self.nearest,
+                                          self._radius)
+                return
+            offset = len(self.nearest_points)
+            if offset + len(pts) > np.iinfo(np.int32).max:
+                raise InputError(f"a nearest-point field holds at most {np.iinfo(np.int32).max} points")
+            self.nearest_points = np.concatenate([self.nearest_points, pts])
+            self.nearest_normals = np.concatenate([self.nearest_normals, nrm])
+            _kernels.splat_nearest_index_3d(pts, self.origin, self.resolution, self.values, self.nearest_index,
+                                            self._radius, offset)
             return
         splat = _kernels.splat_field_2d if self.dim == 2 else _kernels.splat_field_3d
         splat(pts, self.origin, self.resolution, self.values, self._radius)
@@ -156,12 +176,15 @@ class DistanceField:
 
     @property
     def nbytes(self) -> int:
-        return int(self._padded.nbytes)
+        extra = sum(int(a.nbytes) for a in (self.nearest, self.nearest_index) if a is not None)
+        return int(self._padded.nbytes) + extra
 
     def score_batch(self, poses: NDArray[np.float64], points: NDArray[np.float64]) -> tuple[NDArray, NDArray]:
         """Mean truncated distance (B,) and inlier ratio (B,) of ``points`` moved by each of the B ``poses``."""
         from . import _kernels
+        from ._threads import start_threading_layer
 
+        start_threading_layer()
         poses = np.ascontiguousarray(poses, dtype=np.float64)
         points = np.ascontiguousarray(points, dtype=np.float64)
         mean = np.empty(poses.shape[0])
@@ -194,9 +217,10 @@ class DistanceField:
 
 
 class KDTreeLookup:
-    """Exact truncated nearest-neighbour distances with scipy's cKDTree."""
+    """Exact truncated nearest-neighbour distances with scipy's cKDTree (``workers``: query threads, scipy's
+    meaning; None: hsmap's compute threads for large queries, :func:`hsmap.registration.query_workers`)."""
 
-    def __init__(self, points: ArrayLike, truncation: float, workers: int = 1) -> None:
+    def __init__(self, points: ArrayLike, truncation: float, workers: int | None = 1) -> None:
         if not truncation > 0:
             raise InputError(f"threshold must be > 0 m, got {truncation}")
         self.points = np.asarray(points, dtype=float)
@@ -210,8 +234,13 @@ class KDTreeLookup:
         return d.mean(axis=1), (d < self.truncation * (1 - 1e-6)).mean(axis=1)
 
     def __call__(self, points: NDArray[np.floating]) -> NDArray[np.float64]:
-        d, _ = self.tree.query(points.reshape(-1, points.shape[-1]), k=1, distance_upper_bound=self.truncation,
-                               workers=self.workers)
+        flat = points.reshape(-1, points.shape[-1])
+        workers = self.workers
+        if workers is None:  # the compute threads for a large query (hsmap.registration.query_workers)
+            from .registration import query_workers
+
+            workers = query_workers(len(flat))
+        d, _ = self.tree.query(flat, k=1, distance_upper_bound=self.truncation, workers=workers)
         return np.minimum(d, self.truncation).reshape(points.shape[:-1])
 
 
@@ -231,7 +260,9 @@ class FieldObjective:
 
     def run_chunk(self, *args) -> None:
         from . import _kernels
+        from ._threads import start_threading_layer
 
+        start_threading_layer()
         f = self.field
         _kernels.hs_chunk_field(*args, self.source, f._flat, f._pshape, f.origin, 1.0 / f.resolution,
                                 f.truncation, self.inlier_weight)

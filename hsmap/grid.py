@@ -37,6 +37,7 @@ __all__ = [
     "write_label_image",
     "resample_labels",
     "grid_from_scans",
+    "grids_from_scan_prefixes",
     "scans_to_points",
     "grid_from_point_slice",
 ]
@@ -539,26 +540,63 @@ def grid_from_scans(
     OccupancyGrid
         Cells no beam touched are unknown.
     """
+    return grids_from_scan_prefixes(scans, poses, [len(poses)], resolution, extrinsic=extrinsic, geometry=geometry,
+                                    margin=margin, config=config)[0]
+
+
+def grids_from_scan_prefixes(
+    scans,
+    poses: ArrayLike,
+    counts: ArrayLike,
+    resolution: float = 0.05,
+    *,
+    extrinsic: ArrayLike | None = None,
+    geometry: GridGeometry | None = None,
+    margin: float = 0.5,
+    config: ScanGridConfig | None = None,
+) -> list[OccupancyGrid]:
+    """The grids of :func:`grid_from_scans` of the first ``counts[i]`` scans, for each i, in one pass: each scan
+    is rasterised once (a map growing along a recording's timeline costs one grid, not one per update).
+
+    ``counts`` must not decrease; the grids share one geometry (``geometry``, else the one covering all the
+    scans). Each grid is the one :func:`grid_from_scans` gives for the same scans on that geometry.
+    """
     from PIL import Image, ImageDraw
 
     cfg = config or ScanGridConfig()
     if not (np.isfinite(resolution) and resolution > 0):
         raise InputError(f"resolution must be a positive number of metres per cell, got {resolution}")
+    poses = np.asarray(poses, dtype=float)
+    counts = [int(c) for c in np.atleast_1d(np.asarray(counts))]
+    if any(b < a for a, b in zip(counts, counts[1:], strict=False)) or (counts and counts[0] < 0):
+        raise InputError(f"counts must be >= 0 and must not decrease, got {counts}")
     world = []
-    for sensor, w, hit in _placed_scans(scans, poses, extrinsic):
+    for k, (sensor, w, hit) in enumerate(_placed_scans(scans, poses, extrinsic)):
         if not cfg.max_range_free:
             w[~hit] = sensor
         if hit.any() or (cfg.max_range_free and len(w)):
-            world.append((sensor, w, hit))
+            world.append((k, sensor, w, hit))
     if not world:
         raise EmptyInputError("grid_from_scans: no valid return in any scan")
     if geometry is None:
-        allp = np.vstack([np.vstack([o[None], w]) for o, w, _ in world])
+        allp = np.vstack([np.vstack([o[None], w]) for _, o, w, _ in world])
         geometry = GridGeometry.covering(allp.min(0), allp.max(0), resolution, margin)
     H, W = geometry.shape
     logodds = np.zeros((H, W))
     touched = np.zeros((H, W), dtype=bool)
-    for o, w, hit in world:
+    grids: list[OccupancyGrid] = []
+    pending = list(counts)
+
+    def emit(done: int) -> None:  # the grids of every prefix of at most `done` scans not yet emitted
+        while pending and pending[0] <= done:
+            pending.pop(0)
+            data = np.full((H, W), UNKNOWN, dtype=np.int8)
+            data[touched & (logodds < cfg.free_below)] = FREE
+            data[touched & (logodds > cfg.occupied_above)] = OCCUPIED
+            grids.append(OccupancyGrid(data, geometry))
+
+    for k, o, w, hit in world:
+        emit(k)
         # the swept area stops short of each end point by 0.75 cell, so the hit cell and those behind it
         # are not cleared by rounding
         v = w - o
@@ -584,10 +622,8 @@ def grid_from_scans(
         touched[lo[0]:hi[0], lo[1]:hi[1]] |= swept
         np.add.at(logodds, (hr, hc), cfg.hit)
         touched[hr, hc] = True
-    data = np.full((H, W), UNKNOWN, dtype=np.int8)
-    data[touched & (logodds < cfg.free_below)] = FREE
-    data[touched & (logodds > cfg.occupied_above)] = OCCUPIED
-    return OccupancyGrid(data, geometry)
+    emit(np.iinfo(np.int64).max)
+    return grids
 
 
 def grid_from_point_slice(

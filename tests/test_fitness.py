@@ -99,3 +99,78 @@ def test_compiled_harmony_rounds_match_the_python_loop(rng, dim, variant):
     np.testing.assert_allclose(a.x, b.x, rtol=0, atol=1e-12)
     np.testing.assert_allclose(a.history, b.history, rtol=0, atol=1e-12)
     assert (a.iterations, a.evaluations, a.stop_reason) == (b.iterations, b.evaluations, b.stop_reason)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_parallel_fitness_is_the_same_for_any_number_of_threads(rng, dim):
+    """Harmony rounds large enough to be scored in parallel (batch x points above the kernel's threshold) give
+    the same search, bit for bit, on one thread and on two: each harmony is summed by one thread."""
+    from hsmap import _kernels
+    from hsmap._threads import using_threads
+    from hsmap.fitness import FieldObjective
+    from hsmap.harmony import HarmonyConfig, harmony_search
+
+    tgt = rng.uniform(0, 4, (3000, dim))
+    src = tgt[rng.choice(3000, 1200, replace=False)] - 0.2
+    field = DistanceField(tgt, 0.05, 0.4)
+    fast = FieldObjective(src, field, 1.0)
+    cfg = HarmonyConfig(batch_size=32, max_iterations=40, patience=10)
+    assert cfg.batch_size * len(src) >= _kernels.PARALLEL_MIN_WORK  # the parallel path
+    bounds = [[-0.5, 0.5]] * (3 if dim == 2 else 6)
+    poses = rng.uniform(-0.5, 0.5, (64, 3 if dim == 2 else 6))
+    out = {}
+    for n in (1, 2):
+        with using_threads(n):
+            out[n] = (harmony_search(fast, bounds, config=cfg, rng=7), field.score_batch(poses, src))
+    a, b = out[1][0], out[2][0]
+    np.testing.assert_array_equal(a.x, b.x)
+    np.testing.assert_array_equal(a.history, b.history)
+    assert (a.iterations, a.evaluations) == (b.iterations, b.evaluations)
+    for x, y in zip(out[1][1], out[2][1], strict=True):
+        np.testing.assert_array_equal(x, y)
+
+
+def test_thread_count_from_the_environment(monkeypatch):
+    import numba
+
+    from hsmap._threads import compute_threads, using_threads
+    from hsmap.errors import ConfigError
+
+    most = numba.config.NUMBA_NUM_THREADS
+    monkeypatch.delenv("HSMAP_THREADS", raising=False)
+    assert compute_threads() == most
+    monkeypatch.setenv("HSMAP_THREADS", "1")
+    assert compute_threads() == 1
+    assert compute_threads(most + 5) == most
+    before = numba.get_num_threads()
+    with using_threads() as n:
+        assert n == 1 and numba.get_num_threads() == 1
+        with using_threads() as inner:  # an inner block keeps the outer count
+            assert inner == 1
+    assert numba.get_num_threads() == before
+    for bad in ("0", "two"):
+        monkeypatch.setenv("HSMAP_THREADS", bad)
+        with pytest.raises(ConfigError, match="HSMAP_THREADS"):
+            compute_threads()
+
+
+def test_3d_field_keeps_each_nodes_nearest_point(rng):
+    """With normals, a 3D field keeps per node the index of the point nearest to the node's centre (the
+    correspondences of a point-to-plane refinement at one look-up), also for points added later."""
+    a, b = rng.uniform(0, 2, (300, 3)), rng.uniform(0, 2, (200, 3))
+    na, nb = rng.normal(size=(300, 3)), rng.normal(size=(200, 3))
+    f = DistanceField(a, 0.1, 0.3, bounds=[np.zeros(3), np.full(3, 2.0)], normals=na)
+    assert f.keeps_nearest and f.nearest is None and f.nearest_index.dtype == np.int32
+    f.add(b, nb)
+    pts, nrm = np.vstack([a, b]), np.vstack([na, nb])
+    np.testing.assert_array_equal(f.nearest_points, pts)
+    np.testing.assert_array_equal(f.nearest_normals, nrm)
+    cells = np.argwhere(f.nearest_index >= 0)
+    assert len(cells) > 0.5 * f.nearest_index.size
+    centres = f.origin + (cells + 0.5) * f.resolution
+    d = np.linalg.norm(centres[:, None, :] - pts[None], axis=2)
+    got = f.nearest_index[tuple(cells.T)]
+    np.testing.assert_allclose(d[np.arange(len(cells)), got], d.min(axis=1), atol=1e-6)
+    np.testing.assert_allclose(f.values[tuple(cells.T)], d.min(axis=1), atol=1e-6)  # float32
+    with pytest.raises(InputError, match="normals"):
+        f.add(b)

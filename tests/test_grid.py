@@ -180,6 +180,26 @@ def test_grid_from_scans_square_room():
     assert (g2.occupied == g.occupied).mean() > 0.999
 
 
+def test_grids_of_scan_prefixes_in_one_pass():
+    """The growing map of a recording: each prefix's grid equals grid_from_scans of those scans alone."""
+    from hsmap.datasets.frames import LaserScan2D
+    from hsmap.grid import grids_from_scan_prefixes
+
+    poses = np.array([[0.0, 0.0, 0.0], [0.7, -0.4, 1.0], [-0.8, 0.6, -2.0], [0.3, 0.3, 2.5]])
+    ranges, angles = _square_room_scans(poses)
+    ranges[1][::3] = np.inf  # no returns: a scan's swept area goes back to the sensor there
+    scans = [LaserScan2D(r, angles, 0.05, 10.0) for r in ranges]
+    geo = grid_from_scans(scans, poses, 0.05).geometry
+    counts = [0, 1, 1, 3, 4]
+    grids = grids_from_scan_prefixes(scans, poses, counts, geometry=geo)
+    assert len(grids) == len(counts) and (grids[0].data == UNKNOWN).all()
+    for c, g in zip(counts[1:], grids[1:], strict=True):
+        np.testing.assert_array_equal(g.data, grid_from_scans(scans[:c], poses[:c], geometry=geo).data)
+    assert not np.array_equal(grids[1].data, grids[4].data)
+    with pytest.raises(InputError, match="counts"):
+        grids_from_scan_prefixes(scans, poses, [2, 1], geometry=geo)
+
+
 def test_grid_from_scans_bad_input():
     with pytest.raises(ShapeError):
         grid_from_scans([np.zeros((3, 2))], np.zeros((2, 3)))

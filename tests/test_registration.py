@@ -243,3 +243,25 @@ def test_robust_kernel_and_refine_seeds():
         RegistrationConfig(robust_kernel=-1.0)
     with pytest.raises(ConfigError, match="registration.refine_seeds"):
         RegistrationConfig(refine_seeds=-1)
+
+
+def test_3d_refinement_on_a_nearest_point_field():
+    """A 3D target whose field keeps nearest points (normals given): refine_icp takes its correspondences from
+    the field, then polishes on exact ones, and lands where the exact refinement lands."""
+    from hsmap.fitness import DistanceField
+    from hsmap.geometry import pose_to_matrix
+    from hsmap.registration import estimate_normals, refine_icp
+
+    tgt = room_cloud_3d(8000, noise=0.0, rng=3)
+    truth = np.array([0.05, -0.04, 0.02, 0.01, -0.01, 0.03])
+    src = transform_points(np.linalg.inv(pose_to_matrix(truth)), tgt[::3])
+    normals = estimate_normals(tgt)
+    field = DistanceField(tgt, 0.1, 0.3, normals=normals)
+    with_field = RegistrationTarget(tgt, normals=normals, fields={0.3: field})
+    assert with_field.nearest_field(0.2) is field
+    exact = RegistrationTarget(tgt, normals=normals)
+    kw = dict(max_distance=0.1, start_distance=0.3, iterations=30)
+    a = refine_icp(src, with_field, np.zeros(6), **kw)
+    b = refine_icp(src, exact, np.zeros(6), **kw)
+    np.testing.assert_allclose(a, truth, atol=1e-4)
+    np.testing.assert_allclose(a, b, atol=1e-5)

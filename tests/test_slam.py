@@ -144,22 +144,39 @@ def test_outputs_written(tmp_path, frames):
                                                            "trajectory.tum"]
 
 
-def test_slam_6dof_in_a_room():
+def _room_frames_3d(n: int = 14):
     rng = np.random.default_rng(0)
     truth = []
     frames = []
-    for i in range(14):
+    for i in range(n):
         pose = np.array([2.5 + 0.25 * i, 2.0 + 0.1 * np.sin(i / 3), 0.0, 0.0, 0.0, 0.3 + 0.05 * i])
         sensor = compose(pose, np.array([0.0, 0.0, 1.6, 0.0, 0.0, 0.0]))
         cloud = sensor_cloud(room_cloud_3d(6000, viewpoint=sensor[:3], noise=0.01, rng=rng), sensor)
         frames.append(Frame(stamp=float(i), cloud3d=cloud, index=i, extrinsic3d=np.array([0, 0, 1.6, 0, 0, 0.0])))
         truth.append(pose)
+    return frames, truth
+
+
+def test_slam_6dof_in_a_room():
+    frames, truth = _room_frames_3d()
     res = run_slam(frames, SlamConfig(dof=6), rng=0, progress=False)
     est, truth = res.trajectory.poses, np.asarray(truth)
     err = relative(est[0], est) - relative(truth[0], truth)
     err[:, 3:] = wrap_angle(err[:, 3:])
     assert np.abs(err[:, :3]).max() < 0.03
     assert np.rad2deg(np.abs(err[:, 3:]).max()) < 0.5
+
+
+def test_the_number_of_threads_changes_nothing(monkeypatch):
+    """6-DOF HS-SLAM on one thread and on two, every KD-tree query split between the threads: the same
+    trajectory, bit for bit (the parallel harmony batches: tests/test_fitness.py)."""
+    from hsmap import registration
+
+    monkeypatch.setattr(registration, "PARALLEL_MIN_QUERIES", 1)
+    frames, _ = _room_frames_3d(6)
+    one, two = (run_slam(frames, SlamConfig(dof=6), rng=0, progress=False, threads=t) for t in (1, 2))
+    np.testing.assert_array_equal(one.trajectory.poses, two.trajectory.poses)
+    assert [f.fitness for f in one.frames] == [f.fitness for f in two.frames]
 
 
 def test_prior_seeds_6dof():

@@ -388,3 +388,54 @@ def test_label_overlay_uses_the_room_palette():
     assert (with_door[1:, 1:] == 0).all() and tuple(with_door[0, 1]) == label_color(1)  # a 3x3 square at its centre
     with pytest.raises(ShapeError):
         label_overlay(labels, free[:2])
+
+
+@needs_rerun_binary
+def test_frame_logger_logs_what_log_frame_logs(tmp_path):
+    """The frames logged in blocks as columns hold the same entities, components and rows as log_frame's,
+    including a frame without a scan and the last, partial block."""
+    n = 23
+    angles = np.linspace(-2.35, 2.35, 361)
+    rng = np.random.default_rng(0)
+    frames = [Frame(stamp=100.0 + 0.1 * i, scan2d=None if i == 5 else LaserScan2D(np.full(361, 2.0), angles, 0.1,
+                                                                                    10.0),
+                    cloud3d=rng.normal(size=(500, 3)), index=i, extrinsic2d=np.array([0.2, 0.0, 0.0]),
+                    extrinsic3d=np.array([0.0, 0.0, 1.6, 0.0, 0.0, 0.0])) for i in range(n)]
+    poses = np.column_stack([0.1 * np.arange(n), np.zeros(n), 0.01 * np.arange(n)])
+    with hr.open_recording(tmp_path / "rows.rrd") as rec:
+        for f, p in zip(frames, poses, strict=True):
+            hr.log_frame(rec, f, p, cloud_voxel=0.25)
+    with hr.open_recording(tmp_path / "columns.rrd") as rec:
+        fl = hr.FrameLogger(rec, block=10, cloud_voxel=0.25)
+        for f, p in zip(frames, poses, strict=True):
+            fl.add(f, p)
+        fl.flush()
+        assert fl.frames_logged == n
+    hr.verify_rrd(tmp_path / "columns.rrd")
+    rows, cols = (hr.recording_contents(tmp_path / name) for name in ("rows.rrd", "columns.rrd"))
+    for entity in ("/world/robot", "/world/robot/lidar2d", "/world/robot/lidar2d/scan", "/world/robot/lidar3d/cloud"):
+        assert cols[entity]["rows"] == rows[entity]["rows"], entity
+        assert rows[entity]["columns"] <= cols[entity]["columns"] | {"log_tick", "log_time"}, entity
+    # the robot: one pose a frame and the rig's static axes; the scan: every frame but the one without
+    assert cols["/world/robot"]["rows"] == n + 1 and cols["/world/robot/lidar2d/scan"]["rows"] == n - 1
+    with pytest.raises(InputError, match="block"):
+        hr.FrameLogger(None, block=0)
+
+
+@needs_rerun_binary
+def test_map2d_robots_in_one_call_log_what_one_per_time_logs(tmp_path):
+    geo = GridGeometry((80, 200), 0.05, (-1.0, -2.0))
+    poses = np.column_stack([np.linspace(0, 8, 12), np.zeros(12), np.linspace(0, 1, 12)])
+    stamps = 0.5 * np.arange(12)
+    with hr.open_recording(tmp_path / "rows.rrd") as rec:
+        for i, p in enumerate(poses):
+            hr.set_frame_time(rec, i, stamps[i])
+            hr.log_map2d_robot(rec, p, geo)
+    with hr.open_recording(tmp_path / "columns.rrd") as rec:
+        hr.log_map2d_robots(rec, poses, geo, np.arange(12), stamps)
+    hr.verify_rrd(tmp_path / "columns.rrd")
+    rows, cols = (hr.recording_contents(tmp_path / name)["/map/robot"] for name in ("rows.rrd", "columns.rrd"))
+    assert cols["rows"] == rows["rows"] == 12
+    assert rows["columns"] <= cols["columns"] | {"log_tick", "log_time"}
+    with pytest.raises(ShapeError, match="as many"):
+        hr.log_map2d_robots(None, poses, geo, np.arange(3), stamps)

@@ -47,6 +47,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--strict", action="store_true",
                         help="stop at the first frame whose scan or cloud is missing or has too few usable points "
                              "(default: skip it with a warning and count it in metrics.json)")
+    parser.add_argument("--threads", type=int, default=None,
+                        help="compute threads (default: $HSMAP_THREADS, else every core); the result is the same "
+                             "for any count")
     parser.add_argument("--quiet", action="store_true", help="no progress bar or summary")
 
 
@@ -76,6 +79,8 @@ def run(args: argparse.Namespace) -> int:
 
     if sync_tolerance(args) is not None:
         cfg = dataclasses.replace(cfg, sync_tolerance=args.sync_tolerance)
+    if args.threads is not None and args.threads < 1:
+        raise InputError(f"--threads must be >= 1, got {args.threads}")
     if args.max_frames is not None and args.max_frames < 1:
         raise InputError(f"--max-frames must be >= 1, got {args.max_frames}")
     prior = read_tum(args.prior) if args.prior else None
@@ -96,11 +101,13 @@ def run(args: argparse.Namespace) -> int:
                                     blueprint=hv.default_blueprint(graph=False, map2d=cfg.dof == 3, legend=True))
             hv.log_legend(rec, _legend(cfg.dof))
             map_logger = hv.PointMapLogger(rec, block=10, voxel=0.05 if cfg.dof == 3 else 0.15)
+            # the frames are logged in blocks, as columns: a few calls per block instead of a few per frame
+            frame_logger = hv.FrameLogger(rec, block=64, cloud_voxel=0.25)
 
             keyscans: list = []  # 3-DOF: the keyframes' scans, for the grid at their final poses
 
             def on_frame(frame, result, slam):
-                hv.log_frame(rec, frame, result.pose, cloud_voxel=0.25)
+                frame_logger.add(frame, result.pose)
                 if result.keyframe and cfg.dof == 3:
                     keyscans.append(frame)
                 if result.keyframe:
@@ -108,13 +115,17 @@ def run(args: argparse.Namespace) -> int:
                     from ..slam import frame_points
 
                     pts = frame_points(frame, cfg.dof, cfg.min_range, cfg.max_range)
+                    hv.set_frame_time(rec, frame.index, frame.stamp)  # the map block's time
                     map_logger.add(transform_points(pose_to_matrix(result.pose), pts))
 
         try:
             result = run_slam(dataset, cfg, rng=args.seed, prior=prior, max_frames=args.max_frames,
                               progress=False if args.quiet else None, on_frame=on_frame,
-                              prior_name=f"--prior {args.prior}", strict=args.strict)
+                              prior_name=f"--prior {args.prior}", strict=args.strict, threads=args.threads)
             if rec is not None:
+                frame_logger.flush()
+                if result.frames:
+                    hv.set_frame_time(rec, result.frames[-1].index, result.frames[-1].stamp)
                 map_logger.flush()
                 _log_replay(rec, keyscans, result)
         except BaseException:
@@ -155,7 +166,7 @@ def _log_replay(rec, keyscans, result, grid_updates: int = 10, path_updates: int
     robot in the 2D map view."""
     import numpy as np
 
-    from ..grid import grid_from_scans
+    from ..grid import grids_from_scan_prefixes
     from ..viz import rerun as hv
 
     traj = result.trajectory
@@ -166,6 +177,7 @@ def _log_replay(rec, keyscans, result, grid_updates: int = 10, path_updates: int
     stamps = np.asarray(traj.stamps, dtype=float)
     poses = np.asarray(traj.poses, dtype=float)
     grid = geo = None
+    grids: dict = {}
     if keyscans and result.config.dof == 3:
         kposes, found = traj.as_3dof().at([f.stamp for f in keyscans], max_dt=1e-3)
         kept = [f for f, ok in zip(keyscans, found, strict=True) if ok]
@@ -173,29 +185,28 @@ def _log_replay(rec, keyscans, result, grid_updates: int = 10, path_updates: int
             scans = [f.scan2d for f in kept]
             ext = np.asarray([f.extrinsic2d for f in kept], dtype=float)
             kstamps = np.array([f.stamp for f in kept])
-            grid = grid_from_scans(scans, kposes, 0.05, extrinsic=ext)
+            # the growing grid at every update and the final one, all in one pass over the scans (keyframes
+            # come in stamp order: the scans up to a time are a prefix)
+            at = sorted(set(np.linspace(0, n - 1, grid_updates).round().astype(int)) - {n - 1})
+            counts = [int((kstamps <= stamps[r]).sum()) for r in at]
+            *partial, grid = grids_from_scan_prefixes(scans, kposes, [*counts, len(kept)], 0.05, extrinsic=ext)
             geo = grid.geometry
-    grid_at = set(np.linspace(0, n - 1, grid_updates).round().astype(int)) if geo is not None else set()
+            grids = {**dict(zip(at, partial, strict=True)), n - 1: grid}
+    grid_at = set(grids) if geo is not None else set()
     path_at = set(np.linspace(0, n - 1, path_updates).round().astype(int))
     robot_every = max(1, n // 600)
+    if geo is not None:  # the robot in the 2D map view, as columns (one call)
+        hv.log_map2d_robots(rec, poses[::robot_every], geo, idx[::robot_every], stamps[::robot_every])
     for r in range(n):
-        g, p, robot = r in grid_at, r in path_at, geo is not None and r % robot_every == 0
-        if not (g or p or robot):
+        g, p = r in grid_at, r in path_at
+        if not (g or p):
             continue
         hv.set_frame_time(rec, int(idx[r]), stamps[r])
-        if robot:
-            hv.log_map2d_robot(rec, poses[r], geo)
         if p and r > 0:
             hv.log_path(rec, "estimate", poses[: r + 1], static=False)
             if geo is not None:
                 hv.log_map2d_path(rec, "estimate", poses[: r + 1], geo, static=False)
         if g:
-            upto = kstamps <= stamps[r]
-            if r == n - 1:
-                now = grid
-            elif upto.any():
-                now = grid_from_scans([s for s, u in zip(scans, upto, strict=True) if u], kposes[upto],
-                                      extrinsic=ext[upto], geometry=geo)
-            else:
+            if r < n - 1 and not (kstamps <= stamps[r]).any():
                 continue
-            hv.log_occupancy_grid(rec, now.data, geo, static=False)
+            hv.log_occupancy_grid(rec, grids[r].data, geo, static=False)

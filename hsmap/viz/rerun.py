@@ -57,6 +57,7 @@ from .occupancy import _ros_to_image, occupancy_to_image, occupancy_to_ros  # no
 
 __all__ = [
     "RERUN_VERSION",
+    "FrameLogger",
     "Recording",
     "open_recording",
     "default_blueprint",
@@ -65,6 +66,7 @@ __all__ = [
     "series_legend",
     "log_rgba_grid",
     "log_map2d_robot",
+    "log_map2d_robots",
     "log_map2d_points",
     "set_frame_time",
     "pose_transform",
@@ -567,6 +569,100 @@ def log_frame(
         log_cloud(rec, frame.cloud3d, voxel=cloud_voxel)
 
 
+class FrameLogger:
+    """The frames of a run logged as :func:`log_frame` logs them (robot pose, 2D scan, 3D cloud, on the ``scan``
+    and ``time`` timelines), ``block`` frames at a time as columns (``rr.send_columns``): one call per entity
+    per block instead of three or four per frame, which keeps the recording off the hot path of a long run.
+
+    Call :meth:`add` for each frame, :meth:`flush` after the last. The viewer shows the same entities at the
+    same times as with :func:`log_frame` (row-logged data also carries rerun's ``log_tick``/``log_time``
+    timelines, which these columns do not).
+
+    Parameters
+    ----------
+    rec : Recording
+    block : int
+        Frames per block.
+    cloud_voxel : float, optional
+        Voxel side (metres) the 3D clouds are thinned to (as :func:`log_frame`'s ``cloud_voxel``).
+    lidar2d_height : float
+        Height of the 2D LiDAR above the base (the sensor rig, logged once).
+    """
+
+    def __init__(self, rec: Any, *, block: int = 64, cloud_voxel: float | None = 0.1,
+                 lidar2d_height: float = 0.0) -> None:
+        if int(block) < 1:
+            raise InputError(f"block must be >= 1 frames, got {block}")
+        self.rec, self.block, self.cloud_voxel, self.lidar2d_height = rec, int(block), cloud_voxel, lidar2d_height
+        self._rows: list[tuple[int, float, NDArray[np.float64], Any, Any]] = []
+        self.frames_logged = 0
+
+    def add(self, frame: Any, pose: ArrayLike, *, index: int | None = None) -> None:
+        """Queue one :class:`hsmap.datasets.Frame` with the robot's estimated pose (logged at the next block)."""
+        index = frame.index if index is None else index
+        stamp = float(frame.stamp)
+        if not np.isfinite(stamp):
+            raise InputError(f"frame stamp must be finite seconds, got {stamp}")
+        if not getattr(self.rec, "rig_logged", False):
+            log_sensor_rig(self.rec, extrinsic2d=frame.extrinsic2d if frame.scan2d is not None else None,
+                           extrinsic3d=frame.extrinsic3d if frame.cloud3d is not None else None,
+                           lidar2d_height=self.lidar2d_height)
+            if isinstance(self.rec, Recording):
+                self.rec.rig_logged = True
+        scan = None if frame.scan2d is None else _points(frame.scan2d.points(), (2, 3), "points")
+        cloud = None
+        if frame.cloud3d is not None:
+            cloud = _points(frame.cloud3d, (2, 3), "points")
+            if self.cloud_voxel is not None:
+                cloud = first_per_voxel(cloud, self.cloud_voxel)
+        self._rows.append((int(index), stamp, _pose6(pose).copy(), scan, cloud))
+        if len(self._rows) >= self.block:
+            self.flush()
+
+    def flush(self) -> None:
+        """Log the queued frames."""
+        rows, self._rows = self._rows, []
+        if not rows:
+            return
+        stamps = np.array([r[1] for r in rows])
+        unix = stamps > _UNIX_TIME_THRESHOLD
+        for part in (np.flatnonzero(unix), np.flatnonzero(~unix)):  # one kind of time column per call
+            if len(part):
+                self._send([rows[i] for i in part], bool(unix[part[0]]))
+        self.frames_logged += len(rows)
+
+    def _send(self, rows: list, unix: bool) -> None:
+        s = _stream(self.rec)
+
+        def times(sel: list[int]) -> list[rr.TimeColumn]:
+            idx = np.array([rows[i][0] for i in sel], dtype=np.int64)
+            st = np.array([rows[i][1] for i in sel])
+            when = rr.TimeColumn("time", timestamp=st) if unix else rr.TimeColumn("time", duration=st)
+            return [rr.TimeColumn("scan", sequence=idx), when]
+
+        everyone = list(range(len(rows)))
+        t, q = _translation_quaternion(np.stack([r[2] for r in rows]))
+        s.send_columns(ROBOT, indexes=times(everyone), columns=rr.Transform3D.columns(translation=t, quaternion=q),
+                       strict=True)
+        for k, entity in ((3, f"{LIDAR2D}/scan"), (4, f"{LIDAR3D}/cloud")):
+            sel = [i for i in everyone if rows[i][k] is not None]
+            if not sel:
+                continue
+            pts = [rows[i][k] for i in sel]
+            pts = [np.column_stack([p, np.zeros(len(p))]) if p.shape[1] == 2 else p for p in pts]
+            lengths = np.array([len(p) for p in pts])
+            allp = np.concatenate(pts) if len(pts) else np.empty((0, 3))
+            if k == 3:  # log_scan2d's colour and radius
+                cols = rr.Points3D.columns(positions=allp).partition(lengths)
+                style = rr.Points3D.columns(colors=np.tile(np.array([230, 90, 30], dtype=np.uint8), (len(sel), 1)),
+                                            radii=np.full(len(sel), 0.025, dtype=np.float32))
+            else:  # log_cloud's height colours and radius
+                cols = rr.Points3D.columns(positions=allp, colors=height_colors(allp[:, 2], (-2.0, 2.0))
+                                           ).partition(lengths)
+                style = rr.Points3D.columns(radii=np.full(len(sel), 0.02, dtype=np.float32))
+            s.send_columns(entity, indexes=times(sel), columns=[*cols, *style], strict=True)
+
+
 class PointMapLogger:
     """A growing point map on the timelines: world-frame points added scan by scan, logged in blocks.
 
@@ -838,6 +934,38 @@ def log_map2d_robot(rec: Any, pose: ArrayLike, geometry: GridGeometry, *, entity
     s = _stream(rec)
     s.log(entity, rr.Arrows2D(origins=[a], vectors=[b - a], colors=color, radii=1.5, draw_order=40.0),
           rr.Points2D([a], colors=color, radii=4.0, draw_order=40.0), strict=True)
+
+
+def log_map2d_robots(rec: Any, poses: ArrayLike, geometry: GridGeometry, indexes: ArrayLike, stamps: ArrayLike, *,
+                     entity: str = f"{MAP2D}/robot", length: float = 0.6, color: ArrayLike = ROBOT_COLOR) -> None:
+    """:func:`log_map2d_robot` at many times in one call (columns): the robot at ``poses[i]`` at frame
+    ``indexes[i]`` (the ``scan`` timeline) and ``stamps[i]`` seconds (``time``)."""
+    p = _pose6(poses)
+    if p.ndim != 2:
+        raise ShapeError(f"poses must be (K, 3) or (K, 6), got shape {np.shape(poses)}")
+    idx = np.asarray(indexes, dtype=np.int64)
+    st = np.asarray(stamps, dtype=float)
+    if not (len(idx) == len(st) == len(p)):
+        raise ShapeError(f"{len(p)} poses, {len(idx)} indexes and {len(st)} stamps: expected as many of each")
+    if len(p) == 0:
+        return
+    x, y, yaw = p[:, 0], p[:, 1], p[:, 5]
+    a = world_to_map2d(geometry, np.column_stack([x, y]))
+    b = world_to_map2d(geometry, np.column_stack([x + length * np.cos(yaw), y + length * np.sin(yaw)]))
+    unix = st > _UNIX_TIME_THRESHOLD
+    for part in (np.flatnonzero(unix), np.flatnonzero(~unix)):
+        if not len(part):
+            continue
+        when = (rr.TimeColumn("time", timestamp=st[part]) if unix[part[0]]
+                else rr.TimeColumn("time", duration=st[part]))
+        k = len(part)
+        cols = [*rr.Arrows2D.columns(origins=a[part], vectors=(b - a)[part],
+                                     colors=np.tile(np.asarray(color, dtype=np.uint8), (k, 1)),
+                                     radii=np.full(k, 1.5, dtype=np.float32), draw_order=np.full(k, 40.0)),
+                *rr.Points2D.columns(positions=a[part], colors=np.tile(np.asarray(color, dtype=np.uint8), (k, 1)),
+                                     radii=np.full(k, 4.0, dtype=np.float32), draw_order=np.full(k, 40.0))]
+        _stream(rec).send_columns(entity, indexes=[rr.TimeColumn("scan", sequence=idx[part]), when], columns=cols,
+                                  strict=True)
 
 
 def log_map2d_points(rec: Any, name: str, points_world: ArrayLike, geometry: GridGeometry, *,

@@ -1,0 +1,138 @@
+"""Where HS-SLAM's time goes, per stage: one run under cProfile, the cumulative time of each stage's function.
+
+``--input`` is a Freiburg log name (``intel``, ``fr079``, ``fr-clinic``: the command line's default configuration,
+odometry and loop closure on) or ``3d`` (the simulated slam-office route: the 2D run, then the 6-DOF run seeded
+by it, which is the one profiled). Stages overlap (the refinement runs inside harmony_icp, loop closure calls
+harmony_icp too); each is the cumulative time of the named functions, as a share of the run's profiled time.
+Writes reports/benchmarks/profile_<input>.json and prints the table.
+
+    .venv/bin/python benchmarks/profile_slam.py --input fr079 --max-frames 2500
+    .venv/bin/python benchmarks/profile_slam.py --input 3d --max-frames 200
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import os
+import pstats
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("RERUN_ANALYTICS", "0")
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+# stage -> (module file suffix, function name) pairs whose cumulative times are summed
+STAGES = {
+    "process (one frame, all of it)": [("hsmap/slam.py", "process")],
+    "frame_points (range filter + voxel downsampling)": [("hsmap/slam.py", "frame_points")],
+    "harmony_icp (tracking + loop closure)": [("hsmap/registration.py", "harmony_icp")],
+    "  harmony_search (HS rounds)": [("hsmap/harmony.py", "harmony_search")],
+    "  refine_icp": [("hsmap/registration.py", "refine_icp")],
+    "  _alignment_cost / _match (KD-tree correspondences)": [("hsmap/registration.py", "_alignment_cost"),
+                                                              ("hsmap/registration.py", "_match")],
+    "  _information_and_cost": [("hsmap/registration.py", "_information_and_cost")],
+    "  _subsample": [("hsmap/registration.py", "_subsample")],
+    "  RegistrationTarget.tree (KD-tree builds)": [("hsmap/registration.py", "tree")],
+    "_verify (prediction check, retries)": [("hsmap/slam.py", "_verify")],
+    "_rebuild_target (local map crop, field)": [("hsmap/slam.py", "_rebuild_target")],
+    "  DistanceField.__init__": [("hsmap/fitness.py", "__init__")],
+    "  _rebuild_map": [("hsmap/slam.py", "_rebuild_map")],
+    "_add_keyframe (normals, map, field, loops)": [("hsmap/slam.py", "_add_keyframe")],
+    "  estimate_normals": [("hsmap/registration.py", "estimate_normals")],
+    "  VoxelMap.add": [("hsmap/mapping.py", "add")],
+    "  DistanceField.add": [("hsmap/fitness.py", "add")],
+    "  _close_loops (search + verify)": [("hsmap/slam.py", "_close_loops")],
+    "  _optimize (graph)": [("hsmap/slam.py", "_optimize")],
+    "on_frame (recording)": [("benchmarks/profile_slam.py", "on_frame")],
+}
+
+
+def _cumulative(stats: pstats.Stats, wanted: list[tuple[str, str]]) -> float:
+    total = 0.0
+    for (file, _line, name), (_cc, _nc, _tt, ct, _callers) in stats.stats.items():  # type: ignore[attr-defined]
+        for suffix, fn in wanted:
+            if name == fn and file.replace("\\", "/").endswith(suffix):
+                total += ct
+    return total
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--input", default="fr079", choices=["intel", "fr079", "fr-clinic", "3d"])
+    ap.add_argument("--max-frames", type=int, default=None)
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--top", type=int, default=25, help="also print the top functions by own time")
+    ap.add_argument("--dataset3d", default=None, help="3d: this simulator folder instead of the study's slam-office "
+                                                      "seed 1 (benchmarks/slam.py --dataset3d)")
+    ap.add_argument("--out", default=None)
+    args = ap.parse_args(argv)
+
+    import numpy as np
+
+    from hsmap.datasets.open import open_dataset
+    from hsmap.io import write_json
+    from hsmap.slam import SlamConfig, run_slam
+
+    if args.input == "3d":
+        from hsmap.study import simulated_dataset
+
+        ds = open_dataset(args.dataset3d or simulated_dataset("slam-office", 1).path)
+        n = min(len(ds), args.max_frames or len(ds))
+        frames = [f for _, f in zip(range(n), ds.frames(clouds=True), strict=False)]
+        run2d = run_slam(frames, SlamConfig(dof=3, use_odometry=False), rng=args.seed, progress=False)
+        cfg, prior = SlamConfig(dof=6, use_odometry=False), run2d.trajectory
+    else:
+        from slam import FREIBURG  # benchmarks/slam.py
+
+        from hsmap.study.paths import datasets_dir
+
+        spec = FREIBURG[args.input]
+        ds = open_dataset(datasets_dir() / "slam2d" / spec["bag"], extrinsic2d=spec["extrinsic2d"])
+        n = min(len(ds), args.max_frames or len(ds))
+        frames = [f for _, f in zip(range(n), ds.frames(clouds=False), strict=False)]
+        cfg, prior = SlamConfig(dof=3), None
+    # compile the kernels outside the profile (numba's cache may be cold)
+    run_slam(frames[:5], cfg, rng=args.seed, prior=prior, progress=False)
+    load0 = os.getloadavg()
+    prof = cProfile.Profile()
+    t0 = time.perf_counter()
+    prof.enable()
+    res = run_slam(frames, cfg, rng=args.seed, prior=prior, progress=False)
+    prof.disable()
+    wall = time.perf_counter() - t0
+    stats = pstats.Stats(prof)
+    total = stats.total_tt  # type: ignore[attr-defined]
+    stages = {}
+    print(f"{args.input}: {n} frames, {wall:.1f} s wall under cProfile (profiled {total:.1f} s), "
+          f"load {load0[0]:.2f}")
+    for name, wanted in STAGES.items():
+        s = _cumulative(stats, wanted)
+        stages[name.strip()] = {"seconds": s, "share": s / total if total else float("nan")}
+        print(f"  {name:52s} {s:8.2f} s {100 * s / total:5.1f} %")
+    secs = np.array([f.seconds for f in res.frames])
+    if args.top:
+        stats.sort_stats("tottime").print_stats(args.top)
+    out = {
+        "benchmark": "profile_slam",
+        "input": args.input,
+        "frames": n,
+        "seed": args.seed,
+        "wall_seconds_under_profile": wall,
+        "profiled_seconds": total,
+        "seconds_per_frame_median_under_profile": float(np.median(secs)),
+        "stages": stages,
+        "load_average_at_start": load0,
+        "load_average_at_end": os.getloadavg(),
+    }
+    path = Path(args.out or ROOT / "reports/benchmarks" / f"profile_{args.input}.json")
+    write_json(path, out)
+    print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

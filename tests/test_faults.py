@@ -385,6 +385,10 @@ def test_slam_interrupted_keeps_the_previous_run(bag, previous, tmp_path, monkey
     published, no temporary left (the recording's included)."""
     import hsmap.slam
 
+    # Python's own Ctrl-C handler, whatever an earlier test in this worker process left (a CI run on 5839747 had
+    # SIGINT ignored in one xdist worker by the time this ran, so the run finished with 0)
+    handler = signal.getsignal(signal.SIGINT)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     out = lay(previous, tmp_path / "out")
     if where == "frame":
         real = hsmap.slam.HsSlam.process
@@ -406,7 +410,10 @@ def test_slam_interrupted_keeps_the_previous_run(bag, previous, tmp_path, monkey
             return real_json(path, *a, **k)
 
         monkeypatch.setattr(hsmap.slam, "write_json", write_json)
-    assert slam(bag, out) == code
+    try:
+        assert slam(bag, out) == code
+    finally:
+        signal.signal(signal.SIGINT, handler)
     assert capsys.readouterr().err == "hsmap: interrupted\n"
     assert snapshot(out) == previous and hidden(out) == []
 

@@ -122,14 +122,20 @@ def _keyframe(points):
     return Keyframe(0, 0.0, points, estimate_normals(points))
 
 
-def test_look_alike_place_is_rejected():
-    """Two identical stretches of featureless corridor: a match between them is not constrained along the axis."""
+def _corridor_scans():
+    """Scans (robot frame) at x = 0 and x = 6 m in a featureless 1.6 m wide corridor."""
     world = np.array([[[-20, -0.8], [20, -0.8]], [[-20, 0.8], [20, 0.8]]], dtype=float)
     scans = []
     for x in (0.0, 6.0):
         r, a = raycast_2d(world, np.array([x, 0.0, 0.0]), noise=0.005, rng=1)
         ok = np.isfinite(r)
         scans.append(np.column_stack([r[ok] * np.cos(a[ok]), r[ok] * np.sin(a[ok])]))
+    return scans
+
+
+def test_look_alike_place_is_rejected():
+    """Two identical stretches of featureless corridor: a match between them is not constrained along the axis."""
+    scans = _corridor_scans()
     cfg = LoopClosureConfig(submap_keyframes=1, source_keyframes=1, min_separation=1)
     g = PoseGraph(3)
     g.add_node(np.zeros(3))
@@ -179,12 +185,7 @@ def test_correlative_match_finds_a_pose_far_from_the_guess_and_flags_a_corridor(
     pose, _, _ = correlative_match_2d(_office_scan(newest), _office_scan(anchor, 1), guess, 3.0, np.deg2rad(20.0))
     assert np.linalg.norm(pose[:2] - true[:2]) > 2.0
     # a featureless corridor: poses along it score almost alike, and the match is refused
-    world = np.array([[[-20, -0.8], [20, -0.8]], [[-20, 0.8], [20, 0.8]]], dtype=float)
-    scans = []
-    for x in (0.0, 6.0):
-        r, a = raycast_2d(world, np.array([x, 0.0, 0.0]), noise=0.005, rng=1)
-        ok = np.isfinite(r)
-        scans.append(np.column_stack([r[ok] * np.cos(a[ok]), r[ok] * np.sin(a[ok])]))
+    scans = _corridor_scans()
     _, _, ambiguity = correlative_match_2d(scans[1], scans[0], np.array([4.0, 0.0, 0.0]), 10.0, np.deg2rad(10.0))
     assert ambiguity > 0.75
     g = PoseGraph(3)

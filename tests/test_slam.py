@@ -78,8 +78,9 @@ def make_noisy_odometry_frames(yaw_sigma, seed=0, n=120):
 
 def test_odometry_sigma_is_learned_from_the_run():
     """Precise odometry earns a tighter sigma than the loose default, poor odometry a looser one; metrics say so."""
-    good = run_slam(make_noisy_odometry_frames(np.deg2rad(0.05)), SlamConfig(), rng=1, progress=False)
-    bad = run_slam(make_noisy_odometry_frames(np.deg2rad(4.0)), SlamConfig(), rng=1, progress=False)
+    on = SlamConfig(learn_odometry=True)
+    good = run_slam(make_noisy_odometry_frames(np.deg2rad(0.05)), on, rng=1, progress=False)
+    bad = run_slam(make_noisy_odometry_frames(np.deg2rad(4.0)), on, rng=1, progress=False)
     g, b = good.metrics()["odometry_model"], bad.metrics()["odometry_model"]
     assert g["learned"] and b["learned"] and g["frames"] == b["frames"] == 119
     assert g["scale_rotation"] < 0.5 < 1.5 < b["scale_rotation"], (g, b)
@@ -92,7 +93,7 @@ def test_odometry_sigma_is_learned_from_the_run():
     np.testing.assert_allclose(slam.odometry_sigma(), configured * [0.2, 0.2, 0.3, 0.3, 0.3])
     slam._odometry_scale = np.array([2.0, 3.0])
     np.testing.assert_allclose(slam.odometry_sigma(gate=True), configured * [2, 2, 3, 3, 3])
-    fixed = run_slam(make_noisy_odometry_frames(np.deg2rad(4.0))[:30], SlamConfig(learn_odometry=False),
+    fixed = run_slam(make_noisy_odometry_frames(np.deg2rad(4.0))[:30], SlamConfig(),  # off by default
                      rng=1, progress=False).metrics()["odometry_model"]
     assert not fixed["learned"] and fixed["scale_rotation"] == 1.0
 

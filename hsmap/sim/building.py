@@ -23,7 +23,7 @@ import yaml
 from .. import __version__
 from ..config import to_dict
 from ..datasets.simulated import FORMAT, FORMAT_VERSION
-from ..errors import DatasetError, ScenarioError
+from ..errors import ScenarioError
 from ..io import sweep_stale_temporaries, write_json, write_text
 from ..trajectory import Trajectory, write_tum
 from .explore import Exploration, ExploreConfig, plan_exploration
@@ -109,17 +109,13 @@ def simulate_building(plan: FloorPlan, out: str | os.PathLike, *, seed: int = 0,
     BuildingRun
     """
     from ..grid import write_label_image
-    from .writer import write_sensor_frames
+    from .writer import open_dataset_folder, write_sensor_frames
 
     cfg = config or BuildingRunConfig()
     seed = int(seed)
     if seed < 0:
         raise ScenarioError(f"seed must be >= 0, got {seed}")
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise DatasetError(f"{out}: exists and is not a folder")
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "dataset.yaml").unlink(missing_ok=True)
+    out = open_dataset_folder(out)
     sweep_stale_temporaries(out)
     sweep_stale_temporaries(out / "clouds3d")
     timings: dict[str, float] = {}

@@ -158,11 +158,7 @@ def simulate(scenario: Scenario | str | os.PathLike, out: str | os.PathLike, see
     seed = scn.seed if seed is None else int(seed)
     if seed < 0:
         raise ScenarioError(f"seed must be >= 0, got {seed}")
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise DatasetError(f"{out}: exists and is not a folder")
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "dataset.yaml").unlink(missing_ok=True)  # incomplete from now on
+    out = open_dataset_folder(out)
     sweep_stale_temporaries(out, [*FILE_DESCRIPTIONS, "figures"])  # left by a killed run
     sweep_stale_temporaries(out / "clouds3d")
     timings: dict[str, float] = {}
@@ -349,3 +345,14 @@ instantaneously at the frame's ground-truth pose (no motion distortion); the rob
   (`null` = outside) and whether it is open.
 - `scenario.yaml`: the scenario that made this dataset.
 """
+
+
+def open_dataset_folder(out: str | Path) -> Path:
+    """Create the dataset folder ``out`` (a file there is a :class:`DatasetError`) and mark it incomplete by
+    removing its ``dataset.yaml``, which the writer puts back last."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise DatasetError(f"{out}: exists and is not a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "dataset.yaml").unlink(missing_ok=True)  # incomplete from now on
+    return out

@@ -306,13 +306,17 @@ class LoopCloser:
         3 or 6.
     map_voxel : float
         Voxel size at which submaps thin their points.
+    map_average : bool
+        Submaps keep each voxel's mean point (:class:`hsmap.mapping.VoxelMap`), like the tracking map.
     """
 
-    def __init__(self, config: LoopClosureConfig, dof: int, map_voxel: float, cache_size: int = 48) -> None:
+    def __init__(self, config: LoopClosureConfig, dof: int, map_voxel: float, cache_size: int = 48, *,
+                 map_average: bool = False) -> None:
         self.config = config
         self.dof = dof
         self.dim = 2 if dof == 3 else 3
         self.map_voxel = map_voxel
+        self.map_average = map_average
         self._cache: OrderedDict[int, tuple[NDArray[np.float64], RegistrationTarget]] = OrderedDict()
         self._cache_size = cache_size
         self._last_try: dict[int, int] = {}
@@ -374,7 +378,7 @@ class LoopCloser:
             if diff[:, : self.dim].max() < 0.01 and diff[:, self.dim:].max() < 0.002:
                 self._cache.move_to_end(s)
                 return target
-        vm = VoxelMap(self.dim, self.map_voxel)
+        vm = VoxelMap(self.dim, self.map_voxel, average=self.map_average)
         pts, nrm = [], []
         for k, r in zip(members, rel, strict=True):
             T = pose_to_matrix(r)

@@ -73,18 +73,25 @@ class VoxelMap:
         2 or 3.
     voxel : float
         Voxel size in metres.
+    average : bool
+        Keep the mean of every point a voxel received instead of the first one: the range noise of one scan
+        averages out over the scans that see the same surface (its normal stays the first one's). With the
+        default, the first point of a voxel is kept for good.
     """
 
-    def __init__(self, dim: int, voxel: float) -> None:
+    def __init__(self, dim: int, voxel: float, *, average: bool = False) -> None:
         if dim not in (2, 3):
             raise ShapeError(f"map dimension must be 2 or 3, got {dim}")
         if not voxel > 0:
             raise InputError(f"map voxel size must be > 0 m, got {voxel}")
         self.dim = dim
         self.voxel = float(voxel)
+        self.average = bool(average)
         self._keys = np.empty(0, dtype=np.int64)  # sorted
         self._points = np.empty((0, dim))  # in the order of _keys
         self._normals = np.empty((0, dim))  # NaN where unknown
+        self._sums = np.empty((0, dim))  # average: the sum of the points each voxel received
+        self._counts = np.empty(0)  # average: how many
 
     def __len__(self) -> int:
         return len(self._keys)
@@ -100,9 +107,10 @@ class VoxelMap:
         return self._normals
 
     def add(self, points: ArrayLike, normals: ArrayLike | None = None, *, return_normals: bool = False):
-        """Insert world points (and their normals); a point whose voxel already holds one is dropped.
+        """Insert world points (and their normals); a point whose voxel already holds one is dropped (or, with
+        ``average``, moves the voxel's point to the mean of all it received).
 
-        Returns the points that were added, (K, dim) (and their normals, with ``return_normals``).
+        Returns the points of the voxels that were new, (K, dim) (and their normals, with ``return_normals``).
         """
         pts = np.asarray(points, dtype=float)
         if pts.ndim != 2 or pts.shape[1] != self.dim:
@@ -115,18 +123,34 @@ class VoxelMap:
         if len(pts) == 0:
             return (pts, nrm) if return_normals else pts
         keys = voxel_keys(pts, self.voxel)
-        keys, first = np.unique(keys, return_index=True)
-        pts, nrm = pts[first], nrm[first]
+        if self.average:
+            keys, first, inverse, counts = np.unique(keys, return_index=True, return_inverse=True,
+                                                     return_counts=True)
+            inverse = inverse.ravel()
+            sums = np.stack([np.bincount(inverse, weights=pts[:, d], minlength=len(keys))
+                             for d in range(self.dim)], axis=1)
+            pts, nrm, counts = sums / counts[:, None], nrm[first], counts.astype(float)
+        else:
+            keys, first = np.unique(keys, return_index=True)
+            pts, nrm = pts[first], nrm[first]
         pos = np.searchsorted(self._keys, keys)
         hit = pos < len(self._keys)
         hit[hit] = self._keys[pos[hit]] == keys[hit]
         new = ~hit
+        if self.average and hit.any():
+            at = pos[hit]
+            self._sums[at] += sums[hit]
+            self._counts[at] += counts[hit]
+            self._points[at] = self._sums[at] / self._counts[at, None]
         if not new.any():
             return (pts[:0], nrm[:0]) if return_normals else pts[:0]
         pos_new = pos[new]  # where the new keys go in the sorted arrays (np.insert keeps them sorted)
         self._keys = np.insert(self._keys, pos_new, keys[new])
         self._points = np.insert(self._points, pos_new, pts[new], axis=0)
         self._normals = np.insert(self._normals, pos_new, nrm[new], axis=0)
+        if self.average:
+            self._sums = np.insert(self._sums, pos_new, sums[new], axis=0)
+            self._counts = np.insert(self._counts, pos_new, counts[new])
         return (pts[new], nrm[new]) if return_normals else pts[new]
 
     def crop(self, centre: ArrayLike, radius: float) -> NDArray[np.float64]:

@@ -120,6 +120,9 @@ class SlamConfig:
         The first frames are all keyframes: each is registered against all the previous scans.
     map_voxel : float or None
         Voxel size of the point map; None: 0.05 m (2D), 0.1 m (3D).
+    map_average : bool
+        Each voxel of the map holds the mean of the keyframe points that fell in it (the range noise of single
+        scans averages out) instead of the first keyframe's point.
     scan_voxel : float or None
         Voxel size the scans are downsampled to before registration; None: 0.03 m (2D), 0.15 m (3D).
     local_map_radius : float
@@ -173,6 +176,7 @@ class SlamConfig:
     recent_poses: int = 5
     warmup_frames: int = 3
     map_voxel: float | None = None
+    map_average: bool = True
     scan_voxel: float | None = None
     local_map_radius: float = 20.0
     keyframe_distance: float = 0.5
@@ -444,7 +448,7 @@ class HsSlam:
         cfg = self.config
         self.rng = as_rng(rng)
         self.dim = cfg.dim
-        self.map = VoxelMap(self.dim, cfg.effective_map_voxel())
+        self.map = VoxelMap(self.dim, cfg.effective_map_voxel(), average=cfg.map_average)
         self.poses: list[NDArray[np.float64]] = []
         self.stamps: list[float] = []
         self.results: list[FrameResult] = []
@@ -472,7 +476,7 @@ class HsSlam:
         self._anchor: list[int] = []  # per frame: the keyframe its pose is expressed in
         self._offset: list[NDArray[np.float64]] = []  # per frame: its pose in that keyframe's frame
         self._odometry_chain: list[NDArray[np.float64]] = []  # per keyframe: the tracking edge's measurement
-        self._closer = LoopCloser(lc, cfg.dof, cfg.effective_map_voxel()) if lc.enabled else None
+        self._closer = LoopCloser(lc, cfg.dof, cfg.effective_map_voxel(), map_average=cfg.map_average) if lc.enabled else None
         self._path: NDArray[np.float64] | None = None  # graph distances from the newest keyframe
         self._map_stale = False
         self._pending = 0  # loop edges added since the last optimisation
@@ -882,7 +886,7 @@ class HsSlam:
 
     def _keyframe_map(self, which) -> VoxelMap:
         """A voxel map of the given keyframes at their current poses (the earliest point of a voxel kept)."""
-        vm = VoxelMap(self.dim, self.config.effective_map_voxel())
+        vm = VoxelMap(self.dim, self.config.effective_map_voxel(), average=self.config.map_average)
         pts, nrm = [], []
         for k in which:
             T = pose_to_matrix(self.graph.poses[k])
@@ -890,7 +894,7 @@ class HsSlam:
             pts.append(transform_points(T, kf.points))
             nrm.append(kf.normals @ T[: self.dim, : self.dim].T)
         if pts:
-            vm.add(np.concatenate(pts), np.concatenate(nrm))  # one insertion: first occurrence wins, in order
+            vm.add(np.concatenate(pts), np.concatenate(nrm))  # one insertion: first point (or mean) per voxel
         return vm
 
     def _rebuild_target(self) -> None:

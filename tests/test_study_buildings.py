@@ -59,7 +59,14 @@ def batch(tmp_path_factory):
         watcher.join(5)
         stamp = (out / "tiny" / RESULT_FILE).stat().st_mtime_ns
         again = run_buildings(maps, out, quick=True, client=client, progress=False, only=["tiny"])
-    return {"out": out, "first": first, "again": again, "killed": killed, "stamp": stamp}
+        # the command line on the running cluster, by its scheduler's address (how a user's cluster is used)
+        from hsmap.cli import main
+
+        cli_code = main(["benchmark", "buildings", "--maps", str(maps), "--out", str(out), "--only", "tiny",
+                         "--quick", "--scheduler", cluster.scheduler_address])
+        cli_results = json.loads((out / "results.json").read_text())
+    return {"out": out, "first": first, "again": again, "killed": killed, "stamp": stamp, "cli_code": cli_code,
+            "cli_results": cli_results}
 
 
 def test_quick_mode_scores_the_rooms_against_the_ground_truth(batch):
@@ -100,6 +107,14 @@ def test_a_rerun_skips_finished_buildings(batch):
     again = batch["again"]["buildings"]
     assert [b["name"] for b in again] == ["tiny"] and again[0]["slice"] == {
         b["name"]: b for b in batch["first"]["buildings"]}["tiny"]["slice"]
+
+
+def test_command_line_runs_on_a_cluster_given_by_its_scheduler_address(batch):
+    assert batch["cli_code"] == 0
+    tiny = {b["name"]: b for b in batch["first"]["buildings"]}["tiny"]
+    assert [b["name"] for b in batch["cli_results"]["buildings"]] == ["tiny"]
+    assert batch["cli_results"]["buildings"][0]["slice"] == tiny["slice"]  # the finished building, not rerun
+    assert (batch["out"] / "tiny" / RESULT_FILE).stat().st_mtime_ns == batch["stamp"]
 
 
 def test_command_line_rejects_bad_flags(tmp_path, capsys):

@@ -413,3 +413,32 @@ def test_interrupted_cli_run_leaves_the_previous_outputs_as_they_were(tmp_path, 
     assert main(["slam", str(log), "--out", str(out), "--quiet"]) == 130
     assert sorted(p.name for p in out.iterdir()) == ["metrics.json"]
     assert (out / "metrics.json").read_text() == "{}"
+
+
+def test_6dof_keeps_the_height_where_the_scene_says_nothing_about_it():
+    """The room's four walls alone (no floor, ceiling or furniture): a cloud fixes x, y, yaw, roll and pitch, not
+    z. The height follows the prediction (the 2D prior's planar motion), and every tracking edge of the pose
+    graph keeps some information in every direction: an edge with none in z left the graph free to move whole
+    stretches of a building up or down by 10-18 m when a loop closed (issue 14's NLB and lab_f_scan)."""
+    from hsmap.posegraph import EdgeKind
+
+    rng = np.random.default_rng(3)
+    frames, truth = [], []
+    for i in range(12):
+        pose = np.array([2.5 + 0.3 * i, 2.5 + 0.1 * np.sin(i / 3), 0.0, 0.0, 0.0, 0.2 + 0.04 * i])
+        sensor = compose(pose, np.array([0.0, 0.0, 1.6, 0.0, 0.0, 0.0]))
+        world = room_cloud_3d(12000, viewpoint=sensor[:3], noise=0.005, rng=rng)
+        near_wall = np.minimum(np.minimum(world[:, 0], 8.0 - world[:, 0]), np.minimum(world[:, 1], 6.0 - world[:, 1]))
+        world = world[(near_wall < 0.02) & (world[:, 2] > 0.3) & (world[:, 2] < 2.5)]
+        frames.append(Frame(stamp=float(i), cloud3d=sensor_cloud(world, sensor), index=i,
+                            extrinsic3d=np.array([0, 0, 1.6, 0, 0, 0.0])))
+        truth.append(pose)
+    truth = np.asarray(truth)
+    prior = Trajectory(np.arange(12.0), truth[:, [0, 1, 5]])
+    slam = HsSlam(SlamConfig(dof=6), rng=1, initial_pose=truth[0], prior=prior)
+    for f in frames:
+        slam.process(f)
+    slam.finish()
+    assert np.abs(slam.trajectory.poses[:, 2]).max() < 0.01
+    edges = [e for e in slam.graph.edges if e.kind == EdgeKind.ODOMETRY]
+    assert edges and all(np.linalg.eigvalsh(e.information).min() > 0 for e in edges)

@@ -476,7 +476,8 @@ class HsSlam:
         self._anchor: list[int] = []  # per frame: the keyframe its pose is expressed in
         self._offset: list[NDArray[np.float64]] = []  # per frame: its pose in that keyframe's frame
         self._odometry_chain: list[NDArray[np.float64]] = []  # per keyframe: the tracking edge's measurement
-        self._closer = LoopCloser(lc, cfg.dof, cfg.effective_map_voxel(), map_average=cfg.map_average) if lc.enabled else None
+        self._closer = (LoopCloser(lc, cfg.dof, cfg.effective_map_voxel(), map_average=cfg.map_average)
+                        if lc.enabled else None)
         self._path: NDArray[np.float64] | None = None  # graph distances from the newest keyframe
         self._map_stale = False
         self._pending = 0  # loop edges added since the last optimisation
@@ -890,7 +891,7 @@ class HsSlam:
         self._map_stale = False
 
     def _keyframe_map(self, which) -> VoxelMap:
-        """A voxel map of the given keyframes at their current poses (the earliest point of a voxel kept)."""
+        """A voxel map of the given keyframes at their current poses (the first point or the mean per voxel)."""
         vm = VoxelMap(self.dim, self.config.effective_map_voxel(), average=self.config.map_average)
         pts, nrm = [], []
         for k in which:

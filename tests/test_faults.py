@@ -698,6 +698,30 @@ def test_reproduce_under_concurrency_interrupts_and_kills(tmp_path, capfd):
                for n in ("01-wait", "02-quick"))
 
 
+def test_an_interrupted_batch_drops_the_notebook_machinerys_last_words(caplog):
+    """Ctrl-C shuts the kernel down under a cell that still waits for its reply: nbclient then logs "Kernel
+    died while waiting for execute reply." and asyncio "Task exception was never retrieved" (a race that the
+    test above lost once in CI). Once the batch is interrupted, the machinery's loggers say nothing; before,
+    they are heard."""
+    import logging
+
+    from hsmap.study import batch
+
+    batch._quiet_papermill_log()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            with batch._marking_interrupts():
+                logging.getLogger("papermill").error("a cell failed")
+                os.kill(os.getpid(), signal.SIGINT)
+                time.sleep(5)  # the signal arrives before this ends
+        logging.getLogger("papermill").error("Kernel died while waiting for execute reply.")
+        logging.getLogger("asyncio").error("Task exception was never retrieved")
+        assert caplog.messages == ["a cell failed"]
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the terminal's Ctrl-C is back
+    finally:
+        batch._interrupted = False
+
+
 def _params(folder: Path, markers: list[Path]) -> Path:
     p = folder / "params.yaml"
     p.write_text(json.dumps({"notebooks": {"01": {"marker": str(markers[0])}, "02": {"marker": str(markers[1])}}}))

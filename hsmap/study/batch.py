@@ -45,6 +45,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
@@ -116,10 +117,23 @@ class _QuietDashComm(logging.Filter):
         return "comm target 'dash'" not in record.getMessage()
 
 
+class _QuietOnceInterrupted(logging.Filter):
+    """Drop every record once the batch is interrupted: the kernel is shut down under a cell that is still
+    waiting for its reply, and nbclient then logs "Kernel died while waiting for execute reply." and asyncio
+    "Task exception was never retrieved ... DeadKernelError" (when the task is collected, later). An
+    interrupted batch says one line, ``hsmap: interrupted``."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not _interrupted
+
+
 def _quiet_papermill_log() -> None:
-    log = logging.getLogger("papermill")
-    if not any(isinstance(f, _QuietDashComm) for f in log.filters):
-        log.addFilter(_QuietDashComm())
+    for name, quiet in (("papermill", (_QuietDashComm, _QuietOnceInterrupted)),
+                        ("asyncio", (_QuietOnceInterrupted,))):
+        log = logging.getLogger(name)
+        for cls in quiet:
+            if not any(isinstance(f, cls) for f in log.filters):
+                log.addFilter(cls())
 
 
 # --- discovery -----------------------------------------------------------------------------------------
@@ -661,12 +675,40 @@ def _escape(s: str) -> str:
 
 
 _busy = False  # a batch worker is running a notebook
+_interrupted = False  # this process's batch was interrupted: the notebook machinery's last words are dropped
 
 
 def _on_sigterm(signum, frame) -> None:
+    global _interrupted
     if _busy:
+        _interrupted = True
         raise KeyboardInterrupt  # execute_notebook shuts the kernel down and removes its staging folder
     os._exit(128 + signum)  # idle: nothing to clean up, and no traceback from the pool's queue
+
+
+@contextlib.contextmanager
+def _marking_interrupts():
+    """Ctrl-C in a batch that runs its notebooks in this process marks the interruption before it raises, so
+    that the notebook machinery's reports of the kernel it then shuts down are dropped (see
+    :class:`_QuietOnceInterrupted`). Only the main thread can take signals; elsewhere this does nothing."""
+    import signal
+
+    global _interrupted
+    _interrupted = False
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def on_sigint(signum, frame):
+        global _interrupted
+        _interrupted = True
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGINT, on_sigint)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _worker_signals() -> None:
@@ -1023,10 +1065,11 @@ def _run_all(order, out, common, per_nb, quick, jobs, timeout, verify_recordings
             env = {**base_env, **_kernel_env(s.name, jobs)}
             tasks.append((s, str(out), params, env, timeout, verify_recordings, versions))
         if jobs == 1:
-            for t in tasks:
-                entries[t[0].name].status = "running"
-                write_index(final=False)
-                finished(NotebookRun.from_dict(_worker(*t)))
+            with _marking_interrupts():
+                for t in tasks:
+                    entries[t[0].name].status = "running"
+                    write_index(final=False)
+                    finished(NotebookRun.from_dict(_worker(*t)))
         else:
             ctx = multiprocessing.get_context("spawn")
             pool = cf.ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=ctx,

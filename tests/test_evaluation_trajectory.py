@@ -219,6 +219,30 @@ def test_relations_interpolate_between_stamps():
     assert res6.translation[0] == pytest.approx(0, abs=1e-12) and res6.rotation[0] == pytest.approx(0, abs=1e-9)
 
 
+def test_relations_distance_scale_finds_a_trajectory_that_makes_distances_too_long():
+    # a winding route; its estimate is the truth with every step 1 % longer and a little heading noise
+    rng = np.random.default_rng(3)
+    n = 400
+    yaw = np.cumsum(rng.normal(0, 0.05, n))
+    steps = rng.uniform(0.05, 0.3, n)
+    xy = np.cumsum(np.column_stack([steps * np.cos(yaw), steps * np.sin(yaw)]), axis=0)
+    truth = np.column_stack([xy, yaw])
+    est_xy = np.cumsum(np.column_stack([1.01 * steps * np.cos(yaw), 1.01 * steps * np.sin(yaw)]), axis=0)
+    est = Trajectory(np.arange(n, dtype=float), compose(WORLD, np.column_stack([est_xy, yaw])))
+    i = rng.integers(0, n - 20, 300)
+    j = i + rng.integers(3, 20, 300)
+    rel = Relations(i.astype(float), j.astype(float), [relative(truth[a], truth[b]) for a, b in zip(i, j, strict=True)])
+    res = relations_error(est, rel)
+    assert res.distance_scale() == pytest.approx(1.01, abs=1e-9)
+    assert res.as_dict()["distance_scale"] == pytest.approx(1.01, abs=1e-9)
+    exact = relations_error(Trajectory(np.arange(n, dtype=float), truth), rel)
+    assert exact.distance_scale() == pytest.approx(1.0, abs=1e-12)
+    # relations shorter than min_distance do not count; none left: NaN (null in the JSON)
+    assert np.isnan(res.distance_scale(min_distance=100.0))
+    far = np.linalg.norm(res.reference, axis=1) >= 1.0
+    assert res.distance_scale(mask=far) == pytest.approx(1.01, abs=1e-9)
+
+
 def test_relations_unmatched_and_bad_trajectories():
     gt = Trajectory(np.arange(5.0), GT_POSES)
     rel = Relations([0, 1, 3, 20], [1, 2, 4, 21], [[1, 0, 0], [0, 0, math.pi / 2], [1, 0, 0], [1, 0, 0]])

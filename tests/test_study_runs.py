@@ -324,6 +324,9 @@ def test_freiburg_relations_over_seeds(datasets_dir, tmp_path, monkeypatch):
         {"log": "fr079", "method": "Cartographer", "source": "Hess 2016", "translation_m": [0.0452, 0.0354],
          "rotation_deg": [0.538, 0.718]}]}})
     assert "Cartographer (Hess 2016)" in table and "HS-SLAM, no loop closure" in table
+    # how long each makes the relations' distances (the odometry's wheels and the laser need not agree on scale)
+    assert all(0.9 < r["distance_scale"] < 1.1 for r in rows.values()), rows
+    assert "scale" in table.splitlines()[0]
 
 
 @pytest.mark.datasets

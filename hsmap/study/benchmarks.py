@@ -116,6 +116,8 @@ def _relations_numbers(traj, rel, skip_unmatched: bool) -> dict:
     out = {"all": part(dt >= 0), "short": part(dt <= SHORT_DT), "long": part(dt > LONG_DT),
            "translation_std_m": float(r.translation.std(ddof=1)) if r.translation.size > 1 else 0.0,
            "rotation_std_deg": float(rot.std(ddof=1)) if rot.size > 1 else 0.0}
+    scale = r.distance_scale()
+    out["distance_scale"] = float(scale) if np.isfinite(scale) else None
     out["dt_s"], out["errors_m"] = dt, r.translation
     return out
 
@@ -130,7 +132,8 @@ class FreiburgResults:
         One per log and method (``raw odometry``, ``HS-SLAM``, ``HS-SLAM, no loop closure``): ``log``, ``method``,
         ``mode`` (None for the odometry), ``seeds``, ``translation_m`` and ``rotation_deg`` as [mean over the
         seeds of the per-seed mean error, sd over the seeds], ``worst_m`` / ``worst_deg`` (the worst seed),
-        ``short_m`` / ``long_m`` (relations with dt <= 10 s / > 60 s, mean over the seeds), ``loops_closed``,
+        ``short_m`` / ``long_m`` (relations with dt <= 10 s / > 60 s, mean over the seeds), ``distance_scale``
+        (:meth:`hsmap.evaluation.trajectory.RelationsResult.distance_scale`, mean over the seeds), ``loops_closed``,
         ``frames_retried``, ``real_time_factor`` (mean over the seeds), ``relations``.
     runs : dict of (log, mode, seed) to SlamRun
     curves : dict of (log, method) to (dt, error) arrays of the first seed, for the error-against-dt figure
@@ -147,12 +150,13 @@ class FreiburgResults:
         carto = {m["log"]: m for m in (references or {}).get("freiburg_relations", {}).get("methods", [])
                  if m["method"] == "Cartographer"}
         lines = [f"{'log':10s}{'method':28s}{'seeds':>6s}{'trans [m] mean ± sd':>22s}{'worst':>8s}"
-                 f"{'rot [deg]':>18s}{'dt<=10s':>9s}{'dt>60s':>9s}{'loops':>7s}{'x real time':>12s}"]
+                 f"{'rot [deg]':>18s}{'dt<=10s':>9s}{'dt>60s':>9s}{'scale':>8s}{'loops':>7s}{'x real time':>12s}"]
         for r in self.rows:
             t, a = r["translation_m"], r["rotation_deg"]
             lines.append(f"{r['log']:10s}{r['method']:28s}{len(r['seeds']) or '-':>6}"
                          f"{t[0]:>13.4f} ± {t[1]:.4f}{r['worst_m']:>8.4f}{a[0]:>10.3f} ± {a[1]:.3f}"
-                         f"{_f(r['short_m']):>9s}{_f(r['long_m']):>9s}{_f(r['loops_closed'], '.0f'):>7s}"
+                         f"{_f(r['short_m']):>9s}{_f(r['long_m']):>9s}{_f(r.get('distance_scale')):>8s}"
+                         f"{_f(r['loops_closed'], '.0f'):>7s}"
                          f"{_f(r['real_time_factor'], '.1f'):>12s}")
             c = carto.get(r["log"])
             if c is not None and r["method"] == "HS-SLAM":
@@ -161,6 +165,11 @@ class FreiburgResults:
                              + (f"{c['rotation_deg'][0]:>10.3f} ± {c['rotation_deg'][1]:.3f}"
                                 if c.get("rotation_deg") else f"{'-':>18s}"))
         return "\n".join(lines)
+
+
+def _mean_scale(per) -> float | None:
+    v = [n["distance_scale"] for _, _, n in per if n["distance_scale"] is not None]
+    return float(np.mean(v)) if v else None
 
 
 def _f(v, fmt: str = ".4f") -> str:
@@ -205,7 +214,7 @@ def freiburg_relations(folder: str | os.PathLike, logs: Sequence[str] = tuple(FR
                          "worst_m": o["all"]["translation_m"], "worst_deg": o["all"]["rotation_deg"],
                          "short_m": o["short"]["translation_m"], "long_m": o["long"]["translation_m"],
                          "loops_closed": None, "frames_retried": None, "real_time_factor": None,
-                         "relations": o["all"]["relations"]})
+                         "distance_scale": o["distance_scale"], "relations": o["all"]["relations"]})
         out.curves[(name, "raw odometry")] = (o["dt_s"], o["errors_m"])
         modes = [("loop closure", seeds)] + ([("no loop closure", seeds[:1])] if compare_without_loop_closure else [])
         for mode, mode_seeds in modes:
@@ -244,6 +253,7 @@ def freiburg_relations(folder: str | os.PathLike, logs: Sequence[str] = tuple(FR
                 "loops_closed": float(np.mean([r.metrics.get("loops_closed", 0) for _, r, _ in per])),
                 "frames_retried": float(np.mean([r.metrics.get("frames_retried", 0) for _, r, _ in per])),
                 "real_time_factor": float(np.mean([r.real_time_factor for _, r, _ in per])),
+                "distance_scale": _mean_scale(per),
                 "relations": per[0][2]["all"]["relations"]})
     return out
 

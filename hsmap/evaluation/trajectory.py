@@ -234,7 +234,9 @@ class RelationsResult:
         minimises sum |t_est . u - k d|^2 over the scored relations of length d >= ``min_distance`` (u the
         relation's direction; ``mask`` over the scored relations selects some). 1.0: no scale error; 1.01: the
         trajectory's distances are 1 % too long, which over a kilometre is 10 m of drift that no rotation
-        explains (a range sensor and an odometry that disagree on scale). NaN when no relation qualifies."""
+        explains (a range sensor and an odometry that disagree on scale). Give it the short relations (a few
+        seconds apart): on a long relation a drifted trajectory's translation says nothing about scale. NaN
+        when no relation qualifies."""
         if self.estimated is None or self.reference is None:
             raise InputError("this RelationsResult holds no relative translations (made by relations_error)")
         est, ref = self.estimated, self.reference
@@ -267,8 +269,6 @@ class RelationsResult:
             "n_relations": int(self.used.sum()),
             "n_skipped": int((~self.used).sum()),
             "n_interpolated_stamps": int(self.n_interpolated),
-            **({"distance_scale": (k if np.isfinite(k := self.distance_scale()) else None)}
-               if self.estimated is not None else {}),
         }
 
 

@@ -116,7 +116,7 @@ def _relations_numbers(traj, rel, skip_unmatched: bool) -> dict:
     out = {"all": part(dt >= 0), "short": part(dt <= SHORT_DT), "long": part(dt > LONG_DT),
            "translation_std_m": float(r.translation.std(ddof=1)) if r.translation.size > 1 else 0.0,
            "rotation_std_deg": float(rot.std(ddof=1)) if rot.size > 1 else 0.0}
-    scale = r.distance_scale()
+    scale = r.distance_scale(mask=dt <= SHORT_DT)  # a long relation of a drifted run says nothing of scale
     out["distance_scale"] = float(scale) if np.isfinite(scale) else None
     out["dt_s"], out["errors_m"] = dt, r.translation
     return out
@@ -133,7 +133,8 @@ class FreiburgResults:
         ``mode`` (None for the odometry), ``seeds``, ``translation_m`` and ``rotation_deg`` as [mean over the
         seeds of the per-seed mean error, sd over the seeds], ``worst_m`` / ``worst_deg`` (the worst seed),
         ``short_m`` / ``long_m`` (relations with dt <= 10 s / > 60 s, mean over the seeds), ``distance_scale``
-        (:meth:`hsmap.evaluation.trajectory.RelationsResult.distance_scale`, mean over the seeds), ``loops_closed``,
+        (:meth:`hsmap.evaluation.trajectory.RelationsResult.distance_scale` over the relations with dt <= 10 s, mean
+        over the seeds), ``loops_closed``,
         ``frames_retried``, ``real_time_factor`` (mean over the seeds), ``relations``.
     runs : dict of (log, mode, seed) to SlamRun
     curves : dict of (log, method) to (dt, error) arrays of the first seed, for the error-against-dt figure

@@ -105,7 +105,7 @@ def freiburg_run(name: str, datasets: str, seed: int, max_frames: int | None, lo
             "all": {"translation_m": _stats(err.translation), "rotation_deg": _stats(rot)},
             "dt_le_10s": {"translation_m": _stats(err.translation[dt <= 10]), "rotation_deg": _stats(rot[dt <= 10])},
             "dt_gt_60s": {"translation_m": _stats(err.translation[dt > 60]), "rotation_deg": _stats(rot[dt > 60])},
-            # > 1: the run makes the relations' distances longer than they are (dt <= 10 s, 0.5 m or more)
+            # > 1: the run makes the relations' distances longer than they are (dt <= 10 s, 0.2 m or more)
             "distance_scale": _finite(err.distance_scale(mask=dt <= 10)),
         },
         "odometry_relations": odometry,

@@ -229,7 +229,7 @@ class RelationsResult:
     estimated: NDArray[np.float64] | None = None
     reference: NDArray[np.float64] | None = None
 
-    def distance_scale(self, min_distance: float = 0.5, mask: NDArray[np.bool_] | None = None) -> float:
+    def distance_scale(self, min_distance: float = 0.2, mask: NDArray[np.bool_] | None = None) -> float:
         """How much longer the trajectory makes the relations' distances: the least-squares factor k that
         minimises sum |t_est . u - k d|^2 over the scored relations of length d >= ``min_distance`` (u the
         relation's direction; ``mask`` over the scored relations selects some). 1.0: no scale error; 1.01: the

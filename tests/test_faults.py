@@ -708,6 +708,7 @@ def test_an_interrupted_batch_drops_the_notebook_machinerys_last_words(caplog):
     from hsmap.study import batch
 
     batch._quiet_papermill_log()
+    outer = signal.signal(signal.SIGINT, signal.default_int_handler)  # as in a terminal (pytest-xdist ignores it)
     try:
         with pytest.raises(KeyboardInterrupt):
             with batch._marking_interrupts():
@@ -718,7 +719,12 @@ def test_an_interrupted_batch_drops_the_notebook_machinerys_last_words(caplog):
         logging.getLogger("asyncio").error("Task exception was never retrieved")
         assert caplog.messages == ["a cell failed"]
         assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the terminal's Ctrl-C is back
+        # a process that ignores Ctrl-C (a batch worker) keeps ignoring it
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        with batch._marking_interrupts():
+            assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
     finally:
+        signal.signal(signal.SIGINT, outer)
         batch._interrupted = False
 
 

@@ -690,13 +690,15 @@ def _on_sigterm(signum, frame) -> None:
 def _marking_interrupts():
     """Ctrl-C in a batch that runs its notebooks in this process marks the interruption before it raises, so
     that the notebook machinery's reports of the kernel it then shuts down are dropped (see
-    :class:`_QuietOnceInterrupted`). Only the main thread can take signals; elsewhere this does nothing."""
+    :class:`_QuietOnceInterrupted`). Only the main thread can take signals, and only where Ctrl-C raises
+    KeyboardInterrupt (Python's default) is it taken over; elsewhere this does nothing."""
     import signal
 
     global _interrupted
     _interrupted = False
-    if threading.current_thread() is not threading.main_thread():
-        yield
+    if (threading.current_thread() is not threading.main_thread()
+            or signal.getsignal(signal.SIGINT) is not signal.default_int_handler):
+        yield  # a process that handles or ignores Ctrl-C its own way keeps its way
         return
 
     def on_sigint(signum, frame):

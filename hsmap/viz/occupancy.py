@@ -56,17 +56,21 @@ def occupancy_to_ros(grid: ArrayLike, convention: str = "auto") -> NDArray[np.ui
         out[v == 205] = 255
         return out
     if convention == "ros":
-        v = g.astype(np.int64)
-        if np.any((v < -1) | (v > 100)):
+        if int(g.min()) < -1 or int(g.max()) > 100:
             raise InputError("ROS occupancy values must lie in -1..100")
+        if g.dtype == np.int8:
+            return g.view(np.uint8).copy()  # -1 is 255 in the same byte; a large map, no int64 copies
+        v = g.astype(np.int64)
         return np.where(v < 0, 255, v).astype(np.uint8)
     raise InputError(f"unknown occupancy convention {convention!r}; use auto, occupied, probability, image, ros")
 
 
+_GREY = np.round(254 - np.minimum(np.arange(256), 100) * 254 / 100).astype(np.uint8)  # ROS value -> grey level
+_GREY[255] = 205  # unknown
+
+
 def _ros_to_image(ros: NDArray[np.uint8]) -> NDArray[np.uint8]:
-    img = np.round(254 - np.minimum(ros, 100).astype(float) * 254 / 100).astype(np.uint8)
-    img[ros == 255] = 205
-    return img
+    return _GREY[ros]  # one table look-up per cell: a hospital-sized map has millions
 
 
 def occupancy_to_image(grid: ArrayLike, convention: str = "auto") -> NDArray[np.uint8]:

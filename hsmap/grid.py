@@ -618,7 +618,8 @@ def grids_from_scan_prefixes(
         hr, hc = idx[ok, 0], idx[ok, 1]
         inside = (hr >= lo[0]) & (hr < hi[0]) & (hc >= lo[1]) & (hc < hi[1])
         swept[hr[inside] - lo[0], hc[inside] - lo[1]] = False  # a scan's own hits are no misses
-        logodds[lo[0]:hi[0], lo[1]:hi[1]] += cfg.miss * swept
+        box = logodds[lo[0]:hi[0], lo[1]:hi[1]]
+        np.add(box, cfg.miss, out=box, where=swept)  # in place, no box-sized temporary (a 30 m scan's is 1.4 M cells)
         touched[lo[0]:hi[0], lo[1]:hi[1]] |= swept
         np.add.at(logodds, (hr, hc), cfg.hit)
         touched[hr, hc] = True

@@ -77,11 +77,8 @@ def freiburg_run(name: str, datasets: str, seed: int, max_frames: int | None, lo
     cfg.loop_closure.enabled = loop_closure
     res = run_slam(frames, cfg, rng=seed, progress=False)
     rel = read_relations(Path(datasets) / "slam2d" / spec["relations"])
-    err = relations_error(res.trajectory, rel, skip_unmatched=max_frames is not None)
-    dt = np.abs(rel.t_j - rel.t_i)[err.used]
-    rot = np.degrees(err.rotation)
     stamps = np.array([f.stamp for f in frames])
-    odometry = _odometry_relations(frames, rel)
+    odometry = ds.odometry if max_frames is None else ds.odometry.head(max_frames)
     duration = float(stamps.max() - stamps.min())
     m = res.metrics()
     out = {
@@ -101,14 +98,9 @@ def freiburg_run(name: str, datasets: str, seed: int, max_frames: int | None, lo
         "loop_closure_detail": m["loop_closure_detail"],
         "frames_retried": m["frames_retried"],
         "odometry_model": m["odometry_model"],
-        "relations": {
-            "all": {"translation_m": _stats(err.translation), "rotation_deg": _stats(rot)},
-            "dt_le_10s": {"translation_m": _stats(err.translation[dt <= 10]), "rotation_deg": _stats(rot[dt <= 10])},
-            "dt_gt_60s": {"translation_m": _stats(err.translation[dt > 60]), "rotation_deg": _stats(rot[dt > 60])},
-            # > 1: the run makes the relations' distances longer than they are (dt <= 10 s, 0.2 m or more)
-            "distance_scale": _finite(err.distance_scale(mask=dt <= 10)),
-        },
-        "odometry_relations": odometry,
+        "relations": _relations(res.trajectory, rel, skip_unmatched=max_frames is not None),
+        # the raw wheel odometry, the same breakdown: what the scan matching adds
+        "odometry_relations": _relations(odometry, rel, skip_unmatched=True) if odometry is not None else None,
         "config": to_dict(cfg),
     }
     r = out["relations"]
@@ -120,24 +112,19 @@ def freiburg_run(name: str, datasets: str, seed: int, max_frames: int | None, lo
     return out
 
 
-def _finite(x: float) -> float | None:
-    return float(x) if np.isfinite(x) else None  # JSON has no NaN
-
-
-def _odometry_relations(frames: list, rel) -> dict | None:
-    """The relations error of the log's raw wheel odometry (the same breakdown): what the scan matching adds."""
-    from hsmap.trajectory import Trajectory
-
-    odo = [(f.stamp, f.odometry) for f in frames if f.odometry is not None]
-    if len(odo) < 2:
-        return None
-    traj = Trajectory(np.array([t for t, _ in odo]), np.array([p for _, p in odo]))
-    err = relations_error(traj, rel, skip_unmatched=True)
+def _relations(traj, rel, skip_unmatched: bool) -> dict:
+    """The relations error of a trajectory, all and split by dt (<= 10 s, > 60 s), with its distance scale."""
+    err = relations_error(traj, rel, skip_unmatched=skip_unmatched)
     dt = np.abs(rel.t_j - rel.t_i)[err.used]
     rot = np.degrees(err.rotation)
-    return {part: {"translation_m": _stats(err.translation[m]), "rotation_deg": _stats(rot[m])}
-            for part, m in (("all", dt >= 0), ("dt_le_10s", dt <= 10), ("dt_gt_60s", dt > 60)) if m.any()
-            } | {"distance_scale": _finite(err.distance_scale(mask=dt <= 10))}
+    scale = err.distance_scale(mask=dt <= 10)
+    return {
+        part: {"translation_m": _stats(err.translation[m]), "rotation_deg": _stats(rot[m])}
+        for part, m in (("all", dt >= 0), ("dt_le_10s", dt <= 10), ("dt_gt_60s", dt > 60))
+    } | {
+        # > 1: the trajectory makes the relations' distances longer than they are (dt <= 10 s, 0.2 m or more)
+        "distance_scale": float(scale) if np.isfinite(scale) else None,  # JSON has no NaN
+    }
 
 
 def summarise_seeds(runs: list[dict], spec: dict) -> dict:
@@ -151,11 +138,9 @@ def summarise_seeds(runs: list[dict], spec: dict) -> dict:
     for q in ("real_time_factor", "wall_seconds", "cpu_seconds", "peak_memory_mb", "loops_closed", "frames_retried"):
         v = np.array([r[q] for r in runs], dtype=float)
         out[q] = {"mean": float(v.mean()), "min": float(v.min()), "max": float(v.max())}
-    v = np.array([np.nan if r["relations"]["distance_scale"] is None else r["relations"]["distance_scale"]
-                  for r in runs], dtype=float)
-    out["distance_scale"] = {"mean": float(np.nanmean(v)) if np.isfinite(v).any() else None,
-                             "min": float(np.nanmin(v)) if np.isfinite(v).any() else None,
-                             "max": float(np.nanmax(v)) if np.isfinite(v).any() else None}
+    v = np.array([r["relations"]["distance_scale"] for r in runs if r["relations"]["distance_scale"] is not None])
+    out["distance_scale"] = ({"mean": float(v.mean()), "min": float(v.min()), "max": float(v.max())} if v.size
+                             else {"mean": None, "min": None, "max": None})
     out["odometry_relations"] = runs[0].get("odometry_relations")  # the same log, the same odometry every seed
     t = out["all.translation_m"]
     car_m, car_deg = spec.get("cartographer_m"), spec.get("cartographer_deg")

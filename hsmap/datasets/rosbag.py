@@ -874,7 +874,7 @@ def _monotone(stamps: NDArray[np.float64]) -> NDArray[np.float64]:
     first = np.flatnonzero(start)
     length = np.diff(np.r_[first, len(t)])
     k = np.arange(len(t)) - first[run]
-    prev = np.r_[t[0] - 0.0, t[first[1:] - 1]][run]
+    prev = np.r_[t[0], t[first[1:] - 1]][run]
     spread = length[run] > 1
     out = t.copy()
     out[spread] = prev[spread] + (t[spread] - prev[spread]) * (k[spread] + 1) / length[run][spread]

@@ -678,11 +678,16 @@ _busy = False  # a batch worker is running a notebook
 _interrupted = False  # this process's batch was interrupted: the notebook machinery's last words are dropped
 
 
-def _on_sigterm(signum, frame) -> None:
+def _interrupt(signum=None, frame=None) -> None:
+    """Mark this process's batch interrupted, then raise KeyboardInterrupt (a signal handler)."""
     global _interrupted
+    _interrupted = True
+    raise KeyboardInterrupt
+
+
+def _on_sigterm(signum, frame) -> None:
     if _busy:
-        _interrupted = True
-        raise KeyboardInterrupt  # execute_notebook shuts the kernel down and removes its staging folder
+        _interrupt()  # execute_notebook shuts the kernel down and removes its staging folder
     os._exit(128 + signum)  # idle: nothing to clean up, and no traceback from the pool's queue
 
 
@@ -701,12 +706,7 @@ def _marking_interrupts():
         yield  # a process that handles or ignores Ctrl-C its own way keeps its way
         return
 
-    def on_sigint(signum, frame):
-        global _interrupted
-        _interrupted = True
-        raise KeyboardInterrupt
-
-    previous = signal.signal(signal.SIGINT, on_sigint)
+    previous = signal.signal(signal.SIGINT, _interrupt)
     try:
         yield
     finally:

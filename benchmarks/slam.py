@@ -95,6 +95,7 @@ def freiburg_run(name: str, datasets: str, seed: int, max_frames: int | None, lo
         "keyframes": m["keyframes"],
         "loop_closure": m["loop_closure"],
         "loops_closed": m["loops_closed"],
+        "pair_edges": m["pair_edges"],
         "loop_closure_detail": m["loop_closure_detail"],
         "frames_retried": m["frames_retried"],
         "odometry_model": m["odometry_model"],
@@ -135,7 +136,8 @@ def summarise_seeds(runs: list[dict], spec: dict) -> dict:
             v = np.array([r["relations"][part][q]["mean"] for r in runs])
             out[f"{part}.{q}"] = {"mean": float(v.mean()), "sd": float(v.std(ddof=1)) if v.size > 1 else 0.0,
                                   "worst": float(v.max())}
-    for q in ("real_time_factor", "wall_seconds", "cpu_seconds", "peak_memory_mb", "loops_closed", "frames_retried"):
+    for q in ("real_time_factor", "wall_seconds", "cpu_seconds", "peak_memory_mb", "loops_closed", "pair_edges",
+              "frames_retried"):
         v = np.array([r[q] for r in runs], dtype=float)
         out[q] = {"mean": float(v.mean()), "min": float(v.min()), "max": float(v.max())}
     v = np.array([r["relations"]["distance_scale"] for r in runs if r["relations"]["distance_scale"] is not None])

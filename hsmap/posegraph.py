@@ -6,10 +6,11 @@ measurements ``z_ij`` (the pose of node j in the frame of node i) with an inform
 convention of :attr:`hsmap.registration.RegistrationResult.information`, so a registration's information goes
 into an edge as it is.
 
-Edges are of three kinds: ``odometry`` (consecutive keyframes, from tracking), ``loop`` (loop closures: these
+Edges are of four kinds: ``odometry`` (consecutive keyframes, from tracking), ``loop`` (loop closures: these
 take a robust Cauchy kernel, and :meth:`PoseGraph.optimize` switches off those whose residual stays beyond a
-chi-square gate after optimisation, so that a false closure cannot bend the map) and ``prior`` (absolute
-poses, unary).
+chi-square gate after optimisation, so that a false closure cannot bend the map), ``pair`` (scan-to-scan
+registrations between two overlapping keyframes, Lu and Milios 1997; robust and gated as loops are) and
+``prior`` (absolute poses, unary).
 
 GTSAM (``gtsam`` on PyPI) is used for the optimisation: it is the maintained, widely used factor-graph library
 with Python wheels, SE(2) and SE(3) between-factors, robust noise models and Levenberg-Marquardt; g2o's Python
@@ -41,7 +42,13 @@ class OptimizationError(HsmapError):
 class EdgeKind(enum.StrEnum):
     ODOMETRY = "odometry"
     LOOP = "loop"
+    PAIR = "pair"
     PRIOR = "prior"
+
+    @property
+    def matched(self) -> bool:
+        """A place matched by registration (loop or pair): under the robust kernel and the chi-square gate."""
+        return self in (EdgeKind.LOOP, EdgeKind.PAIR)
 
 
 @dataclass
@@ -255,7 +262,7 @@ class PoseGraph:
         worst, worst_chi2 = None, self.gate
         for k, e in enumerate(es):
             e.chi2 = float(c2[k])
-            if e.kind == EdgeKind.LOOP and e.active and e.chi2 > worst_chi2:
+            if e.kind.matched and e.active and e.chi2 > worst_chi2:
                 worst, worst_chi2 = k, e.chi2
         return worst
 
@@ -309,7 +316,7 @@ class PoseGraph:
         f = self._factors[k]
         if f is None:
             e = self.edges[k]
-            noise = self._noise(gtsam, e.information, robust=e.kind == EdgeKind.LOOP and e.robust)
+            noise = self._noise(gtsam, e.information, robust=e.kind.matched and e.robust)
             z = self._to_gtsam(gtsam, e.measurement)
             if e.kind == EdgeKind.PRIOR:
                 f = (gtsam.PriorFactorPose2 if self.dof == 3 else gtsam.PriorFactorPose3)(e.i, z, noise)

@@ -67,6 +67,21 @@ def test_false_loop_edge_is_switched_off():
     assert len(g.loop_edges()) == 1 and len(g.loop_edges(active_only=False)) == 2
 
 
+@pytest.mark.parametrize("kind", [EdgeKind.LOOP, EdgeKind.PAIR])
+def test_a_false_matched_edge_is_switched_off_whatever_its_kind(kind):
+    """Pair edges (scan-to-scan) are judged as loop edges are: robust kernel, chi-square gate; odometry is not."""
+    rng = np.random.default_rng(1)
+    truth = square_loop()
+    g = drifting_chain(truth, rng, yaw_bias=np.deg2rad(0.05))
+    n = len(truth)
+    g.add_edge(0, n - 1, relative(truth[0], truth[-1]), INFO2, EdgeKind.LOOP)
+    bad = g.add_edge(15, 35, np.array([1.5, 0.0, np.pi]), INFO2, kind)
+    out = g.optimize()
+    assert out.status == "ok" and bad in out.rejected and not g.edges[bad].active
+    assert kind.matched and not EdgeKind.ODOMETRY.matched and not EdgeKind.PRIOR.matched
+    assert len(g.loop_edges(active_only=False)) == 1 + (kind == EdgeKind.LOOP)  # loops only: pairs are no loops
+
+
 def test_se3_graph():
     rng = np.random.default_rng(2)
     truth2 = square_loop(6)

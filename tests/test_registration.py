@@ -245,6 +245,30 @@ def test_robust_kernel_and_refine_seeds():
         RegistrationConfig(refine_seeds=-1)
 
 
+def test_refine_reach_keeps_the_refinement_within_the_search_resolution():
+    """The refinement's pose is kept when it stays within ``refine_reach`` of the search's, whatever the truncated
+    cost says; with a reach of 0 the cost alone decides (then the search's pose may stand)."""
+    from hsmap.registration import refine_icp
+
+    p0 = np.array([4.0, 3.0, 0.0])
+    src, tgt, truth = scan_pair_2d(p0, p0 + [0.3, -0.2, 0.2], seed=8)
+    target = RegistrationTarget(tgt)
+    free = harmony_icp(src, target, initial_guesses=[truth], config=RegistrationConfig(refine_reach=10.0), rng=0)
+    kept = free.pose  # the refinement from the search's pose
+    assert free.refined
+    again = refine_icp(np.asarray(src), target, free.global_pose, max_distance=0.1, start_distance=0.5,
+                       iterations=30, method="point-to-plane")
+    np.testing.assert_allclose(kept, again, atol=1e-9)
+    for reach in (None, 0.0):
+        res = harmony_icp(src, target, initial_guesses=[truth], config=RegistrationConfig(refine_reach=reach), rng=0)
+        t_err, r_err = errors(res.pose, truth)
+        assert t_err < 0.02 and r_err < 0.5
+    with pytest.raises(ConfigError, match="registration.refine_reach"):
+        RegistrationConfig(refine_reach=-0.1)
+    with pytest.raises(ConfigError, match="registration.refine_reach"):
+        RegistrationConfig(refine_reach=float("nan"))
+
+
 def test_3d_refinement_on_a_nearest_point_field():
     """A 3D target whose field keeps nearest points (normals given): refine_icp takes its correspondences from
     the field, then polishes on exact ones, and lands where the exact refinement lands."""

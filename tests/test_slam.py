@@ -289,6 +289,9 @@ def test_points_on_one_line_are_unusable():
     (dict(map_voxel=0.0), "slam.map_voxel must be None or > 0"),
     (dict(odometry_scale_bounds=(2.0, 1.0)), "slam.odometry_scale_bounds must be two numbers 0 < low <= high"),
     (dict(odometry_window=0), "slam.odometry_window must be an integer >= 1"),
+    (dict(loop_closure={"pair_edges": -1}), "slam.loop_closure.pair_edges must be an integer >= 0"),
+    (dict(loop_closure={"pair_edges": 2.5}), "slam.loop_closure.pair_edges must be a whole number"),
+    (dict(loop_closure={"pair_distance": float("nan")}), "slam.loop_closure.pair_distance must be a number"),
 ])
 def test_bad_config(kwargs, match):
     with pytest.raises(ConfigError, match=match):

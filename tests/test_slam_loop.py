@@ -95,6 +95,8 @@ def test_loop_closes_on_the_ring(ring, tmp_path):
                      progress=False)
     m = closed.metrics()
     assert m["loop_closure"] == "ok" and m["loops_closed"] >= 1
+    # scan-to-scan edges between overlapping keyframes, none where the pose graph is off
+    assert m["pair_edges"] > 0 and m["loop_closure_detail"]["pair_edges"] == m["pair_edges"]
     # without loop closure the featureless side drifts with the odometry (5 % too long)
     drift = route_error(open_.trajectory, route)
     assert drift > 0.1
@@ -109,11 +111,12 @@ def test_loop_closes_on_the_ring(ring, tmp_path):
     # 5 mm / 0.1 deg, floors meant for real sensors, far above this scene's 1 mm): the largest error along the
     # route shrinks, it does not vanish
     assert route_error(closed.trajectory, route) < 0.75 * drift
-    assert open_.metrics()["loop_closure"] == "disabled"
+    assert open_.metrics()["loop_closure"] == "disabled" and open_.metrics()["pair_edges"] == 0
     # trajectory.tum holds the optimised poses, metrics.json the loop-closure counts
     paths = write_slam_outputs(closed, tmp_path)
     written = json.loads(paths["metrics"].read_text())
     assert written["loops_closed"] == m["loops_closed"] and written["loop_closure"] == "ok"
+    assert written["pair_edges"] == m["pair_edges"]
     assert "frames_retried" in written
     from hsmap.trajectory import read_tum
 

@@ -139,7 +139,7 @@ def run(args: argparse.Namespace) -> int:
         m = result.metrics()
         summary = {k: m[k] for k in ("input", "dof", "frames", "skipped_frames", "keyframes", "map_points",
                                      "seconds_total", "seconds_per_frame_median", "real_time_factor",
-                                     "peak_memory_mb", "loop_closure", "loops_closed", "frames_retried")}
+                                     "peak_memory_mb", "loop_closure", "loops_closed", "pair_edges", "frames_retried")}
         json.dump(summary, sys.stderr, indent=2)
         sys.stderr.write(f"\nwrote {out}/{{trajectory.tum, map.ply, metrics.json, config.yaml"
                          f"{'' if args.no_recording else ', slam.rrd'}}}\n")

@@ -368,7 +368,8 @@ def _read_metrics(path: Path) -> dict | None:
 def _slam_summary(run) -> dict:
     m = run.metrics
     keys = ("frames", "keyframes", "map_points", "seconds_total", "cpu_seconds_total", "real_time_factor",
-            "inlier_ratio_median", "frames_retried", "frames_unverified", "loop_closure", "loops_closed", "prior")
+            "inlier_ratio_median", "frames_retried", "frames_unverified", "loop_closure", "loops_closed", "pair_edges",
+            "prior")
     return {k: m.get(k) for k in keys}
 
 

@@ -803,7 +803,7 @@ class HsSlam:
         for i in near[np.argsort(dist[near], kind="stable")][: lc.pair_edges]:
             target = self._keyframe_target(int(i))
             z = refine_icp(source, target, relative(P[i], P[k]), max_distance=reg.threshold,
-                           iterations=reg.refine_iterations, method=reg.refinement, robust_kernel=reg.robust_kernel)
+                           iterations=lc.pair_iterations, method=reg.refinement, robust_kernel=reg.robust_kernel)
             info, _, n = alignment_information(source, target, z, reg.threshold, reg.robust_kernel)
             if n < lc.min_inlier_ratio * len(source):
                 continue  # too little overlap

@@ -88,12 +88,11 @@ def test_map_of_a_robot_recording(recording):
     print(f"2D HS-SLAM: {100 * e2:.2f} cm, {y2:.3f} deg; 6-DOF: {100 * e3:.2f} cm, {y3:.3f} deg")
     assert e3 < 0.02 and y3 < 0.5
     assert np.abs(t3.poses[:, 2]).max() < 0.02 and np.degrees(np.abs(t3.poses[:, 3:5]).max()) < 0.5
-    # issue 13 asks 2 cm, which 2D HS-SLAM does not meet on this route: a heading drift from the registrations'
-    # noise (1 cm range noise; noise-free scans give 0.5 cm), not the reader. Over the bags of seeds 1-6 (the
-    # route's noise drawn anew), the largest 2D error is 1.5-7.2 cm, mean 4.0 cm (this bag, seed 1: 6-7 cm);
-    # with the first point per map voxel instead of the mean it was 1.9-9.3 cm, mean 4.3 cm (this bag: 3.1 cm).
-    # The bound is the worst seen, not this bag's figure.
-    assert e2 < 0.08 and y2 < 0.6
+    # issue 13 asks 2 cm, which 2D HS-SLAM meets on average on this route but not on every run: over the bags of
+    # seeds 1-6 (the route's noise drawn anew) and SLAM seeds 0-4, the largest 2D error is 0.9-2.8 cm, mean 1.6 cm,
+    # 73 % of the runs under 2 cm (with pair edges; 1.1-7.2 cm, mean 3.2 cm, without). It is a heading error from
+    # the registrations' noise (1 cm range noise; noise-free scans give 0.5 cm). The bound is the worst seen.
+    assert e2 < 0.03 and y2 < 0.5
 
     # rooms and doors of the slice: the world's three rooms and two doors
     assert m["slice"]["rooms"] == 3 and m["slice"]["doors"] == 2

@@ -26,9 +26,11 @@ over the local map is rebuilt before the next registration.
 
 Loop closure (on by default, :class:`hsmap.loopclosure.LoopClosureConfig`): every keyframe is a node of a pose
 graph (:class:`hsmap.posegraph.PoseGraph`), tied to the previous keyframe by the tracking's relative pose and the
-registration's information. Each new keyframe is matched by Harmony-ICP against older submaps within a search
-window that grows with the graph distance between them; verified matches become loop edges and the graph is
-optimised (GTSAM). The tracking map then holds only the keyframes within ``tracking_path_distance`` of the newest
+registration's information, and to up to ``pair_edges`` earlier keyframes that overlap it by scan-to-scan
+refinements (pair edges, after Lu and Milios 1997: a chain of tracking edges adds up the registrations' heading
+noise, the overlapping pairs average it). Each new keyframe is matched by Harmony-ICP against older submaps within
+a search window that grows with the graph distance between them; verified matches become loop edges and the graph
+is optimised (GTSAM). The tracking map then holds only the keyframes within ``tracking_path_distance`` of the newest
 one along the graph, at their optimised poses: places whose relative pose is known, so that an old, drifted map
 never pulls the tracking before its loop is closed.
 

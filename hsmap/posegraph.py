@@ -239,6 +239,7 @@ class PoseGraph:
             if not (np.isfinite(after) and np.all(np.isfinite(poses))):
                 return OptimizationResult("failed", message="the optimisation gave non-finite poses")
             result = OptimizationResult("ok", opt.iterations(), float(before), float(after), rejected)
+            poses[fixed] = self._P[fixed]  # the gauge exactly: its prior lets the solver move it by rounding noise
             self._P[: self._n] = poses
             worst = self._update_chi2()
             if worst is None:

@@ -42,8 +42,10 @@ def test_loop_edge_removes_drift():
     before = np.linalg.norm(relative(g.poses[0], g.poses[-1])[:2] - relative(truth[0], truth[-1])[:2])
     assert before > 0.5
     g.add_edge(0, n - 1, relative(truth[0], truth[-1]), INFO2, EdgeKind.LOOP)
+    gauge = g.poses[0].copy()
     out = g.optimize()
     assert out.status == "ok" and not out.rejected
+    assert np.array_equal(g.poses[0], gauge)  # bit for bit: a run's first pose is where it was put
     after = np.linalg.norm(relative(g.poses[0], g.poses[-1])[:2] - relative(truth[0], truth[-1])[:2])
     assert after < 0.02
     assert out.error_after < out.error_before

@@ -95,9 +95,9 @@ class LoopClosureConfig:
         Floors added to the covariance of every edge (tracking and loop): registration information treats every
         point as an independent measurement and is overconfident.
     pair_edges : int
-        Scan-to-scan edges per new keyframe (Lu and Milios 1997; 0, the default: none): the keyframe's points are refined
-        (point-to-plane, from the graph's current relative pose) against each of up to this many earlier keyframes
-        within ``pair_distance`` of it, the nearest first (the previous keyframe, tied by its tracking edge,
+        Scan-to-scan edges per new keyframe (Lu and Milios 1997; 0, the default: none): the keyframe's points are
+        refined (point-to-plane, from the graph's current relative pose) against each of up to this many earlier
+        keyframes within ``pair_distance`` of it, the nearest first (the previous keyframe, tied by its tracking edge,
         excluded), and each match with ``min_inlier_ratio`` of the points within the registration threshold
         becomes a ``pair`` edge. A loop edge matches against a submap of tracked keyframes and carries their
         drift; a single keyframe carries none, and the many overlapping pairs average the registrations' noise
@@ -191,9 +191,9 @@ class LoopClosureConfig:
         for name in ("max_distance", "window_translation", "window_growth", "max_window_translation",
                      "window_rotation", "window_rotation_growth", "max_window_rotation", "window_z",
                      "window_roll_pitch", "max_sigma_translation", "max_sigma_rotation", "edge_sigma_translation",
-                     "edge_sigma_rotation", "pair_distance", "tracking_path_distance", "optimize_threshold_translation",
-                     "optimize_threshold_rotation", "max_far_window_translation", "far_agreement_translation",
-                     "far_agreement_rotation"):
+                     "edge_sigma_rotation", "pair_distance", "tracking_path_distance",
+                     "optimize_threshold_translation", "optimize_threshold_rotation", "max_far_window_translation",
+                     "far_agreement_translation", "far_agreement_rotation"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float, np.floating)) and np.isfinite(v) and v >= 0):
                 raise ConfigError(f"slam.loop_closure.{name} must be a finite number >= 0, got {v!r}")
@@ -205,14 +205,12 @@ class LoopClosureConfig:
             raise ConfigError(f"slam.loop_closure.far_ambiguity must be in (0, 1], got {self.far_ambiguity!r}")
         if not 0.0 <= self.min_inlier_ratio <= 1.0:
             raise ConfigError(f"slam.loop_closure.min_inlier_ratio must be in [0, 1], got {self.min_inlier_ratio!r}")
-        if not isinstance(self.pair_edges, (int, np.integer)) or isinstance(self.pair_edges, bool) \
-                or self.pair_edges < 0:
-            raise ConfigError(f"slam.loop_closure.pair_edges must be an integer >= 0, got {self.pair_edges!r}")
-        for name in ("pair_iterations", "submap_keyframes", "source_keyframes", "min_separation", "attempts_per_keyframe",
-                     "search_every", "retry_after", "optimize_every", "far_every", "far_corroborate_within"):
-            v = getattr(self, name)
-            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 1:
-                raise ConfigError(f"slam.loop_closure.{name} must be an integer >= 1, got {v!r}")
+        for name in ("pair_edges", "pair_iterations", "submap_keyframes", "source_keyframes", "min_separation",
+                     "attempts_per_keyframe", "search_every", "retry_after", "optimize_every", "far_every",
+                     "far_corroborate_within"):
+            v, low = getattr(self, name), 0 if name == "pair_edges" else 1
+            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < low:
+                raise ConfigError(f"slam.loop_closure.{name} must be an integer >= {low}, got {v!r}")
 
 
 @dataclass

@@ -672,6 +672,13 @@ def _refine_reach(cfg: RegistrationConfig, lookup, dim: int) -> float:
     return lookup.resolution if isinstance(lookup, DistanceField) else max(0.02, cfg.search_threshold / 10)
 
 
+def _within(a: NDArray[np.float64], b: NDArray[np.float64], reach: NDArray[np.float64], dim: int) -> bool:
+    """Whether pose ``b`` lies within ``reach`` (per pose component) of pose ``a``, in ``a``'s frame."""
+    moved = np.abs(relative(a, b))
+    moved[dim:] = np.abs(wrap_angle(moved[dim:]))
+    return bool(np.all(moved <= reach))
+
+
 @blas_limited
 @threads_limited
 def harmony_icp(
@@ -798,9 +805,7 @@ def harmony_icp(
                               robust_kernel=cfg.robust_kernel)
             cand_match = _match(cand, full, tgt, cfg.threshold)
             cost = _cost_of(cand_match, tgt, cfg.threshold, plane)
-            moved = np.abs(relative(global_pose, cand))
-            moved[dim:] = np.abs(wrap_angle(moved[dim:]))
-            if cost <= best_cost + 1e-12 or (not refined and np.all(moved <= reach)):
+            if cost <= best_cost + 1e-12 or (not refined and reach.any() and _within(global_pose, cand, reach, dim)):
                 pose, best_cost, refined, match = cand, cost, True, cand_match
     pose = pose.copy()
     pose[dim:] = wrap_angle(pose[dim:])  # the same transform: `match` still holds

@@ -445,3 +445,39 @@ def test_6dof_keeps_the_height_where_the_scene_says_nothing_about_it():
     assert np.abs(slam.trajectory.poses[:, 2]).max() < 0.01
     edges = [e for e in slam.graph.edges if e.kind == EdgeKind.ODOMETRY]
     assert edges and all(np.linalg.eigvalsh(e.information).min() > 0 for e in edges)
+
+
+def test_a_retried_registration_stays_in_the_box_it_searched(monkeypatch):
+    """In a corridor the retry's refinement may slide along the axis the walls leave free; what it returns is
+    kept within the prediction's box, so the odometry, not the slide, carries the pose along the corridor."""
+    import hsmap.slam as slam_module
+    from hsmap.registration import RegistrationTarget, harmony_icp
+
+    walls = np.array([((-20.0, y), (20.0, y)) for y in (-0.8, 0.8)])
+    truth = np.array([0.0, 0.0, 0.0])
+    rng = np.random.default_rng(3)
+    r, a = raycast_2d(walls, truth, noise=0.005, rng=rng)
+    frame = Frame(stamp=1.0, scan2d=LaserScan2D(r, a, 0.05, 10.0), odometry=truth.copy(), index=1)
+    scan = slam_module.frame_points(frame, 3, 0.1, 30.0, 0.03)
+    slam = HsSlam(SlamConfig(), rng=0)
+    slam._target = RegistrationTarget(np.vstack([np.column_stack([np.linspace(-15, 15, 601), np.full(601, y)])
+                                                 for y in (-0.8, 0.8)]), slam.config.registration)
+    sig = np.array([0.02, np.deg2rad(1.0)])
+    monkeypatch.setattr(slam, "prediction", lambda frame, gate=False: (truth.copy(), sig))
+    first = harmony_icp(scan, slam._target, initial_guesses=[[0.9, 0.0, 0.0]], config=slam.config.registration,
+                        rng=1)
+    first = dataclasses.replace(first, pose=np.array([0.9, first.pose[1], first.pose[2]]))  # 0.9 m along
+    slid = dataclasses.replace(first, pose=np.array([0.5, 0.002, 0.0005]))  # the retry's refinement slid too
+    monkeypatch.setattr(slam_module, "harmony_icp", lambda *a, **k: slid)
+    kept, retried, _ = slam._verify(frame, scan, first)
+    half = np.array([3 * sig[0], 3 * sig[0], 3 * sig[1]])
+    assert retried
+    np.testing.assert_allclose(kept.pose, [half[0], 0.002, 0.0005])  # x at the box's edge, y and yaw as found
+    np.testing.assert_allclose(kept.transformation[:2, 2], kept.pose[:2])
+    # a result inside the box is returned as it is
+    inside = dataclasses.replace(first, pose=np.array([0.03, -0.01, 0.01]))
+    assert slam_module._within_box(inside, truth, half, 2) is inside
+    # the box is the search's, in world axes, and yaw wraps
+    out = slam_module._within_box(dataclasses.replace(first, pose=np.array([1.0, -1.0, np.pi - 0.01])),
+                                  np.array([0.0, 0.0, -np.pi + 0.01]), np.array([0.1, 0.2, 0.05]), 2)
+    np.testing.assert_allclose(out.pose, [0.1, -0.2, np.pi - 0.01])

@@ -198,6 +198,15 @@ def test_grids_of_scan_prefixes_in_one_pass():
     assert not np.array_equal(grids[1].data, grids[4].data)
     with pytest.raises(InputError, match="counts"):
         grids_from_scan_prefixes(scans, poses, [2, 1], geometry=geo)
+    # max_cells: the same room on a coarser grid that fits, and untouched where 5 cm cells already fit
+    small = grids_from_scan_prefixes(scans, poses, [4], 0.05, max_cells=geo.height * geo.width // 4)[0]
+    assert small.geometry.height * small.geometry.width <= geo.height * geo.width // 4
+    assert 0.1 <= small.geometry.resolution < 0.11
+    assert abs(small.free.sum() * small.geometry.resolution**2 - grids[4].free.sum() * 0.05**2) < 1.0
+    same = grids_from_scan_prefixes(scans, poses, [4], 0.05, max_cells=geo.height * geo.width)[0]
+    assert same.geometry == geo and np.array_equal(same.data, grids[4].data)
+    with pytest.raises(InputError, match="max_cells"):
+        grids_from_scan_prefixes(scans, poses, [4], max_cells=0)
 
 
 def test_grid_from_scans_bad_input():

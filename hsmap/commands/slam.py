@@ -55,6 +55,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 #: The files ``hsmap slam`` writes into --out (their stale temporaries are removed by the next run).
 OUTPUTS = ("trajectory.tum", "map.ply", "config.yaml", "metrics.json", "slam.rrd")
+# the recording's growing 2D map: 5 cm cells up to a 2000 x 2000 image (a building such as intel or fr079), coarser
+# beyond (fr-clinic's 444 m x 237 m at 5 cm are 42 million cells a grid: a sixth of the run's time went into drawing
+# and logging eleven of them)
+REPLAY_GRID_CELLS = 4_000_000
 
 
 def run(args: argparse.Namespace) -> int:
@@ -189,7 +193,8 @@ def _log_replay(rec, keyscans, result, grid_updates: int = 10, path_updates: int
             # come in stamp order: the scans up to a time are a prefix)
             at = sorted(set(np.linspace(0, n - 1, grid_updates).round().astype(int)) - {n - 1})
             counts = [int((kstamps <= stamps[r]).sum()) for r in at]
-            *partial, grid = grids_from_scan_prefixes(scans, kposes, [*counts, len(kept)], 0.05, extrinsic=ext)
+            *partial, grid = grids_from_scan_prefixes(scans, kposes, [*counts, len(kept)], 0.05, extrinsic=ext,
+                                                      max_cells=REPLAY_GRID_CELLS)
             geo = grid.geometry
             grids = {**dict(zip(at, partial, strict=True)), n - 1: grid}
     grid_at = set(grids) if geo is not None else set()

@@ -3,7 +3,8 @@
 1. ``intel``, ``fr079`` and ``fr-clinic`` (the ROS1 ``.orig.bag`` files of $HSMAP_DATASETS/slam2d): 2D HS-SLAM
    with the command line's default configuration (odometry from the bag, loop closure on) over the whole log, one
    run per seed (``--seeds``, default 1-5), the seeds a batch of the study's Dask runner (``--jobs`` worker
-   processes, the runner of ``hsmap benchmark buildings``; each seed's record in ``reports/benchmarks/slam/runs/``). Per
+   processes, the runner of ``hsmap benchmark buildings``, each run on ``--threads`` compute threads, by default
+   the cores shared among the jobs; each seed's record in ``reports/benchmarks/slam/runs/``). Per
    seed: the Freiburg relations error (mean and sample sd, translational and rotational; also for relations with
    dt <= 10 s and dt > 60 s), loops closed, frames retried, wall and CPU time, real-time factor (log duration /
    wall time), peak memory; and over the seeds the mean, sd and worst of the relations errors. fr079 states its
@@ -17,7 +18,7 @@
 
 Times exclude reading the input (frames are loaded first). Writes reports/benchmarks/slam.json (atomically).
 
-    .venv/bin/python benchmarks/slam.py [--only intel fr079 fr-clinic 3d] [--seeds 1 2 3 4 5] [--jobs 1]
+    .venv/bin/python benchmarks/slam.py [--only intel fr079 fr-clinic 3d] [--seeds 1 2 3 4 5] [--jobs 1] [--threads N]
         [--max-frames N] [--no-loop-closure]
 """
 
@@ -66,8 +67,9 @@ def _stats(e: np.ndarray) -> dict:
     return {"mean": float(e.mean()), "sd": float(e.std(ddof=1)) if e.size > 1 else 0.0, "n": int(e.size)}
 
 
-def freiburg_run(name: str, datasets: str, seed: int, max_frames: int | None, loop_closure: bool) -> dict:
-    """One seed on one log, in its own process (see main)."""
+def freiburg_run(name: str, datasets: str, seed: int, max_frames: int | None, loop_closure: bool,
+                 threads: int | None = None) -> dict:
+    """One seed on one log, in its own process (see main), on ``threads`` compute threads (None: every core)."""
     spec = FREIBURG[name]
     t0 = time.perf_counter()
     ds = open_dataset(Path(datasets) / "slam2d" / spec["bag"], extrinsic2d=spec["extrinsic2d"])
@@ -75,7 +77,7 @@ def freiburg_run(name: str, datasets: str, seed: int, max_frames: int | None, lo
     read_s = time.perf_counter() - t0
     cfg = SlamConfig(dof=3)  # the command line's default configuration
     cfg.loop_closure.enabled = loop_closure
-    res = run_slam(frames, cfg, rng=seed, progress=False)
+    res = run_slam(frames, cfg, rng=seed, progress=False, threads=threads)
     rel = read_relations(Path(datasets) / "slam2d" / spec["relations"])
     stamps = np.array([f.stamp for f in frames])
     odometry = ds.odometry if max_frames is None else ds.odometry.head(max_frames)
@@ -83,6 +85,7 @@ def freiburg_run(name: str, datasets: str, seed: int, max_frames: int | None, lo
     m = res.metrics()
     out = {
         "seed": seed,
+        "threads": threads,
         "frames": len(frames),
         "log_duration_s": duration,
         "read_seconds": read_s,
@@ -157,12 +160,13 @@ def summarise_seeds(runs: list[dict], spec: dict) -> dict:
     return out
 
 
-def _freiburg_job(*, name: str, datasets: str, seed: int, max_frames: int | None, loop_closure: bool) -> dict:
-    return freiburg_run(name, datasets, seed, max_frames, loop_closure)
+def _freiburg_job(*, name: str, datasets: str, seed: int, max_frames: int | None, loop_closure: bool,
+                  threads: int | None = None) -> dict:
+    return freiburg_run(name, datasets, seed, max_frames, loop_closure, threads)
 
 
 def bench_freiburg(name: str, datasets: Path, seeds: list[int], max_frames: int | None, jobs: int,
-                   loop_closure: bool, runs_dir: Path) -> dict:
+                   loop_closure: bool, runs_dir: Path, threads: int | None = None) -> dict:
     """The seeds of one log as a batch of the study's Dask runner (:func:`hsmap.study.distributed.run_jobs`, the
     runner of ``hsmap benchmark buildings``): one job per seed on ``jobs`` worker processes, each seed's record
     written atomically into ``runs_dir/NAME-seedS/result.json`` as it finishes; every run is fresh (a benchmark
@@ -174,7 +178,7 @@ def bench_freiburg(name: str, datasets: Path, seeds: list[int], max_frames: int 
     spec = FREIBURG[name]
     batch = [Job(f"{name}-seed{s}", [("slam", _freiburg_job)],
                  {"name": name, "datasets": str(datasets), "seed": s, "max_frames": max_frames,
-                  "loop_closure": loop_closure}) for s in seeds]
+                  "loop_closure": loop_closure, "threads": threads}) for s in seeds]
     records = run_jobs(batch, runs_dir, workers=jobs, retries=0, skip_finished=False, progress=False)
     failed = [r for r in records if r["status"] != "ok"]
     if failed:
@@ -186,7 +190,7 @@ def bench_freiburg(name: str, datasets: Path, seeds: list[int], max_frames: int 
           f"{r['mean']:.3f} deg; Cartographer {spec['cartographer_m']} m / {spec['cartographer_deg']} deg; "
           f"targets {summary['targets']}", flush=True)
     return {"seeds": runs, "summary": summary, "published": {k: v for k, v in spec.items() if "_m" in k or "_deg" in k},
-            "extrinsic2d": spec["extrinsic2d"], "loop_closure": loop_closure, "jobs": jobs}
+            "extrinsic2d": spec["extrinsic2d"], "loop_closure": loop_closure, "jobs": jobs, "threads": threads}
 
 
 def bench_3d(max_frames: int | None, folder: str | None = None) -> dict:
@@ -276,7 +280,12 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--only", nargs="+", choices=[*FREIBURG, "3d"], default=[*FREIBURG, "3d"])
     ap.add_argument("--seeds", nargs="+", type=int, default=[1, 2, 3, 4, 5])
-    ap.add_argument("--jobs", type=int, default=1, help="runs at once (1: times free of each other's load)")
+    ap.add_argument("--jobs", type=int, default=1,
+                    help="runs at once (1: times free of each other's load; with 2 on 2 cores each run took "
+                         "1.3-1.7x the CPU time it takes alone, with 1 or 2 threads)")
+    ap.add_argument("--threads", type=int, default=None,
+                    help="compute threads per run (default: the cores shared among the jobs, at least 1); the "
+                         "result is the same for any count, the time is not")
     ap.add_argument("--max-frames", type=int, default=None, help="cut every input (smoke runs)")
     ap.add_argument("--no-loop-closure", action="store_true", help="tracking only, for comparison")
     ap.add_argument("--dataset3d", default=None,
@@ -284,6 +293,9 @@ def main(argv=None) -> int:
                          "study's cache simulates it anew after every code change)")
     ap.add_argument("--out", default=str(ROOT / "reports/benchmarks/slam.json"))
     args = ap.parse_args(argv)
+    if args.jobs < 1 or (args.threads is not None and args.threads < 1):
+        ap.error("--jobs and --threads must be >= 1")
+    threads = args.threads or max(1, (os.cpu_count() or 1) // args.jobs)
     from hsmap.study.paths import datasets_dir
 
     datasets = datasets_dir()  # $HSMAP_DATASETS, else what hsmap data fetch downloaded, else ../shared/datasets
@@ -298,7 +310,7 @@ def main(argv=None) -> int:
             out["3d_slam_office"] = bench_3d(args.max_frames, args.dataset3d)
         elif (datasets / "slam2d").is_dir():
             out[name] = bench_freiburg(name, datasets, args.seeds, args.max_frames, args.jobs,
-                                       not args.no_loop_closure, Path(args.out).with_suffix("") / "runs")
+                                       not args.no_loop_closure, Path(args.out).with_suffix("") / "runs", threads)
         else:
             out[name] = {"skipped": f"no Freiburg data at {datasets}/slam2d (run hsmap data fetch, or set HSMAP_DATASETS)"}
             print(out[name]["skipped"])

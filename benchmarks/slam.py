@@ -280,9 +280,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--only", nargs="+", choices=[*FREIBURG, "3d"], default=[*FREIBURG, "3d"])
     ap.add_argument("--seeds", nargs="+", type=int, default=[1, 2, 3, 4, 5])
-    ap.add_argument("--jobs", type=int, default=1,
-                    help="runs at once (1: times free of each other's load; with 2 on 2 cores each run took "
-                         "1.3-1.7x the CPU time it takes alone, with 1 or 2 threads)")
+    ap.add_argument("--jobs", type=int, default=1, help="runs at once (1: times free of each other's load)")
     ap.add_argument("--threads", type=int, default=None,
                     help="compute threads per run (default: the cores shared among the jobs, at least 1); the "
                          "result is the same for any count, the time is not")

@@ -102,9 +102,10 @@ class LoopClosureConfig:
         becomes a ``pair`` edge. A loop edge matches against a submap of tracked keyframes and carries their
         drift; a single keyframe carries none, and the many overlapping pairs average the registrations' noise
         that a chain of tracking edges adds up (a heading error that sets in early and turns the whole map). With 4,
-        the simulated two-rooms bag's largest 2D error fell from 3.2 to 1.6 cm (mean of 30 runs), but on the
-        Freiburg logs they helped nothing, cost a third more time, and one intel seed of five broke (0.046 m): off
-        by default.
+        the simulated two-rooms bag's largest 2D error fell from 3.2 to 1.6 cm (mean of 30 runs); on intel and
+        fr079 (seeds 1-5) they are a little better (0.0185 and 0.0325 m against 0.0190 and 0.0327), but on
+        fr-clinic worse (2.15, 2.03, 1.13 m on seeds 1-3 against 1.38, 0.50, 1.10) at about 1.5x the time: off by
+        default.
     pair_distance : float
         Metres between the two keyframes' positions, at most, for a pair edge.
     pair_iterations : int

@@ -489,6 +489,8 @@ class HsSlam:
         self.config = config or SlamConfig()
         cfg = self.config
         self.rng = as_rng(rng)
+        # loop closure draws from its own stream: its searches do not shift the tracking's draws
+        self._loop_rng = np.random.default_rng(self.rng.integers(2**63))
         self.dim = cfg.dim
         self.map = VoxelMap(self.dim, cfg.effective_map_voxel(), average=cfg.map_average)
         self.poses: list[NDArray[np.float64]] = []
@@ -867,7 +869,7 @@ class HsSlam:
         urgent = False
         search = k % lc.search_every == 0
         for cand in closer.candidates(self.graph, k, self._path)[: lc.attempts_per_keyframe if search else 0]:
-            closure = closer.attempt(self.graph, self.keyframes, k, cand, self.rng)
+            closure = closer.attempt(self.graph, self.keyframes, k, cand, self._loop_rng)
             if closure is None:
                 continue
             self.graph.add_edge(closure.i, closure.j, closure.measurement, closure.information, EdgeKind.LOOP)

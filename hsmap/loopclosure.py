@@ -124,15 +124,30 @@ class LoopClosureConfig:
         Harmony-ICP parameters of the loop matches.
     far_search : bool
         2D: also search submaps whose uncertainty the window above cannot cover (the window's uncapped half-width
-        exceeds ``max_window_translation``: the robot comes back after a long excursion). Such a *far* candidate is
-        searched exhaustively (:func:`correlative_match_2d`) over ``min(window, max_far_window_translation)``
-        and ``max_window_rotation``, refined and verified by Harmony-ICP, and becomes a loop edge only when a
-        second far match, from a keyframe at most ``far_corroborate_within`` keyframes apart, agrees with it (within
-        ``far_agreement_translation`` / ``far_agreement_rotation`` once both are carried to one keyframe by
-        tracking). Corroborated far edges are not under the robust kernel (a correction of metres is what they
-        are for; the kernel would discard it); the chi-square gate still judges them.
+        exceeds ``max_window_translation``: the robot comes back after a long excursion). A far search matches
+        the recent path against the old map: its source is every keyframe within ``far_source_path`` of the newest
+        in the graph, its target every *far* candidate submap within reach, together, at their estimates. It is
+        exhaustive (:func:`correlative_match_2d`) over ``min(window, max_far_window_translation)`` and
+        ``max_window_rotation``; the match is refined and verified by Harmony-ICP, and becomes a loop edge (to the
+        old keyframe nearest to it) only when a second far match, from a keyframe at most ``far_corroborate_within``
+        keyframes apart, agrees with it (within ``far_agreement_translation`` / ``far_agreement_rotation`` once
+        both are carried to one keyframe by tracking). Corroborated far edges are not under the robust kernel (a
+        correction of metres is what they are for; the kernel would discard it); the chi-square gate still judges
+        them.
+    far_source_path : float
+        Metres of graph distance from the newest keyframe within which keyframes form a far search's source. A few
+        keyframes look like many places of a building's corridors (on fr-clinic's return, after 20-47 m and 15-23
+        deg of drift, three keyframes matched against one submap were ambiguous on every try); a stretch of path
+        with its turns and doors does not (20 m of it found the true pose within 0.2-0.9 m on every try that was
+        not ambiguous).
     max_far_window_translation : float
-        Largest half-width of a far search.
+        Largest half-width of a far search (a bound on its cost: the coarse level of :func:`correlative_match_2d`
+        keeps a 100 m window to about a second).
+    far_window_growth : float
+        A far search's half-width in x and y is ``window_translation + far_window_growth * path``. After a long
+        excursion the tracking's drift outgrows the regular window's 5 % of the path: on fr-clinic's return, after
+        about 1000 m of graph path, the estimate was 43-67 m off (seeds 2, 4 and 5), beyond a 5 % window on all
+        three; with 10 % the return closed on four seeds of five.
     far_every : int
         Far search at every this many keyframes.
     far_resolution, far_angle_step : float
@@ -175,8 +190,10 @@ class LoopClosureConfig:
     optimize_every: int = 25
     registration: RegistrationConfig = field(default_factory=_loop_registration)
     far_search: bool = True
-    max_far_window_translation: float = 50.0
+    max_far_window_translation: float = 100.0
+    far_window_growth: float = 0.1
     far_every: int = 5
+    far_source_path: float = 20.0
     far_resolution: float = 0.2
     far_angle_step: float = float(np.deg2rad(1.0))
     far_ambiguity: float = 0.9
@@ -194,6 +211,7 @@ class LoopClosureConfig:
                      "window_roll_pitch", "max_sigma_translation", "max_sigma_rotation", "edge_sigma_translation",
                      "edge_sigma_rotation", "pair_distance", "tracking_path_distance",
                      "optimize_threshold_translation", "optimize_threshold_rotation", "max_far_window_translation",
+                     "far_source_path", "far_window_growth",
                      "far_agreement_translation", "far_agreement_rotation"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float, np.floating)) and np.isfinite(v) and v >= 0):
@@ -244,78 +262,132 @@ class LoopClosure:
     registration: RegistrationResult
 
 
+def _likelihood_field(points: NDArray[np.float64], resolution: float) -> tuple[NDArray[np.float64],
+                                                                                NDArray[np.float64]]:
+    """A Gaussian of the distance to the nearest of ``points`` (sigma: one cell, zero beyond three), on a grid
+    indexed (x cell, y cell), not image (row, col); and the grid's origin."""
+    from scipy.ndimage import distance_transform_edt
+
+    t0 = points.min(axis=0) - 3 * resolution
+    shape = np.floor((points.max(axis=0) + 3 * resolution - t0) / resolution).astype(int) + 1
+    occ = np.zeros(shape, bool)
+    ti = np.floor((points - t0) / resolution).astype(int)
+    occ[ti[:, 0], ti[:, 1]] = True
+    dist = distance_transform_edt(~occ)
+    field = np.exp(-0.5 * dist**2)
+    field[dist > 3] = 0.0
+    return field, t0
+
+
+def _rotated(points: NDArray[np.float64], yaw: float) -> NDArray[np.float64]:
+    c, s_ = np.cos(yaw), np.sin(yaw)
+    return points @ np.array([[c, s_], [-s_, c]])
+
+
 def correlative_match_2d(source: NDArray[np.float64], target: NDArray[np.float64], predicted: NDArray[np.float64],
                          half_translation: float, half_rotation: float, resolution: float = 0.2,
-                         angle_step: float = float(np.deg2rad(1.0)), separation: float = 2.0,
-                         ) -> tuple[NDArray[np.float64], float, float]:
-    """Exhaustive 2D scan matching over a window (Olson's correlative scan matching, 2009).
+                         angle_step: float = float(np.deg2rad(1.0)), separation: float = 2.0, *, coarse: int = 4,
+                         peaks: int = 8) -> tuple[NDArray[np.float64], float, float]:
+    """Exhaustive 2D scan matching over a window (Olson's correlative scan matching, 2009), coarse to fine.
 
-    Every rotation in ``predicted[2] +/- half_rotation`` (steps of ``angle_step``) and every translation in
-    ``predicted[:2] +/- half_translation`` (steps of ``resolution``) is scored by the mean, over the source's
-    occupied cells, of a likelihood field of the target (a Gaussian of the distance to the nearest target point,
-    sigma = ``resolution``); the translations of one rotation are scored at once by an FFT cross-correlation. No
-    initial guess is needed inside the window, however wide; a wide window costs memory and time in proportion
-    to its area.
+    A pose is scored by the mean, over the source's occupied cells, of a likelihood field of the target (a
+    Gaussian of the distance to the nearest target point, sigma = one cell). Every rotation in ``predicted[2] +/-
+    half_rotation`` (steps of ``angle_step``) and every translation in ``predicted[:2] +/- half_translation`` is
+    scored on a grid ``coarse`` times coarser than ``resolution`` (the translations of one rotation at once, by an
+    FFT cross-correlation); the ``peaks`` best coarse poses at least ``separation`` apart are then searched at
+    ``resolution`` over their coarse cell and the neighbouring rotations. No initial guess is needed inside the
+    window, however wide; the coarse grid keeps a 100 m window's cost near a fine 25 m one's.
 
-    Returns ``(pose, score, ambiguity)``: the best pose of the source in the target's frame (x, y, yaw), its score
-    in [0, 1], and the best score of any pose more than ``separation`` metres from it divided by its score (near
-    1: a look-alike place or a corridor, the match says little).
+    Returns ``(pose, score, ambiguity)``: the best pose of the source in the target's frame (x, y, yaw), its
+    (fine) score in [0, 1], and the best fine score of any other peak more than ``separation`` metres from it
+    divided by its score (near 1: a look-alike place or a corridor, the match says little).
     """
-    from scipy.ndimage import distance_transform_edt
     from scipy.signal import fftconvolve
 
     src = np.asarray(source, dtype=float)[:, :2]
     tgt = np.asarray(target, dtype=float)[:, :2]
+    predicted = np.asarray(predicted, dtype=float)
     res = float(resolution)
-    # the target's likelihood field; arrays here are indexed (x cell, y cell), not image (row, col)
-    t0 = tgt.min(axis=0) - 3 * res
-    shape = np.floor((tgt.max(axis=0) + 3 * res - t0) / res).astype(int) + 1
-    occ = np.zeros(shape, bool)
-    ti = np.floor((tgt - t0) / res).astype(int)
-    occ[ti[:, 0], ti[:, 1]] = True
-    dist = distance_transform_edt(~occ)
-    field = np.exp(-0.5 * dist**2)  # sigma of one cell
-    field[dist > 3] = 0.0
-    centre = np.asarray(predicted[:2], dtype=float)
+    rc = res * max(int(coarse), 1)
+    centre = predicted[:2]
     n_rot = int(np.floor(half_rotation / angle_step))
     angles = predicted[2] + angle_step * np.arange(-n_rot, n_rot + 1)
-    per_angle = []  # (score, x, y, runner-up score beyond `separation` within this rotation)
-    sep = max(int(np.ceil(separation / res)), 1)
+    # coarse: every rotation, every translation of the window
+    field_c, t0c = _likelihood_field(tgt, rc)
+    sep_c = max(int(np.ceil(separation / rc)), 1)
+    found = []  # (coarse score, x, y, yaw)
     for yaw in angles:
-        c, s_ = np.cos(yaw), np.sin(yaw)
-        p = src @ np.array([[c, s_], [-s_, c]])
+        p = _rotated(src, yaw)
         s0 = p.min(axis=0)
-        si = np.floor((p - s0) / res).astype(int)
+        si = np.floor((p - s0) / rc).astype(int)
         h, w = si.max(axis=0) + 1
         img = np.zeros((h, w))
         img[si[:, 0], si[:, 1]] = 1.0
-        n = img.sum()
-        corr = fftconvolve(field, img[::-1, ::-1], mode="full")
-        # translation of output cell (m, k): t0 - s0 + (m - h + 1, k - w + 1) * res
-        off = t0 - s0 - np.array([h - 1, w - 1]) * res
-        lo = np.ceil((centre - half_translation - off) / res).astype(int)
-        hi = np.floor((centre + half_translation - off) / res).astype(int)
-        lo = np.maximum(lo, 0)
-        hi = np.minimum(hi, np.array(corr.shape) - 1)
+        corr = fftconvolve(field_c, img[::-1, ::-1], mode="full")
+        # translation of output cell (m, k): t0 - s0 + (m - h + 1, k - w + 1) * rc
+        off = t0c - s0 - np.array([h - 1, w - 1]) * rc
+        lo = np.maximum(np.ceil((centre - half_translation - off) / rc).astype(int), 0)
+        hi = np.minimum(np.floor((centre + half_translation - off) / rc).astype(int), np.array(corr.shape) - 1)
         if np.any(hi < lo):
             continue
-        win = corr[lo[0]:hi[0] + 1, lo[1]:hi[1] + 1] / n
-        m, k = np.unravel_index(int(np.argmax(win)), win.shape)
-        best = float(win[m, k])
-        masked = win.copy()
-        masked[max(m - sep, 0):m + sep + 1, max(k - sep, 0):k + sep + 1] = -np.inf
-        runner = float(masked.max()) if np.isfinite(masked.max()) else 0.0
-        xy = off + (lo + np.array([m, k])) * res
-        per_angle.append((best, xy[0], xy[1], yaw, runner))
-    if not per_angle:
-        return np.asarray(predicted, dtype=float).copy(), 0.0, 1.0
-    arr = np.array(per_angle)
-    b = int(np.argmax(arr[:, 0]))
-    best, bx, by, byaw = arr[b, :4]
-    far = np.hypot(arr[:, 1] - bx, arr[:, 2] - by) > separation
-    others = np.r_[arr[:, 4], arr[far, 0]]
-    ambiguity = float(others.max() / best) if best > 0 else 1.0
-    return np.array([bx, by, byaw]), float(best), ambiguity
+        win = corr[lo[0]:hi[0] + 1, lo[1]:hi[1] + 1] / img.sum()
+        # the best cells at least `separation` apart (a slope's, too: a corridor's axis scores alike along it)
+        flat = win.ravel()
+        top = min(flat.size, peaks * (2 * sep_c + 1) ** 2)
+        order = np.argpartition(-flat, top - 1)[:top]
+        order = order[np.argsort(-flat[order], kind="stable")]
+        kept: list[NDArray[np.int_]] = []
+        for m, k in zip(*np.unravel_index(order, win.shape), strict=True):
+            if win[m, k] <= 0:
+                break
+            if all(max(abs(m - a), abs(k - b)) >= sep_c for a, b in kept):
+                kept.append(np.array([m, k]))
+                xy = off + (lo + kept[-1]) * rc
+                found.append((float(win[m, k]), xy[0], xy[1], float(yaw)))
+                if len(kept) == peaks:
+                    break
+    if not found:
+        return predicted.copy(), 0.0, 1.0
+    found.sort(key=lambda f: -f[0])
+    chosen: list[tuple[float, float, float, float]] = []
+    for f in found:  # the best coarse poses, one per place
+        if all(np.hypot(f[1] - c[1], f[2] - c[2]) > separation for c in chosen):
+            chosen.append(f)
+            if len(chosen) == peaks:
+                break
+    # fine: each chosen pose over two coarse cells each way and the neighbouring rotations. The translations are
+    # whole cells apart, so each source cell reads a (2W+1)^2 patch of the field: one gather per rotation
+    field, t0 = _likelihood_field(tgt, res)
+    W = 2 * max(int(coarse), 1)
+    padded = np.pad(field, 2 * W)
+    patches = np.lib.stride_tricks.sliding_window_view(padded, (2 * W + 1, 2 * W + 1))
+    shift = np.stack(np.meshgrid(np.arange(-W, W + 1), np.arange(-W, W + 1), indexing="ij"), axis=-1) * res
+    evaluated = []  # (score, x, y, yaw) of every fine pose
+    for _, x, y, yaw0 in chosen:
+        xy = np.array([x, y]) + shift.reshape(-1, 2)
+        inside = (np.abs(xy - centre) <= half_translation + 1e-9).all(axis=1)
+        if not inside.any():
+            continue
+        for yaw in yaw0 + angle_step * np.arange(-coarse, coarse + 1):
+            if abs(wrap_angle(yaw - predicted[2])) > half_rotation + 1e-9:
+                continue
+            cells = np.unique(np.floor(_rotated(src, yaw) / res).astype(int), axis=0)
+            pts = (cells + 0.5) * res  # the source's occupied cells, as the coarse level counts them
+            base = np.floor((pts + np.array([x, y]) - t0) / res).astype(int)
+            keep = ((base >= -W) & (base < np.array(field.shape) + W)).all(axis=1)  # others read zeros only
+            start = base[keep] + W
+            score = patches[start[:, 0], start[:, 1]].sum(axis=0).reshape(-1) / len(cells)
+            evaluated.append(np.column_stack([score[inside], xy[inside], np.full(int(inside.sum()), yaw)]))
+    if not evaluated:
+        return predicted.copy(), 0.0, 1.0
+    ev = np.concatenate(evaluated)
+    b = int(np.argmax(ev[:, 0]))
+    score, bx, by, byaw = ev[b]
+    if score <= 0:
+        return predicted.copy(), 0.0, 1.0
+    far = np.hypot(ev[:, 1] - bx, ev[:, 2] - by) > separation
+    ambiguity = float(ev[far, 0].max() / score) if far.any() else 0.0
+    return np.array([bx, by, byaw]), float(score), ambiguity
 
 
 class LoopCloser:
@@ -347,7 +419,6 @@ class LoopCloser:
         self.rejections: dict[str, int] = {}
         self.far_attempts = 0
         self.far_accepted = 0
-        self._last_far_try: dict[int, int] = {}
         self._far_pending: list[LoopClosure] = []
 
     # ------------------------------------------------------------------------------------------ candidates
@@ -487,11 +558,12 @@ class LoopCloser:
         """Uncapped (up to ``max_far_window_translation``) translation half-width and the rotation one."""
         cfg = self.config
         p = np.asarray(path, dtype=float)
-        t = np.minimum(cfg.window_translation + cfg.window_growth * p, cfg.max_far_window_translation)
+        t = np.minimum(cfg.window_translation + cfg.far_window_growth * p, cfg.max_far_window_translation)
         return t, self.window(p)[1]
 
     def far_candidates(self, graph: PoseGraph, newest: int, path: NDArray[np.float64]) -> list[LoopCandidate]:
-        """Submaps whose uncertainty relative to keyframe ``newest`` exceeds the regular window, nearest first."""
+        """Submaps whose uncertainty relative to keyframe ``newest`` exceeds the regular window and whose
+        keyframes lie within the far window's reach, nearest first."""
         cfg = self.config
         if not cfg.far_search or self.dof != 3:
             return []
@@ -505,35 +577,60 @@ class LoopCloser:
         g = np.where(np.isfinite(g), g, 1e9).min(axis=1)
         wide = cfg.window_translation + cfg.window_growth * g
         ok = (wide > cfg.max_window_translation) & (d <= cfg.max_distance + self._far_windows(g)[0])
-        out = []
-        for s_ in np.flatnonzero(ok):
-            if newest - self._last_far_try.get(int(s_), -10**9) < cfg.retry_after * cfg.far_every:
-                continue
-            out.append(LoopCandidate(int(s_), float(d[s_]), float(g[s_])))
+        out = [LoopCandidate(int(s_), float(d[s_]), float(g[s_])) for s_ in np.flatnonzero(ok)]
         out.sort(key=lambda c: c.distance)
         return out
 
-    def attempt_far(self, graph: PoseGraph, keyframes: list[Keyframe], newest: int, candidate: LoopCandidate,
+    def _far_source(self, graph: PoseGraph, keyframes: list[Keyframe], newest: int,
+                    path: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The keyframes within ``far_source_path`` of ``newest`` in the graph (none newer), in its frame."""
+        near = np.flatnonzero(path[: newest + 1] <= self.config.far_source_path)
+        P = graph.poses
+        parts = [transform_points(pose_to_matrix(relative(P[newest], P[k])), keyframes[k].points) for k in near]
+        vm = VoxelMap(self.dim, self.map_voxel, average=self.map_average)
+        vm.add(np.concatenate(parts))
+        return vm.points
+
+    def attempt_far(self, graph: PoseGraph, keyframes: list[Keyframe], newest: int,
+                    candidates: list[LoopCandidate], path: NDArray[np.float64],
                     rng: np.random.Generator) -> LoopClosure | None:
-        """Search a far candidate exhaustively, refine with Harmony-ICP, check; the match (not yet an edge)."""
+        """Match the recent path against the far candidates' map, exhaustively, then refine with Harmony-ICP and
+        check; the match (not yet an edge) to the old keyframe nearest to it, or None.
+
+        ``path`` holds the graph distances from ``newest`` (:meth:`hsmap.posegraph.PoseGraph.path_distances`).
+        """
         cfg = self.config
+        if not candidates:
+            return None
         self.attempts += 1
         self.far_attempts += 1
-        self._last_far_try[candidate.submap] = newest
-        anchor = self.submap_members(candidate.submap, len(keyframes)).start
-        target = self._submap_target(candidate.submap, graph, keyframes)
-        source = self._source(graph, keyframes, newest)
-        predicted = relative(graph.poses[anchor], graph.poses[newest])
-        wt, wr = (float(v) for v in self._far_windows(candidate.path))
-        found, score, ambiguity = correlative_match_2d(source, target.points, predicted, wt, wr,
-                                                       cfg.far_resolution, cfg.far_angle_step)
+        members = [k for c in candidates for k in self.submap_members(c.submap, len(keyframes))]
+        P = graph.poses
+        vm = VoxelMap(self.dim, self.map_voxel, average=self.map_average)
+        pts, nrm = [], []
+        for k in members:
+            T = pose_to_matrix(P[k])
+            pts.append(transform_points(T, keyframes[k].points))
+            nrm.append(keyframes[k].normals @ T[: self.dim, : self.dim].T)
+        vm.add(np.concatenate(pts), np.concatenate(nrm))  # the old map, world frame
+        source = self._far_source(graph, keyframes, newest, path)
+        wt, wr = self._far_windows(np.array([c.path for c in candidates]))
+        found, _, ambiguity = correlative_match_2d(source, vm.points, P[newest], float(wt.max()), float(wr.max()),
+                                                   cfg.far_resolution, cfg.far_angle_step)
         if ambiguity >= cfg.far_ambiguity:
             self._reject("far_ambiguous")
             return None
-        half = np.array([2 * cfg.far_resolution, 2 * cfg.far_resolution, 2 * cfg.far_angle_step])
-        res = harmony_icp(source, target, bounds=np.column_stack([found - half, found + half]),
-                          initial_guesses=found[None], config=cfg.registration, rng=rng)
-        return self._checked(res, anchor, newest, predicted, found, half, prefix="far_")
+        # refine and check in the frame of the old keyframe nearest to the match (the edge's other end)
+        anchor = members[int(np.argmin([np.linalg.norm(P[k][:2] - found[:2]) for k in members]))]
+        Ta = pose_to_matrix(P[anchor])
+        to_anchor = np.linalg.inv(Ta)
+        target = RegistrationTarget(transform_points(to_anchor, vm.points), cfg.registration,
+                                    normals=vm.normals @ to_anchor[: self.dim, : self.dim].T)
+        centre = relative(P[anchor], found)
+        half = np.array([3 * cfg.far_resolution, 3 * cfg.far_resolution, 3 * cfg.far_angle_step])  # a cell or two off
+        res = harmony_icp(source, target, bounds=np.column_stack([centre - half, centre + half]),
+                          initial_guesses=centre[None], config=cfg.registration, rng=rng)
+        return self._checked(res, anchor, newest, relative(P[anchor], P[newest]), centre, half, prefix="far_")
 
     def corroborate(self, closure: LoopClosure, graph: PoseGraph) -> list[LoopClosure]:
         """The far matches that ``closure`` and an earlier one now corroborate (both), or [] (kept pending)."""

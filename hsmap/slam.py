@@ -877,15 +877,13 @@ class HsSlam:
             urgent |= (closure.correction_translation > lc.optimize_threshold_translation
                        or closure.correction_rotation > lc.optimize_threshold_rotation)
         if k % lc.far_every == 0:
-            for cand in closer.far_candidates(self.graph, k, self._path)[: lc.attempts_per_keyframe]:
-                closure = closer.attempt_far(self.graph, self.keyframes, k, cand, self.rng)
-                if closure is None:
-                    continue
-                for c in closer.corroborate(closure, self.graph):
-                    self.graph.add_edge(c.i, c.j, c.measurement, c.information, EdgeKind.LOOP, robust=False)
-                    self._pending += 1
-                    urgent = True
-                break
+            closure = closer.attempt_far(self.graph, self.keyframes, k,
+                                         closer.far_candidates(self.graph, k, self._path), self._path,
+                                         self._loop_rng)
+            for c in [] if closure is None else closer.corroborate(closure, self.graph):
+                self.graph.add_edge(c.i, c.j, c.measurement, c.information, EdgeKind.LOOP, robust=False)
+                self._pending += 1
+                urgent = True
         self._since_optimized += 1
         if self._pending and (urgent or self._since_optimized >= lc.optimize_every):
             self._optimize()

@@ -197,9 +197,10 @@ def test_correlative_match_finds_a_pose_far_from_the_guess_and_flags_a_corridor(
     g.add_node(np.zeros(3))
     g.add_node(np.array([4.0, 0.0, 0.0]))
     closer = LoopCloser(LoopClosureConfig(submap_keyframes=1, source_keyframes=1, min_separation=1), 3, 0.05)
-    cand = closer.far_candidates(g, 1, np.array([300.0, 0.0]))
+    path = np.array([300.0, 0.0])
+    cand = closer.far_candidates(g, 1, path)
     assert [c.submap for c in cand] == [0]
-    assert closer.attempt_far(g, [_keyframe(scans[0]), _keyframe(scans[1])], 1, cand[0],
+    assert closer.attempt_far(g, [_keyframe(scans[0]), _keyframe(scans[1])], 1, cand, path,
                               np.random.default_rng(0)) is None
     assert set(closer.rejections) <= {"far_ambiguous", "far_unconstrained"} and sum(closer.rejections.values()) == 1
 
@@ -226,13 +227,13 @@ def test_far_closure_needs_a_second_match_that_agrees():
     assert [c.submap for c in closer.candidates(g, 2, path)] == []  # beyond the regular window
     cands = closer.far_candidates(g, 2, path)
     assert sorted(c.submap for c in cands) == [0, 1]
-    first = closer.attempt_far(g, kfs, 2, cands[0], np.random.default_rng(0))
+    first = closer.attempt_far(g, kfs, 2, cands, path, np.random.default_rng(0))
     assert first is not None
     np.testing.assert_allclose(first.measurement, relative(truth[first.i], truth[2]), atol=0.05)
     assert first.correction_translation > 3.0
     assert closer.corroborate(first, g) == []  # one match alone is not enough
     assert closer.rejections["far_uncorroborated"] == 1
-    second = closer.attempt_far(g, kfs, 3, closer.far_candidates(g, 3, path)[0], np.random.default_rng(1))
+    second = closer.attempt_far(g, kfs, 3, closer.far_candidates(g, 3, path), path, np.random.default_rng(1))
     both = closer.corroborate(second, g)
     assert [c.j for c in both] == [2, 3] and all(c.i in (0, 1) for c in both)
     # the two corroborated far edges, outside the robust kernel, pull the graph the whole way
@@ -246,10 +247,61 @@ def test_far_closure_needs_a_second_match_that_agrees():
         assert np.linalg.norm(g.poses[k][:2] - truth[k][:2]) < 0.1
 
 
+def _corridor_with_room():
+    """A 40 m corridor (1.6 m wide, along x) with a door at x = -14 into a 3 m x 3 m room: from x > -8.5 a 5 m
+    scan sees two parallel walls only."""
+    walls = [[[-20, -0.8], [20, -0.8]], [[-20, 0.8], [-14.5, 0.8]], [[-13.5, 0.8], [20, 0.8]],
+             [[-20, -0.8], [-20, 0.8]], [[20, -0.8], [20, 0.8]],
+             [[-15.5, 0.8], [-15.5, 3.8]], [[-15.5, 3.8], [-12.5, 3.8]], [[-12.5, 3.8], [-12.5, 0.8]]]
+    return np.array(walls, dtype=float)
+
+
+def test_far_search_tells_look_alike_places_apart_by_the_recent_path():
+    """The robot comes back along a corridor with its estimate 6 m and 5 deg off. Its newest scan sees a stretch of
+    featureless corridor, like any other; the 9 m it came, out of a room, happen once in the map."""
+    world = _corridor_with_room()
+
+    def keyframe(pose, seed):
+        r, a = raycast_2d(world, pose, max_range=5.0, noise=0.005, rng=seed)
+        ok = np.isfinite(r)
+        return _keyframe(np.column_stack([r[ok] * np.cos(a[ok]), r[ok] * np.sin(a[ok])]))
+
+    old = [np.array([x, 0.0, 0.0]) for x in np.arange(-18.0, 18.5, 1.0)]
+    # out of the room, through the door and 6 m along the corridor
+    new = [np.array([-14.0, 3.0, -np.pi / 2]), np.array([-14.0, 2.0, -np.pi / 2]), np.array([-14.0, 1.0, -np.pi / 4])]
+    new += [np.array([x, 0.1, 0.0]) for x in np.arange(-14.0, -7.5, 1.0)]
+    error = np.array([6.0, 0.4, np.deg2rad(5.0)])
+    g = PoseGraph(3)
+    for p in old:
+        g.add_node(p)
+    for p in new:
+        g.add_node(compose(error, p))
+    kfs = [keyframe(p, k) for k, p in enumerate(old + new)]
+    newest = len(kfs) - 1
+    steps = [np.linalg.norm(b[:2] - a[:2]) for a, b in zip(new[:-1], new[1:], strict=True)]
+    path = np.r_[np.full(len(old), 400.0), np.cumsum(steps[::-1])[::-1], 0.0]  # the return: 9 m from the room
+    truth = old + new
+
+    def attempt(source_path):
+        cfg = LoopClosureConfig(submap_keyframes=1, source_keyframes=1, min_separation=1, far_every=1,
+                                far_source_path=source_path)
+        closer = LoopCloser(cfg, 3, 0.05)
+        cands = closer.far_candidates(g, newest, path)
+        assert cands and all(c.submap < len(old) for c in cands)  # the old corridor is far, the new one near
+        return closer, closer.attempt_far(g, kfs, newest, cands, path, np.random.default_rng(0))
+
+    closer, found = attempt(0.5)  # the newest keyframe alone: the corridor's axis is free
+    assert found is None and closer.rejections == {"far_ambiguous": 1}
+    closer, found = attempt(20.0)
+    assert found is not None and found.i < len(old)
+    np.testing.assert_allclose(found.measurement, relative(truth[found.i], truth[newest]), atol=0.05)
+    assert found.correction_translation > 5.0
+
+
 def test_far_matches_that_disagree_are_not_corroborated():
     error = np.array([9.0, -6.0, np.deg2rad(10.0)])
     truth, g, kfs, closer, path = _far_setup(error)
-    first = closer.attempt_far(g, kfs, 2, closer.far_candidates(g, 2, path)[0], np.random.default_rng(0))
+    first = closer.attempt_far(g, kfs, 2, closer.far_candidates(g, 2, path), path, np.random.default_rng(0))
     # a second "match" that puts keyframe 3 1 m away from where the first one and tracking put it
     fake = dataclasses.replace(first, j=3, measurement=compose(relative(truth[1], truth[3]), [1.0, 0.0, 0.0]), i=1)
     assert closer.corroborate(first, g) == []

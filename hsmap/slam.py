@@ -449,7 +449,8 @@ def _at_least_as_good(scan: NDArray[np.float64], target: RegistrationTarget, a: 
     if strict:
         d = ra[both] - rb[both]
         se = float(d.std(ddof=1)) / np.sqrt(len(d))
-        return ma < 0.8 * mb - 0.002 and fa >= fb - 0.1 and float(d.mean()) < -STRICT_SIGMAS * se
+        return (ma < 0.8 * mb - 0.002 and fa >= fb - 0.1 and fa >= STRICT_MIN_MATCHED
+                and float(d.mean()) < -STRICT_SIGMAS * se)
     return ma <= 1.2 * mb + 0.002 and fa >= fb - 0.1
 
 
@@ -457,6 +458,9 @@ def _at_least_as_good(scan: NDArray[np.float64], target: RegistrationTarget, a: 
 STRICT_SIGMAS = 3.0
 #: Points both poses must match for that comparison (a mean's standard error needs a sample).
 STRICT_MIN_POINTS = 30
+#: Fraction of its scan a registration must match to overrule the prediction (a scan mostly unexplained at either
+#: pose, by a changed or unmapped scene, says little about the pose).
+STRICT_MIN_MATCHED = 0.6
 
 
 class HsSlam:
@@ -490,7 +494,7 @@ class HsSlam:
         cfg = self.config
         self.rng = as_rng(rng)
         # loop closure draws from its own stream: its searches do not shift the tracking's draws
-        self._loop_rng = np.random.default_rng(self.rng.integers(2**63))
+        self._loop_rng = self.rng.spawn(1)[0]
         self.dim = cfg.dim
         self.map = VoxelMap(self.dim, cfg.effective_map_voxel(), average=cfg.map_average)
         self.poses: list[NDArray[np.float64]] = []

@@ -506,6 +506,10 @@ def test_a_registration_overrules_the_prediction_only_on_evidence(monkeypatch):
     assert not decide(ra, rb)
     # better everywhere, but on 20 points: too few to tell
     assert not decide((0.010 + noise)[:20], (0.020 + noise)[:20], n=20)
+    # better everywhere it matches, but half the scan matches at neither pose: the scan says too little
+    ra_half, rb_half = 0.010 + noise, 0.020 + noise
+    ra_half[:50] = rb_half[:50] = np.nan
+    assert not decide(ra_half, rb_half)
     # points the first pose matches and the other does not (NaN) are not compared
     rb_lost = 0.020 + noise
     rb_lost[:80] = np.nan

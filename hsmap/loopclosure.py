@@ -262,6 +262,21 @@ class LoopClosure:
     registration: RegistrationResult
 
 
+def keyframe_voxel_map(poses, keyframes: list[Keyframe], which, dim: int, voxel: float, *,
+                       average: bool = False) -> VoxelMap:
+    """A voxel map of the keyframes ``which``, each moved by its pose in ``poses`` (one per keyframe of ``which``,
+    in that order), points and normals inserted at once (the first point, or the mean, per voxel)."""
+    vm = VoxelMap(dim, voxel, average=average)
+    pts, nrm = [], []
+    for k, pose in zip(which, poses, strict=True):
+        T = pose_to_matrix(pose)
+        pts.append(transform_points(T, keyframes[k].points))
+        nrm.append(keyframes[k].normals @ T[:dim, :dim].T)
+    if pts:
+        vm.add(np.concatenate(pts), np.concatenate(nrm))
+    return vm
+
+
 def _likelihood_field(points: NDArray[np.float64], resolution: float) -> tuple[NDArray[np.float64],
                                                                                 NDArray[np.float64]]:
     """A Gaussian of the distance to the nearest of ``points`` (sigma: one cell, zero beyond three), on a grid
@@ -362,6 +377,7 @@ def correlative_match_2d(source: NDArray[np.float64], target: NDArray[np.float64
     padded = np.pad(field, 2 * W)
     patches = np.lib.stride_tricks.sliding_window_view(padded, (2 * W + 1, 2 * W + 1))
     shift = np.stack(np.meshgrid(np.arange(-W, W + 1), np.arange(-W, W + 1), indexing="ij"), axis=-1) * res
+    cells_at: dict[float, NDArray[np.int_]] = {}  # the rotated source's occupied cells, per rotation (peaks share)
     evaluated = []  # (score, x, y, yaw) of every fine pose
     for _, x, y, yaw0 in chosen:
         xy = np.array([x, y]) + shift.reshape(-1, 2)
@@ -371,7 +387,9 @@ def correlative_match_2d(source: NDArray[np.float64], target: NDArray[np.float64
         for yaw in yaw0 + angle_step * np.arange(-coarse, coarse + 1):
             if abs(wrap_angle(yaw - predicted[2])) > half_rotation + 1e-9:
                 continue
-            cells = np.unique(np.floor(_rotated(src, yaw) / res).astype(int), axis=0)
+            cells = cells_at.get(yaw)
+            if cells is None:
+                cells = cells_at[yaw] = np.unique(np.floor(_rotated(src, yaw) / res).astype(int), axis=0)
             pts = (cells + 0.5) * res  # the source's occupied cells, as the coarse level counts them
             base = np.floor((pts + np.array([x, y]) - t0) / res).astype(int)
             keep = ((base >= -W) & (base < np.array(field.shape) + W)).all(axis=1)  # others read zeros only
@@ -471,13 +489,7 @@ class LoopCloser:
             if diff[:, : self.dim].max() < 0.01 and diff[:, self.dim:].max() < 0.002:
                 self._cache.move_to_end(s)
                 return target
-        vm = VoxelMap(self.dim, self.map_voxel, average=self.map_average)
-        pts, nrm = [], []
-        for k, r in zip(members, rel, strict=True):
-            T = pose_to_matrix(r)
-            pts.append(transform_points(T, keyframes[k].points))
-            nrm.append(keyframes[k].normals @ T[: self.dim, : self.dim].T)
-        vm.add(np.concatenate(pts), np.concatenate(nrm))
+        vm = keyframe_voxel_map(rel, keyframes, members, self.dim, self.map_voxel, average=self.map_average)
         target = RegistrationTarget(vm.points, self.config.registration, normals=vm.normals)
         self._cache[s] = (rel, target)
         self._cache.move_to_end(s)
@@ -606,13 +618,8 @@ class LoopCloser:
         self.far_attempts += 1
         members = [k for c in candidates for k in self.submap_members(c.submap, len(keyframes))]
         P = graph.poses
-        vm = VoxelMap(self.dim, self.map_voxel, average=self.map_average)
-        pts, nrm = [], []
-        for k in members:
-            T = pose_to_matrix(P[k])
-            pts.append(transform_points(T, keyframes[k].points))
-            nrm.append(keyframes[k].normals @ T[: self.dim, : self.dim].T)
-        vm.add(np.concatenate(pts), np.concatenate(nrm))  # the old map, world frame
+        vm = keyframe_voxel_map([P[k] for k in members], keyframes, members, self.dim, self.map_voxel,
+                                average=self.map_average)  # the old map, world frame
         source = self._far_source(graph, keyframes, newest, path)
         wt, wr = self._far_windows(np.array([c.path for c in candidates]))
         found, _, ambiguity = correlative_match_2d(source, vm.points, P[newest], float(wt.max()), float(wr.max()),
@@ -622,8 +629,7 @@ class LoopCloser:
             return None
         # refine and check in the frame of the old keyframe nearest to the match (the edge's other end)
         anchor = members[int(np.argmin([np.linalg.norm(P[k][:2] - found[:2]) for k in members]))]
-        Ta = pose_to_matrix(P[anchor])
-        to_anchor = np.linalg.inv(Ta)
+        to_anchor = np.linalg.inv(pose_to_matrix(P[anchor]))
         target = RegistrationTarget(transform_points(to_anchor, vm.points), cfg.registration,
                                     normals=vm.normals @ to_anchor[: self.dim, : self.dim].T)
         centre = relative(P[anchor], found)

@@ -39,7 +39,8 @@ Robust tracking: each registration is checked against the motion prediction (odo
 around the prediction, the retry's refined pose kept within that box (along a corridor's axis the prediction
 carries it); the candidate the scan aligns with better (point-to-plane cost) wins, the prediction's when they align
 about equally well (a corridor that does not constrain its axis). A frame whose pose is not confirmed this way does
-not become a keyframe.
+not become a keyframe. A registration that explains under 60 % of its scan neither overrules the prediction nor
+keeps it from being confirmed: the scan sees space the map does not hold, and the prediction's pose extends it.
 """
 
 from __future__ import annotations
@@ -401,6 +402,12 @@ def _residuals(scan: NDArray[np.float64], target: RegistrationTarget, pose: NDAr
     ok = np.isfinite(d)
     out[ok] = np.abs(np.einsum("ij,ij->i", target.normals[idx[ok]], moved[ok] - target.points[idx[ok]]))
     return out
+
+
+def _matched_fraction(scan: NDArray[np.float64], target: RegistrationTarget, pose: NDArray[np.float64],
+                      threshold: float) -> float:
+    """The fraction of the scan's points with a target point within ``threshold`` at ``pose``."""
+    return float(np.isfinite(_residuals(scan, target, pose, threshold)).mean())
 
 
 def _within_box(res: RegistrationResult, centre: NDArray[np.float64], half: NDArray[np.float64],
@@ -765,7 +772,10 @@ class HsSlam:
         # about as well (a corridor's axis, a look-alike), unconfirmed (no keyframe) if not
         if _at_least_as_good(scan, self._target, res.pose, alt.pose, reg.threshold, strict=True):
             return res, True, True
-        return alt, True, _at_least_as_good(scan, self._target, alt.pose, res.pose, reg.threshold)
+        # a registration that explains too little of its scan to overrule the prediction cannot veto it either:
+        # the scan sees space the map does not hold (the prediction's pose then extends the map)
+        unexplained = _matched_fraction(scan, self._target, res.pose, reg.threshold) < STRICT_MIN_MATCHED
+        return alt, True, unexplained or _at_least_as_good(scan, self._target, alt.pose, res.pose, reg.threshold)
 
     def _fuse(self, frame: Frame, res: RegistrationResult) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """The registration fused with the motion prediction, weighted by their information matrices.

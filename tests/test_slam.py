@@ -514,3 +514,43 @@ def test_a_registration_overrules_the_prediction_only_on_evidence(monkeypatch):
     rb_lost = 0.020 + noise
     rb_lost[:80] = np.nan
     assert not decide(0.010 + noise, rb_lost)
+
+
+def test_a_registration_that_explains_little_of_its_scan_cannot_veto_the_prediction(monkeypatch):
+    """The robot drives out of the mapped part of a corridor: at the prediction (the truth) few of the scan's points
+    have map beside them; the first registration, pulled back onto the mapped part, matches more, but still not
+    the 60 % it needs to overrule the prediction. It cannot veto it either: the prediction's pose is confirmed, so
+    it can become a keyframe and extend the map. Where the registration explains most of its scan and the
+    prediction's pose aligns it worse, the prediction stays unconfirmed (no keyframe) as before."""
+    import hsmap.slam as slam_module
+    from hsmap.registration import RegistrationTarget, harmony_icp
+
+    walls = np.array([((-20.0, y), (20.0, y)) for y in (-1.0, 1.0)])
+    truth = np.array([0.0, 0.0, 0.0])
+    r, a = raycast_2d(walls, truth, fov=2 * np.pi, noise=0.005, rng=np.random.default_rng(3))
+    frame = Frame(stamp=1.0, scan2d=LaserScan2D(r, a, 0.05, 10.0), odometry=truth.copy(), index=1)
+    scan = slam_module.frame_points(frame, 3, 0.1, 30.0, 0.03)
+
+    def verify(mapped_to):
+        """``_verify`` with the map holding the corridor's walls up to x = ``mapped_to``, the first registration
+        2 m back along it and the retry returning the prediction."""
+        slam = HsSlam(SlamConfig(), rng=0)
+        xs = np.arange(-15.0, mapped_to, 0.05)
+        slam._target = RegistrationTarget(np.vstack([np.column_stack([xs, np.full(len(xs), y)]) for y in (-1.0, 1.0)]),
+                                          slam.config.registration)
+        monkeypatch.setattr(slam, "prediction", lambda frame, gate=False: (truth.copy(), np.array([0.02, 0.02])))
+        found = harmony_icp(scan, slam._target, initial_guesses=[truth], config=slam.config.registration, rng=1)
+        back = dataclasses.replace(found, pose=np.array([-2.0, 0.0, 0.0]))
+        monkeypatch.setattr(slam_module, "harmony_icp", lambda *a, **k: dataclasses.replace(found, pose=truth.copy()))
+        fractions = [slam_module._matched_fraction(scan, slam._target, p, 0.1) for p in (back.pose, truth)]
+        return slam._verify(frame, scan, back), fractions
+
+    (kept, retried, confirmed), (f_back, f_truth) = verify(mapped_to=-3.0)
+    assert f_truth + 0.1 < f_back < slam_module.STRICT_MIN_MATCHED  # more matches 2 m back, but under 60 %
+    assert retried and confirmed
+    np.testing.assert_allclose(kept.pose, truth)
+    # mapped up to the robot: 2 m back explains most of the scan and the prediction far less (half of it): the
+    # prediction is not confirmed
+    (kept, retried, confirmed), (f_back, f_truth) = verify(mapped_to=0.0)
+    assert f_back >= slam_module.STRICT_MIN_MATCHED and f_truth + 0.1 < f_back
+    assert retried and not confirmed

@@ -1,0 +1,123 @@
+"""Relations audit: where a trajectory and the Freiburg relations disagree, which one do the two scans agree with?
+
+The relations error (Kuemmerle et al. 2009) treats each relation as the truth. This script asks the laser data: for
+every relation (t_i, t_j, R) between two scans of the log, it aligns scan j to scan i at the relation's relative
+pose R and at the trajectory's own relative pose S (both robot poses, the scans in the robot frame with the log's
+laser offset), and scores each by the mean distance from each scan's points to the other scan's nearest point,
+truncated at ``--truncate`` (0.3 m), averaged over both directions. A relation the trajectory misses by more than
+``--min-error`` (0.2 m) where the scans align better at S than at R by more than ``--margin`` (1 cm) is one the data
+contradict; the script reports how many there are, how many the data side with the relation on, and the
+trajectory's mean translational error with and without the contradicted ones.
+
+It is a check of the benchmark, not a score: the published figures (Cartographer's 0.1078 m on fr-clinic) were
+measured against every relation, and so is ``benchmarks/slam.py``.
+
+    .venv/bin/python benchmarks/relations_audit.py fr-clinic reports/some-run/trajectory.tum
+
+Writes reports/benchmarks/relations_audit_<log>.json (atomically).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from slam import FREIBURG  # noqa: E402
+
+from hsmap.datasets.open import open_dataset  # noqa: E402
+from hsmap.datasets.relations import read_relations  # noqa: E402
+from hsmap.geometry import compose, invert, pose_to_matrix, relative, transform_points  # noqa: E402
+from hsmap.io import write_json  # noqa: E402
+from hsmap.slam import frame_points  # noqa: E402
+from hsmap.trajectory import read_tum  # noqa: E402
+
+
+def alignment_cost(a: np.ndarray, b: np.ndarray, tree_a: cKDTree, tree_b: cKDTree, pose: np.ndarray,
+                   truncate: float) -> float:
+    """Mean truncated nearest-point distance between scan ``a`` and scan ``b`` placed at ``pose`` in a's frame,
+    both ways."""
+    d_ab, _ = tree_a.query(transform_points(pose_to_matrix(pose), b), distance_upper_bound=truncate)
+    d_ba, _ = tree_b.query(transform_points(pose_to_matrix(invert(pose)), a), distance_upper_bound=truncate)
+    return 0.5 * (float(np.minimum(d_ab, truncate).mean()) + float(np.minimum(d_ba, truncate).mean()))
+
+
+def audit(name: str, trajectory: Path, datasets: Path, truncate: float, min_error: float, margin: float) -> dict:
+    spec = FREIBURG[name]
+    ds = open_dataset(datasets / "slam2d" / spec["bag"], extrinsic2d=spec["extrinsic2d"])
+    frames = list(ds.frames(clouds=False))
+    stamps = np.array([f.stamp for f in frames])
+    rel = read_relations(datasets / "slam2d" / spec["relations"])
+    traj = read_tum(trajectory, dof=3)
+    scans: dict[int, tuple[np.ndarray, cKDTree]] = {}
+
+    def scan(k: int) -> tuple[np.ndarray, cKDTree]:
+        if k not in scans:
+            p = frame_points(frames[k], 3, 0.1, 30.0)
+            scans[k] = (p, cKDTree(p))
+        return scans[k]
+
+    rows = []
+    for t_i, t_j, R6 in zip(rel.t_i, rel.t_j, rel.poses, strict=True):
+        i, j = int(np.argmin(np.abs(stamps - t_i))), int(np.argmin(np.abs(stamps - t_j)))
+        pi, ok_i = traj.interpolate([t_i], max_dt=1.0)  # as the relations error interpolates
+        pj, ok_j = traj.interpolate([t_j], max_dt=1.0)
+        if abs(stamps[i] - t_i) > 0.01 or abs(stamps[j] - t_j) > 0.01 or not (ok_i[0] and ok_j[0]):
+            continue
+        R = np.asarray(R6, dtype=float)[[0, 1, 5]]
+        S = relative(pi[0], pj[0])
+        (a, ta), (b, tb) = scan(i), scan(j)
+        e = compose(S, invert(R))  # E = (P_i^-1 P_j) R^-1, as the relations error (Kuemmerle et al. 2009)
+        rows.append((t_i, t_j, float(np.hypot(e[0], e[1])), alignment_cost(a, b, ta, tb, R, truncate),
+                     alignment_cost(a, b, ta, tb, S, truncate)))
+    r = np.array(rows)
+    err, c_rel, c_traj = r[:, 2], r[:, 3], r[:, 4]
+    far = err > min_error
+    contradicted = far & (c_traj < c_rel - margin)
+    supported = far & (c_rel < c_traj - margin)
+    dt = np.abs(r[:, 1] - r[:, 0])
+    out = {
+        "log": name, "trajectory": str(trajectory), "relations_used": int(len(r)),
+        "truncate_m": truncate, "min_error_m": min_error, "margin_m": margin,
+        "mean_translation_error_m": float(err.mean()),
+        "relations_missed_by_more_than_min_error": int(far.sum()),
+        "of_which_the_scans_align_better_at_the_trajectory": int(contradicted.sum()),
+        "of_which_the_scans_align_better_at_the_relation": int(supported.sum()),
+        "mean_translation_error_without_the_contradicted_m": float(err[~contradicted].mean()),
+        "share_of_the_mean_from_the_contradicted": float(err[contradicted].sum() / err.sum()),
+        "contradicted": [{"t_i": float(a), "t_j": float(b), "dt_s": float(d), "error_m": float(e),
+                          "cost_at_relation_m": float(x), "cost_at_trajectory_m": float(y)}
+                         for (a, b, e, x, y), d in zip(r[contradicted], dt[contradicted], strict=True)],
+    }
+    print(f"{name}: {len(r)} relations, mean error {err.mean():.4f} m; {far.sum()} missed by > {min_error} m, of "
+          f"which the scans align better at the trajectory on {contradicted.sum()} and at the relation on "
+          f"{supported.sum()}; without the contradicted ones the mean is {out['mean_translation_error_without_the_contradicted_m']:.4f} m")
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("log", choices=list(FREIBURG))
+    ap.add_argument("trajectory", type=Path, help="a TUM trajectory of the log (hsmap slam's trajectory.tum)")
+    ap.add_argument("--truncate", type=float, default=0.3)
+    ap.add_argument("--min-error", type=float, default=0.2)
+    ap.add_argument("--margin", type=float, default=0.01)
+    ap.add_argument("--out", type=Path, default=None)
+    a = ap.parse_args()
+    datasets = Path(os.environ.get("HSMAP_DATASETS", ROOT.parent / "shared" / "datasets"))
+    out = audit(a.log, a.trajectory, datasets, a.truncate, a.min_error, a.margin)
+    path = a.out or ROOT / "reports" / "benchmarks" / f"relations_audit_{a.log}.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_json(path, out)
+    print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()

@@ -598,10 +598,8 @@ class LoopCloser:
         """The keyframes within ``far_source_path`` of ``newest`` in the graph (none newer), in its frame."""
         near = np.flatnonzero(path[: newest + 1] <= self.config.far_source_path)
         P = graph.poses
-        parts = [transform_points(pose_to_matrix(relative(P[newest], P[k])), keyframes[k].points) for k in near]
-        vm = VoxelMap(self.dim, self.map_voxel, average=self.map_average)
-        vm.add(np.concatenate(parts))
-        return vm.points
+        return keyframe_voxel_map([relative(P[newest], P[k]) for k in near], keyframes, near, self.dim,
+                                  self.map_voxel, average=self.map_average).points
 
     def attempt_far(self, graph: PoseGraph, keyframes: list[Keyframe], newest: int,
                     candidates: list[LoopCandidate], path: NDArray[np.float64],

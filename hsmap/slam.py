@@ -404,12 +404,6 @@ def _residuals(scan: NDArray[np.float64], target: RegistrationTarget, pose: NDAr
     return out
 
 
-def _matched_fraction(scan: NDArray[np.float64], target: RegistrationTarget, pose: NDArray[np.float64],
-                      threshold: float) -> float:
-    """The fraction of the scan's points with a target point within ``threshold`` at ``pose``."""
-    return float(np.isfinite(_residuals(scan, target, pose, threshold)).mean())
-
-
 def _within_box(res: RegistrationResult, centre: NDArray[np.float64], half: NDArray[np.float64],
                 dim: int) -> RegistrationResult:
     """``res`` with its pose brought back into the box ``centre`` +/- ``half`` (per pose component, the box a
@@ -431,9 +425,9 @@ def _within_box(res: RegistrationResult, centre: NDArray[np.float64], half: NDAr
     return replace(res, pose=pose, transformation=pose_to_matrix(pose))
 
 
-def _at_least_as_good(scan: NDArray[np.float64], target: RegistrationTarget, a: NDArray[np.float64],
-                      b: NDArray[np.float64], threshold: float, strict: bool = False) -> bool:
-    """Whether pose ``a`` aligns the scan about as well as pose ``b`` (``strict``: clearly better).
+def _at_least_as_good(ra: NDArray[np.float64], rb: NDArray[np.float64], dim: int, strict: bool = False) -> bool:
+    """Whether pose ``a`` aligns the scan about as well as pose ``b`` (``strict``: clearly better), from the scan's
+    residuals at the two poses, ``ra`` and ``rb`` (:func:`_residuals`; the scan's points are in ``dim`` dimensions).
 
     Judged on the points both poses match (their mean point-to-plane residual) and on how many each matches:
     a pose further along a featureless corridor sees a little more unmapped wall than one that stayed behind,
@@ -448,9 +442,8 @@ def _at_least_as_good(scan: NDArray[np.float64], target: RegistrationTarget, a: 
     -3.5 and +2.7 depending on the draw, and the run lost its heading; intel's overrulings (its odometry does slip,
     by 5-18 deg) matched 85-100 % of the scan with z below -4.3 (seed 1, 111 of them).
     """
-    ra, rb = _residuals(scan, target, a, threshold), _residuals(scan, target, b, threshold)
     both = np.isfinite(ra) & np.isfinite(rb)
-    if both.sum() < (STRICT_MIN_POINTS if strict else 3 * scan.shape[1]):
+    if both.sum() < (STRICT_MIN_POINTS if strict else 3 * dim):
         return False
     ma, mb = float(ra[both].mean()), float(rb[both].mean())
     fa, fb = float(np.isfinite(ra).mean()), float(np.isfinite(rb).mean())
@@ -770,12 +763,13 @@ class HsSlam:
         # the first registration stands only if it aligns the scan clearly better than the one near the
         # prediction (the odometry slipped); otherwise the prediction's is kept, confirmed if it aligns the scan
         # about as well (a corridor's axis, a look-alike), unconfirmed (no keyframe) if not
-        if _at_least_as_good(scan, self._target, res.pose, alt.pose, reg.threshold, strict=True):
+        r_first, r_alt = (_residuals(scan, self._target, p, reg.threshold) for p in (res.pose, alt.pose))
+        if _at_least_as_good(r_first, r_alt, self.dim, strict=True):
             return res, True, True
         # a registration that explains too little of its scan to overrule the prediction cannot veto it either:
         # the scan sees space the map does not hold (the prediction's pose then extends the map)
-        unexplained = _matched_fraction(scan, self._target, res.pose, reg.threshold) < STRICT_MIN_MATCHED
-        return alt, True, unexplained or _at_least_as_good(scan, self._target, alt.pose, res.pose, reg.threshold)
+        unexplained = float(np.isfinite(r_first).mean()) < STRICT_MIN_MATCHED
+        return alt, True, unexplained or _at_least_as_good(r_alt, r_first, self.dim)
 
     def _fuse(self, frame: Frame, res: RegistrationResult) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """The registration fused with the motion prediction, weighted by their information matrices.

@@ -122,6 +122,12 @@ class PoseGraph:
         self._n = 0
         self.edges: list[Edge] = []
         self._factors: list = []  # one gtsam factor per edge, built on first use
+        # the edges as arrays (ends, kind, measurement, information; grown by doubling), for the distances and the
+        # gate, which run on graphs of thousands of edges where reading each Edge's attributes cost more than the work
+        self._ij = np.zeros((64, 2), np.int64)
+        self._kind = np.zeros(64, "U8")
+        self._Z = np.zeros((64, dof))
+        self._info = np.zeros((64, dof, dof))
 
     # ------------------------------------------------------------------------------------------ building
     def __len__(self) -> int:
@@ -166,21 +172,21 @@ class PoseGraph:
                              f"({self.dof}, {self.dof}), got {z.shape} and {info.shape}")
         if not (np.all(np.isfinite(z)) and np.all(np.isfinite(info))):
             raise InputError(f"edge ({i}, {j}): measurement and information must be finite")
-        self.edges.append(Edge(int(i), int(j), z, 0.5 * (info + info.T), kind, robust=bool(robust)))
+        e = Edge(int(i), int(j), z, 0.5 * (info + info.T), kind, robust=bool(robust))
+        k = len(self.edges)
+        if k == len(self._ij):
+            self._ij, self._kind, self._Z, self._info = (np.concatenate([a, np.zeros_like(a)])
+                                                         for a in (self._ij, self._kind, self._Z, self._info))
+        self._ij[k] = e.i, e.j
+        self._kind[k] = kind.value
+        self._Z[k] = e.measurement
+        self._info[k] = e.information
+        self.edges.append(e)
         self._factors.append(None)
-        return len(self.edges) - 1
+        return k
 
     def loop_edges(self, active_only: bool = True) -> list[Edge]:
         return [e for e in self.edges if e.kind == EdgeKind.LOOP and (e.active or not active_only)]
-
-    def _arrays(self, active_only: bool = True):
-        es = [e for e in self.edges if e.active or not active_only]
-        if not es:
-            return es, np.empty(0, int), np.empty(0, int), np.empty(0, bool)
-        ei = np.fromiter((e.i for e in es), int, len(es))
-        ej = np.fromiter((e.j for e in es), int, len(es))
-        kind = np.array([e.kind.value for e in es])
-        return es, ei, ej, kind
 
     # ------------------------------------------------------------------------------------------ distances
     def path_distances(self, source: int, *, rotation_weight: float = 1.0, limit: float = np.inf
@@ -192,9 +198,10 @@ class PoseGraph:
         the registration's precision). The length bounds how uncertain the two ends' relative pose is.
         """
         n = self._n
-        _, ei, ej, kind = self._arrays()
-        keep = kind != EdgeKind.PRIOR.value
-        ei, ej, kind = ei[keep], ej[keep], kind[keep]
+        m = len(self.edges)
+        keep = self._active() & (self._kind[:m] != EdgeKind.PRIOR.value)
+        ei, ej = self._ij[:m][keep].T
+        loop = self._kind[:m][keep] == EdgeKind.LOOP.value
         if len(ei) == 0:
             out = np.full(n, np.inf)
             out[source] = 0.0
@@ -203,7 +210,7 @@ class PoseGraph:
         d = P[ej] - P[ei]
         length = (np.linalg.norm(d[:, : self.dim], axis=1)
                   + rotation_weight * np.abs(wrap_angle(d[:, self.dim:])).max(axis=1))
-        length[kind == EdgeKind.LOOP.value] = 0.0
+        length[loop] = 0.0
         G = sparse.csr_matrix((length + 1e-9, (ei, ej)), shape=(n, n))
         return csgraph.dijkstra(G, directed=False, indices=source, limit=limit)
 
@@ -249,23 +256,23 @@ class PoseGraph:
         result.rejected = rejected
         return result
 
+    def _active(self) -> NDArray[np.bool_]:
+        return np.fromiter((e.active for e in self.edges), bool, len(self.edges))
+
     def _update_chi2(self) -> int | None:
         """Whitened residuals of every edge at the current poses; the worst active loop edge beyond the gate."""
-        if not self.edges:
+        m = len(self.edges)
+        if not m:
             return None
-        es = self.edges
-        ei = np.fromiter((e.i for e in es), int, len(es))
-        ej = np.fromiter((e.j for e in es), int, len(es))
-        Z = np.array([e.measurement for e in es])
-        info = np.array([e.information for e in es])
-        r = self._residuals(ei, ej, Z, np.array([e.kind == EdgeKind.PRIOR for e in es]))
-        c2 = np.einsum("ei,eij,ej->e", r, info, r)
-        worst, worst_chi2 = None, self.gate
-        for k, e in enumerate(es):
-            e.chi2 = float(c2[k])
-            if e.kind.matched and e.active and e.chi2 > worst_chi2:
-                worst, worst_chi2 = k, e.chi2
-        return worst
+        kind = self._kind[:m]
+        r = self._residuals(self._ij[:m, 0], self._ij[:m, 1], self._Z[:m], kind == EdgeKind.PRIOR.value)
+        c2 = np.einsum("ei,eij,ej->e", r, self._info[:m], r)
+        for e, c in zip(self.edges, c2.tolist(), strict=True):
+            e.chi2 = c
+        over = np.where(((kind == EdgeKind.LOOP.value) | (kind == EdgeKind.PAIR.value)) & self._active()
+                        & (c2 > self.gate), c2, -np.inf)
+        worst = int(np.argmax(over))
+        return worst if np.isfinite(over[worst]) else None
 
     def _residuals(self, ei, ej, Z, prior) -> NDArray[np.float64]:
         P = self.poses

@@ -45,6 +45,8 @@ STAGES = {
     "  estimate_normals": [("hsmap/registration.py", "estimate_normals")],
     "  VoxelMap.add": [("hsmap/mapping.py", "add")],
     "  DistanceField.add": [("hsmap/fitness.py", "add")],
+    "  _pair_edges (scan-to-scan refinements)": [("hsmap/slam.py", "_pair_edges")],
+    "  path_distances (graph distances)": [("hsmap/posegraph.py", "path_distances")],
     "  _close_loops (search + verify)": [("hsmap/slam.py", "_close_loops")],
     "  _optimize (graph)": [("hsmap/slam.py", "_optimize")],
     "on_frame (recording)": [("benchmarks/profile_slam.py", "on_frame")],

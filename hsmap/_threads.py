@@ -18,12 +18,13 @@ import os
 import threading
 import warnings
 from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any, TypeVar
 
 from .errors import ConfigError
 
 __all__ = ["THREADS_ENV", "compute_threads", "current_threads", "using_threads", "threads_limited",
-           "start_threading_layer"]
+           "start_threading_layer", "helper_pool"]
 
 #: Environment variable naming the compute threads of hsmap's hot loops.
 THREADS_ENV = "HSMAP_THREADS"
@@ -31,6 +32,10 @@ THREADS_ENV = "HSMAP_THREADS"
 F = TypeVar("F", bound=Callable[..., Any])
 
 _local = threading.local()
+_pool: ThreadPoolExecutor | None = None
+_pool_size = 0
+_pool_pid = 0
+_pool_lock = threading.Lock()
 
 
 def _max_threads() -> int:
@@ -114,3 +119,18 @@ def threads_limited(fn: F) -> F:
             return fn(*args, **kwargs)
 
     return wrapper  # type: ignore[return-value]
+
+
+def helper_pool(workers: int) -> ThreadPoolExecutor:
+    """A pool of at least ``workers`` threads, started once and kept (rebuilt in a forked child).
+
+    For work that releases the GIL, split by the caller, which takes a share itself: scipy's own ``workers=`` starts
+    new threads on every call, which on 2 cores cost 0.1-0.5 ms a query (4,000 points against a 60,000-point tree:
+    1.7 ms with ``workers=2``, 1.0 ms through this pool, 2.0 ms on one thread).
+    """
+    global _pool, _pool_size, _pool_pid
+    with _pool_lock:
+        if _pool is None or _pool_size < workers or _pool_pid != os.getpid():
+            _pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="hsmap")
+            _pool_size, _pool_pid = workers, os.getpid()
+        return _pool

@@ -218,7 +218,7 @@ class DistanceField:
 
 class KDTreeLookup:
     """Exact truncated nearest-neighbour distances with scipy's cKDTree (``workers``: query threads, scipy's
-    meaning; None: hsmap's compute threads for large queries, :func:`hsmap.registration.query_workers`)."""
+    meaning; None: hsmap's compute threads for large queries, :func:`hsmap.registration.tree_query`)."""
 
     def __init__(self, points: ArrayLike, truncation: float, workers: int | None = 1) -> None:
         if not truncation > 0:
@@ -235,12 +235,12 @@ class KDTreeLookup:
 
     def __call__(self, points: NDArray[np.floating]) -> NDArray[np.float64]:
         flat = points.reshape(-1, points.shape[-1])
-        workers = self.workers
-        if workers is None:  # the compute threads for a large query (hsmap.registration.query_workers)
-            from .registration import query_workers
+        if self.workers is None:  # the compute threads for a large query
+            from .registration import tree_query
 
-            workers = query_workers(len(flat))
-        d, _ = self.tree.query(flat, k=1, distance_upper_bound=self.truncation, workers=workers)
+            d, _ = tree_query(self.tree, flat, distance_upper_bound=self.truncation)
+        else:
+            d, _ = self.tree.query(flat, k=1, distance_upper_bound=self.truncation, workers=self.workers)
         return np.minimum(d, self.truncation).reshape(points.shape[:-1])
 
 

@@ -77,9 +77,9 @@ from .registration import (
     drop_degenerate,
     estimate_normals,
     harmony_icp,
-    query_workers,
     refine_icp,
     spans_its_space,
+    tree_query,
 )
 from .trajectory import Trajectory, write_tum
 
@@ -397,7 +397,7 @@ def _residuals(scan: NDArray[np.float64], target: RegistrationTarget, pose: NDAr
                threshold: float) -> NDArray[np.float64]:
     """Point-to-plane residual of each scan point at ``pose`` (NaN: no target point within ``threshold``)."""
     moved = transform_points(pose_to_matrix(pose), scan)
-    d, idx = target.tree.query(moved, k=1, distance_upper_bound=threshold, workers=query_workers(len(moved)))
+    d, idx = tree_query(target.tree, moved, distance_upper_bound=threshold)
     out = np.full(len(scan), np.nan)
     ok = np.isfinite(d)
     out[ok] = np.abs(np.einsum("ij,ij->i", target.normals[idx[ok]], moved[ok] - target.points[idx[ok]]))

@@ -289,3 +289,24 @@ def test_3d_refinement_on_a_nearest_point_field():
     b = refine_icp(src, exact, np.zeros(6), **kw)
     np.testing.assert_allclose(a, truth, atol=1e-4)
     np.testing.assert_allclose(a, b, atol=1e-5)
+
+
+@pytest.mark.parametrize("n", [10, 499, 500, 4001])
+@pytest.mark.parametrize("k", [1, 3])
+def test_a_split_kdtree_query_answers_as_one_query(n, k):
+    """tree_query splits a large query between the compute threads (the caller and a kept pool): the same
+    distances and indices, bit for bit, as scipy's single query, whatever the number of threads."""
+    from scipy.spatial import cKDTree
+
+    from hsmap._threads import using_threads
+    from hsmap.registration import tree_query
+
+    rng = np.random.default_rng(n)
+    tree = cKDTree(rng.uniform(-5, 5, (3000, 3)))
+    q = rng.uniform(-6, 6, (n, 3))
+    d0, i0 = tree.query(q, k=k, distance_upper_bound=0.4)
+    for threads in (1, 2):
+        with using_threads(threads):
+            d, i = tree_query(tree, q, k=k, distance_upper_bound=0.4)
+        np.testing.assert_array_equal(d, d0)
+        np.testing.assert_array_equal(i, i0)

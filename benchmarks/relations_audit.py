@@ -20,7 +20,6 @@ Writes reports/benchmarks/relations_audit_<log>.json (atomically).
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 from pathlib import Path
 
@@ -37,6 +36,7 @@ from hsmap.datasets.relations import read_relations  # noqa: E402
 from hsmap.geometry import compose, invert, pose_to_matrix, relative, transform_points  # noqa: E402
 from hsmap.io import write_json  # noqa: E402
 from hsmap.slam import frame_points  # noqa: E402
+from hsmap.study.paths import datasets_dir  # noqa: E402
 from hsmap.trajectory import read_tum  # noqa: E402
 
 
@@ -111,7 +111,7 @@ def main() -> None:
     ap.add_argument("--margin", type=float, default=0.01)
     ap.add_argument("--out", type=Path, default=None)
     a = ap.parse_args()
-    datasets = Path(os.environ.get("HSMAP_DATASETS", ROOT.parent / "shared" / "datasets"))
+    datasets = datasets_dir()  # $HSMAP_DATASETS, else what hsmap data fetch downloaded, else ../shared/datasets
     out = audit(a.log, a.trajectory, datasets, a.truncate, a.min_error, a.margin)
     path = a.out or ROOT / "reports" / "benchmarks" / f"relations_audit_{a.log}.json"
     path.parent.mkdir(parents=True, exist_ok=True)

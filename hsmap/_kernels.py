@@ -568,3 +568,122 @@ def refine_on_field_3d(src, T, index, npts, nnrm, origin, res, schedule, per_sta
             if np.abs(delta).max() < tol:
                 break
     return T
+
+
+# ---------------------------------------------------------------------------------------- nearest neighbours
+# Exact nearest neighbours within a distance bound on a dense voxel grid (hsmap.neighbours). No fastmath: the
+# squared distances are summed in the order scipy's cKDTree sums them, so the distances are the same bit for bit;
+# of points at exactly the same distance, the lowest row is the answer.
+
+
+@nb.njit(cache=True, nogil=True)
+def grid_build(points, origin, inv_cell, dims):  # pragma: no cover - JIT
+    """Counting sort of points (N, d) by cell (row-major over ``dims``, the last axis fastest).
+
+    Returns (sorted points, their original rows, start): the points of cell c are rows start[c]:start[c + 1] of
+    the sorted points, so the cells along the last axis are one run of rows.
+    """
+    n, d = points.shape
+    ncell = 1
+    for k in range(d):
+        ncell *= dims[k]
+    lin = np.empty(n, np.int64)
+    start = np.zeros(ncell + 1, np.int64)
+    for i in range(n):
+        c = 0
+        for k in range(d):
+            ik = int(np.floor((points[i, k] - origin[k]) * inv_cell))
+            ik = min(max(ik, 0), dims[k] - 1)
+            c = c * dims[k] + ik
+        lin[i] = c
+        start[c + 1] += 1
+    for c in range(ncell):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    order = np.empty(n, np.int64)
+    for i in range(n):
+        order[fill[lin[i]]] = i
+        fill[lin[i]] += 1
+    out = np.empty((n, d))
+    for j in range(n):
+        for k in range(d):
+            out[j, k] = points[order[j], k]
+    return out, order, start
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _cell_range(x, bound, origin, inv_cell, size):  # pragma: no cover - JIT
+    """First and last cell along one axis within ``bound`` of ``x`` (last < first: none), widened by a hair so
+    that rounding never drops a cell that holds a point within the bound."""
+    lo = (x - bound - origin) * inv_cell - 1e-7
+    hi = (x + bound - origin) * inv_cell + 1e-7
+    if not (hi >= 0.0 and lo < size):  # also false for NaN
+        return 0, -1
+    a = 0 if lo < 0.0 else int(np.floor(lo))
+    b = size - 1 if hi >= size else int(np.floor(hi))
+    return a, b
+
+
+@nb.njit(cache=True, nogil=True)
+def grid_nearest_3d(sp, order, start, origin, inv_cell, dims, q, bound, out_d, out_i, lo, hi):  # pragma: no cover
+    """Nearest of the sorted points ``sp`` to q[lo:hi] closer than ``bound``: distance (inf if none) and original
+    row (len(sp) if none) into out_d, out_i."""
+    n = sp.shape[0]
+    b2 = bound * bound
+    for i in range(lo, hi):
+        x = q[i, 0]
+        y = q[i, 1]
+        z = q[i, 2]
+        x0, x1 = _cell_range(x, bound, origin[0], inv_cell, dims[0])
+        y0, y1 = _cell_range(y, bound, origin[1], inv_cell, dims[1])
+        z0, z1 = _cell_range(z, bound, origin[2], inv_cell, dims[2])
+        best = b2
+        bj = -1
+        if z1 >= z0:
+            for cx in range(x0, x1 + 1):
+                for cy in range(y0, y1 + 1):
+                    base = (cx * dims[1] + cy) * dims[2]
+                    for j in range(start[base + z0], start[base + z1 + 1]):
+                        e0 = sp[j, 0] - x
+                        e1 = sp[j, 1] - y
+                        e2 = sp[j, 2] - z
+                        s = e0 * e0 + e1 * e1 + e2 * e2
+                        if s < best or (s == best and bj >= 0 and order[j] < order[bj]):
+                            best = s
+                            bj = j
+        if bj < 0:
+            out_d[i] = np.inf
+            out_i[i] = n
+        else:
+            out_d[i] = np.sqrt(best)
+            out_i[i] = order[bj]
+
+
+@nb.njit(cache=True, nogil=True)
+def grid_nearest_2d(sp, order, start, origin, inv_cell, dims, q, bound, out_d, out_i, lo, hi):  # pragma: no cover
+    """:func:`grid_nearest_3d` for 2D points."""
+    n = sp.shape[0]
+    b2 = bound * bound
+    for i in range(lo, hi):
+        x = q[i, 0]
+        y = q[i, 1]
+        x0, x1 = _cell_range(x, bound, origin[0], inv_cell, dims[0])
+        y0, y1 = _cell_range(y, bound, origin[1], inv_cell, dims[1])
+        best = b2
+        bj = -1
+        if y1 >= y0:
+            for cx in range(x0, x1 + 1):
+                base = cx * dims[1]
+                for j in range(start[base + y0], start[base + y1 + 1]):
+                    e0 = sp[j, 0] - x
+                    e1 = sp[j, 1] - y
+                    s = e0 * e0 + e1 * e1
+                    if s < best or (s == best and bj >= 0 and order[j] < order[bj]):
+                        best = s
+                        bj = j
+        if bj < 0:
+            out_d[i] = np.inf
+            out_i[i] = n
+        else:
+            out_d[i] = np.sqrt(best)
+            out_i[i] = order[bj]

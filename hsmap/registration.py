@@ -29,6 +29,7 @@ from .fitness import DistanceField, FieldObjective, KDTreeLookup, score
 from .geometry import dof_of_dim, matrix_to_pose, pose_to_matrix, relative, transform_points, wrap_angle
 from .harmony import HarmonyConfig, HarmonyResult, as_rng, harmony_search
 from .mapping import voxel_downsample
+from .neighbours import NeighbourGrid, grid_fits
 
 __all__ = [
     "Backend",
@@ -374,6 +375,7 @@ class RegistrationTarget:
         self.dim = self.points.shape[1]
         self._lookups: dict[float, DistanceField | KDTreeLookup] = dict(fields or {})
         self._tree: cKDTree | None = None
+        self._grid: NeighbourGrid | None | bool = None  # False: the points do not fit a grid
         self._normals: NDArray[np.float64] | None = None
         if normals is not None:
             n = np.asarray(normals, dtype=float)
@@ -407,11 +409,22 @@ class RegistrationTarget:
                 best = lk
         return best
 
-    def exact(self, truncation: float) -> KDTreeLookup:
-        """Exact (KD-tree) truncated distances, sharing this target's tree."""
-        lk = KDTreeLookup.__new__(KDTreeLookup)
-        lk.points, lk.tree, lk.truncation, lk.workers = self.points, self.tree, float(truncation), None
-        return lk
+    def nearest(self, points: NDArray[np.float64], bound: float) -> tuple[NDArray[np.float64], NDArray[np.intp]]:
+        """Nearest target point of each point (N, d) closer than ``bound``: (distance, row), ``inf`` and
+        ``len(self.points)`` where none is; cKDTree's answer, bit for bit, except that of points at exactly the
+        same distance the lowest row is the answer wherever it comes from.
+
+        Answered by a :class:`hsmap.neighbours.NeighbourGrid` of cells twice the configured ``threshold`` (the
+        refinement's trimming distances) where the target fits one and ``bound`` is at most two cells, else by
+        the KD-tree; large queries are split between the compute threads either way.
+        """
+        if self._grid is None:
+            cell = 2.0 * self.config.threshold
+            self._grid = NeighbourGrid(self.points, cell) if grid_fits(self.points, cell) else False
+        grid = self._grid
+        if grid is not False and bound <= 2.0 * grid.cell:
+            return grid.query(points, bound)
+        return tree_query(self.tree, points, distance_upper_bound=bound)
 
     @property
     def tree(self) -> cKDTree:
@@ -578,7 +591,7 @@ def refine_icp(
     for dist in schedule:
         for _ in range(per_stage):
             moved = transform_points(T, source)
-            d, idx = tree_query(target.tree, moved, distance_upper_bound=dist)
+            d, idx = target.nearest(moved, dist)
             ok = np.isfinite(d)
             if ok.sum() < 2 * dim:
                 break
@@ -606,7 +619,7 @@ def _match(pose: NDArray[np.float64], source: NDArray[np.float64], target: Regis
     where none (one KD-tree query, shared by the cost, the information and the fitness at a pose)."""
     T = pose_to_matrix(pose)
     moved = transform_points(T, source)
-    d, idx = tree_query(target.tree, moved, distance_upper_bound=threshold)
+    d, idx = target.nearest(moved, threshold)
     return T, moved, d, idx
 
 
@@ -826,9 +839,9 @@ def harmony_icp(
     if match is None:
         match = _match(pose, full, tgt, cfg.threshold)
     if full is src:
-        d = np.minimum(match[2], cfg.threshold)  # what tgt.exact(cfg.threshold) gives for the same query
+        d = np.minimum(match[2], cfg.threshold)
     else:
-        d = tgt.exact(cfg.threshold)(transform_points(pose_to_matrix(pose), src))
+        d = np.minimum(tgt.nearest(transform_points(pose_to_matrix(pose), src), cfg.threshold)[0], cfg.threshold)
     inl = d < cfg.threshold * (1 - 1e-6)
     inlier_ratio = float(inl.mean())
     fitness = float(d.mean() / cfg.threshold + cfg.inlier_weight * (1.0 - inlier_ratio))

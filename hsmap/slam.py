@@ -79,7 +79,6 @@ from .registration import (
     harmony_icp,
     refine_icp,
     spans_its_space,
-    tree_query,
 )
 from .trajectory import Trajectory, write_tum
 
@@ -397,7 +396,7 @@ def _residuals(scan: NDArray[np.float64], target: RegistrationTarget, pose: NDAr
                threshold: float) -> NDArray[np.float64]:
     """Point-to-plane residual of each scan point at ``pose`` (NaN: no target point within ``threshold``)."""
     moved = transform_points(pose_to_matrix(pose), scan)
-    d, idx = tree_query(target.tree, moved, distance_upper_bound=threshold)
+    d, idx = target.nearest(moved, threshold)
     out = np.full(len(scan), np.nan)
     ok = np.isfinite(d)
     out[ok] = np.abs(np.einsum("ij,ij->i", target.normals[idx[ok]], moved[ok] - target.points[idx[ok]]))

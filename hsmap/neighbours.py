@@ -1,0 +1,125 @@
+"""Exact nearest neighbours within a distance bound, on a dense voxel grid (2D or 3D).
+
+The refinement of every registration asks one question thousands of times a second: for each moved source point,
+the nearest target point closer than the trimming distance. :class:`NeighbourGrid` answers it as scipy's
+``cKDTree.query(points, k=1, distance_upper_bound=bound)`` does, bit for bit (the same distances, the same rows;
+``inf`` and ``len(points)`` where none is within the bound; of points at exactly the same distance, the lowest
+row, where the tree answers whichever its walk met first), but looks only at the few cells within the bound of
+each point instead of walking a tree: on the 6-DOF route's local maps (10-50 thousand points, 4,000 queries at
+0.1-0.2 m) a query takes a fifth of the tree's time, and building the grid costs less than building the tree.
+
+Like KISS-ICP's voxel hash, the grid holds the points themselves, sorted by cell (a counting sort); unlike it, the
+answer is exact: every cell that can hold a point within the bound is searched. The cells are a dense array over
+the points' bounding box, so the grid is for local maps and scans, not for a whole building at a fine cell:
+:func:`grid_fits` says whether a point set fits, and callers fall back to the KD-tree where it does not
+(:meth:`hsmap.registration.RegistrationTarget.nearest`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ._threads import current_threads, helper_pool
+from .errors import InputError, ShapeError
+
+__all__ = ["NeighbourGrid", "grid_fits", "MAX_CELLS", "MAX_CELLS_PER_POINT"]
+
+#: At most this many cells in a grid (8 bytes each: 256 MB)...
+MAX_CELLS = 1 << 25
+#: ... and at most this many per point (a grid's memory and build time grow with its cells, not its points).
+MAX_CELLS_PER_POINT = 64
+
+#: Queries of at least this many points are split between the compute threads (each point's answer is its own,
+#: so the result does not depend on the number of threads). A grid answers 4,000 points in about 0.3 ms on one
+#: thread: below this, handing half to another thread costs about what it saves.
+PARALLEL_MIN_QUERIES = 2000
+
+
+def _grid_shape(points: NDArray[np.float64], cell: float) -> tuple[NDArray[np.float64], NDArray[np.int64], float]:
+    """(origin, cells per axis, total cells) of a grid of side ``cell`` over the points' bounding box."""
+    if len(points) == 0:
+        return np.zeros(points.shape[1]), np.ones(points.shape[1], dtype=np.int64), 1.0
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    with np.errstate(over="ignore", invalid="ignore"):
+        span = np.floor((hi - lo) / cell) + 1
+    total = float(np.prod(span)) if np.all(np.isfinite(span)) else float("inf")
+    dims = span.astype(np.int64) if np.isfinite(total) else np.ones(points.shape[1], dtype=np.int64)
+    return lo, dims, total
+
+
+def grid_fits(points: NDArray[np.float64], cell: float) -> bool:
+    """Whether a :class:`NeighbourGrid` of side ``cell`` over ``points`` stays within :data:`MAX_CELLS` and
+    :data:`MAX_CELLS_PER_POINT`."""
+    _, _, total = _grid_shape(points, cell)
+    return total <= min(MAX_CELLS, MAX_CELLS_PER_POINT * max(len(points), 1024))
+
+
+class NeighbourGrid:
+    """Points (M, 2) or (M, 3) sorted into a dense grid of cubic (square) cells of side ``cell`` metres.
+
+    A query with bound b searches the cells within b of each point: (2b / cell + 2) cells per axis at most, so a
+    cell of about the usual bound (the refinement's trimming distance) keeps queries cheap; any finite bound is
+    answered exactly.
+
+    Raises
+    ------
+    ShapeError
+        ``points`` is not (M, 2) or (M, 3).
+    InputError
+        ``cell`` is not > 0, a point is not finite, or the grid would exceed :data:`MAX_CELLS` (see
+        :func:`grid_fits`).
+    """
+
+    def __init__(self, points: ArrayLike, cell: float) -> None:
+        from . import _kernels
+
+        pts = np.ascontiguousarray(points, dtype=np.float64)
+        if pts.ndim != 2 or pts.shape[1] not in (2, 3):
+            raise ShapeError(f"grid points must have shape (M, 2) or (M, 3), got {pts.shape}")
+        if not (np.isfinite(cell) and cell > 0):
+            raise InputError(f"grid cell must be a finite size > 0 m, got {cell}")
+        if not np.all(np.isfinite(pts)):
+            raise InputError("grid points must be finite (no NaN or inf)")
+        origin, dims, total = _grid_shape(pts, cell)
+        if total > MAX_CELLS:
+            raise InputError(f"a neighbour grid of {cell:g} m cells over these points would need {total:.3g} cells, "
+                             f"more than {MAX_CELLS}; use a KD-tree")
+        self.points = pts
+        self.dim = pts.shape[1]
+        self.cell = float(cell)
+        self.origin = origin
+        self.dims = dims
+        self._inv = 1.0 / self.cell
+        self._sorted, self._order, self._start = _kernels.grid_build(pts, origin, self._inv, dims)
+        self._kernel = _kernels.grid_nearest_3d if self.dim == 3 else _kernels.grid_nearest_2d
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+    def query(self, points: ArrayLike, distance_upper_bound: float) -> tuple[NDArray[np.float64], NDArray[np.intp]]:
+        """Distance to the nearest grid point closer than ``distance_upper_bound`` and its row, per point (N, d):
+        ``inf`` and ``len(self)`` where none is (cKDTree's answer, bit for bit, but for exact ties: the lowest
+        row here). Large queries are split between the compute threads (:func:`hsmap._threads.current_threads`);
+        the answer does not depend on how many."""
+        q = np.ascontiguousarray(points, dtype=np.float64)
+        if q.ndim != 2 or q.shape[1] != self.dim:
+            raise ShapeError(f"query points must have shape (N, {self.dim}), got {q.shape}")
+        bound = float(distance_upper_bound)
+        if not (bound > 0 and np.isfinite(bound)):
+            raise InputError(f"distance_upper_bound must be a finite distance > 0 m, got {distance_upper_bound}")
+        n = len(q)
+        d = np.empty(n)
+        idx = np.empty(n, dtype=np.intp)
+        args = (self._sorted, self._order, self._start, self.origin, self._inv, self.dims, q, bound, d, idx)
+        t = current_threads()
+        if t <= 1 or n < PARALLEL_MIN_QUERIES:
+            self._kernel(*args, 0, n)
+            return d, idx
+        cuts = np.linspace(0, n, t + 1).astype(int)
+        pool = helper_pool(t - 1)
+        futures = [pool.submit(self._kernel, *args, int(a), int(b)) for a, b in zip(cuts[1:-1], cuts[2:], strict=True)]
+        self._kernel(*args, 0, int(cuts[1]))
+        for f in futures:
+            f.result()
+        return d, idx

@@ -409,6 +409,14 @@ class RegistrationTarget:
                 best = lk
         return best
 
+    def prepare(self) -> NeighbourGrid | bool:
+        """Build the neighbour grid of :meth:`nearest` now rather than on the first query (False: the target
+        does not fit one, :func:`hsmap.neighbours.grid_fits`)."""
+        if self._grid is None:
+            cell = 2.0 * self.config.threshold
+            self._grid = NeighbourGrid(self.points, cell) if grid_fits(self.points, cell) else False
+        return self._grid
+
     def nearest(self, points: NDArray[np.float64], bound: float) -> tuple[NDArray[np.float64], NDArray[np.intp]]:
         """Nearest target point of each point (N, d) closer than ``bound``: (distance, row), ``inf`` and
         ``len(self.points)`` where none is; cKDTree's answer, bit for bit, except that of points at exactly the
@@ -418,10 +426,7 @@ class RegistrationTarget:
         refinement's trimming distances) where the target fits one and ``bound`` is at most two cells, else by
         the KD-tree; large queries are split between the compute threads either way.
         """
-        if self._grid is None:
-            cell = 2.0 * self.config.threshold
-            self._grid = NeighbourGrid(self.points, cell) if grid_fits(self.points, cell) else False
-        grid = self._grid
+        grid = self.prepare()
         if grid is not False and bound <= 2.0 * grid.cell:
             return grid.query(points, bound)
         return tree_query(self.tree, points, distance_upper_bound=bound)

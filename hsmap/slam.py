@@ -723,6 +723,10 @@ class HsSlam:
             self._offset.append(relative(self.graph.poses[k], pose))
         if frame.odometry is not None:
             self._prev_odom = np.asarray(frame.odometry, dtype=float)
+        if keyframe and self._target is None:
+            # the next frame's target (local map crop, neighbour grid), built from what it will be built from
+            # anyway: the keyframe's step carries the map's upkeep, and the next frame only tracks
+            self._rebuild_target()
         result = FrameResult(frame.index, float(frame.stamp), pose, float(fitness), float(inlier), float(rmse),
                              int(evaluations), time.perf_counter() - t0, bool(keyframe), len(scan), len(self.map),
                              retried, verified, float(cost))
@@ -1010,6 +1014,7 @@ class HsSlam:
                                         normals=normals if plane else None)
             self._field_centre = centre.copy()
         self._target = RegistrationTarget(pts, reg, normals=normals, fields={reg.search_threshold: self._field})
+        self._target.prepare()
 
     def global_map(self) -> VoxelMap:
         """The point map of every keyframe at its current (optimised) pose."""

@@ -201,9 +201,11 @@ def splat_field_2d(pts, origin, res, field, radius):  # pragma: no cover - JIT
 
 
 @nb.njit(**_OPTS)
-def splat_field_3d(pts, origin, res, field, radius):  # pragma: no cover - JIT
-    """field[ix, iy, iz] = min(field, distance from the node's centre to each point within `radius` cells)."""
-    nx = field.shape[0]
+def splat_field_3d(pts, origin, res, field, radius, a_lo=0, a_hi=-1):  # pragma: no cover - JIT
+    """field[ix, iy, iz] = min(field, distance from the node's centre to each point within `radius` cells), for
+    the nodes with a_lo <= ix < a_hi (a_hi -1: all): slabs of the field can be splatted by different threads,
+    each node by one, with the same result (a minimum does not depend on the order)."""
+    nx = field.shape[0] if a_hi < 0 else a_hi
     ny = field.shape[1]
     nz = field.shape[2]
     for i in range(pts.shape[0]):
@@ -213,7 +215,7 @@ def splat_field_3d(pts, origin, res, field, radius):  # pragma: no cover - JIT
         cu = int(np.floor(u + 0.5))
         cv = int(np.floor(v + 0.5))
         cw = int(np.floor(w + 0.5))
-        for a in range(max(cu - radius, 0), min(cu + radius + 1, nx)):
+        for a in range(max(cu - radius, a_lo), min(cu + radius + 1, nx)):
             dx = (a - u) * res
             for b in range(max(cv - radius, 0), min(cv + radius + 1, ny)):
                 dy = (b - v) * res

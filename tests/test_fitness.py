@@ -130,6 +130,27 @@ def test_parallel_fitness_is_the_same_for_any_number_of_threads(rng, dim):
         np.testing.assert_array_equal(x, y)
 
 
+def test_a_3d_field_splatted_in_slabs_is_the_same_for_any_number_of_threads(rng):
+    """A large 3D splat is split into slabs along x between the compute threads: the same field, bit for bit,
+    built at once and grown, on one thread and on two; and the same as splatting point by point."""
+    from hsmap._threads import using_threads
+    from hsmap.fitness import PARALLEL_MIN_SPLAT
+
+    pts = rng.uniform(0, 3, (6000, 3))
+    fields = {}
+    for n in (1, 2):
+        with using_threads(n):
+            f = DistanceField(pts[:4000], 0.1, 0.3, bounds=[[-0.5] * 3, [3.5] * 3])
+            f.add(pts[4000:])
+        fields[n] = f.values
+    assert 2000 * (2 * f._radius + 1) ** 3 >= PARALLEL_MIN_SPLAT  # both splats took the parallel path
+    np.testing.assert_array_equal(fields[1], fields[2])
+    one = DistanceField(pts[:1], 0.1, 0.3, bounds=[[-0.5] * 3, [3.5] * 3])
+    for p in pts[1:]:
+        one.add(p[None])
+    np.testing.assert_array_equal(one.values, fields[2])
+
+
 def test_thread_count_from_the_environment(monkeypatch):
     import numba
 

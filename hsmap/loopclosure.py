@@ -24,7 +24,7 @@ from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from .errors import ConfigError
 from .geometry import compose, pose_to_matrix, relative, transform_points, wrap_angle
@@ -262,15 +262,25 @@ class LoopClosure:
 
 
 def keyframe_voxel_map(poses, keyframes: list[Keyframe], which, dim: int, voxel: float, *,
-                       average: bool = False) -> VoxelMap:
+                       average: bool = False, within: tuple[ArrayLike, float] | None = None) -> VoxelMap:
     """A voxel map of the keyframes ``which``, each moved by its pose in ``poses`` (one per keyframe of ``which``,
-    in that order), points and normals inserted at once (the first point, or the mean, per voxel)."""
+    in that order), points and normals inserted at once (the first point, or the mean, per voxel).
+
+    ``within`` = (centre, radius): only the points within ``radius`` metres of ``centre`` (horizontally in 3D).
+    A voxel whose points are all kept is the same as in the whole map (the same points in the same order), so
+    the map is the whole map's crop within ``radius`` less two voxel diagonals."""
     vm = VoxelMap(dim, voxel, average=average)
     pts, nrm = [], []
     for k, pose in zip(which, poses, strict=True):
         T = pose_to_matrix(pose)
-        pts.append(transform_points(T, keyframes[k].points))
-        nrm.append(keyframes[k].normals @ T[:dim, :dim].T)
+        p = transform_points(T, keyframes[k].points)
+        n = keyframes[k].normals @ T[:dim, :dim].T
+        if within is not None:
+            c = np.asarray(within[0], dtype=float)[:2]
+            keep = ((p[:, :2] - c) ** 2).sum(1) <= within[1] ** 2
+            p, n = p[keep], n[keep]
+        pts.append(p)
+        nrm.append(n)
     if pts:
         vm.add(np.concatenate(pts), np.concatenate(nrm))
     return vm

@@ -122,16 +122,16 @@ class VoxelMap:
         pts, nrm = pts[ok], nrm[ok]
         if len(pts) == 0:
             return (pts, nrm) if return_normals else pts
-        keys = voxel_keys(pts, self.voxel)
+        from . import _kernels
+
+        # the voxels' sorted keys, first rows, sums (in input order) and counts: one pass of a hash table
+        keys, first, sums, counts = _kernels.voxel_reduce(np.ascontiguousarray(pts), self.voxel, _BIAS)
+        if len(keys) == 0:
+            raise InputError(f"points beyond +/-{_BIAS * self.voxel:.0f} m cannot be stored at voxel size "
+                             f"{self.voxel} m (e.g. {pts[first[0]].tolist()})")
         if self.average:
-            keys, first, inverse, counts = np.unique(keys, return_index=True, return_inverse=True,
-                                                     return_counts=True)
-            inverse = inverse.ravel()
-            sums = np.stack([np.bincount(inverse, weights=pts[:, d], minlength=len(keys))
-                             for d in range(self.dim)], axis=1)
-            pts, nrm, counts = sums / counts[:, None], nrm[first], counts.astype(float)
+            pts, nrm = sums / counts[:, None], nrm[first]
         else:
-            keys, first = np.unique(keys, return_index=True)
             pts, nrm = pts[first], nrm[first]
         pos = np.searchsorted(self._keys, keys)
         hit = pos < len(self._keys)

@@ -981,15 +981,26 @@ class HsSlam:
         near = np.flatnonzero(self._path[: len(self.keyframes)] <= lc.tracking_path_distance)
         return near.tolist()
 
-    def _rebuild_map(self) -> None:
-        self.map = self._keyframe_map(self._tracking_keyframes())
+    def _rebuild_map(self, centre: NDArray[np.float64]) -> None:
+        """The tracking map anew from the tracking keyframes at their current poses, for a target centred here.
+
+        With loop closure every re-centring rebuilds the map, and until then the target is cropped within
+        ``local_map_radius`` of poses at most half of it from ``centre``: the map keeps the points that such crops
+        can hold (a margin of two voxel diagonals keeps every voxel they reach whole, so the crops are those of
+        the whole map). Without loop closure the map grows for good and keeps everything.
+        """
+        within = None
+        if self._closer is not None:
+            voxel = self.config.effective_map_voxel()
+            within = (centre, 1.5 * self.config.local_map_radius + 2 * voxel * np.sqrt(self.dim))
+        self.map = self._keyframe_map(self._tracking_keyframes(), within=within)
         self._map_stale = False
 
-    def _keyframe_map(self, which) -> VoxelMap:
+    def _keyframe_map(self, which, within: tuple[NDArray[np.float64], float] | None = None) -> VoxelMap:
         """A voxel map of the given keyframes at their current poses (the first point or the mean per voxel)."""
         which = list(which)
         return keyframe_voxel_map([self.graph.poses[k] for k in which], self.keyframes, which, self.dim,
-                                  self.config.effective_map_voxel(), average=self.config.map_average)
+                                  self.config.effective_map_voxel(), average=self.config.map_average, within=within)
 
     def _rebuild_target(self) -> None:
         """The registration target: the local map crop (points, normals) and the search field around the robot."""
@@ -998,7 +1009,7 @@ class HsSlam:
         centre = self.poses[-1][: self.dim]
         recentre = self._field is None or np.linalg.norm(centre[:2] - self._field_centre[:2]) > cfg.local_map_radius / 2
         if self._map_stale or (recentre and self._closer is not None):
-            self._rebuild_map()
+            self._rebuild_map(centre)
             recentre = True
         pts, normals = self.map.crop_with_normals(centre, cfg.local_map_radius)
         if recentre:

@@ -56,3 +56,55 @@ def test_averaging_voxel_map_takes_noise_out_of_a_wall_seen_many_times():
     err_first = np.abs(first.points[:, 0] - 1.025).mean()
     err_mean = np.abs(mean.points[:, 0] - 1.025).mean()
     assert err_mean < 0.003 < err_first
+
+
+@pytest.mark.parametrize("average", [False, True])
+@pytest.mark.parametrize("dim", [2, 3])
+def test_voxel_map_is_the_sorted_reduction_of_its_points(dim, average):
+    """The map's compiled hash-table insertion against the plain numpy reduction it replaced (np.unique on the
+    voxel keys, bincount sums in input order): the same keys, points and normals bit for bit, over batches that
+    fall in new voxels and in voxels already held."""
+    from hsmap.mapping import voxel_keys
+
+    rng = np.random.default_rng(dim)
+    batches = [rng.uniform(-3, 3, (4000, dim)) for _ in range(3)]
+    normals = [rng.normal(size=(4000, dim)) for _ in range(3)]
+    m = VoxelMap(dim, 0.1, average=average)
+    for b, n in zip(batches, normals, strict=True):
+        m.add(b, n)
+    pts, nrm = np.concatenate(batches), np.concatenate(normals)
+    keys, first, inverse, counts = np.unique(voxel_keys(pts, 0.1), return_index=True, return_inverse=True,
+                                             return_counts=True)
+    np.testing.assert_array_equal(m._keys, keys)
+    np.testing.assert_array_equal(m.normals, nrm[first])
+    if average:
+        # the map sums batch by batch: the same sums in input order when each batch is summed and added
+        sums = np.zeros((len(keys), dim))
+        for b in batches:
+            k = np.searchsorted(keys, voxel_keys(b, 0.1))
+            for d in range(dim):
+                sums[:, d] += np.bincount(k, weights=b[:, d], minlength=len(keys))
+        np.testing.assert_array_equal(m.points, sums / np.bincount(inverse.ravel())[:, None])
+    else:
+        np.testing.assert_array_equal(m.points, pts[first])
+    with pytest.raises(InputError, match="cannot be stored"):
+        m.add(np.full((1, dim), 1e9))
+
+
+def test_a_keyframe_map_within_a_radius_crops_as_the_whole_map():
+    """keyframe_voxel_map(within=(c, r)) keeps only the points within r of c; its crops within r less two voxel
+    diagonals are the whole map's, bit for bit (every voxel they reach is whole)."""
+    from hsmap.loopclosure import Keyframe, keyframe_voxel_map
+
+    rng = np.random.default_rng(0)
+    kfs = [Keyframe(i, float(i), rng.uniform(-8, 8, (3000, 3)), rng.normal(size=(3000, 3))) for i in range(6)]
+    poses = rng.uniform(-3, 3, (6, 6)) * [1, 1, 0.1, 0.05, 0.05, 1]
+    whole = keyframe_voxel_map(poses, kfs, range(6), 3, 0.2, average=True)
+    part = keyframe_voxel_map(poses, kfs, range(6), 3, 0.2, average=True, within=([1.0, -1.0, 5.0], 6.0))
+    assert len(part) < len(whole)
+    for c in ([1.0, -1.0, 0.0], [3.0, 1.0, 0.0]):
+        r = 6.0 - 2 * 0.2 * np.sqrt(3) - np.hypot(c[0] - 1.0, c[1] + 1.0)
+        a, an = whole.crop_with_normals(c, r)
+        b, bn = part.crop_with_normals(c, r)
+        np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(an, bn)

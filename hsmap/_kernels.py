@@ -754,3 +754,20 @@ def voxel_reduce(pts, voxel, bias):  # pragma: no cover - JIT
         for j in range(d):
             out_sums[r, j] = sums[v, j]
     return out_keys, out_first, out_sums, out_counts
+
+
+@nb.njit(cache=True, nogil=True)
+def bounding_box(points):  # pragma: no cover - JIT
+    """(lower, upper) corners of points (N, d), N >= 1: one pass (numpy's min(axis=0) on an (N, 3) array walks
+    it three elements at a time, some 20 times slower)."""
+    n, d = points.shape
+    lo = points[0].copy()
+    hi = points[0].copy()
+    for i in range(1, n):
+        for k in range(d):
+            v = points[i, k]
+            if v < lo[k]:
+                lo[k] = v
+            if v > hi[k]:
+                hi[k] = v
+    return lo, hi

@@ -38,9 +38,11 @@ PARALLEL_MIN_QUERIES = 2000
 
 def _grid_shape(points: NDArray[np.float64], cell: float) -> tuple[NDArray[np.float64], NDArray[np.int64], float]:
     """(origin, cells per axis, total cells) of a grid of side ``cell`` over the points' bounding box."""
+    from . import _kernels
+
     if len(points) == 0:
         return np.zeros(points.shape[1]), np.ones(points.shape[1], dtype=np.int64), 1.0
-    lo, hi = points.min(axis=0), points.max(axis=0)
+    lo, hi = _kernels.bounding_box(np.ascontiguousarray(points, dtype=np.float64))
     with np.errstate(over="ignore", invalid="ignore"):
         span = np.floor((hi - lo) / cell) + 1
     total = float(np.prod(span)) if np.all(np.isfinite(span)) else float("inf")

@@ -590,7 +590,7 @@ def grid_build(points, origin, inv_cell, dims):  # pragma: no cover - JIT
     for k in range(d):
         ncell *= dims[k]
     lin = np.empty(n, np.int64)
-    start = np.zeros(ncell + 1, np.int64)
+    start = np.zeros(ncell + 1, np.int32)  # rows fit: hsmap.neighbours refuses 2**31 points
     for i in range(n):
         c = 0
         for k in range(d):

@@ -25,7 +25,7 @@ from .errors import InputError, ShapeError
 
 __all__ = ["NeighbourGrid", "grid_fits", "MAX_CELLS", "MAX_CELLS_PER_POINT"]
 
-#: At most this many cells in a grid (8 bytes each: 256 MB)...
+#: At most this many cells in a grid (4 bytes each: 128 MB)...
 MAX_CELLS = 1 << 25
 #: ... and at most this many per point (a grid's memory and build time grow with its cells, not its points).
 MAX_CELLS_PER_POINT = 64
@@ -83,6 +83,8 @@ class NeighbourGrid:
             raise InputError(f"grid cell must be a finite size > 0 m, got {cell}")
         if not np.all(np.isfinite(pts)):
             raise InputError("grid points must be finite (no NaN or inf)")
+        if len(pts) >= np.iinfo(np.int32).max:
+            raise InputError(f"a neighbour grid holds fewer than {np.iinfo(np.int32).max} points, got {len(pts)}")
         origin, dims, total = _grid_shape(pts, cell)
         if total > MAX_CELLS:
             raise InputError(f"a neighbour grid of {cell:g} m cells over these points would need {total:.3g} cells, "

@@ -201,13 +201,18 @@ def splat_field_2d(pts, origin, res, field, radius):  # pragma: no cover - JIT
 
 
 @nb.njit(**_OPTS)
-def splat_field_3d(pts, origin, res, field, radius, a_lo=0, a_hi=-1):  # pragma: no cover - JIT
+def splat_field_3d(pts, origin, res, field, radius, tau, a_lo=0, a_hi=-1):  # pragma: no cover - JIT
     """field[ix, iy, iz] = min(field, distance from the node's centre to each point within `radius` cells), for
     the nodes with a_lo <= ix < a_hi (a_hi -1: all): slabs of the field can be splatted by different threads,
-    each node by one, with the same result (a minimum does not depend on the order)."""
+    each node by one, with the same result (a minimum does not depend on the order).
+
+    ``tau`` (finite) is the field's truncation, which no node exceeds: the nodes of the cube farther than it from
+    the point (with a margin) are not visited, since none of them could be lowered; the ball is a sixth of the
+    cube of 9 cells a side that a 0.3 m truncation at 0.1 m cells needs."""
     nx = field.shape[0] if a_hi < 0 else a_hi
     ny = field.shape[1]
     nz = field.shape[2]
+    t2 = tau * tau * (1.0 + 1e-6)
     for i in range(pts.shape[0]):
         u = (pts[i, 0] - origin[0]) / res - 0.5
         v = (pts[i, 1] - origin[1]) / res - 0.5
@@ -220,7 +225,12 @@ def splat_field_3d(pts, origin, res, field, radius, a_lo=0, a_hi=-1):  # pragma:
             for b in range(max(cv - radius, 0), min(cv + radius + 1, ny)):
                 dy = (b - v) * res
                 dxy = dx * dx + dy * dy
-                for c in range(max(cw - radius, 0), min(cw + radius + 1, nz)):
+                if dxy > t2:
+                    continue
+                hz = np.sqrt(t2 - dxy) / res  # |c - w| beyond this (in cells): farther than tau
+                c0 = max(max(cw - radius, 0), int(np.floor(w - hz)) - 1)
+                c1 = min(min(cw + radius + 1, nz), int(np.floor(w + hz)) + 2)
+                for c in range(c0, c1):
                     dz = (c - w) * res
                     d = np.sqrt(dxy + dz * dz)
                     if d < field[a, b, c]:

@@ -179,7 +179,7 @@ class DistanceField:
         # slabs along x, one per compute thread, each node lowered by one thread: the same field for any count
         t = current_threads() if len(pts) * (2 * self._radius + 1) ** 3 >= PARALLEL_MIN_SPLAT else 1
         cuts = np.linspace(0, self.shape[0], t + 1).astype(int)
-        args = (pts, self.origin, self.resolution, self.values, self._radius)
+        args = (pts, self.origin, self.resolution, self.values, self._radius, self.truncation)
         futures = [helper_pool(t - 1).submit(_kernels.splat_field_3d, *args, int(a), int(b))
                    for a, b in zip(cuts[1:-1], cuts[2:], strict=True)]
         _kernels.splat_field_3d(*args, 0, int(cuts[1]))

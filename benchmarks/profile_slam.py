@@ -34,7 +34,7 @@ STAGES = {
     "  refine_icp": [("hsmap/registration.py", "refine_icp")],
     "  _alignment_cost / _match (correspondences)": [("hsmap/registration.py", "_alignment_cost"),
                                                      ("hsmap/registration.py", "_match")],
-    "  RegistrationTarget.nearest (grid or KD-tree queries)": [("hsmap/registration.py", "nearest")],
+    "  RegistrationTarget.nearest (neighbour queries)": [("hsmap/registration.py", "nearest")],
     "  RegistrationTarget.prepare (neighbour grid builds)": [("hsmap/registration.py", "prepare")],
     "  _information_and_cost": [("hsmap/registration.py", "_information_and_cost")],
     "  _subsample": [("hsmap/registration.py", "_subsample")],

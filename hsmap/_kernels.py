@@ -21,7 +21,14 @@ _OPTS = dict(fastmath=True, cache=True, nogil=True)
 PARALLEL_MIN_WORK = 32768
 
 
-@nb.njit(cache=True, nogil=True, fastmath=True)
+#: _score_pose's fastmath flags: all but 'reassoc'. It is inlined into the kernels that call it, and with 'reassoc'
+#: LLVM may vectorise its sum over the points (another order of additions) in one compilation and not in
+#: another: a run that compiled the kernels gave other last bits than a run that loaded them from numba's cache
+#: (intel seed 1: 442 loops against 439 from frame 3437 on). Without it the sum keeps its order.
+SCORE_FASTMATH = {"nnan", "ninf", "nsz", "arcp", "contract", "afn"}
+
+
+@nb.njit(cache=True, nogil=True, fastmath=SCORE_FASTMATH)
 def _score_pose(pose, pts, flat, shape, origin, inv_res, tau):  # pragma: no cover - JIT
     """Mean truncated distance and inlier ratio of `pts` moved by one pose, looked up in a padded flat field."""
     npts, d = pts.shape

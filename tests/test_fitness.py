@@ -210,3 +210,43 @@ def test_3d_field_keeps_each_nodes_nearest_point(rng):
     np.testing.assert_allclose(f.values[tuple(cells.T)], d.min(axis=1), atol=1e-6)  # float32
     with pytest.raises(InputError, match="normals"):
         f.add(b)
+
+
+_SCORES = """
+import sys
+import numpy as np
+from hsmap.fitness import DistanceField, FieldObjective
+from hsmap.harmony import HarmonyConfig, harmony_search
+rng = np.random.default_rng(0)
+out = []
+for dim in (2, 3):
+    pts = rng.uniform(0, 5, (3000, dim))
+    field = DistanceField(pts, 0.05 if dim == 2 else 0.1, 0.3)
+    for n in (16, 400):
+        out.append(field.score_batch(rng.uniform(-0.3, 0.3, (n, 3 if dim == 2 else 6)),
+                                     rng.uniform(0, 5, (150, dim)))[0])
+    src = pts[rng.choice(3000, 150)] - 0.1
+    hs = harmony_search(FieldObjective(src, field, 1.0), [[-0.5, 0.5]] * (3 if dim == 2 else 6),
+                        config=HarmonyConfig(batch_size=16, max_iterations=100), rng=3)
+    out.append(np.r_[hs.x, hs.history])
+np.save(sys.argv[1], np.concatenate(out))
+"""
+
+
+def test_a_run_that_compiles_the_kernels_scores_as_one_that_loads_them(tmp_path):
+    """The same seed gives the same result on the first run after an install (numba compiles the kernels) and on
+    the next (it loads them from its cache): the field scores and a Harmony Search, bit for bit, in two fresh
+    processes sharing an empty cache. With fastmath's 'reassoc' on the inlined scoring function they differed in
+    the last bit (687 of 700 values here), which a SLAM run turns into another trajectory."""
+    import os
+    import subprocess
+    import sys
+
+    script = tmp_path / "scores.py"
+    script.write_text(_SCORES)
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    for run in ("compiled", "cached"):
+        subprocess.run([sys.executable, str(script), str(tmp_path / f"{run}.npy")], env=env, check=True,
+                       timeout=600)
+    assert any((tmp_path / "cache").rglob("*.nbi"))  # the second run had a cache to load
+    np.testing.assert_array_equal(np.load(tmp_path / "compiled.npy"), np.load(tmp_path / "cached.npy"))

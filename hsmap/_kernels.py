@@ -245,6 +245,44 @@ def splat_field_3d(pts, origin, res, field, radius, tau, a_lo=0, a_hi=-1):  # pr
 
 
 @nb.njit(cache=True, nogil=True)
+def _number_voxels(keys, skip, valid):  # pragma: no cover - JIT
+    """Number the distinct voxel keys in the order they first appear, through a hash table (one pass): (voxel
+    number of each key, -1 where it is ``skip``; the keys of the numbers; the row where each first appears; how
+    many). ``valid``: how many keys are not ``skip`` (sizes the table)."""
+    n = keys.shape[0]
+    bits = 1
+    while (1 << bits) < 2 * valid:
+        bits += 1
+    size = 1 << bits
+    mask = np.uint64(size - 1)
+    table = np.full(size, -1, dtype=np.int64)  # slot -> voxel number
+    voxel_of = np.empty(n, dtype=np.int64)
+    ukeys = np.empty(max(valid, 1), dtype=np.int64)
+    first = np.empty(max(valid, 1), dtype=np.int64)
+    m = 0
+    for i in range(n):
+        k = keys[i]
+        if k == skip:
+            voxel_of[i] = -1
+            continue
+        h = (np.uint64(k) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(64 - bits)
+        while True:
+            v = table[h]
+            if v < 0:
+                table[h] = m
+                ukeys[m] = k
+                first[m] = i
+                voxel_of[i] = m
+                m += 1
+                break
+            if ukeys[v] == k:
+                voxel_of[i] = v
+                break
+            h = (h + np.uint64(1)) & mask
+    return voxel_of, ukeys, first, m
+
+
+@nb.njit(cache=True, nogil=True)
 def voxel_centroids(pts, voxel, rmin=0.0, rmax=np.inf):  # pragma: no cover - JIT
     """Centroid of the points in each occupied voxel (side `voxel`), in the order of their voxel keys.
 
@@ -268,33 +306,7 @@ def voxel_centroids(pts, voxel, rmin=0.0, rmax=np.inf):  # pragma: no cover - JI
             k = (k << 21) | (np.int64(np.floor(pts[i, j] / voxel)) + (1 << 20))
         keys[i] = k
         valid += 1
-    bits = 1
-    while (1 << bits) < 2 * valid:
-        bits += 1
-    size = 1 << bits
-    mask = np.uint64(size - 1)
-    table = np.full(size, -1, dtype=np.int64)  # slot -> voxel number
-    voxel_of = np.empty(n, dtype=np.int64)
-    ukeys = np.empty(valid, dtype=np.int64)
-    m = 0
-    for i in range(n):
-        k = keys[i]
-        if k == big:
-            voxel_of[i] = -1
-            continue
-        h = (np.uint64(k) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(64 - bits)
-        while True:
-            v = table[h]
-            if v < 0:
-                table[h] = m
-                ukeys[m] = k
-                voxel_of[i] = m
-                m += 1
-                break
-            if ukeys[v] == k:
-                voxel_of[i] = v
-                break
-            h = (h + np.uint64(1)) & mask
+    voxel_of, ukeys, _, m = _number_voxels(keys, big, valid)
     sums = np.zeros((m, d))
     counts = np.zeros(m)
     for i in range(n):
@@ -644,62 +656,42 @@ def _cell_range(x, bound, origin, inv_cell, size):  # pragma: no cover - JIT
 
 
 @nb.njit(cache=True, nogil=True)
-def grid_nearest_3d(sp, order, start, origin, inv_cell, dims, q, bound, out_d, out_i, lo, hi):  # pragma: no cover
-    """Nearest of the sorted points ``sp`` to q[lo:hi] closer than ``bound``: distance (inf if none) and original
-    row (len(sp) if none) into out_d, out_i."""
-    n = sp.shape[0]
+def grid_nearest(sp, order, start, origin, inv_cell, dims, q, bound, out_d, out_i, lo, hi):  # pragma: no cover
+    """Nearest of the sorted points ``sp`` (2D or 3D) to q[lo:hi] closer than ``bound``: distance (inf if none)
+    and original row (len(sp) if none) into out_d, out_i.
+
+    The cells within the bound are visited as runs along the last axis, one run per cell of the axes before it
+    (in 2D, the first axis only: the middle loop is then one pass with a stride of 1)."""
+    n, d = sp.shape
+    last = d - 1
     b2 = bound * bound
     for i in range(lo, hi):
         x = q[i, 0]
         y = q[i, 1]
-        z = q[i, 2]
+        z = q[i, last]
         x0, x1 = _cell_range(x, bound, origin[0], inv_cell, dims[0])
-        y0, y1 = _cell_range(y, bound, origin[1], inv_cell, dims[1])
-        z0, z1 = _cell_range(z, bound, origin[2], inv_cell, dims[2])
+        if d == 3:
+            y0, y1 = _cell_range(y, bound, origin[1], inv_cell, dims[1])
+            stride = dims[1]
+        else:
+            y0, y1, stride = 0, 0, 1
+        z0, z1 = _cell_range(z, bound, origin[last], inv_cell, dims[last])
         best = b2
         bj = -1
         if z1 >= z0:
             for cx in range(x0, x1 + 1):
                 for cy in range(y0, y1 + 1):
-                    base = (cx * dims[1] + cy) * dims[2]
+                    base = (cx * stride + cy) * dims[last]
                     for j in range(start[base + z0], start[base + z1 + 1]):
                         e0 = sp[j, 0] - x
                         e1 = sp[j, 1] - y
-                        e2 = sp[j, 2] - z
-                        s = e0 * e0 + e1 * e1 + e2 * e2
+                        s = e0 * e0 + e1 * e1  # the order cKDTree sums in
+                        if d == 3:
+                            e2 = sp[j, 2] - z
+                            s += e2 * e2
                         if s < best or (s == best and bj >= 0 and order[j] < order[bj]):
                             best = s
                             bj = j
-        if bj < 0:
-            out_d[i] = np.inf
-            out_i[i] = n
-        else:
-            out_d[i] = np.sqrt(best)
-            out_i[i] = order[bj]
-
-
-@nb.njit(cache=True, nogil=True)
-def grid_nearest_2d(sp, order, start, origin, inv_cell, dims, q, bound, out_d, out_i, lo, hi):  # pragma: no cover
-    """:func:`grid_nearest_3d` for 2D points."""
-    n = sp.shape[0]
-    b2 = bound * bound
-    for i in range(lo, hi):
-        x = q[i, 0]
-        y = q[i, 1]
-        x0, x1 = _cell_range(x, bound, origin[0], inv_cell, dims[0])
-        y0, y1 = _cell_range(y, bound, origin[1], inv_cell, dims[1])
-        best = b2
-        bj = -1
-        if y1 >= y0:
-            for cx in range(x0, x1 + 1):
-                base = cx * dims[1]
-                for j in range(start[base + y0], start[base + y1 + 1]):
-                    e0 = sp[j, 0] - x
-                    e1 = sp[j, 1] - y
-                    s = e0 * e0 + e1 * e1
-                    if s < best or (s == best and bj >= 0 and order[j] < order[bj]):
-                        best = s
-                        bj = j
         if bj < 0:
             out_d[i] = np.inf
             out_i[i] = n
@@ -714,20 +706,12 @@ def voxel_reduce(pts, voxel, bias):  # pragma: no cover - JIT
     the indices floor(p / voxel) + bias, 21 bits each): (keys, first row of each voxel, the sum of its points in
     input order, how many). If a point lies beyond the 21 bits, keys is empty and first[0] is its row.
 
-    One pass over the points with a hash table of the voxels (a map rebuilt from 100 keyframes is a million
-    points in some 75 thousand voxels), then a sort of the voxels only.
+    One pass over the points with a hash table of the voxels (:func:`_number_voxels`, as :func:`voxel_centroids`;
+    a map rebuilt from 100 keyframes is a million points in some 75 thousand voxels), then a sort of the voxels
+    only.
     """
     n, d = pts.shape
-    voxel_of = np.empty(n, dtype=np.int64)
-    bits = 10
-    while (1 << bits) < 2 * n and bits < 30:
-        bits += 1
-    size = 1 << bits
-    mask = np.uint64(size - 1)
-    table = np.full(size, -1, dtype=np.int64)
-    ukeys = np.empty(max(n, 1), dtype=np.int64)
-    first = np.empty(max(n, 1), dtype=np.int64)
-    m = 0
+    keys = np.empty(n, dtype=np.int64)
     for i in range(n):
         k = np.int64(0)
         for j in range(d):
@@ -737,20 +721,8 @@ def voxel_reduce(pts, voxel, bias):  # pragma: no cover - JIT
                 bad[0] = i
                 return np.empty(0, dtype=np.int64), bad, np.empty((0, d)), np.empty(0)
             k = (k << 21) | ix
-        h = (np.uint64(k) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(64 - bits)
-        while True:
-            v = table[h]
-            if v < 0:
-                v = m
-                table[h] = v
-                ukeys[v] = k
-                first[v] = i
-                m += 1
-                break
-            if ukeys[v] == k:
-                break
-            h = (h + np.uint64(1)) & mask
-        voxel_of[i] = v
+        keys[i] = k
+    voxel_of, ukeys, first, m = _number_voxels(keys, -1, n)  # keys are >= 0
     sums = np.zeros((m, d))
     counts = np.zeros(m)
     for i in range(n):

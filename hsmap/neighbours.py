@@ -96,7 +96,7 @@ class NeighbourGrid:
         self.dims = dims
         self._inv = 1.0 / self.cell
         self._sorted, self._order, self._start = _kernels.grid_build(pts, origin, self._inv, dims)
-        self._kernel = _kernels.grid_nearest_3d if self.dim == 3 else _kernels.grid_nearest_2d
+        self._kernel = _kernels.grid_nearest
 
     def __len__(self) -> int:
         return len(self.points)

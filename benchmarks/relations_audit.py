@@ -43,7 +43,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from slam import FREIBURG  # noqa: E402
 
 from hsmap.datasets.open import open_dataset  # noqa: E402
-from hsmap.datasets.relations import read_relations  # noqa: E402
+from hsmap.datasets.relations import Relations, read_relations  # noqa: E402
 from hsmap.evaluation.trajectory import relations_error  # noqa: E402
 from hsmap.geometry import compose, invert, pose_to_matrix, relative, transform_points, wrap_angle  # noqa: E402
 from hsmap.io import write_json  # noqa: E402
@@ -61,13 +61,12 @@ def alignment_cost(a: np.ndarray, b: np.ndarray, tree_a: cKDTree, tree_b: cKDTre
     return 0.5 * (float(np.minimum(d_ab, truncate).mean()) + float(np.minimum(d_ba, truncate).mean()))
 
 
-def audit(name: str, trajectory: Path, datasets: Path, truncate: float, min_error: float, margin: float) -> dict:
+def audit(name: str, trajectory: Path, traj: Trajectory, rel: Relations, datasets: Path, truncate: float,
+          min_error: float, margin: float) -> dict:
     spec = FREIBURG[name]
     ds = open_dataset(datasets / "slam2d" / spec["bag"], extrinsic2d=spec["extrinsic2d"])
     frames = list(ds.frames(clouds=False))
     stamps = np.array([f.stamp for f in frames])
-    rel = read_relations(datasets / "slam2d" / spec["relations"])
-    traj = read_tum(trajectory, dof=3)
     scans: dict[int, tuple[np.ndarray, cKDTree]] = {}
 
     def scan(k: int) -> tuple[np.ndarray, cKDTree]:
@@ -114,28 +113,23 @@ def audit(name: str, trajectory: Path, datasets: Path, truncate: float, min_erro
     return out
 
 
-def evaluation_frames(name: str, trajectory: Path, datasets: Path, offsets: list[float]) -> list[dict]:
+def evaluation_frames(name: str, traj: Trajectory, rel: Relations, offsets: list[float]) -> list[dict]:
     """The relations error of the trajectory carried by each offset along the robot's x axis, by class."""
-    rel = read_relations(datasets / "slam2d" / FREIBURG[name]["relations"])
-    traj = read_tum(trajectory, dof=3)
     dt = np.abs(rel.t_j - rel.t_i)
-    opposite = np.abs(wrap_angle(rel.poses[:, 5])) > np.pi / 2
     classes = {"all": np.ones(len(dt), bool), "dt_le_10s": dt <= 10, "dt_gt_60s": dt > 60,
-               "facing_more_than_90deg_apart": opposite}
+               "facing_more_than_90deg_apart": np.abs(wrap_angle(rel.poses[:, 5])) > np.pi / 2}
     out = []
     for dx in offsets:
-        moved = Trajectory(traj.stamps, np.array([compose(p, np.array([dx, 0.0, 0.0])) for p in traj.poses]))
-        t = relations_error(moved, rel).translation
+        t = relations_error(Trajectory(traj.stamps, compose(traj.poses, [dx, 0.0, 0.0])), rel).translation
         row = {"offset_x_m": float(dx)}
         row.update({f"{k}_m": float(t[m].mean()) if m.any() else None for k, m in classes.items()})
         row.update({f"{k}_n": int(m.sum()) for k, m in classes.items()})
         out.append(row)
     print(f"{name}: relations error (m) with the trajectory's frame moved along x")
-    print("   dx      all   dt<=10   dt>60   facing>90")
+    print("    dx     all  dt<=10   dt>60  facing>90")
     for r in out:
-        print(f"{r['offset_x_m']:+6.2f}  {r['all_m']:.4f}   {r['dt_le_10s_m']:.4f}  "
-              f"{r['dt_gt_60s_m'] if r['dt_gt_60s_m'] is not None else float('nan'):.4f}  "
-              f"{r['facing_more_than_90deg_apart_m'] if r['facing_more_than_90deg_apart_m'] is not None else float('nan'):.4f}")
+        cells = (f"{r[f'{k}_m']:7.4f}" if r[f"{k}_m"] is not None else "    n/a" for k in classes)
+        print(f"{r['offset_x_m']:+6.2f} " + " ".join(cells))
     return out
 
 
@@ -151,8 +145,10 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=None)
     a = ap.parse_args()
     datasets = datasets_dir()  # $HSMAP_DATASETS, else what hsmap data fetch downloaded, else ../shared/datasets
-    out = audit(a.log, a.trajectory, datasets, a.truncate, a.min_error, a.margin)
-    out["evaluation_frames"] = evaluation_frames(a.log, a.trajectory, datasets, a.frame_offsets)
+    traj = read_tum(a.trajectory, dof=3)
+    rel = read_relations(datasets / "slam2d" / FREIBURG[a.log]["relations"])
+    out = audit(a.log, a.trajectory, traj, rel, datasets, a.truncate, a.min_error, a.margin)
+    out["evaluation_frames"] = evaluation_frames(a.log, traj, rel, a.frame_offsets)
     path = a.out or ROOT / "reports" / "benchmarks" / f"relations_audit_{a.log}.json"
     path.parent.mkdir(parents=True, exist_ok=True)
     write_json(path, out)

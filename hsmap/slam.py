@@ -141,21 +141,28 @@ class SlamConfig:
         sigma = c + d * |turn| + e * distance, as (a [m], b, c [rad], d, e [rad/m]); the default is loose
         (2 cm + 5 % of the distance, 1 deg + 5 % of the turn + 1 deg per metre): wheel odometry varies.
     learn_odometry : bool
-        Learn how good this robot's odometry is as the run goes: the first registration of each frame (searched
-        in a box that does not depend on what is learned) is compared with the raw odometry's prediction; the
-        disagreements, normalised by the model above, over the last ``odometry_window`` frames give a bias (their
-        median: a systematic error such as unequal wheels, taken out of the prediction) and a scale of the rotation
-        sigmas (their robust spread around it, as a Gaussian's sigma). The disagreement holds the registration's
-        error too, so the scale is an upper bound on the odometry's. The translation sigmas are not scaled: along a
-        direction the scene does not constrain (a corridor's axis) the registration stays at its seeds, the
-        odometry among them, so the translation disagreements understate the odometry's error (scaling them made
-        the tracking trust a biased odometry: a synthetic log with a heading bias went from 0.6 to 5.5 cm, intel
-        from 0.020 to 0.023 m); the walls constrain the rotation almost everywhere. Off by default
-        (``odometry_sigma`` as given; ``learn_odometry: true`` in a ``--config`` file turns it on): on fr-clinic it
-        closed the return on 3 of 10 seeds (none of 5 without), but on intel one seed of five broke (0.093 m)
-        where the run without it held (0.022 m).
+        Learn how good this robot's odometry is as the run goes (on by default; ``metrics.json``'s
+        ``odometry_model`` reports what was learned). The scale of the model above, one for translation and one for
+        rotation: the registrations' motion over ``odometry_lag`` frames against the raw odometry's, between two
+        frames whose registrations the scene constrained in translation, normalised by the model's sigmas summed
+        over those frames; the scale is the robust spread (MAD, as a Gaussian's sigma) of the last
+        ``odometry_window`` of them. Over several frames the odometry's error has grown while a registration's
+        (each against the map) has not, so one frame's registration noise weighs less in it; it still holds some,
+        so the scale is an upper bound on the odometry's. Constrained ends only: along a corridor's axis a
+        registration stays at its seeds, the odometry among them, and would hide the odometry's error (scaling
+        translation from one-frame disagreements made the tracking trust a biased odometry: a synthetic log with
+        a heading bias went from 0.6 to 5.5 cm). The bias: the median of the first registrations' one-frame
+        disagreements with the raw odometry (a systematic error such as unequal wheels, taken out of the
+        prediction). The fusion down-weights a prediction that lies further from its registration than their
+        joint uncertainty allows (beyond the chi-square 99.9 % quantile: a wheel slip), and the retry check never
+        gets tighter than the configured model. Measured with ``benchmarks/slam.py``, seeds 1-5 (session 30):
+        fr-clinic 0.1282 -> 0.1226 m and 0.912 -> 0.852 deg (its odometry learned at 0.3 / 0.1 of the model),
+        intel 0.0187 -> 0.0185 m, fr079 0.0326 -> 0.0332 m.
     odometry_window : int
-        Frames whose disagreements set the scale (it is 1 until ``odometry_window // 10`` of them are in).
+        Lagged disagreements that set the scale (it is 1 until ``odometry_window // 10`` of them are in), and
+        one-frame disagreements that set the bias.
+    odometry_lag : int
+        Frames between the two registrations whose motion is compared with the odometry's.
     odometry_scale_bounds : tuple of 2 floats
         The learned scale stays within these bounds.
     motion_sigma : tuple of 5 floats
@@ -189,8 +196,9 @@ class SlamConfig:
     min_range: float = 0.1
     max_range: float = 30.0
     odometry_sigma: tuple[float, ...] = (0.02, 0.05, float(np.deg2rad(1.0)), 0.05, float(np.deg2rad(1.0)))
-    learn_odometry: bool = False
+    learn_odometry: bool = True
     odometry_window: int = 400
+    odometry_lag: int = 16
     odometry_scale_bounds: tuple[float, float] = (0.1, 5.0)
     motion_sigma: tuple[float, ...] = (0.1, 0.5, float(np.deg2rad(5.0)), 0.5, float(np.deg2rad(5.0)))
     prior_sigma: tuple[float, ...] = (0.01, 0.02, float(np.deg2rad(0.2)), 0.02, float(np.deg2rad(0.5)))
@@ -235,7 +243,7 @@ class SlamConfig:
             raise ConfigError(f"slam.odometry_scale_bounds must be two numbers 0 < low <= high, got "
                               f"{self.odometry_scale_bounds!r}")
         self.odometry_scale_bounds = (float(lo_hi[0]), float(lo_hi[1]))
-        for name in ("recent_poses", "warmup_frames", "odometry_window"):
+        for name in ("recent_poses", "warmup_frames", "odometry_window", "odometry_lag"):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or v < 1:
                 raise ConfigError(f"slam.{name} must be an integer >= 1, got {v!r}")
@@ -461,6 +469,8 @@ STRICT_MIN_POINTS = 30
 #: Fraction of its scan a registration must match to overrule the prediction (a scan mostly unexplained at either
 #: pose, by a changed or unmapped scene, says little about the pose).
 STRICT_MIN_MATCHED = 0.6
+# 99.9 % quantiles of chi-square with 3 and 6 degrees of freedom: the fusion's gate on a prediction
+_CHI2_999 = {3: 16.266, 6: 22.458}
 
 
 class HsSlam:
@@ -517,6 +527,11 @@ class HsSlam:
         self._odometry_disagreement: deque[tuple[float, float, float]] = deque(maxlen=cfg.odometry_window)
         self._odometry_scale = np.ones(2)
         self._odometry_bias = np.zeros(3)  # normalised, as the disagreements
+        # per frame, for the scale: the registration's pose, whether the scene constrained its translation, the raw
+        # odometry, and the configured model's variances summed from the first frame (translation, rotation)
+        self._reg_history: deque[tuple] = deque(maxlen=cfg.odometry_lag + 1)
+        self._model_variance = np.zeros(2)
+        self._odometry_lagged: deque[tuple[float, float, float]] = deque(maxlen=cfg.odometry_window)
         # pose graph and loop closure
         lc = cfg.loop_closure
         self.graph = PoseGraph(cfg.dof)
@@ -669,15 +684,55 @@ class HsSlam:
             return
         r = np.asarray(self._odometry_disagreement)
         self._odometry_bias = np.median(r, axis=0)
+
+    def _learn_odometry_scale(self, frame: Frame, res: RegistrationResult) -> None:
+        """Learn the odometry's scale from how the registrations' and the odometry's motions disagree over
+        ``odometry_lag`` frames, between two frames whose registrations the scene constrained in translation.
+
+        Over a lag of several frames the odometry's error has grown while the registrations' (each against the
+        map) has not, so the disagreement, normalised by the configured model summed over the lag, is an upper
+        bound on the odometry's that the registrations' noise inflates less than one frame's does. Both ends
+        constrained: along a corridor's axis a registration stays at its seeds, the odometry among them, and
+        would hide the odometry's error. The scale (translation, rotation) is the robust spread of the last
+        ``odometry_window`` disagreements, as a Gaussian's sigma.
+        """
+        cfg = self.config
+        if not cfg.learn_odometry or self._prior is not None or not cfg.use_odometry or frame.odometry is None:
+            self._reg_history.clear()
+            return
+        step = self._odometry_step(frame)
+        if step is None:
+            self._reg_history.clear()  # the first frame, or a gap: the sums restart
+        else:
+            self._model_variance = self._model_variance + np.square(self._model_sigmas(step))
+        constrained = False
+        if res.information is not None and np.all(np.isfinite(res.information)):
+            w = np.linalg.eigvalsh(res.information[: self.dim, : self.dim])
+            constrained = bool(w.max() > 0 and w.min() >= cfg.degenerate_ratio * w.max())
+        pose = res.pose if cfg.dof == 3 else res.pose[[0, 1, 5]]
+        odom = np.asarray(frame.odometry, dtype=float)
+        self._reg_history.append((pose.copy(), constrained, odom, self._model_variance.copy()))
+        if len(self._reg_history) <= cfg.odometry_lag or not constrained:
+            return
+        p0, c0, o0, v0 = self._reg_history[0]
+        if not c0:
+            return
+        dv = self._model_variance - v0
+        e = relative(relative(o0, odom), relative(p0, pose))  # the registrations' motion in the odometry's frame
+        st, sr = np.sqrt(dv)
+        self._odometry_lagged.append((float(e[0]) / st, float(e[1]) / st, float(wrap_angle(e[2])) / sr))
+        if len(self._odometry_lagged) < max(cfg.odometry_window // 10, 1):
+            return
+        r = np.asarray(self._odometry_lagged)
+        spread = 1.4826 * np.median(np.abs(r - np.median(r, axis=0)), axis=0)  # MAD as a Gaussian's sigma
         lo, hi = cfg.odometry_scale_bounds
-        # as a Gaussian's sigma: |yaw - bias| has median 0.6745 sigma (translation: see SlamConfig)
-        sr = np.median(np.abs(r[:, 2] - self._odometry_bias[2])) / 0.6745
-        self._odometry_scale = np.array([1.0, np.clip(sr, lo, hi)])
+        self._odometry_scale = np.clip([max(spread[0], spread[1]), spread[2]], lo, hi)
 
     def odometry_summary(self) -> dict:
         """The learned odometry scale and how many frames taught it (JSON-ready)."""
         return {"learned": bool(self.config.learn_odometry and len(self._odometry_disagreement) > 0),
                 "frames": len(self._odometry_disagreement),
+                "scale_translation": float(self._odometry_scale[0]),
                 "scale_rotation": float(self._odometry_scale[1]),
                 "bias": [float(v) for v in self._odometry_bias],  # x, y, yaw in sigmas of the configured model
                 "sigma": [float(v) for v in self.odometry_sigma()]}
@@ -707,6 +762,7 @@ class HsSlam:
                               config=cfg.registration, rng=self.rng)
             self._learn_odometry(frame, res)
             res, retried, verified = self._verify(frame, scan, res)
+            self._learn_odometry_scale(frame, res)
             pose, information = self._fuse(frame, res)
             fitness, inlier, rmse, evaluations, cost = (res.fitness, res.inlier_ratio, res.rmse, res.evaluations,
                                                         res.cost)
@@ -801,6 +857,13 @@ class HsSlam:
         info_pred = np.diag(info_pred)
         d = relative(res.pose, centre)  # the prediction in the registration's frame
         d[self.dim:] = wrap_angle(d[self.dim:])
+        # a prediction further from the registration than their joint uncertainty allows (a wheel slipped) is
+        # down-weighted (Cauchy-like, beyond the 99.9 % quantile): the odometry's learned sigmas describe its core
+        # (information of the difference: I_r (I_r + I_p)^-1 I_p, zero along what the scan does not constrain)
+        m2 = float(d @ (info_reg @ np.linalg.solve(info_reg + info_pred + 1e-12 * np.eye(cfg.dof), info_pred)) @ d)
+        gate = _CHI2_999[cfg.dof]
+        if m2 > gate:
+            info_pred = info_pred * (gate / m2)
         total = info_reg + info_pred
         step = np.linalg.solve(total + 1e-12 * np.eye(cfg.dof), info_pred @ d)
         return compose(res.pose, step), total

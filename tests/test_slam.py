@@ -93,9 +93,25 @@ def test_odometry_sigma_is_learned_from_the_run():
     np.testing.assert_allclose(slam.odometry_sigma(), configured * [0.2, 0.2, 0.3, 0.3, 0.3])
     slam._odometry_scale = np.array([2.0, 3.0])
     np.testing.assert_allclose(slam.odometry_sigma(gate=True), configured * [2, 2, 3, 3, 3])
-    fixed = run_slam(make_noisy_odometry_frames(np.deg2rad(4.0))[:30], SlamConfig(),  # off by default
+    # both scales learned, from registrations 16 frames apart: the precise odometry's translation too
+    assert g["scale_translation"] < 0.5 and g["sigma"][0] == pytest.approx(
+        SlamConfig().odometry_sigma[0] * g["scale_translation"])
+    fixed = run_slam(make_noisy_odometry_frames(np.deg2rad(4.0))[:30], SlamConfig(learn_odometry=False),
                      rng=1, progress=False).metrics()["odometry_model"]
-    assert not fixed["learned"] and fixed["scale_rotation"] == 1.0
+    assert not fixed["learned"] and fixed["scale_rotation"] == fixed["scale_translation"] == 1.0
+    assert SlamConfig().learn_odometry  # on by default
+
+
+def test_a_slipped_odometry_does_not_pull_the_fused_pose():
+    """Precise odometry learned as such, then one step slips 30 cm: the fusion's gate keeps the pose with the scan
+    (without it, the tight learned sigmas would pull the pose half-way to the slipped prediction)."""
+    frames = make_noisy_odometry_frames(np.deg2rad(0.05))
+    for f in frames[90:]:
+        f.odometry = compose([0.3, 0.0, 0.0], f.odometry)  # a 30 cm jump, then on as before
+    res = run_slam(frames, SlamConfig(loop_closure={"enabled": False}), rng=1, progress=False)
+    assert res.metrics()["odometry_model"]["scale_translation"] < 0.5  # the odometry was trusted
+    err = relative_errors(res.trajectory.poses, ROUTE[: len(frames)])
+    assert np.abs(err[:, :2]).max() < 0.03, np.abs(err[:, :2]).max(0)
 
 
 def test_odometry_alone_drifts(frames):

@@ -88,7 +88,7 @@ def route_error(traj, route):
 
 def test_loop_closes_on_the_ring(ring, tmp_path):
     route, frames = ring
-    # loop closure alone (learn_odometry is off by default; on, its learned bias takes out most of the odometry's
+    # loop closure alone (learn_odometry off; on, as by default, its learned bias takes out most of the odometry's
     # 5 % scale error, below)
     closed = run_slam(frames, SlamConfig(learn_odometry=False), rng=1, progress=False)
     open_ = run_slam(frames, SlamConfig(learn_odometry=False, loop_closure={"enabled": False}), rng=1,

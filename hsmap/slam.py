@@ -144,8 +144,8 @@ class SlamConfig:
         Learn how good this robot's odometry is as the run goes (on by default; ``metrics.json``'s
         ``odometry_model`` reports what was learned). The scale of the model above, one for translation and one for
         rotation: the registrations' motion over ``odometry_lag`` frames against the raw odometry's, between two
-        frames whose registrations the scene constrained in translation, normalised by the model's sigmas summed
-        over those frames; the scale is the robust spread (MAD, as a Gaussian's sigma) of the last
+        frames whose registrations the scene constrained in translation (x, y), normalised by the root of the
+        model's variances summed over those frames; the scale is the robust spread (MAD, as a Gaussian's sigma) of the last
         ``odometry_window`` of them. Over several frames the odometry's error has grown while a registration's
         (each against the map) has not, so one frame's registration noise weighs less in it; it still holds some,
         so the scale is an upper bound on the odometry's. Constrained ends only: along a corridor's axis a
@@ -223,8 +223,11 @@ class SlamConfig:
                 arr = np.asarray(v, dtype=float)
             except (TypeError, ValueError):
                 arr = np.array([])
-            if arr.shape != (5,) or not np.all(np.isfinite(arr)) or np.any(arr < 0):
-                raise ConfigError(f"slam.{name} must be 5 finite numbers >= 0, got {v!r}")
+            if arr.shape != (5,) or not np.all(np.isfinite(arr)) or np.any(arr < 0) or arr[0] <= 0 or arr[2] <= 0:
+                # the constant terms a and c > 0: a robot standing still has a finite information, not a division
+                # by zero
+                raise ConfigError(f"slam.{name} must be 5 finite numbers >= 0, the first and third > 0 (a [m], "
+                                  f"b, c [rad], d, e [rad/m]), got {v!r}")
             setattr(self, name, tuple(float(x) for x in arr))
         for name in ("verify_sigmas", "degenerate_ratio"):
             v = getattr(self, name)
@@ -661,13 +664,12 @@ class HsSlam:
 
     def _learn_odometry(self, frame: Frame, res: RegistrationResult) -> None:
         """Record how far the frame's first registration lies from the raw odometry's prediction; update the
-        odometry's learned bias and scale.
+        odometry's learned bias (the scale: :meth:`_learn_odometry_scale`).
 
         The first registration is searched in a box set by ``registration``'s ranges around seeds that include the
-        raw odometry, not by the odometry's sigmas or bias, so what it finds does not depend on what it teaches
-        (a tighter scale would otherwise keep only the registrations that agree and tighten itself further). The
-        bias is the median of the signed disagreements (a wheel a little larger than the other, a heading that
-        creeps); the scale is the robust spread around it.
+        raw odometry, not by the odometry's sigmas or bias, so what it finds does not depend on what it teaches.
+        The bias is the median of the signed disagreements (a wheel a little larger than the other, a heading that
+        creeps).
         """
         cfg = self.config
         if not cfg.learn_odometry or self._prior is not None:
@@ -695,6 +697,12 @@ class HsSlam:
         constrained: along a corridor's axis a registration stays at its seeds, the odometry among them, and
         would hide the odometry's error. The scale (translation, rotation) is the robust spread of the last
         ``odometry_window`` disagreements, as a Gaussian's sigma.
+
+        The registration is the one kept after the check against the prediction (:meth:`_verify`): a retried one
+        was searched in a box of the prediction's sigmas, never tighter than the configured model's, so it can
+        pull the disagreement towards the odometry by at most that much, on the few frames retried (3-4 % on the
+        Freiburg logs). The translation disagreement also holds the heading error times the distance, which the
+        translation model does not: the translation scale errs on the loose side.
         """
         cfg = self.config
         if not cfg.learn_odometry or self._prior is not None or not cfg.use_odometry or frame.odometry is None:
@@ -702,12 +710,12 @@ class HsSlam:
             return
         step = self._odometry_step(frame)
         if step is None:
-            self._reg_history.clear()  # the first frame, or a gap: the sums restart
+            self._reg_history.clear()  # the first frame with odometry: nothing to compare with yet
         else:
             self._model_variance = self._model_variance + np.square(self._model_sigmas(step))
         constrained = False
         if res.information is not None and np.all(np.isfinite(res.information)):
-            w = np.linalg.eigvalsh(res.information[: self.dim, : self.dim])
+            w = np.linalg.eigvalsh(res.information[:2, :2])  # x, y: what is compared (6-DOF: z may see walls only)
             constrained = bool(w.max() > 0 and w.min() >= cfg.degenerate_ratio * w.max())
         pose = res.pose if cfg.dof == 3 else res.pose[[0, 1, 5]]
         odom = np.asarray(frame.odometry, dtype=float)
@@ -720,7 +728,10 @@ class HsSlam:
         dv = self._model_variance - v0
         e = relative(relative(o0, odom), relative(p0, pose))  # the registrations' motion in the odometry's frame
         st, sr = np.sqrt(dv)
-        self._odometry_lagged.append((float(e[0]) / st, float(e[1]) / st, float(wrap_angle(e[2])) / sr))
+        z = (float(e[0]) / st, float(e[1]) / st, float(wrap_angle(e[2])) / sr)
+        if not np.all(np.isfinite(z)):
+            return
+        self._odometry_lagged.append(z)
         if len(self._odometry_lagged) < max(cfg.odometry_window // 10, 1):
             return
         r = np.asarray(self._odometry_lagged)
@@ -731,7 +742,8 @@ class HsSlam:
     def odometry_summary(self) -> dict:
         """The learned odometry scale and how many frames taught it (JSON-ready)."""
         return {"learned": bool(self.config.learn_odometry and len(self._odometry_disagreement) > 0),
-                "frames": len(self._odometry_disagreement),
+                "frames": len(self._odometry_disagreement),  # the bias's one-frame disagreements
+                "lagged_frames": len(self._odometry_lagged),  # the scale's (learned from a tenth of the window on)
                 "scale_translation": float(self._odometry_scale[0]),
                 "scale_rotation": float(self._odometry_scale[1]),
                 "bias": [float(v) for v in self._odometry_bias],  # x, y, yaw in sigmas of the configured model

@@ -102,6 +102,23 @@ def test_odometry_sigma_is_learned_from_the_run():
     assert SlamConfig().learn_odometry  # on by default
 
 
+def test_odometry_learning_survives_standing_still_and_gaps():
+    """A robot that stands still (zero steps: the model's constant terms keep the variances > 0) and frames without
+    odometry (the lagged comparison restarts) leave finite scales; a model without constant terms is refused."""
+    frames = make_noisy_odometry_frames(np.deg2rad(0.05), n=100)
+    still = [dataclasses.replace(frames[40], stamp=frames[40].stamp + 0.01 * (k + 1), index=0) for k in range(60)]
+    seq = frames[:41] + still + frames[41:]
+    for k in range(70, 75):
+        seq[k] = dataclasses.replace(seq[k], odometry=None)
+    seq = [dataclasses.replace(f, index=i) for i, f in enumerate(seq)]
+    m = run_slam(seq, SlamConfig(loop_closure={"enabled": False}), rng=1, progress=False).metrics()["odometry_model"]
+    assert m["lagged_frames"] > 40 and np.all(np.isfinite(m["sigma"])), m
+    assert 0.1 <= m["scale_translation"] < 1 and 0.1 <= m["scale_rotation"] < 1, m
+    for bad in ((0.0, 0.05, 0.01, 0.05, 0.01), (0.02, 0.05, 0.0, 0.05, 0.01)):
+        with pytest.raises(ConfigError, match="odometry_sigma"):
+            SlamConfig(odometry_sigma=bad)
+
+
 def test_a_slipped_odometry_does_not_pull_the_fused_pose():
     """Precise odometry learned as such, then one step slips 30 cm: the fusion's gate keeps the pose with the scan
     (without it, the tight learned sigmas would pull the pose half-way to the slipped prediction)."""

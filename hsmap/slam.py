@@ -145,8 +145,8 @@ class SlamConfig:
         ``odometry_model`` reports what was learned). The scale of the model above, one for translation and one for
         rotation: the registrations' motion over ``odometry_lag`` frames against the raw odometry's, between two
         frames whose registrations the scene constrained in translation (x, y), normalised by the root of the
-        model's variances summed over those frames; the scale is the robust spread (MAD, as a Gaussian's sigma) of the last
-        ``odometry_window`` of them. Over several frames the odometry's error has grown while a registration's
+        model's variances summed over those frames; the scale is the robust spread (MAD, as a Gaussian's sigma) of
+        the last ``odometry_window`` of them. Over several frames the odometry's error has grown while a registration's
         (each against the map) has not, so one frame's registration noise weighs less in it; it still holds some,
         so the scale is an upper bound on the odometry's. Constrained ends only: along a corridor's axis a
         registration stays at its seeds, the odometry among them, and would hide the odometry's error (scaling
@@ -472,7 +472,10 @@ STRICT_MIN_POINTS = 30
 #: Fraction of its scan a registration must match to overrule the prediction (a scan mostly unexplained at either
 #: pose, by a changed or unmapped scene, says little about the pose).
 STRICT_MIN_MATCHED = 0.6
-# 99.9 % quantiles of chi-square with 3 and 6 degrees of freedom: the fusion's gate on a prediction
+# 99.9 % quantiles of chi-square with 3 and 6 degrees of freedom: the fusion's gate on a prediction. The pose
+# graph computes its gate with scipy's chi2.ppf; these are the same quantiles rounded to 3 decimals, kept as
+# literals because session 30's measurements were made with them (chi2.ppf's last digits flip a borderline frame
+# and move fr-clinic seed 1 from 0.1249 to 0.1263 m)
 _CHI2_999 = {3: 16.266, 6: 22.458}
 
 

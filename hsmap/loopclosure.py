@@ -111,6 +111,17 @@ class LoopClosureConfig:
         Refinement iterations of a pair at most: it starts from the graph's relative pose, a few millimetres off
         (on the simulated two-rooms bag 10 iterations land where 30 do, 5 within 0.2 mm and 0.01 deg; on intel's
         noisy scans the 30 of the tracking refinement were mostly spent).
+    odometry_edges : bool
+        2D runs with wheel odometry: the graph holds the odometry's motion between consecutive keyframes as edges
+        of their own (kind ``wheel``), each with the covariance of the learned odometry model
+        (``SlamConfig.odometry_sigma`` scaled by what the run learned) propagated over the frames between them,
+        and the tracking edges then hold the registration's information only (the fused pose's holds the
+        odometry's prediction, which would count it twice). Without them the odometry reached the graph only
+        through one frame's prediction in each tracking edge, and the pair and loop edges (laser alone) decided
+        how a closure's correction bends the path. Measured with ``benchmarks/slam.py``, seeds 1-5, against
+        off (2026-12-01): fr-clinic 0.1226 -> 0.1207 m and 0.852 -> 0.804 deg (its odometry is good in yaw),
+        intel 0.0185 -> 0.0188 m, fr079 0.0332 -> 0.0330 m; the time unchanged (fr079 seed 1 profiled, one
+        process each: 63.0 and 63.4 s).
     tracking_path_distance : float
         The tracking map holds the keyframes within this graph distance of the newest keyframe: places tied to it
         by tracking or by closed loops, whose relative pose is known. Older places join it when a loop closes.
@@ -183,6 +194,7 @@ class LoopClosureConfig:
     pair_edges: int = 4
     pair_distance: float = 2.0
     pair_iterations: int = 10
+    odometry_edges: bool = True
     tracking_path_distance: float = 20.0
     optimize_threshold_translation: float = 0.02
     optimize_threshold_rotation: float = float(np.deg2rad(0.3))

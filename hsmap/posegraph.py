@@ -42,7 +42,8 @@ class OptimizationError(HsmapError):
 
 
 class EdgeKind(enum.StrEnum):
-    ODOMETRY = "odometry"
+    ODOMETRY = "odometry"  # tracking: a keyframe registered against the map, relative to the previous keyframe
+    WHEEL = "wheel"  # the wheel odometry's motion between two consecutive keyframes
     LOOP = "loop"
     PAIR = "pair"
     PRIOR = "prior"

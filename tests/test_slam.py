@@ -131,6 +131,43 @@ def test_a_slipped_odometry_does_not_pull_the_fused_pose():
     assert np.abs(err[:, :2]).max() < 0.03, np.abs(err[:, :2]).max(0)
 
 
+def test_wheel_odometry_is_an_edge_of_its_own_between_keyframes():
+    """2D with odometry: one wheel edge beside each tracking edge, measuring the odometry's motion between the two
+    keyframes' frames; off with ``odometry_edges=False`` (the tracking edges then hold the fused information)."""
+    from hsmap.posegraph import EdgeKind
+
+    frames = make_noisy_odometry_frames(np.deg2rad(0.05), n=60)
+    slam = HsSlam(SlamConfig(), rng=1)
+    for f in frames:
+        slam.process(f)
+    tracking = [e for e in slam.graph.edges if e.kind == EdgeKind.ODOMETRY]
+    wheel = [e for e in slam.graph.edges if e.kind == EdgeKind.WHEEL]
+    assert len(tracking) == len(slam.keyframes) - 1 > 10 and [(e.i, e.j) for e in wheel] == [(e.i, e.j) for e in tracking]
+    odom = {f.index: np.asarray(f.odometry) for f in frames}
+    for e in wheel:
+        raw = relative(odom[slam.keyframes[e.i].frame], odom[slam.keyframes[e.j].frame])
+        np.testing.assert_allclose(e.measurement[:2], raw[:2], atol=0.01)  # the learned bias taken out
+        assert abs(wrap_angle(e.measurement[2] - raw[2])) < np.deg2rad(0.5)
+        assert np.all(np.linalg.eigvalsh(e.information) > 0)
+    assert slam.loop_summary()["wheel_edges"] == len(wheel)
+    off = HsSlam(SlamConfig(loop_closure={"odometry_edges": False}), rng=1)
+    for f in frames:
+        off.process(f)
+    assert not [e for e in off.graph.edges if e.kind == EdgeKind.WHEEL]
+
+
+def test_a_slipped_wheel_edge_does_not_bend_the_graph():
+    """The slip of the test above inside the pose graph: the wheel edge across it is down-weighted, the optimised
+    path keeps to the scans."""
+    frames = make_noisy_odometry_frames(np.deg2rad(0.05))
+    for f in frames[90:]:
+        f.odometry = compose([0.3, 0.0, 0.0], f.odometry)
+    res = run_slam(frames, SlamConfig(), rng=1, progress=False)
+    assert res.metrics()["loop_closure_detail"]["wheel_edges_down_weighted"] >= 1
+    err = relative_errors(res.trajectory.poses, ROUTE[: len(frames)])
+    assert np.abs(err[:, :2]).max() < 0.03, np.abs(err[:, :2]).max(0)
+
+
 def test_odometry_alone_drifts(frames):
     odom = np.array([f.odometry for f in frames])
     err = relative_errors(odom, ROUTE)

@@ -6,7 +6,8 @@ measurements ``z_ij`` (the pose of node j in the frame of node i) with an inform
 convention of :attr:`hsmap.registration.RegistrationResult.information`, so a registration's information goes
 into an edge as it is.
 
-Edges are of four kinds: ``odometry`` (consecutive keyframes, from tracking), ``loop`` (loop closures: these
+Edges are of five kinds: ``odometry`` (consecutive keyframes, from tracking), ``wheel`` (consecutive keyframes,
+the wheel odometry's motion between them), ``loop`` (loop closures: these
 take a robust Cauchy kernel, and :meth:`PoseGraph.optimize` switches off those whose residual stays beyond a
 chi-square gate after optimisation, so that a false closure cannot bend the map), ``pair`` (scan-to-scan
 registrations between two overlapping keyframes, Lu and Milios 1997; robust and gated as loops are, but all those
@@ -214,7 +215,14 @@ class PoseGraph:
         length = (np.linalg.norm(d[:, : self.dim], axis=1)
                   + rotation_weight * np.abs(wrap_angle(d[:, self.dim:])).max(axis=1))
         length[loop] = 0.0
-        G = sparse.csr_matrix((length + 1e-9, (ei, ej)), shape=(n, n))
+        # one entry per pair of nodes, the shortest edge's: a sparse matrix sums duplicate entries, and two places
+        # tied by several edges (tracking and wheel odometry, a loop and a pair) are no further apart for it
+        lo, hi = np.minimum(ei, ej), np.maximum(ei, ej)
+        order = np.lexsort((length, hi, lo))
+        first = np.ones(len(order), bool)
+        first[1:] = (lo[order][1:] != lo[order][:-1]) | (hi[order][1:] != hi[order][:-1])
+        keep = order[first]
+        G = sparse.csr_matrix((length[keep] + 1e-9, (lo[keep], hi[keep])), shape=(n, n))
         return csgraph.dijkstra(G, directed=False, indices=source, limit=limit)
 
     # ------------------------------------------------------------------------------------------ optimising

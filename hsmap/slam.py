@@ -789,10 +789,10 @@ class HsSlam:
             bounds = np.column_stack([guesses.min(0) - half, guesses.max(0) + half])
             res = harmony_icp(scan, self._target, bounds=bounds, initial_guesses=guesses,
                               config=cfg.registration, rng=self.rng)
-            self._accumulate_wheel(frame)
             self._learn_odometry(frame, res)
             res, retried, verified = self._verify(frame, scan, res)
             self._learn_odometry_scale(frame, res)
+            self._accumulate_wheel(frame)  # with the bias and scale the prediction below uses
             pose, information = self._fuse(frame, res)
             fitness, inlier, rmse, evaluations, cost = (res.fitness, res.inlier_ratio, res.rmse, res.evaluations,
                                                         res.cost)
@@ -932,7 +932,9 @@ class HsSlam:
         info = np.linalg.inv(body_covariance_2d(z, cov))
         d = relative(z_tracking, z)
         d[2] = wrap_angle(d[2])
-        m2 = float(d @ (info_tracking @ np.linalg.solve(info_tracking + info + 1e-12 * np.eye(3), info)) @ d)
+        # the check in the tracking edge's frame, where the difference and the tracking's information are
+        info_t = np.linalg.inv(body_covariance_2d(z_tracking, cov))
+        m2 = float(d @ (info_tracking @ np.linalg.solve(info_tracking + info_t + 1e-12 * np.eye(3), info_t)) @ d)
         if m2 > _CHI2_999[3]:
             info = info * (_CHI2_999[3] / m2)
             self._wheel_gated += 1
@@ -966,7 +968,8 @@ class HsSlam:
             self._odometry_chain.append(z)
             if wheel is not None:
                 self.graph.add_edge(k - 1, k, *wheel, EdgeKind.WHEEL)
-        self._wheel_motion = np.zeros(3)
+        # the next wheel edge measures from this keyframe's odometry (none: it would measure from an older frame's)
+        self._wheel_motion = np.zeros(3) if frame.odometry is not None else None
         self._wheel_covariance = np.zeros((3, 3))
         self.keyframes.append(Keyframe(len(self.results), float(frame.stamp), dense, normals))
         T = pose_to_matrix(pose)

@@ -111,21 +111,6 @@ class LoopClosureConfig:
         Refinement iterations of a pair at most: it starts from the graph's relative pose, a few millimetres off
         (on the simulated two-rooms bag 10 iterations land where 30 do, 5 within 0.2 mm and 0.01 deg; on intel's
         noisy scans the 30 of the tracking refinement were mostly spent).
-    odometry_edges : bool
-        2D runs with wheel odometry: the graph holds the odometry's motion between consecutive keyframes as edges
-        of their own (kind ``wheel``), each with the covariance of the learned odometry model
-        (``SlamConfig.odometry_sigma`` scaled by what the run learned) propagated over the frames between them
-        and down-weighted beyond the chi-square 99.9 % quantile of its disagreement with the tracking edge (a wheel
-        slipped), and the tracking edges then hold the registration's information only (the fused pose's holds
-        the odometry's one-frame prediction, which would count it twice). This is how Cartographer's and most
-        factor-graph back ends take odometry in. Without them the odometry reached the graph only through one
-        frame's prediction in each tracking edge, and the laser's pair and loop edges alone decided how a
-        closure's correction bends the path. Measured with ``benchmarks/slam.py``, seeds 1-5, on against off
-        (2026-12-01, 4fab983): fr-clinic 0.1207 +- 0.0010 m (worst 0.1221) and 0.834 deg against 0.1226 +- 0.0014
-        (0.1249) and 0.852 (its odometry is good); intel 0.0191 +- 0.0008 (0.0206) against 0.0185 +- 0.0004
-        (0.0189), worse on four seeds of five (its odometry is poor); fr079 0.0332 both; the simulated two-rooms
-        route, bags 1-4 x SLAM seeds 0-2, largest 2D error mean 1.71 cm (worst 3.61) against 1.81 (5.24). The
-        time is unchanged (fr079 in one process, alternated twice: median 52.6 s against 53.1 s).
     tracking_path_distance : float
         The tracking map holds the keyframes within this graph distance of the newest keyframe: places tied to it
         by tracking or by closed loops, whose relative pose is known. Older places join it when a loop closes.
@@ -198,7 +183,6 @@ class LoopClosureConfig:
     pair_edges: int = 4
     pair_distance: float = 2.0
     pair_iterations: int = 10
-    odometry_edges: bool = True
     tracking_path_distance: float = 20.0
     optimize_threshold_translation: float = 0.02
     optimize_threshold_rotation: float = float(np.deg2rad(0.3))

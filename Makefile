@@ -56,6 +56,7 @@ bench: setup
 	$(BIN)/python benchmarks/registration.py
 	$(BIN)/python benchmarks/segmentation.py
 	$(BIN)/python benchmarks/slam.py
+	$(BIN)/python benchmarks/slam_buildings.py
 	$(BIN)/python benchmarks/speed.py
 	$(BIN)/python benchmarks/simulate.py
 	$(BIN)/python benchmarks/readers.py

@@ -165,6 +165,20 @@ def _freiburg_job(*, name: str, datasets: str, seed: int, max_frames: int | None
     return freiburg_run(name, datasets, seed, max_frames, loop_closure, threads)
 
 
+def run_fresh(batch: list, runs_dir: Path, jobs: int, label: str, unit: str) -> list[dict]:
+    """A batch of :class:`hsmap.study.distributed.Job` on the study's Dask runner, ``jobs`` worker processes, every
+    run fresh (a benchmark measures this code, so finished runs are not read back); each run's record, without the
+    runner's own fields. Raises HsmapError (``LABEL`` N of M ``UNIT`` failed) naming the first failure."""
+    from hsmap.errors import HsmapError
+    from hsmap.study.distributed import run_jobs
+
+    records = run_jobs(batch, runs_dir, workers=jobs, retries=0, skip_finished=False, progress=False)
+    failed = [r for r in records if r["status"] != "ok"]
+    if failed:
+        raise HsmapError(f"{label}{len(failed)} of {len(records)} {unit} failed; first: {failed[0]['error']}")
+    return [{k: v for k, v in r.items() if k not in ("name", "status", "skipped", "finished")} for r in records]
+
+
 def bench_freiburg(name: str, datasets: Path, seeds: list[int], max_frames: int | None, jobs: int,
                    loop_closure: bool, runs_dir: Path, threads: int | None = None) -> dict:
     """The seeds of one log as a batch of the study's Dask runner (:func:`hsmap.study.distributed.run_jobs`, the
@@ -172,18 +186,13 @@ def bench_freiburg(name: str, datasets: Path, seeds: list[int], max_frames: int 
     written atomically into ``runs_dir/NAME-seedS/result.json`` as it finishes; every run is fresh (a benchmark
     measures this code, so finished seeds are not read back). ``peak_memory_mb`` is the peak of the worker process
     that ran the seed (the runs of one log are alike)."""
-    from hsmap.errors import HsmapError
-    from hsmap.study.distributed import Job, run_jobs
+    from hsmap.study.distributed import Job
 
     spec = FREIBURG[name]
     batch = [Job(f"{name}-seed{s}", [("slam", _freiburg_job)],
                  {"name": name, "datasets": str(datasets), "seed": s, "max_frames": max_frames,
                   "loop_closure": loop_closure, "threads": threads}) for s in seeds]
-    records = run_jobs(batch, runs_dir, workers=jobs, retries=0, skip_finished=False, progress=False)
-    failed = [r for r in records if r["status"] != "ok"]
-    if failed:
-        raise HsmapError(f"{name}: {len(failed)} of {len(records)} seeds failed; first: {failed[0]['error']}")
-    runs = [{k: v for k, v in r.items() if k not in ("name", "status", "skipped", "finished")} for r in records]
+    runs = run_fresh(batch, runs_dir, jobs, f"{name}: ", "seeds")
     summary = summarise_seeds(runs, spec)
     t, r = summary["all.translation_m"], summary["all.rotation_deg"]
     print(f"{name} over seeds {seeds}: {t['mean']:.4f} +/- {t['sd']:.4f} m (worst {t['worst']:.4f}), "

@@ -37,6 +37,9 @@ import hsmap  # noqa: E402
 from hsmap.io import write_json  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from slam import run_fresh  # noqa: E402  (the Freiburg benchmark's batch runner)
 
 
 def floor_plan_names(maps: Path) -> list[str]:
@@ -101,8 +104,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.jobs < 1:
         ap.error("--jobs must be >= 1")
-    from hsmap.errors import HsmapError
-    from hsmap.study.distributed import Job, run_jobs
+    from hsmap.study.distributed import Job
     from hsmap.study.paths import datasets_dir
 
     maps = Path(args.maps) if args.maps else datasets_dir() / "ipa_room_segmentation"
@@ -125,11 +127,7 @@ def main(argv=None) -> int:
                      {"name": n, "maps": str(maps), "sim_seed": s, "slam_seed": args.slam_seed, "threads": threads})
                  for s in args.sim_seeds for n in names]
         runs_dir = Path(args.out).with_suffix("") / "runs"
-        records = run_jobs(batch, runs_dir, workers=args.jobs, retries=0, skip_finished=False, progress=False)
-        failed = [r for r in records if r["status"] != "ok"]
-        if failed:
-            raise HsmapError(f"{len(failed)} of {len(records)} runs failed; first: {failed[0]['error']}")
-        runs = [{k: v for k, v in r.items() if k not in ("name", "status", "skipped", "finished")} for r in records]
+        runs = run_fresh(batch, runs_dir, args.jobs, "", "runs")
         for r in runs:
             print(f"{r['building']:16s} sim seed {r['sim_seed']}: max {r['max_error_m']:.3f} m, mean "
                   f"{r['mean_error_m']:.3f} m, yaw {r['max_yaw_error_deg']:.2f} deg (odometry {r['odometry_max_error_m']:.2f} m)"

@@ -205,6 +205,15 @@ def test_correlative_match_finds_a_pose_far_from_the_guess_and_flags_a_corridor(
     assert set(closer.rejections) <= {"far_ambiguous", "far_unconstrained"} and sum(closer.rejections.values()) == 1
 
 
+def test_unique_cells_is_numpys_unique_rows():
+    from hsmap.loopclosure import _unique_cells
+
+    rng = np.random.default_rng(3)
+    for lo, hi in ((-5, 5), (-300, -200), (0, 2000)):
+        cells = rng.integers(lo, hi, size=(4000, 2))
+        np.testing.assert_array_equal(_unique_cells(cells), np.unique(cells, axis=0))
+
+
 def _far_setup(error):
     """Keyframes 0-1 in room A of the office; keyframes 2-3 in the same place after a long excursion whose
     estimate is off by ``error`` (x, y, yaw); graph distances as after 300 m."""

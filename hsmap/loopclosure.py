@@ -126,13 +126,17 @@ class LoopClosureConfig:
         exceeds ``max_window_translation``: the robot comes back after a long excursion). A far search matches
         the recent path against the old map: its source is every keyframe within ``far_source_path`` of the newest
         in the graph, its target every *far* candidate submap within reach, together, at their estimates. It is
-        exhaustive (:func:`correlative_match_2d`) over ``min(window, max_far_window_translation)`` and
-        ``max_window_rotation``; the match is refined and verified by Harmony-ICP, and becomes a loop edge (to the
-        old keyframe nearest to it) only when a second far match, from a keyframe at most ``far_corroborate_within``
-        keyframes apart, agrees with it (within ``far_agreement_translation`` / ``far_agreement_rotation`` once
-        both are carried to one keyframe by tracking). Corroborated far edges are not under the robust kernel (a
-        correction of metres is what they are for; the kernel would discard it); the chi-square gate still judges
-        them.
+        exhaustive (:func:`correlative_match_2d`) over ``min(window, max_far_window_translation)`` in x and y and
+        ``window_rotation + window_rotation_growth * path`` in yaw, up to 180 deg. The regular window's 30 deg cap
+        does not bound the heading's drift after a long excursion: fr-clinic's return, some 1000 m of graph path
+        after the place it comes back to, closed with corrections of 20 and 27 deg (seeds 5 and 4); where small
+        changes to the tracking let it drift 40 deg, no far search could find it (every try ambiguous, at the
+        wrong headings) and the map broke. The match is refined and verified by Harmony-ICP, and becomes a loop
+        edge (to the old keyframe nearest to it) only when a second far match, from a keyframe at most
+        ``far_corroborate_within`` keyframes apart, agrees with it (within ``far_agreement_translation`` /
+        ``far_agreement_rotation`` once both are carried to one keyframe by tracking). Corroborated far edges are
+        not under the robust kernel (a correction of metres is what they are for; the kernel would discard it);
+        the chi-square gate still judges them.
     far_source_path : float
         Metres of graph distance from the newest keyframe within which keyframes form a far search's source. A few
         keyframes look like many places of a building's corridors (on fr-clinic's return, after 20-47 m and 15-23
@@ -590,11 +594,13 @@ class LoopCloser:
 
     # ------------------------------------------------------------------------------------------ far search
     def _far_windows(self, path: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Uncapped (up to ``max_far_window_translation``) translation half-width and the rotation one."""
+        """Half-widths (translation, yaw) of a far search: the translation's grows by ``far_window_growth`` up to
+        ``max_far_window_translation``, the yaw's as the regular window's but uncapped (up to 180 deg)."""
         cfg = self.config
         p = np.asarray(path, dtype=float)
         t = np.minimum(cfg.window_translation + cfg.far_window_growth * p, cfg.max_far_window_translation)
-        return t, self.window(p)[1]
+        r = np.minimum(cfg.window_rotation + cfg.window_rotation_growth * p, np.pi)
+        return t, r
 
     def far_candidates(self, graph: PoseGraph, newest: int, path: NDArray[np.float64]) -> list[LoopCandidate]:
         """Submaps whose uncertainty relative to keyframe ``newest`` exceeds the regular window and whose

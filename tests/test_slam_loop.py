@@ -256,6 +256,23 @@ def test_far_closure_needs_a_second_match_that_agrees():
         assert np.linalg.norm(g.poses[k][:2] - truth[k][:2]) < 0.1
 
 
+def test_far_search_covers_a_heading_drift_beyond_the_regular_window():
+    """After a long excursion the heading drifts further than the regular search's 30 deg may cover (fr-clinic's
+    return: 20-40 deg after about 1000 m of path, whichever seed): the far search's rotation window grows with the
+    path, as its translation window does, and finds the place 45 deg off."""
+    error = np.array([9.0, -6.0, np.deg2rad(45.0)])
+    truth, g, kfs, closer, path = _far_setup(error)
+    first = closer.attempt_far(g, kfs, 2, closer.far_candidates(g, 2, path), path, np.random.default_rng(0))
+    assert first is not None, closer.rejections
+    np.testing.assert_allclose(first.measurement, relative(truth[first.i], truth[2]), atol=0.05)
+    assert np.rad2deg(first.correction_rotation) == pytest.approx(45.0, abs=1.0)
+    # a return 100 m of path away may have turned 3 + 0.3 * 100 = 33 deg at most: 45 deg is not searched
+    _, g, kfs, closer, _ = _far_setup(error)
+    near = np.array([100.0, 100.0, 0.0, 0.0])
+    cands = closer.far_candidates(g, 2, near)
+    assert cands and closer.attempt_far(g, kfs, 2, cands, near, np.random.default_rng(0)) is None
+
+
 def _corridor_with_room():
     """A 40 m corridor (1.6 m wide, along x) with a door at x = -14 into a 3 m x 3 m room: from x > -8.5 a 5 m
     scan sees two parallel walls only."""

@@ -50,6 +50,8 @@ STAGES = {
     "  _pair_edges (scan-to-scan refinements)": [("hsmap/slam.py", "_pair_edges")],
     "  path_distances (graph distances)": [("hsmap/posegraph.py", "path_distances")],
     "  _close_loops (search + verify)": [("hsmap/slam.py", "_close_loops")],
+    "    attempt_far (far search, 2D)": [("hsmap/loopclosure.py", "attempt_far")],
+    "      correlative_match_2d (exhaustive)": [("hsmap/loopclosure.py", "correlative_match_2d")],
     "  _optimize (graph)": [("hsmap/slam.py", "_optimize")],
     "on_frame (recording)": [("benchmarks/profile_slam.py", "on_frame")],
 }

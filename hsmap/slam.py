@@ -442,6 +442,11 @@ def _truncated_residual(r: NDArray[np.float64], threshold: float) -> float:
     return float(np.where(np.isfinite(r), r, threshold).mean())
 
 
+def _matched_share(r: NDArray[np.float64]) -> float:
+    """The share of the scan's points a pose matches, from their residuals (:func:`_residuals`)."""
+    return float(np.isfinite(r).mean())
+
+
 def _at_least_as_good(ra: NDArray[np.float64], rb: NDArray[np.float64], dim: int, strict: bool = False) -> bool:
     """Whether pose ``a`` aligns the scan about as well as pose ``b`` (``strict``: clearly better), from the scan's
     residuals at the two poses, ``ra`` and ``rb`` (:func:`_residuals`; the scan's points are in ``dim`` dimensions).
@@ -463,7 +468,7 @@ def _at_least_as_good(ra: NDArray[np.float64], rb: NDArray[np.float64], dim: int
     if both.sum() < (STRICT_MIN_POINTS if strict else 3 * dim):
         return False
     ma, mb = float(ra[both].mean()), float(rb[both].mean())
-    fa, fb = float(np.isfinite(ra).mean()), float(np.isfinite(rb).mean())
+    fa, fb = _matched_share(ra), _matched_share(rb)
     if strict:
         d = ra[both] - rb[both]
         se = float(d.std(ddof=1)) / np.sqrt(len(d))
@@ -854,7 +859,7 @@ class HsSlam:
             # far search's yaw window capped at 30 deg, which turned out to cause this rule's own two broken seeds,
             # so the condition may be stricter than it needs to be)
             r_centre = _residuals(scan, self._target, centre, reg.threshold)
-            if (float(np.isfinite(r_centre).mean()) >= STRICT_MIN_MATCHED
+            if (_matched_share(r_centre) >= STRICT_MIN_MATCHED
                     and _truncated_residual(r_centre, reg.threshold) < _truncated_residual(r_alt, reg.threshold)):
                 boxed, r_alt = replace(alt, pose=centre.copy(), transformation=pose_to_matrix(centre)), r_centre
                 at_prediction = True
@@ -865,14 +870,14 @@ class HsSlam:
         # prediction itself a slip also shows as a scan it explains at least twice as well, unmatched points
         # counted at the threshold: the prediction then matches the walls along the slip only, on which the
         # two agree
+        first_matched = _matched_share(r_first)
         if _at_least_as_good(r_first, r_alt, self.dim, strict=True) or (
-                at_prediction and float(np.isfinite(r_first).mean()) >= STRICT_MIN_MATCHED
+                at_prediction and first_matched >= STRICT_MIN_MATCHED
                 and _truncated_residual(r_first, reg.threshold) < 0.5 * _truncated_residual(r_alt, reg.threshold)):
             return res, True, True
         # a registration that explains too little of its scan to overrule the prediction cannot veto it either:
         # the scan sees space the map does not hold (the prediction's pose then extends the map)
-        unexplained = float(np.isfinite(r_first).mean()) < STRICT_MIN_MATCHED
-        return alt, True, unexplained or _at_least_as_good(r_alt, r_first, self.dim)
+        return alt, True, first_matched < STRICT_MIN_MATCHED or _at_least_as_good(r_alt, r_first, self.dim)
 
     def _fuse(self, frame: Frame, res: RegistrationResult) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """The registration fused with the motion prediction, weighted by their information matrices.

@@ -500,8 +500,11 @@ class LoopCloser:
         cfg = self.config
         p = np.asarray(path, dtype=float)
         t = np.minimum(cfg.window_translation + cfg.window_growth * p, cfg.max_window_translation)
-        r = np.minimum(cfg.window_rotation + cfg.window_rotation_growth * p, cfg.max_window_rotation)
-        return t, r
+        return t, np.minimum(self._yaw_window(p), cfg.max_window_rotation)
+
+    def _yaw_window(self, path: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The yaw half-width for places ``path`` metres apart in the graph, before any cap."""
+        return self.config.window_rotation + self.config.window_rotation_growth * path
 
     # ------------------------------------------------------------------------------------------ matching
     def _submap_target(self, s: int, graph: PoseGraph, keyframes: list[Keyframe]) -> RegistrationTarget:
@@ -599,8 +602,7 @@ class LoopCloser:
         cfg = self.config
         p = np.asarray(path, dtype=float)
         t = np.minimum(cfg.window_translation + cfg.far_window_growth * p, cfg.max_far_window_translation)
-        r = np.minimum(cfg.window_rotation + cfg.window_rotation_growth * p, np.pi)
-        return t, r
+        return t, np.minimum(self._yaw_window(p), np.pi)
 
     def far_candidates(self, graph: PoseGraph, newest: int, path: NDArray[np.float64]) -> list[LoopCandidate]:
         """Submaps whose uncertainty relative to keyframe ``newest`` exceeds the regular window and whose

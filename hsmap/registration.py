@@ -282,6 +282,16 @@ def adjoint(T: NDArray[np.float64]) -> NDArray[np.float64]:
     return A
 
 
+def constrained_axes(translation_information: NDArray[np.float64], ratio: float = 0.05) -> NDArray[np.float64]:
+    """The translation directions a registration's scene constrains: the unit eigenvectors (columns) of the
+    information's translation block whose eigenvalue is at least ``ratio`` times the largest; none where the block
+    holds no information. See :func:`drop_degenerate` for why directions below the ratio are not told from noise."""
+    w, V = np.linalg.eigh(np.asarray(translation_information, dtype=float))
+    if not w.max() > 0:
+        return V[:, :0]
+    return V[:, w >= ratio * w.max()]
+
+
 def drop_degenerate(information: NDArray[np.float64], ratio: float = 0.05) -> NDArray[np.float64]:
     """Information with the translation directions the scene does not constrain removed.
 
@@ -293,10 +303,9 @@ def drop_degenerate(information: NDArray[np.float64], ratio: float = 0.05) -> ND
     """
     info = np.asarray(information, dtype=float)
     dim = 2 if info.shape[0] == 3 else 3
-    w, V = np.linalg.eigh(info[:dim, :dim])
-    if w.max() <= 0:
+    strong = constrained_axes(info[:dim, :dim], ratio)
+    if not strong.shape[1]:
         return np.zeros_like(info)
-    strong = V[:, w >= ratio * w.max()]
     M = np.eye(info.shape[0])
     M[:dim, :dim] = strong @ strong.T
     return M @ info @ M

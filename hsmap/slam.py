@@ -74,6 +74,7 @@ from .registration import (
     RegistrationResult,
     RegistrationTarget,
     alignment_information,
+    constrained_axes,
     drop_degenerate,
     estimate_normals,
     harmony_icp,
@@ -730,8 +731,8 @@ class HsSlam:
             self._model_variance = self._model_variance + np.square(self._model_sigmas(step))
         constrained = False
         if res.information is not None and np.all(np.isfinite(res.information)):
-            w = np.linalg.eigvalsh(res.information[:2, :2])  # x, y: what is compared (6-DOF: z may see walls only)
-            constrained = bool(w.max() > 0 and w.min() >= cfg.degenerate_ratio * w.max())
+            # x, y: what is compared (6-DOF: z may see walls only)
+            constrained = constrained_axes(res.information[:2, :2], cfg.degenerate_ratio).shape[1] == 2
         pose = res.pose if cfg.dof == 3 else res.pose[[0, 1, 5]]
         odom = np.asarray(frame.odometry, dtype=float)
         self._reg_history.append((pose.copy(), constrained, odom, self._model_variance.copy()))

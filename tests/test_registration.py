@@ -310,3 +310,28 @@ def test_a_split_kdtree_query_answers_as_one_query(n, k):
             d, i = tree_query(tree, q, k=k, distance_upper_bound=0.4)
         np.testing.assert_array_equal(d, d0)
         np.testing.assert_array_equal(i, i0)
+
+
+def test_constrained_axes_and_drop_degenerate_keep_what_the_scene_constrains():
+    """A corridor along a 30 deg axis: its axis holds 1 % of the information across it, below the 5 % ratio, so
+    only the across direction is constrained and drop_degenerate removes the axis (cross terms with the yaw too);
+    a room keeps both directions; an information without any keeps none."""
+    from hsmap.registration import constrained_axes, drop_degenerate
+
+    a = np.deg2rad(30.0)
+    along, across = np.array([np.cos(a), np.sin(a)]), np.array([-np.sin(a), np.cos(a)])
+    block = 100.0 * np.outer(across, across) + 1.0 * np.outer(along, along)
+    axes = constrained_axes(block, 0.05)
+    assert axes.shape == (2, 1) and abs(abs(axes[:, 0] @ across) - 1.0) < 1e-12
+    assert constrained_axes(block, 0.005).shape == (2, 2)
+    assert constrained_axes(np.eye(2), 0.05).shape == (2, 2)
+    assert constrained_axes(np.zeros((2, 2)), 0.05).shape == (2, 0)
+    info = np.zeros((3, 3))
+    info[:2, :2] = block
+    info[2, 2] = 50.0
+    info[:2, 2] = info[2, :2] = 3.0 * along + 2.0 * across
+    kept = drop_degenerate(info, 0.05)
+    assert abs(along @ kept[:2, :2] @ along) < 1e-9 and abs(along @ kept[:2, 2]) < 1e-9
+    assert np.isclose(across @ kept[:2, :2] @ across, 100.0) and np.isclose(across @ kept[:2, 2], 2.0)
+    assert kept[2, 2] == 50.0
+    assert not drop_degenerate(np.diag([0.0, 0.0, 5.0]), 0.05).any()

@@ -50,7 +50,7 @@ from slam import FREIBURG  # noqa: E402
 
 from hsmap.datasets.open import open_dataset  # noqa: E402
 from hsmap.datasets.relations import Relations, read_relations  # noqa: E402
-from hsmap.evaluation.trajectory import relations_error  # noqa: E402
+from hsmap.evaluation.trajectory import relation_errors, relations_error  # noqa: E402
 from hsmap.geometry import compose, invert, pose_to_matrix, relative, transform_points, wrap_angle  # noqa: E402
 from hsmap.io import write_json  # noqa: E402
 from hsmap.slam import frame_points  # noqa: E402
@@ -91,8 +91,8 @@ def audit(name: str, trajectory: Path, traj: Trajectory, rel: Relations, dataset
         R = np.asarray(R6, dtype=float)[[0, 1, 5]]
         S = relative(pi[0], pj[0])
         (a, ta), (b, tb) = scan(i), scan(j)
-        e = compose(S, invert(R))  # E = (P_i^-1 P_j) R^-1, as the relations error (Kuemmerle et al. 2009)
-        rows.append((t_i, t_j, float(np.hypot(e[0], e[1])), alignment_cost(a, b, ta, tb, R, truncate),
+        e, _ = relation_errors(pose_to_matrix(S), pose_to_matrix(R))
+        rows.append((t_i, t_j, float(e), alignment_cost(a, b, ta, tb, R, truncate),
                      alignment_cost(a, b, ta, tb, S, truncate)))
     r = np.array(rows)
     err, c_rel, c_traj = r[:, 2], r[:, 3], r[:, 4]
@@ -150,8 +150,8 @@ def short_relations_by_source(name: str, frames: list, stamps: np.ndarray, odome
         o = relative(od[0], od[1])
         icp = refine_icp(scan(j)[0], targets[i], o, max_distance=0.1, start_distance=0.5, iterations=60)
         for key, est in (("odometry", o), ("scans_alone", icp), ("trajectory", relative(pose[0], pose[1]))):
-            e = compose(est, invert(R))
-            errs[key].append((float(np.hypot(e[0], e[1])), float(np.rad2deg(abs(wrap_angle(e[2]))))))
+            t, r = relation_errors(pose_to_matrix(est), pose_to_matrix(R))
+            errs[key].append((float(t), float(np.rad2deg(r))))
     out = {}
     print(f"{name}: relations with dt <= 10 s ({len(errs['trajectory'])}) as each source has them")
     print("    source          mean m  median m  mean deg  median deg")

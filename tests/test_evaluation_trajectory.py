@@ -207,6 +207,31 @@ def test_relations_error_definition_is_pose_error_times_inverse_relation():
     assert res.translation[0] == pytest.approx(2 * math.sin(theta / 2))
 
 
+def test_relation_errors_in_2d_and_3d_agree_and_name_bad_shapes():
+    """The 2D matrices give what the 3D ones give for the same planar poses: the translation of E = est R^-1
+    (compose(est, invert(R)) in pose vectors) and |its yaw|; shapes that are not one kind of matrix are refused."""
+    from hsmap.errors import ShapeError
+    from hsmap.evaluation.trajectory import relation_errors
+    from hsmap.geometry import invert, pose_to_matrix
+
+    rng = np.random.default_rng(3)
+    est = np.column_stack([rng.normal(0, 2, (20, 2)), rng.uniform(-3, 3, 20)])
+    ref = est + np.column_stack([rng.normal(0, 0.1, (20, 2)), rng.normal(0, 0.2, 20)])
+    t2, r2 = relation_errors(pose_to_matrix(est), pose_to_matrix(ref))
+    six = np.zeros((2, 20, 6))
+    six[..., [0, 1, 5]] = est, ref
+    t3, r3 = relation_errors(pose_to_matrix(six[0]), pose_to_matrix(six[1]))
+    e = np.array([compose(a, invert(b)) for a, b in zip(est, ref, strict=True)])
+    np.testing.assert_allclose(t2, np.hypot(e[:, 0], e[:, 1]), atol=1e-12)
+    np.testing.assert_allclose(r2, np.abs(e[:, 2]), atol=1e-12)
+    np.testing.assert_allclose(t3, t2, atol=1e-12)
+    np.testing.assert_allclose(r3, r2, atol=1e-9)
+    with pytest.raises(ShapeError, match="homogeneous matrices"):
+        relation_errors(pose_to_matrix(est), pose_to_matrix(six[1]))
+    with pytest.raises(ShapeError, match="homogeneous matrices"):
+        relation_errors(est, ref)
+
+
 def test_relations_interpolate_between_stamps():
     t = np.arange(6.0)
     traj = Trajectory(t, np.column_stack([t, np.zeros(6), 0.1 * t]))  # translation and yaw linear in time

@@ -36,10 +36,10 @@ import enum
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from ..datasets.relations import Relations
-from ..errors import EmptyInputError, InputError
+from ..errors import EmptyInputError, InputError, ShapeError
 from ..geometry import invert_matrix, matrix_to_pose, pose_to_matrix, wrap_angle
 from ..trajectory import Trajectory, nearest_index
 
@@ -59,6 +59,7 @@ __all__ = [
     "ate",
     "rpe",
     "relations_error",
+    "relation_errors",
     "evaluate_trajectory",
 ]
 
@@ -607,15 +608,31 @@ def relations_error(
         )
     R = pose_to_matrix(relations.poses[used])
     rel_est = invert_matrix(Pi[used]) @ Pj[used]
-    E = rel_est @ invert_matrix(R)
+    translation, rotation = relation_errors(rel_est, R)
     return RelationsResult(
-        translation=np.linalg.norm(E[:, :3, 3], axis=1),
-        rotation=_angle(E[:, :3, :3]),
+        translation=translation,
+        rotation=rotation,
         used=used,
         n_interpolated=int(int_i[used].sum() + int_j[used].sum()),
         estimated=rel_est[:, :3, 3].copy(),
         reference=R[:, :3, 3].copy(),
     )
+
+
+def relation_errors(estimated: ArrayLike, reference: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Translational (m) and rotational (rad) errors of estimated relative poses against reference ones, as the
+    Freiburg relations metric takes them (Kümmerle et al. 2009): the translation and the rotation angle of
+    ``estimated @ reference^-1``. Both are rigid homogeneous matrices of one shape, (..., 3, 3) in 2D or
+    (..., 4, 4) in 3D (:func:`hsmap.geometry.pose_to_matrix` makes them from pose vectors)."""
+    est, ref = np.asarray(estimated, dtype=float), np.asarray(reference, dtype=float)
+    if est.shape != ref.shape or est.shape[-2:] not in ((3, 3), (4, 4)):
+        raise ShapeError(f"estimated and reference must be homogeneous matrices of one shape (..., 3, 3) or "
+                         f"(..., 4, 4), got {est.shape} and {ref.shape}")
+    E = est @ invert_matrix(ref)
+    d = E.shape[-1] - 1
+    if d == 2:
+        return np.linalg.norm(E[..., :2, 2], axis=-1), np.abs(np.arctan2(E[..., 1, 0], E[..., 0, 0]))
+    return np.linalg.norm(E[..., :3, 3], axis=-1), _angle(E[..., :3, :3])
 
 
 def evaluate_trajectory(est: Trajectory, ref: Trajectory, *, max_dt: float = DEFAULT_MAX_DT) -> dict:

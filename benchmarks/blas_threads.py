@@ -26,18 +26,17 @@ import argparse
 import contextlib
 import multiprocessing
 import os
-import platform
 import statistics
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+from _report import finish, machine  # noqa: E402  (benchmarks/_report.py)
 from threadpoolctl import threadpool_info, threadpool_limits
 
 import hsmap
 import hsmap._blas as blas
-from hsmap.io import write_json
 from hsmap.registration import harmony_icp
 from hsmap.slam import SlamConfig, run_slam
 
@@ -144,10 +143,10 @@ def main(argv=None) -> int:
         "hsmap_version": hsmap.__version__,
         "rounds": args.rounds, "pairs": args.pairs, "frames": args.frames, "busy_processes": args.busy,
         "load_average_1min": load, "host_blas_threads_before": host, "host_blas_threads_after": after,
-        "machine": {"python": platform.python_version(), "platform": platform.platform(), "cpus": os.cpu_count()},
+        "machine": machine(),
         "summary": summary, "times_s": times,
     }
-    write_json(args.out, result)
+    finish(result, args.out)
     print(f"\n{'workload':18s} {'process s':>10s} {'scoped s':>10s} {'none s':>10s} {'scoped/process':>15s} "
           f"{'(IQR)':>14s} {'none/process':>13s}")
     for w, s in summary.items():
@@ -155,7 +154,7 @@ def main(argv=None) -> int:
         print(f"{w:18s} {s['process_median_s']:10.3f} {s['scoped_median_s']:10.3f} {s['none_median_s']:10.3f} "
               f"{s['scoped_over_process']:15.3f} {f'{lo:.2f}-{hi:.2f}':>14s} {s['none_over_process']:13.3f}")
     print(f"host BLAS threads before {sorted(set(host.values()))}, after {sorted(set(after.values()))}; "
-          f"load average {min(load):.1f}-{max(load):.1f}\nwrote {args.out}")
+          f"load average {min(load):.1f}-{max(load):.1f}")
     return 0
 
 

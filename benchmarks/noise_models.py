@@ -32,11 +32,11 @@ from scipy.optimize import minimize
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
+from _report import finish, machine  # noqa: E402  (benchmarks/_report.py)
 from slam import FREIBURG  # noqa: E402
 
 from hsmap.datasets.open import open_dataset  # noqa: E402
 from hsmap.geometry import compose, relative, wrap_angle  # noqa: E402
-from hsmap.io import write_json  # noqa: E402
 from hsmap.slam import HsSlam, SlamConfig, run_slam  # noqa: E402
 from hsmap.study.paths import datasets_dir  # noqa: E402
 
@@ -95,9 +95,10 @@ def main() -> None:
     ap.add_argument("--max-frames", type=int, default=None)
     ap.add_argument("--out", type=Path, default=None)
     a = ap.parse_args()
+    host = machine()
     rows = record(a.log, a.seed, a.max_frames)
     out = {"benchmark": "noise_models", "log": a.log, "seed": a.seed, "nu": NU, "frames": len(rows),
-           "components": {}}
+           "machine": host, "components": {}}
     for i, name in enumerate(COMPONENTS):
         k, l_, n = fit_scales(rows[:, i], rows[:, 3 + i], rows[:, 6 + i])
         unit, f = ("deg", np.degrees) if name == "yaw" else ("m", float)
@@ -110,8 +111,7 @@ def main() -> None:
         print(f"{a.log} {name}: registration sigma x{k:.2f}, odometry model sigma x{l_:.3f} ({n} frames)")
     path = a.out or ROOT / "reports" / "benchmarks" / f"noise_models_{a.log}.json"
     path.parent.mkdir(parents=True, exist_ok=True)
-    write_json(path, out)
-    print(f"wrote {path}")
+    finish(out, path)
 
 
 if __name__ == "__main__":

@@ -78,9 +78,9 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     import numpy as np
+    from _report import finish, machine  # benchmarks/_report.py
 
     from hsmap.datasets.open import open_dataset
-    from hsmap.io import write_json
     from hsmap.slam import SlamConfig, run_slam
 
     if args.input == "3d":
@@ -103,7 +103,7 @@ def main(argv=None) -> int:
         cfg, prior = SlamConfig(dof=3), None
     # compile the kernels outside the profile (numba's cache may be cold)
     run_slam(frames[:5], cfg, rng=args.seed, prior=prior, progress=False)
-    load0 = os.getloadavg()
+    host = machine()
     prof = cProfile.Profile()
     t0 = time.perf_counter()
     prof.enable()
@@ -114,7 +114,7 @@ def main(argv=None) -> int:
     total = stats.total_tt  # type: ignore[attr-defined]
     stages = {}
     print(f"{args.input}: {n} frames, {wall:.1f} s wall under cProfile (profiled {total:.1f} s), "
-          f"load {load0[0]:.2f}")
+          f"load {host['load_average_at_start'][0]:.2f}")
     for name, wanted in STAGES.items():
         s = _cumulative(stats, wanted)
         stages[name.strip()] = {"seconds": s, "share": s / total if total else float("nan")}
@@ -131,12 +131,10 @@ def main(argv=None) -> int:
         "profiled_seconds": total,
         "seconds_per_frame_median_under_profile": float(np.median(secs)),
         "stages": stages,
-        "load_average_at_start": load0,
-        "load_average_at_end": os.getloadavg(),
+        "machine": host,
     }
     path = Path(args.out or ROOT / "reports/benchmarks" / f"profile_{args.input}.json")
-    write_json(path, out)
-    print(f"wrote {path}")
+    finish(out, path)
     return 0
 
 

@@ -7,19 +7,16 @@ benchmarks/readers.py [--repeat 3]``. Times are medians over ``--repeat`` runs i
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import statistics
 import sys
 import time
 from pathlib import Path
 
-import numpy as np
+from _report import finish, machine  # noqa: E402  (benchmarks/_report.py)
 
 from hsmap.datasets.open import open_dataset
 from hsmap.datasets.relations import read_relations
 from hsmap.evaluation import relations_error
-from hsmap.io import write_json
 
 ROOT = Path(__file__).resolve().parents[1]
 INPUTS = [
@@ -71,6 +68,7 @@ def main(argv: list[str] | None = None) -> int:
     if not data.is_dir():
         print(f"datasets folder {data} not found (run hsmap data fetch, or set HSMAP_DATASETS)", file=sys.stderr)
         return 2
+    host = machine()
     results = {}
     for name, rel_path, relations in INPUTS:
         path = data / rel_path
@@ -100,16 +98,7 @@ def main(argv: list[str] | None = None) -> int:
             }
         results[name] = entry
         print(name, {k: (round(v, 3) if isinstance(v, float) else v) for k, v in entry.items() if k != "read_s_all"})
-    write_json(
-        args.out,
-        {
-            "benchmark": "readers",
-            "repeat": args.repeat,
-            "machine": {"python": platform.python_version(), "cpu_count": os.cpu_count(), "numpy": np.__version__},
-            "results": results,
-        },
-    )
-    print(f"wrote {args.out}")
+    finish({"benchmark": "readers", "repeat": args.repeat, "machine": host, "results": results}, args.out)
     return 0
 
 

@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -36,11 +35,12 @@ import numpy as np
 
 os.environ.setdefault("RERUN_ANALYTICS", "0")
 
+from _report import finish, machine  # noqa: E402  (benchmarks/_report.py)
+
 import hsmap  # noqa: E402
 from hsmap.config import to_dict  # noqa: E402
 from hsmap.fitness import score  # noqa: E402
 from hsmap.geometry import matrix_to_pose, relative, wrap_angle  # noqa: E402
-from hsmap.io import write_json  # noqa: E402
 from hsmap.registration import (  # noqa: E402
     RegistrationConfig,
     RegistrationTarget,
@@ -248,7 +248,7 @@ def main(argv=None) -> int:
     out = {
         "benchmark": "registration",
         "success": {"translation_m": SUCCESS_T, "rotation_deg": SUCCESS_R},
-        "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": sys.version.split()[0]},
+        "machine": machine(),
         "hsmap_version": hsmap.__version__,
         "trials_per_level": trials,
         "config": to_dict(RegistrationConfig()),
@@ -261,8 +261,8 @@ def main(argv=None) -> int:
         out["3d"] = run_suite("3D: room clouds of ~5000 points", LEVELS_3D, pairs_3d, METHODS_3D, trials,
                               args.seed, TARGET_3D)
     out["seconds"] = time.perf_counter() - t0
-    write_json(args.out, out)
-    print(f"\nwrote {args.out} in {out['seconds']:.0f} s")
+    print(f"\nin {out['seconds']:.0f} s")
+    finish(out, args.out)
     return 0
 
 

@@ -46,13 +46,13 @@ from scipy.spatial import cKDTree
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
+from _report import finish, machine  # noqa: E402  (benchmarks/_report.py)
 from slam import FREIBURG  # noqa: E402
 
 from hsmap.datasets.open import open_dataset  # noqa: E402
 from hsmap.datasets.relations import Relations, read_relations  # noqa: E402
 from hsmap.evaluation.trajectory import relation_errors, relations_error  # noqa: E402
 from hsmap.geometry import compose, invert, pose_to_matrix, relative, transform_points, wrap_angle  # noqa: E402
-from hsmap.io import write_json  # noqa: E402
 from hsmap.slam import frame_points  # noqa: E402
 from hsmap.study.paths import datasets_dir  # noqa: E402
 from hsmap.trajectory import Trajectory, read_tum  # noqa: E402
@@ -197,15 +197,16 @@ def main() -> None:
                     default=[-0.5, -0.4, -0.3, -0.25, -0.2, -0.15, -0.1, 0.0, 0.1, 0.2, 0.3])
     ap.add_argument("--out", type=Path, default=None)
     a = ap.parse_args()
+    host = machine()
     datasets = datasets_dir()  # $HSMAP_DATASETS, else what hsmap data fetch downloaded, else ../shared/datasets
     traj = read_tum(a.trajectory, dof=3)
     rel = read_relations(datasets / "slam2d" / FREIBURG[a.log]["relations"])
     out = audit(a.log, a.trajectory, traj, rel, datasets, a.truncate, a.min_error, a.margin)
     out["evaluation_frames"] = evaluation_frames(a.log, traj, rel, a.frame_offsets)
+    out["machine"] = host
     path = a.out or ROOT / "reports" / "benchmarks" / f"relations_audit_{a.log}.json"
     path.parent.mkdir(parents=True, exist_ok=True)
-    write_json(path, out)
-    print(f"wrote {path}")
+    finish(out, path)
 
 
 if __name__ == "__main__":

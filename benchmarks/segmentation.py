@@ -30,7 +30,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import os
-import platform
 import sys
 from pathlib import Path
 
@@ -38,10 +37,12 @@ import numpy as np
 
 os.environ.setdefault("RERUN_ANALYTICS", "0")
 
+from _report import finish, machine  # noqa: E402  (benchmarks/_report.py)
+
 import hsmap  # noqa: E402
 from hsmap.config import to_dict  # noqa: E402
 from hsmap.grid import FREE, OCCUPIED, OccupancyGrid, read_image_gray  # noqa: E402
-from hsmap.io import atomic_path, write_json  # noqa: E402
+from hsmap.io import atomic_path  # noqa: E402
 from hsmap.segmentation import SegmentationConfig, segment_rooms  # noqa: E402
 from hsmap.study.benchmarks import BORMANN_BUILDINGS, room_segmentation_benchmark, summarise_segmentation  # noqa: E402
 from hsmap.study.paths import datasets_dir  # noqa: E402
@@ -111,8 +112,7 @@ def main(argv=None) -> int:
         "resolution": RESOLUTION,
         "repeats": args.repeats,
         "hsmap_version": hsmap.__version__,
-        "machine": {"python": platform.python_version(), "platform": platform.platform(),
-                    "cpus": os.cpu_count()},
+        "machine": machine(),
         "methods": {},
     }
     for m in methods:
@@ -136,7 +136,7 @@ def main(argv=None) -> int:
         with atomic_path(fig_path) as tmp:
             fig.savefig(tmp, dpi=110)
         result["figure"] = str(fig_path)
-    write_json(args.out, result)
+    finish(result, args.out)
 
     # tables
     for m in methods:
@@ -164,7 +164,6 @@ def main(argv=None) -> int:
         print(f"\nissue 17 targets, {methods[0]}:")
         for what, ok in result["methods"][methods[0]]["targets_met"].items():
             print(f"  {'met    ' if ok else 'MISSED '} {what}")
-    print(f"\nwrote {args.out}")
     return 0
 
 

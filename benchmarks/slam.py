@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import resource
 import sys
 import time
@@ -36,13 +35,14 @@ import numpy as np
 
 os.environ.setdefault("RERUN_ANALYTICS", "0")
 
+from _report import finish, machine  # noqa: E402  (benchmarks/_report.py)
+
 import hsmap  # noqa: E402
 from hsmap.config import to_dict  # noqa: E402
 from hsmap.datasets.open import open_dataset  # noqa: E402
 from hsmap.datasets.relations import read_relations  # noqa: E402
 from hsmap.evaluation.trajectory import pose_errors, relations_error  # noqa: E402
 from hsmap.geometry import compose, invert, matrix_to_pose  # noqa: E402
-from hsmap.io import write_json  # noqa: E402
 from hsmap.slam import SlamConfig, run_slam  # noqa: E402
 from hsmap.trajectory import Trajectory  # noqa: E402
 
@@ -308,8 +308,7 @@ def main(argv=None) -> int:
     datasets = datasets_dir()  # $HSMAP_DATASETS, else what hsmap data fetch downloaded, else ../shared/datasets
     out = {
         "benchmark": "slam",
-        "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": sys.version.split()[0],
-                    "load_average_at_start": os.getloadavg()},
+        "machine": machine(),
         "hsmap_version": hsmap.__version__,
     }
     for name in args.only:
@@ -321,9 +320,7 @@ def main(argv=None) -> int:
         else:
             out[name] = {"skipped": f"no Freiburg data at {datasets}/slam2d (run hsmap data fetch, or set HSMAP_DATASETS)"}
             print(out[name]["skipped"])
-    out["machine"]["load_average_at_end"] = os.getloadavg()
-    write_json(args.out, out)
-    print(f"wrote {args.out}")
+    finish(out, args.out)
     return 0
 
 

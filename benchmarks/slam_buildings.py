@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import sys
 import tempfile
 import time
@@ -34,11 +33,11 @@ import numpy as np
 os.environ.setdefault("RERUN_ANALYTICS", "0")
 
 import hsmap  # noqa: E402
-from hsmap.io import write_json  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
+from _report import finish, machine  # noqa: E402
 from slam import run_fresh  # noqa: E402  (the Freiburg benchmark's batch runner)
 
 
@@ -109,8 +108,7 @@ def main(argv=None) -> int:
 
     maps = Path(args.maps) if args.maps else datasets_dir() / "ipa_room_segmentation"
     out = {"benchmark": "slam_buildings",
-           "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": sys.version.split()[0],
-                       "load_average_at_start": os.getloadavg()},
+           "machine": machine(),
            "hsmap_version": hsmap.__version__, "maps": str(maps)}
     names = floor_plan_names(maps) if maps.is_dir() else []
     if args.only:
@@ -137,9 +135,7 @@ def main(argv=None) -> int:
         print(f"{s['runs']} runs: largest error mean {s['max_error_m']['mean']:.3f} m, median "
               f"{s['max_error_m']['median']:.3f}, worst {s['max_error_m']['worst']:.3f} ({s['max_error_m']['worst_run']}); "
               f"{s['runs_above_0.1_m']} above 0.1 m, {s['runs_above_0.3_m']} above 0.3 m")
-    out["machine"]["load_average_at_end"] = os.getloadavg()
-    write_json(args.out, out)
-    print(f"wrote {args.out}")
+    finish(out, args.out)
     return 0
 
 

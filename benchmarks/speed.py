@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import sys
 import tempfile
 import time
@@ -35,12 +34,9 @@ os.environ.setdefault("RERUN_ANALYTICS", "0")
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
+from _report import finish, load_average, machine  # noqa: E402
+
 import hsmap  # noqa: E402
-from hsmap.io import write_json  # noqa: E402
-
-
-def _load() -> list[float]:
-    return [round(x, 2) for x in os.getloadavg()]
 
 
 def bench_3d(max_frames: int | None, folder: str | None, threads: list[int], repeats: int) -> dict:
@@ -52,9 +48,9 @@ def bench_3d(max_frames: int | None, folder: str | None, threads: list[int], rep
     from hsmap.study import simulated_dataset
     from hsmap.trajectory import Trajectory
 
-    load0 = _load()
+    load0 = load_average()
     out = compare_with_kiss(max_frames, folder)
-    out["load_average"] = [load0, _load()]
+    out["load_average"] = [load0, load_average()]
     hs, kiss = out["hs_slam_6dof"], out["kiss_icp"]
     print(f"3d: HS-SLAM {1000 * hs['seconds_per_cloud_median']:.1f} ms per cloud, KISS-ICP "
           f"{1000 * kiss['seconds_per_cloud_median']:.1f} ms: ratio {out['time_ratio_hs_over_kiss']:.2f}; CPU per "
@@ -71,7 +67,7 @@ def bench_3d(max_frames: int | None, folder: str | None, threads: list[int], rep
     poses: dict[int, np.ndarray] = {}
     for _ in range(repeats):
         for t in threads:  # alternated: the machine's load falls on both alike
-            load = _load()
+            load = load_average()
             r = run_slam(frames, SlamConfig(dof=6, use_odometry=False), rng=1, prior=prior, progress=False,
                          threads=t)
             secs = np.array([f.seconds for f in r.frames])
@@ -131,7 +127,7 @@ def bench_freiburg(name: str, datasets: Path, max_frames: int | None, repeats: i
             for kind in ("recording", "no_recording"):  # alternated
                 out_dir = Path(tmp) / kind
                 argv = base + ["--out", str(out_dir)] + (["--no-recording"] if kind == "no_recording" else [])
-                load = _load()
+                load = load_average()
                 t0, c0 = time.perf_counter(), time.process_time()
                 rc = hsmap_main(argv)
                 wall, cpu = time.perf_counter() - t0, time.process_time() - c0
@@ -191,9 +187,7 @@ def main(argv=None) -> int:
 
     out = {
         "benchmark": "speed",
-        "machine": {"cpus": os.cpu_count(), "numba_threads": int(numba.config.NUMBA_NUM_THREADS),
-                    "platform": platform.platform(), "python": sys.version.split()[0],
-                    "load_average_at_start": _load()},
+        "machine": machine(numba_threads=int(numba.config.NUMBA_NUM_THREADS)),
         "hsmap_version": hsmap.__version__,
         "command": " ".join([sys.executable, *sys.argv]),
     }
@@ -205,9 +199,7 @@ def main(argv=None) -> int:
             out[name] = bench_freiburg(name, datasets, args.max_frames, args.repeats, args.seed)
         else:
             out[name] = {"skipped": f"no Freiburg data at {datasets}/slam2d"}
-    out["machine"]["load_average_at_end"] = _load()
-    write_json(args.out, out)
-    print(f"wrote {args.out}")
+    finish(out, args.out)
     return 0
 
 

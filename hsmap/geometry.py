@@ -31,6 +31,8 @@ __all__ = [
     "invert",
     "invert_matrix",
     "relative",
+    "compose_with_covariance_2d",
+    "body_covariance_2d",
     "quaternion_to_matrix",
     "matrix_to_quaternion",
     "dof_of_dim",
@@ -156,6 +158,26 @@ def invert(pose: ArrayLike) -> NDArray[np.float64]:
 def relative(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
     """Relative pose a⁻¹ ⊕ b of pose vectors: b expressed in the frame of a."""
     return matrix_to_pose(invert_matrix(pose_to_matrix(a)) @ pose_to_matrix(b))
+
+
+def compose_with_covariance_2d(a: ArrayLike, cov_a: ArrayLike, b: ArrayLike, cov_b: ArrayLike
+                               ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """a ⊕ b of two uncertain 2D poses (x, y, yaw) and its covariance, to first order (Smith, Self and Cheeseman
+    1990): ``cov_a`` in a's parent frame, ``cov_b`` in a's frame; the result's in a's parent frame."""
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    cs, sn = np.cos(a[2]), np.sin(a[2])
+    J_a = np.array([[1.0, 0.0, -sn * b[0] - cs * b[1]], [0.0, 1.0, cs * b[0] - sn * b[1]], [0.0, 0.0, 1.0]])
+    J_b = np.array([[cs, -sn, 0.0], [sn, cs, 0.0], [0.0, 0.0, 1.0]])
+    return compose(a, b), J_a @ np.asarray(cov_a, float) @ J_a.T + J_b @ np.asarray(cov_b, float) @ J_b.T
+
+
+def body_covariance_2d(pose: ArrayLike, cov: ArrayLike) -> NDArray[np.float64]:
+    """A 2D pose's covariance carried from its parent's frame into its own (the frame of ``pose ⊕ δ``'s small
+    perturbation δ: the pose graph's residuals, ``Z⁻¹ ⊕ actual``, are in it)."""
+    cs, sn = np.cos(float(np.asarray(pose, dtype=float)[2])), np.sin(float(np.asarray(pose, dtype=float)[2]))
+    A = np.array([[cs, sn, 0.0], [-sn, cs, 0.0], [0.0, 0.0, 1.0]])
+    return A @ np.asarray(cov, dtype=float) @ A.T
 
 
 def _se2_v(theta: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

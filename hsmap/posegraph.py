@@ -6,7 +6,8 @@ measurements ``z_ij`` (the pose of node j in the frame of node i) with an inform
 convention of :attr:`hsmap.registration.RegistrationResult.information`, so a registration's information goes
 into an edge as it is.
 
-Edges are of four kinds: ``odometry`` (consecutive keyframes, from tracking), ``loop`` (loop closures: these
+Edges are of five kinds: ``odometry`` (consecutive keyframes, from tracking), ``wheel`` (consecutive keyframes,
+the wheel odometry's motion between them), ``loop`` (loop closures: these
 take a robust Cauchy kernel, and :meth:`PoseGraph.optimize` switches off those whose residual stays beyond a
 chi-square gate after optimisation, so that a false closure cannot bend the map), ``pair`` (scan-to-scan
 registrations between two overlapping keyframes, Lu and Milios 1997; robust and gated as loops are, but all those
@@ -42,7 +43,8 @@ class OptimizationError(HsmapError):
 
 
 class EdgeKind(enum.StrEnum):
-    ODOMETRY = "odometry"
+    ODOMETRY = "odometry"  # tracking: a keyframe registered against the map, relative to the previous keyframe
+    WHEEL = "wheel"  # the wheel odometry's motion between two consecutive keyframes
     LOOP = "loop"
     PAIR = "pair"
     PRIOR = "prior"
@@ -214,7 +216,7 @@ class PoseGraph:
                   + rotation_weight * np.abs(wrap_angle(d[:, self.dim:])).max(axis=1))
         length[loop] = 0.0
         # one entry per pair of nodes, the shortest edge's: a sparse matrix sums duplicate entries, and two places
-        # tied by several edges (a loop and a pair: 15 such pairs on fr079) are no further apart for it
+        # tied by several edges (tracking and wheel odometry, a loop and a pair) are no further apart for it
         lo, hi = np.minimum(ei, ej), np.maximum(ei, ej)
         order = np.lexsort((length, hi, lo))
         first = np.ones(len(order), bool)

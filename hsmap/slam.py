@@ -62,7 +62,15 @@ from .config import dump_config, to_dict
 from .datasets.frames import Dataset, Frame
 from .errors import ConfigError, EmptyInputError, HsmapWarning, InputError, UnusableFrameError
 from .fitness import DistanceField
-from .geometry import compose, pose_to_matrix, relative, transform_points, wrap_angle
+from .geometry import (
+    body_covariance_2d,
+    compose,
+    compose_with_covariance_2d,
+    pose_to_matrix,
+    relative,
+    transform_points,
+    wrap_angle,
+)
 from .harmony import HarmonyConfig, as_rng
 from .io import write_json, write_ply_points
 from .loopclosure import Keyframe, LoopCloser, LoopClosureConfig, keyframe_voxel_map
@@ -558,6 +566,12 @@ class HsSlam:
         self._anchor: list[int] = []  # per frame: the keyframe its pose is expressed in
         self._offset: list[NDArray[np.float64]] = []  # per frame: its pose in that keyframe's frame
         self._odometry_chain: list[NDArray[np.float64]] = []  # per keyframe: the tracking edge's measurement
+        # the wheel odometry's motion since the newest keyframe and its covariance, in that keyframe's frame (None:
+        # a frame without odometry came between)
+        self._wheel_motion: NDArray[np.float64] | None = np.zeros(3)
+        self._wheel_covariance = np.zeros((3, 3))
+        self._registration_information: NDArray[np.float64] | None = None  # the newest frame's, as fused
+        self._wheel_gated = 0  # wheel edges down-weighted (slipped)
         self._closer = (LoopCloser(lc, cfg.dof, cfg.effective_map_voxel(), map_average=cfg.map_average)
                         if lc.enabled else None)
         self._path: NDArray[np.float64] | None = None  # graph distances from the newest keyframe
@@ -791,6 +805,7 @@ class HsSlam:
             self._learn_odometry(frame, res)
             res, retried, verified = self._verify(frame, scan, res)
             self._learn_odometry_scale(frame, res)
+            self._accumulate_wheel(frame)  # with the bias and scale the prediction below uses
             pose, information = self._fuse(frame, res)
             fitness, inlier, rmse, evaluations, cost = (res.fitness, res.inlier_ratio, res.rmse, res.evaluations,
                                                         res.cost)
@@ -891,6 +906,7 @@ class HsSlam:
         info_reg = (information_with_floor(drop_degenerate(res.information, cfg.degenerate_ratio),
                                            lc.edge_sigma_translation, lc.edge_sigma_rotation)
                     if res.information is not None else np.zeros((cfg.dof, cfg.dof)))
+        self._registration_information = info_reg
         pred = self.prediction(frame)
         if pred is None:
             return res.pose, info_reg
@@ -917,6 +933,47 @@ class HsSlam:
         step = np.linalg.solve(total + 1e-12 * np.eye(cfg.dof), info_pred @ d)
         return compose(res.pose, step), total
 
+    def _accumulate_wheel(self, frame: Frame) -> None:
+        """Add the frame's odometry step to the wheel motion since the newest keyframe (2D runs with odometry).
+
+        The covariance is propagated through each composition (first order), each step's from the learned sigma
+        model (:meth:`odometry_sigma`), the learned bias taken out of the step as the prediction takes it out.
+        """
+        step = self._odometry_step(frame)
+        if (self._wheel_motion is None or step is None or self.config.dof != 3 or self._prior is not None
+                or not self.config.loop_closure.odometry_edges):
+            self._wheel_motion = None
+            return
+        step = self._odometry_corrected(step)
+        a, b, c, d, e = self.odometry_sigma()
+        dist = float(np.hypot(step[0], step[1]))
+        st, sr = a + b * dist, c + d * abs(float(wrap_angle(step[2]))) + e * dist
+        self._wheel_motion, self._wheel_covariance = compose_with_covariance_2d(
+            self._wheel_motion, self._wheel_covariance, step, np.diag([st ** 2, st ** 2, sr ** 2]))
+
+    def _wheel_edge(self, z_tracking: NDArray[np.float64], info_tracking: NDArray[np.float64]
+                    ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+        """The wheel odometry's edge from the previous keyframe to the new one (measurement, information), or None.
+
+        Its information is the inverse of the propagated covariance, carried into the frame the graph measures
+        an edge's residual in (the edge's end). An edge further from the tracking edge than their joint
+        uncertainty allows (the chi-square 99.9 % quantile: a wheel slipped between the keyframes) is down-weighted
+        as the fusion down-weights a slipped prediction.
+        """
+        z, cov = self._wheel_motion, self._wheel_covariance
+        if z is None or not (np.all(np.isfinite(z)) and np.all(np.isfinite(cov))) or cov[2, 2] <= 0.0:
+            return None
+        info = np.linalg.inv(body_covariance_2d(z, cov))
+        d = relative(z_tracking, z)
+        d[2] = wrap_angle(d[2])
+        # the check in the tracking edge's frame, where the difference and the tracking's information are
+        info_t = np.linalg.inv(body_covariance_2d(z_tracking, cov))
+        m2 = float(d @ (info_tracking @ np.linalg.solve(info_tracking + info_t + 1e-12 * np.eye(3), info_t)) @ d)
+        if m2 > _CHI2_999[3]:
+            info = info * (_CHI2_999[3] / m2)
+            self._wheel_gated += 1
+        return z.copy(), 0.5 * (info + info.T)
+
     def _is_keyframe(self, pose: NDArray[np.float64]) -> bool:
         cfg = self.config
         d = relative(self._last_key, pose)
@@ -934,8 +991,20 @@ class HsSlam:
         if k > 0:
             z = relative(self.graph.poses[k - 1], pose)
             info = information if information is not None else np.zeros((cfg.dof,) * 2)
+            wheel = None
+            if self._registration_information is not None and self._wheel_motion is not None:
+                wheel = self._wheel_edge(z, self._registration_information)
+            if wheel is not None:
+                # the wheels are a sensor of their own in the graph: the tracking edge keeps the registration's
+                # information only (the fused one holds the odometry's prediction, which would count it twice)
+                info = self._registration_information
             self.graph.add_edge(k - 1, k, z, info, EdgeKind.ODOMETRY)  # floored in _fuse
             self._odometry_chain.append(z)
+            if wheel is not None:
+                self.graph.add_edge(k - 1, k, *wheel, EdgeKind.WHEEL)
+        # the next wheel edge measures from this keyframe's odometry (none: it would measure from an older frame's)
+        self._wheel_motion = np.zeros(3) if frame.odometry is not None else None
+        self._wheel_covariance = np.zeros((3, 3))
         self.keyframes.append(Keyframe(len(self.results), float(frame.stamp), dense, normals))
         T = pose_to_matrix(pose)
         world = transform_points(T, dense)
@@ -1075,6 +1144,8 @@ class HsSlam:
             "status": self._status,
             "loops_closed": len(loops),
             "pair_edges": sum(e.kind == EdgeKind.PAIR and e.active for e in self.graph.edges),
+            "wheel_edges": sum(e.kind == EdgeKind.WHEEL for e in self.graph.edges),
+            "wheel_edges_down_weighted": self._wheel_gated,
             "attempts": 0 if closer is None else closer.attempts,
             "rejected_by_checks": {} if closer is None else dict(closer.rejections),
             "far_attempts": 0 if closer is None else closer.far_attempts,

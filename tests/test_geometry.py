@@ -119,3 +119,30 @@ def test_interpolate_poses_3d_batched(rng):
         g.interpolate_poses(a, b[:, :3], np.zeros(5))
     with pytest.raises(ShapeError):
         g.interpolate_poses(a, b, np.zeros(4))
+
+
+def test_compose_with_covariance_2d_matches_sampling():
+    """The first-order covariance of a chain of uncertain 2D steps matches the spread of sampled chains."""
+    rng = np.random.default_rng(3)
+    steps = [np.array([0.4, 0.05, 0.3]), np.array([0.5, -0.1, -0.2]), np.array([0.3, 0.0, 0.5])]
+    Q = np.diag([0.01**2, 0.02**2, np.deg2rad(1.0) ** 2])
+    pose, cov = np.zeros(3), np.zeros((3, 3))
+    for s in steps:
+        pose, cov = g.compose_with_covariance_2d(pose, cov, s, Q)
+    np.testing.assert_allclose(pose, g.compose(g.compose(steps[0], steps[1]), steps[2]))
+    n = 40000
+    sampled = np.zeros((n, 3))
+    for s in steps:
+        # each step's noise in its own frame (the frame of the pose it starts from), as cov_b is defined
+        sampled = g.compose(sampled, s + rng.multivariate_normal(np.zeros(3), Q, size=n))
+    d = sampled - pose
+    d[:, 2] = g.wrap_angle(d[:, 2])
+    scale = np.sqrt(np.outer(np.diag(cov), np.diag(cov)))  # as correlations: off-diagonals to their diagonals' scale
+    np.testing.assert_allclose(np.cov(d.T) / scale, cov / scale, atol=0.03)
+    # in the pose's own frame: the same spread, rotated (the perturbation delta of pose + delta)
+    body = g.relative(np.broadcast_to(pose, sampled.shape), sampled)
+    body[:, 2] = g.wrap_angle(body[:, 2])
+    bc = g.body_covariance_2d(pose, cov)
+    scale = np.sqrt(np.outer(np.diag(bc), np.diag(bc)))
+    np.testing.assert_allclose(np.cov(body.T) / scale, bc / scale, atol=0.03)
+    assert not np.allclose(bc, cov, rtol=0.2)  # the frames differ: the check above can tell them apart

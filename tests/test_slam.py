@@ -131,6 +131,69 @@ def test_a_slipped_odometry_does_not_pull_the_fused_pose():
     assert np.abs(err[:, :2]).max() < 0.03, np.abs(err[:, :2]).max(0)
 
 
+def assert_wheel_edges_measure_the_odometry(slam, frames):
+    """Each wheel edge measures the raw odometry's motion between its two keyframes' frames (less the bias)."""
+    from hsmap.posegraph import EdgeKind
+
+    odom = {f.index: f.odometry for f in frames}
+    for e in slam.graph.edges:
+        if e.kind != EdgeKind.WHEEL:
+            continue
+        a, b = odom[slam.keyframes[e.i].frame], odom[slam.keyframes[e.j].frame]
+        assert a is not None and b is not None
+        raw = relative(np.asarray(a), np.asarray(b))
+        np.testing.assert_allclose(e.measurement[:2], raw[:2], atol=0.01)  # the learned bias taken out
+        assert abs(wrap_angle(e.measurement[2] - raw[2])) < np.deg2rad(0.5)
+        assert np.all(np.linalg.eigvalsh(e.information) > 0)
+
+
+def test_wheel_odometry_is_an_edge_of_its_own_between_keyframes():
+    """2D with odometry: one wheel edge beside each tracking edge, measuring the odometry's motion between the two
+    keyframes' frames; off with ``odometry_edges=False`` (the tracking edges then hold the fused information)."""
+    from hsmap.posegraph import EdgeKind
+
+    frames = make_noisy_odometry_frames(np.deg2rad(0.05), n=60)
+    slam = HsSlam(SlamConfig(), rng=1)
+    for f in frames:
+        slam.process(f)
+    tracking = [e for e in slam.graph.edges if e.kind == EdgeKind.ODOMETRY]
+    wheel = [e for e in slam.graph.edges if e.kind == EdgeKind.WHEEL]
+    assert len(tracking) == len(slam.keyframes) - 1 > 10 and [(e.i, e.j) for e in wheel] == [(e.i, e.j) for e in tracking]
+    assert_wheel_edges_measure_the_odometry(slam, frames)
+    assert slam.loop_summary()["wheel_edges"] == len(wheel)
+    assert slam.loop_summary()["wheel_edges_down_weighted"] == 0  # nothing slipped: the covariance covers the noise
+    # single frames without odometry, keyframes among them: no edge into such a keyframe, and none out of it that
+    # measures from an older frame's odometry
+    gap = make_noisy_odometry_frames(np.deg2rad(0.05), n=60)
+    missing = set(range(10, 60, 5))
+    for i in missing:
+        gap[i].odometry = None
+    lost = HsSlam(SlamConfig(), rng=1)
+    for f in gap:
+        lost.process(f)
+    gap_keys = [k for k, kf in enumerate(lost.keyframes) if kf.frame in missing]
+    assert len(gap_keys) >= 2
+    spans = {(e.i, e.j) for e in lost.graph.edges if e.kind == EdgeKind.WHEEL}
+    assert not {(k - 1, k) for k in gap_keys} & spans
+    assert_wheel_edges_measure_the_odometry(lost, gap)
+    off = HsSlam(SlamConfig(loop_closure={"odometry_edges": False}), rng=1)
+    for f in frames:
+        off.process(f)
+    assert not [e for e in off.graph.edges if e.kind == EdgeKind.WHEEL]
+
+
+def test_a_slipped_wheel_edge_does_not_bend_the_graph():
+    """The slip of the test above inside the pose graph: the wheel edge across it is down-weighted, the optimised
+    path keeps to the scans."""
+    frames = make_noisy_odometry_frames(np.deg2rad(0.05))
+    for f in frames[90:]:
+        f.odometry = compose([0.3, 0.0, 0.0], f.odometry)
+    res = run_slam(frames, SlamConfig(), rng=1, progress=False)
+    assert res.metrics()["loop_closure_detail"]["wheel_edges_down_weighted"] >= 1
+    err = relative_errors(res.trajectory.poses, ROUTE[: len(frames)])
+    assert np.abs(err[:, :2]).max() < 0.03, np.abs(err[:, :2]).max(0)
+
+
 def test_odometry_alone_drifts(frames):
     odom = np.array([f.odometry for f in frames])
     err = relative_errors(odom, ROUTE)

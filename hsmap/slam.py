@@ -570,7 +570,6 @@ class HsSlam:
         # a frame without odometry came between)
         self._wheel_motion: NDArray[np.float64] | None = np.zeros(3)
         self._wheel_covariance = np.zeros((3, 3))
-        self._registration_information: NDArray[np.float64] | None = None  # the newest frame's, as fused
         self._wheel_gated = 0  # wheel edges down-weighted (slipped)
         self._closer = (LoopCloser(lc, cfg.dof, cfg.effective_map_voxel(), map_average=cfg.map_average)
                         if lc.enabled else None)
@@ -791,6 +790,7 @@ class HsSlam:
         evaluations = 0
         retried, verified, cost = False, True, 0.0
         res: RegistrationResult | None = None
+        registration_information = None
         if first:
             pose = self._initial if self._initial is not None else np.zeros(cfg.dof)
             fitness, inlier, rmse = 0.0, 1.0, 0.0
@@ -805,7 +805,7 @@ class HsSlam:
             res, retried, verified = self._verify(frame, scan, res)
             self._learn_odometry_scale(frame, res)
             self._accumulate_wheel(frame)  # with the bias and scale the prediction below uses
-            pose, information = self._fuse(frame, res)
+            pose, information, registration_information = self._fuse(frame, res)
             fitness, inlier, rmse, evaluations, cost = (res.fitness, res.inlier_ratio, res.rmse, res.evaluations,
                                                         res.cost)
         keyframe = first or (verified and (len(self.poses) < cfg.warmup_frames or self._is_keyframe(pose)))
@@ -814,7 +814,7 @@ class HsSlam:
         if keyframe:
             self._anchor.append(len(self.keyframes))
             self._offset.append(np.zeros(cfg.dof))
-            self._add_keyframe(frame, scan, pose, None if first else information)
+            self._add_keyframe(frame, scan, pose, None if first else information, registration_information)
         else:
             k = len(self.keyframes) - 1
             self._anchor.append(k)
@@ -893,22 +893,23 @@ class HsSlam:
         # the scan sees space the map does not hold (the prediction's pose then extends the map)
         return alt, True, first_matched < STRICT_MIN_MATCHED or _at_least_as_good(r_alt, r_first, self.dim)
 
-    def _fuse(self, frame: Frame, res: RegistrationResult) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    def _fuse(self, frame: Frame, res: RegistrationResult
+              ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """The registration fused with the motion prediction, weighted by their information matrices.
 
         Where the scene constrains the pose (a room's corners) the registration's information dwarfs the
         prediction's and the pose is the registration's; along a direction it does not constrain (a featureless
-        corridor's axis) the prediction carries the pose. Returns the pose and its information (body frame).
+        corridor's axis) the prediction carries the pose. Returns the pose, its information (body frame) and the
+        registration's information as fused (floored; a wheel edge's tracking edge holds it alone).
         """
         cfg = self.config
         lc = cfg.loop_closure
         info_reg = (information_with_floor(drop_degenerate(res.information, cfg.degenerate_ratio),
                                            lc.edge_sigma_translation, lc.edge_sigma_rotation)
                     if res.information is not None else np.zeros((cfg.dof, cfg.dof)))
-        self._registration_information = info_reg
         pred = self.prediction(frame)
         if pred is None:
-            return res.pose, info_reg
+            return res.pose, info_reg, info_reg
         centre, sig = pred
         # every direction: x, y (and z: the height the prediction carries) by the translation sigma, yaw (and roll,
         # pitch) by the rotation one. A direction the scan does not constrain (z where the 3D LiDAR sees walls
@@ -930,7 +931,7 @@ class HsSlam:
             info_pred = info_pred * (gate / m2)
         total = info_reg + info_pred
         step = np.linalg.solve(total + 1e-12 * np.eye(cfg.dof), info_pred @ d)
-        return compose(res.pose, step), total
+        return compose(res.pose, step), total, info_reg
 
     def _accumulate_wheel(self, frame: Frame) -> None:
         """Add the frame's odometry step to the wheel motion since the newest keyframe (2D runs with odometry).
@@ -982,8 +983,13 @@ class HsSlam:
                     or np.abs(wrap_angle(d[self.dim:])).max() >= cfg.keyframe_angle)
 
     def _add_keyframe(self, frame: Frame, scan: NDArray[np.float64], pose: NDArray[np.float64],
-                      information: NDArray[np.float64] | None) -> None:
-        """A new keyframe: a graph node tied to the previous one, points in the tracking map, loop search."""
+                      information: NDArray[np.float64] | None,
+                      registration_information: NDArray[np.float64] | None = None) -> None:
+        """A new keyframe: a graph node tied to the previous one, points in the tracking map, loop search.
+
+        ``information``: the fused pose's (the tracking edge's); ``registration_information``: the registration's
+        alone, which the tracking edge holds instead where a wheel edge carries the odometry.
+        """
         cfg = self.config
         dense = scan if cfg.dof == 3 else frame_points(frame, cfg.dof, cfg.min_range, cfg.max_range,
                                                        voxel=cfg.effective_map_voxel())
@@ -993,12 +999,12 @@ class HsSlam:
             z = relative(self.graph.poses[k - 1], pose)
             info = information if information is not None else np.zeros((cfg.dof,) * 2)
             wheel = None
-            if self._registration_information is not None and self._wheel_motion is not None:
-                wheel = self._wheel_edge(z, self._registration_information)
+            if registration_information is not None and self._wheel_motion is not None:
+                wheel = self._wheel_edge(z, registration_information)
             if wheel is not None:
                 # the wheels are a sensor of their own in the graph: the tracking edge keeps the registration's
                 # information only (the fused one holds the odometry's prediction, which would count it twice)
-                info = self._registration_information
+                info = registration_information
             self.graph.add_edge(k - 1, k, z, info, EdgeKind.ODOMETRY)  # floored in _fuse
             self._odometry_chain.append(z)
             if wheel is not None:

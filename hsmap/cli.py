@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import re
 import signal
 import sys
 import warnings
@@ -23,12 +24,33 @@ from ._blas import limited_blas
 from .commands import COMMANDS
 from .errors import HsmapError, HsmapWarning
 
+_NEGATIVE = re.compile(r"^-\.?\d")  # '-0.04,0,0', '-.5', '-2'
+
 
 class _Parser(argparse.ArgumentParser):
-    """argparse with its usage errors on one line (``hsmap slam: error: ...``), exit status 2."""
+    """argparse with its usage errors on one line (``hsmap slam: error: ...``), exit status 2, and a flag's value
+    that starts with a minus sign taken as its value (``--extrinsic2d -0.04,0,0``), where argparse would take it
+    for a flag unless it is a plain number."""
 
     def error(self, message: str):  # type: ignore[override]
         self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+
+    def parse_known_args(self, args=None, namespace=None):  # type: ignore[override]
+        args = list(sys.argv[1:] if args is None else args)
+        takes_value = {s for a in self._actions if a.nargs is None for s in a.option_strings}
+        joined: list[str] = []
+        i = 0
+        while i < len(args):
+            if args[i] in takes_value and i + 1 < len(args) and _NEGATIVE.match(args[i + 1]):
+                joined.append(f"{args[i]}={args[i + 1]}")
+                i += 2
+                continue
+            if args[i] == "--":
+                joined.extend(args[i:])
+                break
+            joined.append(args[i])
+            i += 1
+        return super().parse_known_args(joined, namespace)
 
 
 def build_parser() -> argparse.ArgumentParser:

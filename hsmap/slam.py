@@ -500,6 +500,17 @@ STRICT_MIN_MATCHED = 0.6
 _CHI2_999 = {3: 16.266, 6: 22.458}
 
 
+def _slip_weight(d: NDArray[np.float64], info_a: NDArray[np.float64], info_b: NDArray[np.float64]) -> float:
+    """The weight (<= 1) of measurement b where it lies ``d`` from measurement a: 1 within their joint uncertainty,
+    ``gate / m2`` beyond the chi-square 99.9 % quantile (Cauchy-like: a wheel slipped). ``m2`` is d's squared
+    Mahalanobis length under the information of their difference, I_a (I_a + I_b)^-1 I_b (zero along what a
+    does not constrain)."""
+    n = len(d)
+    m2 = float(d @ (info_a @ np.linalg.solve(info_a + info_b + 1e-12 * np.eye(n), info_b)) @ d)
+    gate = _CHI2_999[n]
+    return gate / m2 if m2 > gate else 1.0
+
+
 class HsSlam:
     """Incremental HS-SLAM: call :meth:`process` with each frame in order, then :meth:`finish`.
 
@@ -925,10 +936,9 @@ class HsSlam:
         # a prediction further from the registration than their joint uncertainty allows (a wheel slipped) is
         # down-weighted (Cauchy-like, beyond the 99.9 % quantile): the odometry's learned sigmas describe its core
         # (information of the difference: I_r (I_r + I_p)^-1 I_p, zero along what the scan does not constrain)
-        m2 = float(d @ (info_reg @ np.linalg.solve(info_reg + info_pred + 1e-12 * np.eye(cfg.dof), info_pred)) @ d)
-        gate = _CHI2_999[cfg.dof]
-        if m2 > gate:
-            info_pred = info_pred * (gate / m2)
+        w = _slip_weight(d, info_reg, info_pred)
+        if w < 1.0:
+            info_pred = info_pred * w
         total = info_reg + info_pred
         step = np.linalg.solve(total + 1e-12 * np.eye(cfg.dof), info_pred @ d)
         return compose(res.pose, step), total, info_reg
@@ -970,9 +980,9 @@ class HsSlam:
         d[2] = wrap_angle(d[2])
         # the check in the tracking edge's frame, where the difference and the tracking's information are
         info_t = np.linalg.inv(body_covariance_2d(z_tracking, cov))
-        m2 = float(d @ (info_tracking @ np.linalg.solve(info_tracking + info_t + 1e-12 * np.eye(3), info_t)) @ d)
-        if m2 > _CHI2_999[3]:
-            info = info * (_CHI2_999[3] / m2)
+        w = _slip_weight(d, info_tracking, info_t)
+        if w < 1.0:
+            info = info * w
             self._wheel_gated += 1
         return z.copy(), 0.5 * (info + info.T)
 

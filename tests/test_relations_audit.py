@@ -54,3 +54,53 @@ def test_relations_both_sensors_contradict_are_counted_and_only_they(audit):
     assert out["trajectory_without_them"]["all_deg"] == pytest.approx(2 * 0.5 / (n - 3), rel=1e-6)
     with pytest.raises(SystemExit, match="no odometry"):
         audit.contradicted_by_two_sensors("synthetic", audited, None, scans, relations, 1.0)
+
+
+def _out_and_back():
+    """A robot with a 180 deg laser driving through two rooms and a corridor (+x), then 100 s later back along the
+    same line (-x): the two ways see opposite sides of every obstacle, so two single scans barely overlap."""
+    from hsmap.datasets.frames import Frame, LaserScan2D
+    from hsmap.testing import office_segments, raycast_2d
+
+    segs = office_segments()
+    xs = np.arange(1.0, 14.0, 0.1)
+    out = np.column_stack([xs, np.full_like(xs, 2.0), np.zeros_like(xs)])
+    back = np.column_stack([xs[::-1], np.full_like(xs, 2.3), np.full_like(xs, np.pi)])
+    truth = np.vstack([out, back])
+    stamps = np.concatenate([0.5 * np.arange(len(xs)), 200.0 + 0.5 * np.arange(len(xs))])
+    frames = []
+    for k, (t, p) in enumerate(zip(stamps, truth, strict=True)):
+        r, a = raycast_2d(segs, p, fov=np.pi, beams=181, max_range=8.0)
+        frames.append(Frame(stamp=float(t), scan2d=LaserScan2D(r, a), index=k))
+    return frames, stamps, truth, len(xs)
+
+
+def test_maps_side_with_whichever_of_trajectory_and_relation_is_true(audit):
+    """Long relations between the two ways: where the relations are shifted 0.5 m along the corridor and the
+    trajectory is true, the maps align better at the trajectory; where the trajectory's way back is shifted and the
+    relations are true, they align better at the relations; relations both meet are neither."""
+    frames, stamps, truth, n = _out_and_back()
+    i = np.arange(10, n - 10, 10)  # outward frames; the way back passes the same x at frame 2n - 1 - i
+    j = 2 * n - 1 - i
+    rel6 = np.zeros((len(i), 6))
+    rel6[:, [0, 1, 5]] = relative(truth[i], truth[j])
+    good = Relations(stamps[i], stamps[j], rel6)
+    bad6 = rel6.copy()
+    bad6[:, :2] += relative(truth[i], compose(truth[j], [0.5, 0.0, 0.0]))[:, :2] - rel6[:, :2]
+    bad = Relations(stamps[i], stamps[j], bad6)
+    true_traj = Trajectory(stamps, truth.copy())
+    shifted = truth.copy()
+    shifted[n:] = compose(shifted[n:], [0.5, 0.0, 0.0])
+    wrong_traj = Trajectory(stamps, shifted)
+
+    out = audit.maps_audit("synthetic", frames, true_traj, bad, 5.0, 60.0, 0.3, 0.2, 0.01)
+    assert out["relations_scored"] == len(i) and out["missed_by_more_than_min_error"] == len(i)
+    assert out["of_which_the_maps_align_better_at_the_trajectory"] == len(i)
+    assert out["of_which_the_maps_align_better_at_the_relation"] == 0
+    assert out["mean_translation_error_without_the_contradicted_m"] is None
+    out = audit.maps_audit("synthetic", frames, wrong_traj, good, 5.0, 60.0, 0.3, 0.2, 0.01)
+    assert out["of_which_the_maps_align_better_at_the_relation"] == len(i)
+    assert out["of_which_the_maps_align_better_at_the_trajectory"] == 0
+    assert out["mean_translation_error_without_the_contradicted_m"] == pytest.approx(0.5)
+    out = audit.maps_audit("synthetic", frames, true_traj, good, 5.0, 60.0, 0.3, 0.2, 0.01)
+    assert out["missed_by_more_than_min_error"] == 0 and out["mean_translation_error_m"] < 1e-6

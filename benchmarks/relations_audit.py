@@ -257,6 +257,10 @@ def maps_audit(name: str, frames: list, traj: Trajectory, rel: Relations, window
     pose the relation's. Two scans taken facing opposite ways (a corridor driven back) barely overlap, so the
     scan-to-scan check cannot judge such relations; two stretches of tens of scans do. ``frames``: the log's
     frames (:class:`hsmap.datasets.frames.Frame`, with their 2D scans and the laser's offset)."""
+    if not 0 < 2 * window < min_dt:
+        # two stretches that share scans align where the trajectory puts them, whatever the relation says
+        raise SystemExit(f"--maps-window must be positive and under half of --maps-min-dt ({min_dt:g} s), "
+                         f"got {window:g} s")
     stamps = np.array([f.stamp for f in frames])
     poses, ok = traj.interpolate(stamps, max_dt=1.0)
     world: dict[int, np.ndarray] = {}
@@ -351,6 +355,9 @@ def main() -> None:
     ap.add_argument("--maps-min-dt", type=float, default=60.0, help="seconds, for --maps")
     ap.add_argument("--out", type=Path, default=None)
     a = ap.parse_args()
+    if a.maps and not 0 < 2 * a.maps_window < a.maps_min_dt:
+        ap.error(f"--maps-window must be positive and under half of --maps-min-dt ({a.maps_min_dt:g} s), "
+                 f"got {a.maps_window:g} s")
     host = machine()
     datasets = datasets_dir()  # $HSMAP_DATASETS, else what hsmap data fetch downloaded, else ../shared/datasets
     traj = read_tum(a.trajectory, dof=3)

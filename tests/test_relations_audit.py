@@ -104,3 +104,5 @@ def test_maps_side_with_whichever_of_trajectory_and_relation_is_true(audit):
     assert out["mean_translation_error_without_the_contradicted_m"] == pytest.approx(0.5)
     out = audit.maps_audit("synthetic", frames, true_traj, good, 5.0, 60.0, 0.3, 0.2, 0.01)
     assert out["missed_by_more_than_min_error"] == 0 and out["mean_translation_error_m"] < 1e-6
+    with pytest.raises(SystemExit, match="--maps-window must be positive and under half of --maps-min-dt"):
+        audit.maps_audit("synthetic", frames, true_traj, good, 30.0, 60.0, 0.3, 0.2, 0.01)

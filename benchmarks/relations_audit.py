@@ -95,11 +95,8 @@ def alignment_cost(a: np.ndarray, b: np.ndarray, tree_a: cKDTree, tree_b: cKDTre
     return 0.5 * (float(np.minimum(d_ab, truncate).mean()) + float(np.minimum(d_ba, truncate).mean()))
 
 
-def audit(name: str, trajectory: Path, traj: Trajectory, rel: Relations, datasets: Path, truncate: float,
-          min_error: float, margin: float) -> dict:
-    spec = FREIBURG[name]
-    ds = open_dataset(datasets / "slam2d" / spec["bag"], extrinsic2d=spec["extrinsic2d"])
-    frames = list(ds.frames(clouds=False))
+def audit(name: str, trajectory: Path, traj: Trajectory, rel: Relations, frames: list,
+          odometry: Trajectory | None, truncate: float, min_error: float, margin: float) -> dict:
     stamps = np.array([f.stamp for f in frames])
     scans: dict[int, tuple[np.ndarray, cKDTree]] = {}
 
@@ -141,7 +138,7 @@ def audit(name: str, trajectory: Path, traj: Trajectory, rel: Relations, dataset
                           "cost_at_relation_m": float(x), "cost_at_trajectory_m": float(y)}
                          for (a, b, e, x, y), d in zip(r[contradicted], dt[contradicted], strict=True)],
     }
-    out["short_relations_by_source"] = short_relations_by_source(name, frames, stamps, ds.odometry, traj, rel, scan)
+    out["short_relations_by_source"] = short_relations_by_source(name, frames, stamps, odometry, traj, rel, scan)
     print(f"{name}: {len(r)} relations, mean error {err.mean():.4f} m; {far.sum()} missed by > {min_error} m, of "
           f"which the scans align better at the trajectory on {contradicted.sum()} and at the relation on "
           f"{supported.sum()}; without the contradicted ones the mean is {out['mean_translation_error_without_the_contradicted_m']:.4f} m")
@@ -249,6 +246,14 @@ def _thin(points: np.ndarray, cell: float = 0.05) -> np.ndarray:
     return points[np.sort(first)]
 
 
+def _maps_window_error(window: float, min_dt: float) -> str | None:
+    """Why ``--maps-window`` does not suit ``--maps-min-dt``, or None: two stretches that share scans align where the
+    trajectory puts them, whatever the relation says."""
+    if 0 < 2 * window < min_dt:
+        return None
+    return f"--maps-window must be positive and under half of --maps-min-dt ({min_dt:g} s), got {window:g} s"
+
+
 def maps_audit(name: str, frames: list, traj: Trajectory, rel: Relations, window: float, min_dt: float,
                truncate: float, min_error: float, margin: float) -> dict:
     """For each relation with dt > ``min_dt``: the scans within ``window`` s of t_i and of t_j, each stretch placed
@@ -257,10 +262,9 @@ def maps_audit(name: str, frames: list, traj: Trajectory, rel: Relations, window
     pose the relation's. Two scans taken facing opposite ways (a corridor driven back) barely overlap, so the
     scan-to-scan check cannot judge such relations; two stretches of tens of scans do. ``frames``: the log's
     frames (:class:`hsmap.datasets.frames.Frame`, with their 2D scans and the laser's offset)."""
-    if not 0 < 2 * window < min_dt:
-        # two stretches that share scans align where the trajectory puts them, whatever the relation says
-        raise SystemExit(f"--maps-window must be positive and under half of --maps-min-dt ({min_dt:g} s), "
-                         f"got {window:g} s")
+    problem = _maps_window_error(window, min_dt)
+    if problem:
+        raise SystemExit(problem)
     stamps = np.array([f.stamp for f in frames])
     poses, ok = traj.interpolate(stamps, max_dt=1.0)
     world: dict[int, np.ndarray] = {}
@@ -355,24 +359,21 @@ def main() -> None:
     ap.add_argument("--maps-min-dt", type=float, default=60.0, help="seconds, for --maps")
     ap.add_argument("--out", type=Path, default=None)
     a = ap.parse_args()
-    if a.maps and not 0 < 2 * a.maps_window < a.maps_min_dt:
-        ap.error(f"--maps-window must be positive and under half of --maps-min-dt ({a.maps_min_dt:g} s), "
-                 f"got {a.maps_window:g} s")
+    if a.maps and (problem := _maps_window_error(a.maps_window, a.maps_min_dt)):
+        ap.error(problem)  # before anything is computed
     host = machine()
     datasets = datasets_dir()  # $HSMAP_DATASETS, else what hsmap data fetch downloaded, else ../shared/datasets
     traj = read_tum(a.trajectory, dof=3)
     rel = read_relations(datasets / "slam2d" / FREIBURG[a.log]["relations"])
-    out = audit(a.log, a.trajectory, traj, rel, datasets, a.truncate, a.min_error, a.margin)
+    spec = FREIBURG[a.log]
+    ds = open_dataset(datasets / "slam2d" / spec["bag"], extrinsic2d=spec["extrinsic2d"])
+    frames = list(ds.frames(clouds=False))  # read once, for every check below
+    out = audit(a.log, a.trajectory, traj, rel, frames, ds.odometry, a.truncate, a.min_error, a.margin)
     out["evaluation_frames"] = evaluation_frames(a.log, traj, rel, a.frame_offsets)
     if a.independent is not None:
-        spec = FREIBURG[a.log]
-        odometry = open_dataset(datasets / "slam2d" / spec["bag"], extrinsic2d=spec["extrinsic2d"]).odometry
         out["contradicted_by_two_sensors"] = contradicted_by_two_sensors(
-            a.log, traj, odometry, read_tum(a.independent, dof=3), rel, a.min_rotation)
+            a.log, traj, ds.odometry, read_tum(a.independent, dof=3), rel, a.min_rotation)
     if a.maps:
-        spec = FREIBURG[a.log]
-        frames = list(open_dataset(datasets / "slam2d" / spec["bag"], extrinsic2d=spec["extrinsic2d"]).frames(
-            clouds=False))
         out["maps"] = maps_audit(a.log, frames, traj, rel, a.maps_window, a.maps_min_dt, a.truncate, a.min_error,
                                  a.margin)
     out["machine"] = host

@@ -307,6 +307,24 @@ def test_open_freiburg_as_the_command_line_does(datasets_dir):
         open_freiburg(folder, "aces")
 
 
+def test_every_freiburg_log_has_cartographer_beside_it():
+    """Notebook 08 puts Cartographer beside each log it runs; a standard deviation nobody checked prints as "?"."""
+    from hsmap.study import FREIBURG_LOGS, published_references
+    from hsmap.study.benchmarks import FreiburgResults
+
+    refs = published_references()
+    carto = {m["log"]: m for m in refs["freiburg_relations"]["methods"] if m["method"] == "Cartographer"}
+    assert set(carto) == set(FREIBURG_LOGS)
+    for m in carto.values():
+        assert len(m["translation_m"]) == 2 and 0 < m["translation_m"][0] < 1
+        assert len(m["rotation_deg"]) == 2 and 0 < m["rotation_deg"][0] < 2
+    row = {"log": "fr-clinic", "method": "HS-SLAM", "mode": "loop_closure", "seeds": [1, 2],
+           "translation_m": [0.12, 0.001], "rotation_deg": [0.8, 0.01], "worst_m": 0.121, "short_m": 0.09,
+           "long_m": 0.47, "distance_scale": 1.01, "loops_closed": 27.0, "real_time_factor": 40.0, "relations": 2820}
+    lines = FreiburgResults(rows=[row]).table(refs).splitlines()
+    assert re.search(r"Cartographer \(Hess 2016\)\s+0\.1078 ± \?\s+0\.747 ± \?", lines[2]), lines
+
+
 @pytest.mark.datasets
 def test_freiburg_relations_over_seeds(datasets_dir, tmp_path, monkeypatch):
     from hsmap.study import freiburg_relations

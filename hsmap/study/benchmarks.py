@@ -61,8 +61,8 @@ def published_references(path: str | os.PathLike | None = None) -> dict:
     -------
     dict
         ``freiburg_relations`` (``methods``: one entry per log and method with ``translation_m`` and
-        ``rotation_deg`` as [mean, std] or None; ``cartographer_wall_clock``) and ``room_segmentation``
-        (``methods``: recall and precision in percent per map kind, seconds per map).
+        ``rotation_deg`` as [mean, std] or None, the std None where it was not checked; ``cartographer_wall_clock``)
+        and ``room_segmentation`` (``methods``: recall and precision in percent per map kind, seconds per map).
     """
     if path is None:
         from importlib import resources
@@ -162,10 +162,15 @@ class FreiburgResults:
             c = carto.get(r["log"])
             if c is not None and r["method"] == "HS-SLAM":
                 lines.append(f"{r['log']:10s}{'Cartographer (' + c['source'] + ')':28s}{'':>6s}"
-                             f"{c['translation_m'][0]:>13.4f} ± {c['translation_m'][1]:.4f}{'':>8s}"
-                             + (f"{c['rotation_deg'][0]:>10.3f} ± {c['rotation_deg'][1]:.3f}"
-                                if c.get("rotation_deg") else f"{'-':>18s}"))
+                             f"{_mean_sd(c['translation_m'], 13, '.4f')}{'':>8s}"
+                             + (_mean_sd(c["rotation_deg"], 10, ".3f") if c.get("rotation_deg") else f"{'-':>18s}"))
         return "\n".join(lines)
+
+
+def _mean_sd(v: Sequence, width: int, fmt: str) -> str:
+    """A published [mean, sd] as the table prints it; an sd that could not be checked (None) as "?"."""
+    sd = "?" + " " * (len(format(0.0, fmt)) - 1) if v[1] is None else format(v[1], fmt)
+    return f"{format(v[0], fmt):>{width}s} ± {sd}"
 
 
 def _mean_scale(per) -> float | None:

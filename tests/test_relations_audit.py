@@ -106,3 +106,33 @@ def test_maps_side_with_whichever_of_trajectory_and_relation_is_true(audit):
     assert out["missed_by_more_than_min_error"] == 0 and out["mean_translation_error_m"] < 1e-6
     with pytest.raises(SystemExit, match="--maps-window must be positive and under half of --maps-min-dt"):
         audit.maps_audit("synthetic", frames, true_traj, good, 30.0, 60.0, 0.3, 0.2, 0.01)
+
+
+def test_relations_copied_from_the_odometry_are_counted_and_the_sources_paired(audit):
+    """Relations that are the odometry's relative pose to the last millimetre are counted, relations a sensor merely
+    agrees with are not; the pairwise errors and the blend say which source the relations follow."""
+    rng = np.random.default_rng(3)
+    stamps = np.arange(0.0, 200.0, 0.5)
+    truth = np.column_stack([0.3 * stamps, 2.0 * np.sin(0.02 * stamps), 0.04 * stamps])
+    odo = truth + rng.normal(0.0, [0.02, 0.02, 0.004], truth.shape)  # each pose off by 2 cm / 0.2 deg
+    est = truth + rng.normal(0.0, [0.02, 0.02, 0.004], truth.shape)
+    ti, tj = stamps[:-6:3], stamps[6::3]  # 3 s apart
+    k = np.searchsorted(stamps, ti), np.searchsorted(stamps, tj)
+    rel = relative(truth[k[0]], truth[k[1]])
+    rel[:20] = relative(odo[k[0][:20]], odo[k[1][:20]])  # 20 copied from the odometry
+    rel[20:30] = relative(odo[k[0][20:30]], odo[k[1][20:30]]) + [0.004, 0.0, 0.0]  # near it, not a copy
+    poses = np.zeros((len(ti), 6))
+    poses[:, [0, 1, 5]] = rel
+    relations = Relations(ti, tj, poses)
+    out = audit.odometry_copies("synthetic", Trajectory(stamps, est), Trajectory(stamps, odo), relations)
+    assert out["odometry_copies"] == 20 and out["odometry_copies_short"] == 20
+    assert out["short_relations"] == len(ti) and out["relations_scored"] == len(ti)
+    pairs = out["short_pairs_mean_m_deg"]
+    # mostly the truth: the trajectory and the odometry each miss it by their own noise, and each other by both
+    assert pairs["odometry_trajectory"][0] > max(pairs["relations_odometry"][0], pairs["relations_trajectory"][0])
+    blend = out["short_blend_with_odometry_m_deg"]
+    assert blend["0.0"] == pytest.approx(pairs["relations_trajectory"])
+    assert blend["1.0"] == pytest.approx(pairs["relations_odometry"])
+    assert blend["0.5"][0] < min(blend["0.0"][0], blend["1.0"][0])  # two independent estimates: the mean is better
+    with pytest.raises(SystemExit, match="no odometry"):
+        audit.odometry_copies("synthetic", Trajectory(stamps, est), None, relations)

@@ -55,6 +55,7 @@ from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial import cKDTree
 
 from ._blas import blas_limited
 from ._threads import threads_limited
@@ -404,6 +405,57 @@ def _unusable(frame: Frame, cfg: SlamConfig, scan: NDArray[np.float64]) -> str:
     return f"{head}, all on one {'line' if cfg.dim == 2 else 'plane'} ({why}): nothing to register"
 
 
+def sampled_as_its_normal_says(points: NDArray[np.float64], normals: NDArray[np.float64], frame: Frame,
+                               voxel: float) -> NDArray[np.bool_]:
+    """Which points of a 2D scan (``frame``'s, in the base frame) lie as densely as their normals say they should.
+
+    A surface at range r whose normal makes the angle a with the beam is sampled every r * dtheta / cos(a) by a
+    laser with the increment dtheta (taken as never closer than ``voxel``, the map's: it tells no closer points
+    apart). A point whose nearest neighbour lies more than
+    ``SAMPLING_SLACK`` times further has a normal of no surface it lies on: a sparse point far down a corridor,
+    its nearest neighbours on both walls, gets a normal along the corridor's axis, as if it lay on a wall facing the
+    laser, which would be sampled many times more densely. Such normals lend the registration information along
+    the axis that the scene does not hold (a 40 m corridor, 180 or 270 deg laser: the tracking stalled 29-39 m
+    short). A point seen at a grazing angle, as far-apart as its beams make it, keeps its normal.
+    """
+    if len(points) < 3:
+        return np.ones(len(points), dtype=bool)
+    ang = np.sort(np.asarray(frame.scan2d.angles, dtype=float))
+    step = np.diff(ang)
+    dtheta = float(np.median(step[step > 0])) if np.any(step > 0) else 0.0
+    if dtheta <= 0.0:
+        return np.ones(len(points), dtype=bool)
+    ray = points - np.asarray(frame.extrinsic2d, dtype=float)[:2]
+    r = np.linalg.norm(ray, axis=1)
+    cos_a = np.abs(np.einsum("ij,ij->i", normals, ray)) / np.maximum(r, 1e-9)
+    expected = np.maximum(r * dtheta / np.maximum(cos_a, 1e-3), voxel)
+    nn = cKDTree(points).query(points, k=2)[0][:, 1]
+    return nn <= SAMPLING_SLACK * expected
+
+
+def grazing_where_sparse(points: NDArray[np.float64], normals: NDArray[np.float64], frame: Frame,
+                         voxel: float) -> NDArray[np.float64]:
+    """``normals`` with those :func:`sampled_as_its_normal_says` rejects turned across their beams.
+
+    A point sampled that sparsely lies on a surface the beam grazes, and the normal of such a surface is nearly
+    square to the beam; across the corridor, for a point far down one. (Leaving the points out instead broke
+    fr-clinic's map on seed 3 of 1-3: 3.5 m.) The map keeps a voxel's first normal, and a corridor's walls are
+    first seen far ahead, so the normal given here is the one the voxel keeps.
+    """
+    keep = sampled_as_its_normal_says(points, normals, frame, voxel)
+    if keep.all():
+        return normals
+    ray = points[~keep] - np.asarray(frame.extrinsic2d, dtype=float)[:2]
+    ray /= np.maximum(np.linalg.norm(ray, axis=1, keepdims=True), 1e-12)
+    out = normals.copy()
+    out[~keep] = np.column_stack([-ray[:, 1], ray[:, 0]])
+    return out
+
+
+#: How much further than its normal and the beams' spacing say a point's nearest neighbour may lie
+SAMPLING_SLACK = 3.0
+
+
 def _mean_pose(poses: NDArray[np.float64]) -> NDArray[np.float64]:
     dim = 2 if poses.shape[1] == 3 else 3
     out = poses.mean(axis=0)
@@ -718,13 +770,18 @@ class HsSlam:
             return
         st0, sr0 = self._model_sigmas(step)
         off = relative(compose(self.poses[-1], step), res.pose)  # the registration in the raw prediction's frame
-        self._odometry_disagreement.append((float(off[0]) / st0, float(off[1]) / st0,
-                                            float(wrap_angle(off[-1])) / sr0))
-        n = len(self._odometry_disagreement)
-        if n < max(cfg.odometry_window // 10, 1):
-            return
+        # x, y only where the scene constrains the registration's translation (as the scale,
+        # :meth:`_learn_odometry_scale`): along a corridor's axis it lands anywhere in its box around the seeds
+        # (the previous pose, the recent poses' mean behind it), not where the robot is, and a median of those
+        # taught a bias of a whole step backwards
+        constrained = (res.information is not None and bool(np.all(np.isfinite(res.information)))
+                       and constrained_axes(res.information[:2, :2], cfg.degenerate_ratio).shape[1] == 2)
+        xy = (float(off[0]) / st0, float(off[1]) / st0) if constrained else (np.nan, np.nan)
+        self._odometry_disagreement.append((*xy, float(wrap_angle(off[-1])) / sr0))
         r = np.asarray(self._odometry_disagreement)
-        self._odometry_bias = np.median(r, axis=0)
+        enough = np.isfinite(r).sum(axis=0) >= max(cfg.odometry_window // 10, 1)
+        if enough.any():
+            self._odometry_bias = np.where(enough, np.nanmedian(np.where(enough, r, 0.0), axis=0), 0.0)
 
     def _learn_odometry_scale(self, frame: Frame, res: RegistrationResult) -> None:
         """Learn the odometry's scale from how the registrations' and the odometry's motions disagree over
@@ -1004,6 +1061,8 @@ class HsSlam:
         dense = scan if cfg.dof == 3 else frame_points(frame, cfg.dof, cfg.min_range, cfg.max_range,
                                                        voxel=cfg.effective_map_voxel())
         normals = estimate_normals(dense)
+        if cfg.dof == 3 and frame.scan2d is not None:
+            normals = grazing_where_sparse(dense, normals, frame, cfg.effective_map_voxel())
         k = self.graph.add_node(pose)
         if k > 0:
             z = relative(self.graph.poses[k - 1], pose)

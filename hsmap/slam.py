@@ -406,17 +406,18 @@ def _unusable(frame: Frame, cfg: SlamConfig, scan: NDArray[np.float64]) -> str:
 
 
 def sampled_as_its_normal_says(points: NDArray[np.float64], normals: NDArray[np.float64], frame: Frame,
-                               voxel: float) -> NDArray[np.bool_]:
+                               voxel: float, tree: cKDTree | None = None) -> NDArray[np.bool_]:
     """Which points of a 2D scan (``frame``'s, in the base frame) lie as densely as their normals say they should.
 
     A surface at range r whose normal makes the angle a with the beam is sampled every r * dtheta / cos(a) by a
     laser with the increment dtheta (taken as never closer than ``voxel``, the map's: it tells no closer points
-    apart). A point whose nearest neighbour lies more than
-    ``SAMPLING_SLACK`` times further has a normal of no surface it lies on: a sparse point far down a corridor,
+    apart). A point whose nearest neighbour lies more than ``SAMPLING_SLACK`` times further has a normal of no
+    surface it lies on: a sparse point far down a corridor,
     its nearest neighbours on both walls, gets a normal along the corridor's axis, as if it lay on a wall facing the
     laser, which would be sampled many times more densely. Such normals lend the registration information along
     the axis that the scene does not hold (a 40 m corridor, 180 or 270 deg laser: the tracking stalled 29-39 m
-    short). A point seen at a grazing angle, as far-apart as its beams make it, keeps its normal.
+    short). A point seen at a grazing angle, as far-apart as its beams make it, keeps its normal. ``tree``: a
+    k-d tree of ``points`` already built (the normals' own).
     """
     if len(points) < 3:
         return np.ones(len(points), dtype=bool)
@@ -429,12 +430,12 @@ def sampled_as_its_normal_says(points: NDArray[np.float64], normals: NDArray[np.
     r = np.linalg.norm(ray, axis=1)
     cos_a = np.abs(np.einsum("ij,ij->i", normals, ray)) / np.maximum(r, 1e-9)
     expected = np.maximum(r * dtheta / np.maximum(cos_a, 1e-3), voxel)
-    nn = cKDTree(points).query(points, k=2)[0][:, 1]
+    nn = (tree if tree is not None else cKDTree(points)).query(points, k=2)[0][:, 1]
     return nn <= SAMPLING_SLACK * expected
 
 
 def grazing_where_sparse(points: NDArray[np.float64], normals: NDArray[np.float64], frame: Frame,
-                         voxel: float) -> NDArray[np.float64]:
+                         voxel: float, tree: cKDTree | None = None) -> NDArray[np.float64]:
     """``normals`` with those :func:`sampled_as_its_normal_says` rejects turned across their beams.
 
     A point sampled that sparsely lies on a surface the beam grazes, and the normal of such a surface is nearly
@@ -442,7 +443,7 @@ def grazing_where_sparse(points: NDArray[np.float64], normals: NDArray[np.float6
     fr-clinic's map on seed 3 of 1-3: 3.5 m.) The map keeps a voxel's first normal, and a corridor's walls are
     first seen far ahead, so the normal given here is the one the voxel keeps.
     """
-    keep = sampled_as_its_normal_says(points, normals, frame, voxel)
+    keep = sampled_as_its_normal_says(points, normals, frame, voxel, tree)
     if keep.all():
         return normals
     ray = points[~keep] - np.asarray(frame.extrinsic2d, dtype=float)[:2]
@@ -774,14 +775,19 @@ class HsSlam:
         # :meth:`_learn_odometry_scale`): along a corridor's axis it lands anywhere in its box around the seeds
         # (the previous pose, the recent poses' mean behind it), not where the robot is, and a median of those
         # taught a bias of a whole step backwards
-        constrained = (res.information is not None and bool(np.all(np.isfinite(res.information)))
-                       and constrained_axes(res.information[:2, :2], cfg.degenerate_ratio).shape[1] == 2)
-        xy = (float(off[0]) / st0, float(off[1]) / st0) if constrained else (np.nan, np.nan)
+        xy = (float(off[0]) / st0, float(off[1]) / st0) if self._constrains_xy(res) else (np.nan, np.nan)
         self._odometry_disagreement.append((*xy, float(wrap_angle(off[-1])) / sr0))
         r = np.asarray(self._odometry_disagreement)
         enough = np.isfinite(r).sum(axis=0) >= max(cfg.odometry_window // 10, 1)
         if enough.any():
             self._odometry_bias = np.where(enough, np.nanmedian(np.where(enough, r, 0.0), axis=0), 0.0)
+
+    def _constrains_xy(self, res: RegistrationResult) -> bool:
+        """Whether the scan constrains ``res``'s translation along both x and y (6-DOF: z may see walls only), as
+        the odometry's learners ask of a registration before they compare it with the odometry."""
+        info = res.information
+        return (info is not None and bool(np.all(np.isfinite(info)))
+                and constrained_axes(info[:2, :2], self.config.degenerate_ratio).shape[1] == 2)
 
     def _learn_odometry_scale(self, frame: Frame, res: RegistrationResult) -> None:
         """Learn the odometry's scale from how the registrations' and the odometry's motions disagree over
@@ -809,10 +815,7 @@ class HsSlam:
             self._reg_history.clear()  # the first frame with odometry: nothing to compare with yet
         else:
             self._model_variance = self._model_variance + np.square(self._model_sigmas(step))
-        constrained = False
-        if res.information is not None and np.all(np.isfinite(res.information)):
-            # x, y: what is compared (6-DOF: z may see walls only)
-            constrained = constrained_axes(res.information[:2, :2], cfg.degenerate_ratio).shape[1] == 2
+        constrained = self._constrains_xy(res)
         pose = res.pose if cfg.dof == 3 else res.pose[[0, 1, 5]]
         odom = np.asarray(frame.odometry, dtype=float)
         self._reg_history.append((pose.copy(), constrained, odom, self._model_variance.copy()))
@@ -1060,9 +1063,13 @@ class HsSlam:
         cfg = self.config
         dense = scan if cfg.dof == 3 else frame_points(frame, cfg.dof, cfg.min_range, cfg.max_range,
                                                        voxel=cfg.effective_map_voxel())
-        normals = estimate_normals(dense)
-        if cfg.dof == 3 and frame.scan2d is not None:
-            normals = grazing_where_sparse(dense, normals, frame, cfg.effective_map_voxel())
+        if cfg.dof == 3:
+            tree = cKDTree(dense)  # the normals' neighbours and the sampling check's nearest ones
+            normals = estimate_normals(dense, tree=tree)
+            if frame.scan2d is not None:
+                normals = grazing_where_sparse(dense, normals, frame, cfg.effective_map_voxel(), tree)
+        else:
+            normals = estimate_normals(dense)
         k = self.graph.add_node(pose)
         if k > 0:
             z = relative(self.graph.poses[k - 1], pose)

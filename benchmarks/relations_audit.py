@@ -281,6 +281,8 @@ def odometry_copies(name: str, traj: Trajectory, odometry: Trajectory | None, re
     e_o, r_o = relation_errors(pose_to_matrix(o[used]), pose_to_matrix(R[used]))
     r_o = np.rad2deg(r_o)
     copies = (e_o < SAME_TRANSLATION) & (r_o < SAME_ROTATION_DEG)
+    # the rotation alone copied (a relation whose translation was matched, its heading kept from the odometry)
+    rotation_copies = r_o < SAME_ROTATION_DEG
     short = (np.abs(rel.t_j - rel.t_i) <= max_dt)[used]
     Rs, os_, ts = R[used][short], o[used][short], t[used][short]
 
@@ -298,11 +300,14 @@ def odometry_copies(name: str, traj: Trajectory, odometry: Trajectory | None, re
         blend[str(w)] = mean_error(b, Rs)
     out = {"relations_scored": int(used.sum()), "odometry_copies": int(copies.sum()),
            "odometry_copies_short": int((copies & short).sum()), "short_relations": int(short.sum()),
+           "odometry_rotation_copies": int(rotation_copies.sum()),
+           "odometry_rotation_copies_short": int((rotation_copies & short).sum()),
            "same_translation_m": SAME_TRANSLATION, "same_rotation_deg": SAME_ROTATION_DEG,
            "short_pairs_mean_m_deg": pairs, "short_blend_with_odometry_m_deg": blend}
     print(f"{name}: {out['odometry_copies']} of {used.sum()} relations equal the raw odometry's relative pose to "
           f"{SAME_TRANSLATION * 1000:.0f} mm and {SAME_ROTATION_DEG} deg ({out['odometry_copies_short']} of the "
-          f"{short.sum()} with dt <= {max_dt:g} s); the short ones, pairwise mean m / deg: "
+          f"{short.sum()} with dt <= {max_dt:g} s), {out['odometry_rotation_copies']} its rotation to "
+          f"{SAME_ROTATION_DEG} deg ({out['odometry_rotation_copies_short']} short); the short ones, pairwise mean m / deg: "
           + ", ".join(f"{k.replace('_', '-')} {v[0]:.4f} / {v[1]:.3f}" for k, v in pairs.items())
           + "; the trajectory moved towards the odometry by w: "
           + ", ".join(f"{k} {v[0]:.4f}" for k, v in blend.items()))

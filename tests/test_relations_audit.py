@@ -126,6 +126,9 @@ def test_relations_copied_from_the_odometry_are_counted_and_the_sources_paired(a
     relations = Relations(ti, tj, poses)
     out = audit.odometry_copies("synthetic", Trajectory(stamps, est), Trajectory(stamps, odo), relations)
     assert out["odometry_copies"] == 20 and out["odometry_copies_short"] == 20
+    # the rotation alone: the 20 copies and the 10 near them (their heading is the odometry's); of the others,
+    # 0.3 deg apart by their noise, few fall within 0.02 deg by chance
+    assert 30 <= out["odometry_rotation_copies"] <= 33
     assert out["short_relations"] == len(ti) and out["relations_scored"] == len(ti)
     pairs = out["short_pairs_mean_m_deg"]
     # mostly the truth: the trajectory and the odometry each miss it by their own noise, and each other by both

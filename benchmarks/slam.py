@@ -103,6 +103,10 @@ def freiburg_run(name: str, datasets: str, seed: int, max_frames: int | None, lo
         "frames_retried": m["frames_retried"],
         "odometry_model": m["odometry_model"],
         "relations": _relations(res.trajectory, rel, skip_unmatched=max_frames is not None),
+        # the same run before the smoothing with the odometry (hsmap.smoothing): the graph's trajectory
+        "unsmoothed_relations": _relations(res.unsmoothed, rel, skip_unmatched=max_frames is not None)
+        if res.unsmoothed is not None else None,
+        "smoothing": m["smoothing"],
         # the raw wheel odometry, the same breakdown: what the scan matching adds
         "odometry_relations": _relations(odometry, rel, skip_unmatched=True) if odometry is not None else None,
         "config": to_dict(cfg),
@@ -112,7 +116,9 @@ def freiburg_run(name: str, datasets: str, seed: int, max_frames: int | None, lo
           f"{out['real_time_factor']:.1f}x real time, relations {r['all']['translation_m']['mean']:.4f} m / "
           f"{r['all']['rotation_deg']['mean']:.3f} deg (dt<=10 s {r['dt_le_10s']['translation_m']['mean']:.4f} m, "
           f"dt>60 s {r['dt_gt_60s']['translation_m']['mean']:.4f} m), loops {m['loops_closed']}, retried "
-          f"{m['frames_retried']}", flush=True)
+          f"{m['frames_retried']}" + (f"; before the smoothing {u['all']['translation_m']['mean']:.4f} m / "
+                                       f"{u['all']['rotation_deg']['mean']:.3f} deg"
+                                       if (u := out["unsmoothed_relations"]) else ""), flush=True)
     return out
 
 
@@ -147,6 +153,13 @@ def summarise_seeds(runs: list[dict], spec: dict) -> dict:
     out["distance_scale"] = ({"mean": float(v.mean()), "min": float(v.min()), "max": float(v.max())} if v.size
                              else {"mean": None, "min": None, "max": None})
     out["odometry_relations"] = runs[0].get("odometry_relations")  # the same log, the same odometry every seed
+    if all(r.get("unsmoothed_relations") for r in runs):  # the same runs before the smoothing, side by side
+        for part in ("all", "dt_le_10s", "dt_gt_60s"):
+            for q in ("translation_m", "rotation_deg"):
+                v = np.array([r["unsmoothed_relations"][part][q]["mean"] for r in runs])
+                out[f"unsmoothed.{part}.{q}"] = {"mean": float(v.mean()),
+                                                 "sd": float(v.std(ddof=1)) if v.size > 1 else 0.0,
+                                                 "worst": float(v.max())}
     t = out["all.translation_m"]
     car_m, car_deg = spec.get("cartographer_m"), spec.get("cartographer_deg")
     out["targets"] = {

@@ -70,10 +70,15 @@ def building_run(*, name: str, maps: str, sim_seed: int, slam_seed: int, threads
     est = pose_errors(res.trajectory, truth)
     xy = np.hypot(est.errors[:, 0], est.errors[:, 1])
     odo = pose_errors(odometry, truth)
+    # the same run before the smoothing with the odometry (hsmap.smoothing): the graph's trajectory
+    raw = pose_errors(res.unsmoothed, truth) if res.unsmoothed is not None else est
+    xy_raw = np.hypot(raw.errors[:, 0], raw.errors[:, 1])
     m = res.metrics()
     return {"building": name, "sim_seed": sim_seed, "slam_seed": slam_seed, "frames": len(frames),
             "route_m": round(float(truth.path_length()), 2),
             "max_error_m": float(xy.max()), "mean_error_m": float(xy.mean()),
+            "unsmoothed_max_error_m": float(xy_raw.max()), "unsmoothed_mean_error_m": float(xy_raw.mean()),
+            "smoothing": m["smoothing"],
             "max_yaw_error_deg": float(np.degrees(np.abs(est.errors[:, 2]).max())),
             "final_error_m": float(est.final_translation),
             "odometry_max_error_m": float(np.hypot(odo.errors[:, 0], odo.errors[:, 1]).max()),
@@ -89,7 +94,12 @@ def summarise(runs: list[dict]) -> dict:
                                                "worst": float(worst[i]),
                                                "worst_run": f"{runs[i]['building']} seed {runs[i]['sim_seed']}"},
             "mean_error_m": float(np.mean([r["mean_error_m"] for r in runs])),
-            "runs_above_0.1_m": int((worst > 0.1).sum()), "runs_above_0.3_m": int((worst > 0.3).sum())}
+            "runs_above_0.1_m": int((worst > 0.1).sum()), "runs_above_0.3_m": int((worst > 0.3).sum()),
+            **({"unsmoothed": {"max_error_m_mean": float(np.mean([r["unsmoothed_max_error_m"] for r in runs])),
+                               "max_error_m_median": float(np.median([r["unsmoothed_max_error_m"] for r in runs])),
+                               "max_error_m_worst": float(np.max([r["unsmoothed_max_error_m"] for r in runs])),
+                               "mean_error_m": float(np.mean([r["unsmoothed_mean_error_m"] for r in runs]))}}
+               if all("unsmoothed_max_error_m" in r for r in runs) else {})}
 
 
 def main(argv=None) -> int:

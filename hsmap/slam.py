@@ -90,6 +90,7 @@ from .registration import (
     refine_icp,
     spans_its_space,
 )
+from .smoothing import SmoothingResult, smooth_with_odometry
 from .trajectory import Trajectory, write_tum
 
 __all__ = ["SlamConfig", "FrameResult", "SlamResult", "HsSlam", "run_slam", "write_slam_outputs",
@@ -187,6 +188,16 @@ class SlamConfig:
         A registration further than this many sigmas from the prediction is retried around the prediction.
     loop_closure : LoopClosureConfig
         Pose graph and loop-closure parameters.
+    smoothing : bool
+        2D runs with wheel odometry: the final trajectory is smoothed with the odometry
+        (:func:`hsmap.smoothing.smooth_with_odometry`): every frame's pose stays near the graph's and its one-frame
+        motion near the odometry's (bias taken out, the learned sigma model), weighted by the poses' white noise
+        that the run measures with a three-cornered hat (the trajectory, the odometry, and each scan matched
+        against the previous frame's scan alone). Where the poses carry no white noise the data can tell (intel,
+        fr079) nothing moves; frames that left the track where no scan match confirms them are put back where their
+        neighbours and the odometry say, a step where the wheels slipped (the odometry against both the trajectory
+        and the scan match) is left out. The map stays the graph's; ``metrics.json``'s ``smoothing`` says what was
+        measured and moved.
     """
 
     dof: int = 3
@@ -215,6 +226,7 @@ class SlamConfig:
     verify_sigmas: float = 3.0
     degenerate_ratio: float = 0.05
     loop_closure: LoopClosureConfig = field(default_factory=LoopClosureConfig)
+    smoothing: bool = True
 
     def __post_init__(self) -> None:
         if self.dof not in (3, 6):
@@ -314,6 +326,8 @@ class SlamResult:
     prior: dict = field(default_factory=dict)
     input_info: dict = field(default_factory=dict)
     odometry: dict = field(default_factory=dict)
+    smoothing: dict = field(default_factory=dict)
+    unsmoothed: Trajectory | None = None  # the graph's trajectory, before the smoothing
 
     def metrics(self) -> dict:
         """Per-frame and total metrics, JSON-ready."""
@@ -336,6 +350,7 @@ class SlamResult:
             "frames_retried": int(sum(f.retried for f in self.frames)),
             "frames_unverified": int(sum(not f.verified for f in self.frames)),
             "odometry_model": self.odometry or None,
+            "smoothing": self.smoothing or None,
             "skipped_frames": len(self.skipped),
             "skipped": self.skipped,
             "loop_closure": self.loop_closure.get("status", "disabled"),
@@ -638,6 +653,16 @@ class HsSlam:
         self._closer = (LoopCloser(lc, cfg.dof, cfg.effective_map_voxel(), map_average=cfg.map_average)
                         if lc.enabled else None)
         self._path: NDArray[np.float64] | None = None  # graph distances from the newest keyframe
+        # per frame, for the smoothing (hsmap.smoothing): the odometry's motion from the previous frame as the
+        # prediction took it (bias out), its sigmas (x, y, yaw), and the scan matched against the previous frame's
+        # scan alone (NaN where none)
+        self._smooth = cfg.smoothing and cfg.dof == 3 and prior is None
+        self._odometry_motion: list[NDArray[np.float64]] = []
+        self._odometry_motion_sigma: list[NDArray[np.float64]] = []
+        self._scan_motion: list[NDArray[np.float64]] = []
+        self._prev_scan: RegistrationTarget | None = None
+        self._smoothing: SmoothingResult | None = None
+        self._smoothing_seconds = 0.0  # the scan matches against the previous scan, and the smoothing itself
         self._map_stale = False
         self._pending = 0  # loop and pair edges added since the last optimisation
         self._keyframe_targets: dict[int, RegistrationTarget] = {}  # for pair edges
@@ -775,17 +800,17 @@ class HsSlam:
         # :meth:`_learn_odometry_scale`): along a corridor's axis it lands anywhere in its box around the seeds
         # (the previous pose, the recent poses' mean behind it), not where the robot is, and a median of those
         # taught a bias of a whole step backwards
-        xy = (float(off[0]) / st0, float(off[1]) / st0) if self._constrains_xy(res) else (np.nan, np.nan)
+        xy = (float(off[0]) / st0, float(off[1]) / st0) if self._constrains_xy(res.information) else (np.nan, np.nan)
         self._odometry_disagreement.append((*xy, float(wrap_angle(off[-1])) / sr0))
         r = np.asarray(self._odometry_disagreement)
         enough = np.isfinite(r).sum(axis=0) >= max(cfg.odometry_window // 10, 1)
         if enough.any():
             self._odometry_bias = np.where(enough, np.nanmedian(np.where(enough, r, 0.0), axis=0), 0.0)
 
-    def _constrains_xy(self, res: RegistrationResult) -> bool:
-        """Whether the scan constrains ``res``'s translation along both x and y (6-DOF: z may see walls only), as
-        the odometry's learners ask of a registration before they compare it with the odometry."""
-        info = res.information
+    def _constrains_xy(self, info: NDArray[np.float64] | None) -> bool:
+        """Whether a registration's information constrains its translation along both x and y (6-DOF: z may see
+        walls only), as the odometry's learners and the smoothing ask of a registration before they compare it
+        with the odometry."""
         return (info is not None and bool(np.all(np.isfinite(info)))
                 and constrained_axes(info[:2, :2], self.config.degenerate_ratio).shape[1] == 2)
 
@@ -815,7 +840,7 @@ class HsSlam:
             self._reg_history.clear()  # the first frame with odometry: nothing to compare with yet
         else:
             self._model_variance = self._model_variance + np.square(self._model_sigmas(step))
-        constrained = self._constrains_xy(res)
+        constrained = self._constrains_xy(res.information)
         pose = res.pose if cfg.dof == 3 else res.pose[[0, 1, 5]]
         odom = np.asarray(frame.odometry, dtype=float)
         self._reg_history.append((pose.copy(), constrained, odom, self._model_variance.copy()))
@@ -880,6 +905,8 @@ class HsSlam:
             fitness, inlier, rmse, evaluations, cost = (res.fitness, res.inlier_ratio, res.rmse, res.evaluations,
                                                         res.cost)
         keyframe = first or (verified and (len(self.poses) < cfg.warmup_frames or self._is_keyframe(pose)))
+        if self._smooth:
+            self._record_motions(frame, scan, pose)
         self.poses.append(pose)
         self.stamps.append(float(frame.stamp))
         if keyframe:
@@ -901,6 +928,43 @@ class HsSlam:
                              retried, verified, float(cost))
         self.results.append(result)
         return result
+
+    def _record_motions(self, frame: Frame, scan: NDArray[np.float64], pose: NDArray[np.float64]) -> None:
+        """The frame's motion from the previous frame as the odometry has it (with its sigmas) and as its scan
+        matched against the previous frame's scan has it, for the smoothing (NaN where there is none).
+
+        A scan match that overlaps too little, or that its scene does not constrain in x and y (a featureless
+        corridor, where it stays wherever it started), is no measurement: NaN, not a vote for its starting guess.
+        """
+        t0 = time.perf_counter()
+        none = np.full(3, np.nan)
+        step = self._odometry_step(frame) if self._prev_scan is not None else None
+        if step is None:
+            self._odometry_motion.append(none)
+            self._odometry_motion_sigma.append(none)
+            self._scan_motion.append(none)
+        else:
+            st, sr = self._model_sigmas(step, self.odometry_sigma())
+            self._odometry_motion.append(self._odometry_corrected(step))
+            self._odometry_motion_sigma.append(np.array([st, st, sr]))
+            match = self._pair_match(scan, self._prev_scan, relative(self.poses[-1], pose))
+            self._scan_motion.append(match[0] if match is not None and self._constrains_xy(match[1]) else none)
+        # the next frame's reference (its normals are estimated when it is first matched)
+        self._prev_scan = RegistrationTarget(scan, self.config.registration) if frame.odometry is not None else None
+        self._smoothing_seconds += time.perf_counter() - t0
+
+    def _pair_match(self, source: NDArray[np.float64], target: RegistrationTarget, guess: NDArray[np.float64]
+                    ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+        """A scan refined against one other scan (a keyframe's, the previous frame's) from a close guess, as the
+        pair edges do: the relative pose and its information, or None where too few points overlap
+        (``loop_closure.min_inlier_ratio``)."""
+        reg, lc = self.config.registration, self.config.loop_closure
+        z = refine_icp(source, target, guess, max_distance=reg.threshold, iterations=lc.pair_iterations,
+                       method=reg.refinement, robust_kernel=reg.robust_kernel)
+        info, _, n = alignment_information(source, target, z, reg.threshold, reg.robust_kernel)
+        if n < lc.min_inlier_ratio * len(source):
+            return None
+        return z, info
 
     def _verify(self, frame: Frame, scan: NDArray[np.float64], res: RegistrationResult
                 ) -> tuple[RegistrationResult, bool, bool]:
@@ -1107,7 +1171,6 @@ class HsSlam:
         lc = self.config.loop_closure
         if lc.pair_edges <= 0 or k < 2:
             return
-        reg = self.config.registration
         P = np.asarray(self.graph.poses)
         dist = np.linalg.norm(P[: k - 1, : self.dim] - P[k, : self.dim], axis=1)
         near = np.flatnonzero(dist <= lc.pair_distance)
@@ -1119,12 +1182,10 @@ class HsSlam:
         if self.config.dof == 6:
             source = voxel_downsample(source, self.config.effective_scan_voxel())
         for i in near[np.argsort(dist[near], kind="stable")][: lc.pair_edges]:
-            target = self._keyframe_target(int(i))
-            z = refine_icp(source, target, relative(P[i], P[k]), max_distance=reg.threshold,
-                           iterations=lc.pair_iterations, method=reg.refinement, robust_kernel=reg.robust_kernel)
-            info, _, n = alignment_information(source, target, z, reg.threshold, reg.robust_kernel)
-            if n < lc.min_inlier_ratio * len(source):
+            match = self._pair_match(source, self._keyframe_target(int(i)), relative(P[i], P[k]))
+            if match is None:
                 continue  # too little overlap
+            z, info = match
             info = information_with_floor(drop_degenerate(info, lc.degenerate_ratio), lc.edge_sigma_translation,
                                           lc.edge_sigma_rotation)
             self.graph.add_edge(int(i), k, z, info, EdgeKind.PAIR)
@@ -1215,9 +1276,26 @@ class HsSlam:
         self._target = None
 
     def finish(self) -> None:
-        """Optimise the graph once more if loop or pair edges are pending (call after the last frame)."""
+        """Optimise the graph once more if loop or pair edges are pending, then smooth the trajectory with the
+        odometry (``SlamConfig.smoothing``). Call after the last frame."""
         if self._closer is not None and self._pending:
             self._optimize()
+        if self._smooth and self.poses:
+            t0 = time.perf_counter()
+            self._smoothing = smooth_with_odometry(self.graph_trajectory.poses, np.asarray(self._odometry_motion),
+                                                   np.asarray(self._odometry_motion_sigma),
+                                                   np.asarray(self._scan_motion))
+            self._smoothing_seconds += time.perf_counter() - t0
+
+    def smoothing_summary(self) -> dict:
+        """What the smoothing measured and did (JSON-ready), or why it did nothing."""
+        if self._smoothing is not None:
+            return self._smoothing.as_dict() | {"seconds": self._smoothing_seconds}
+        cfg = self.config
+        why = ("off (slam.smoothing: false)" if not cfg.smoothing else "not applicable: 6-DOF" if cfg.dof != 3
+               else "not applicable: seeded by a prior trajectory" if self._prior is not None
+               else "not run (finish() was not called)")
+        return {"status": why}
 
     def loop_summary(self) -> dict:
         """Loop-closure counts for the metrics: status, closures, attempts, rejections, optimisations."""
@@ -1299,6 +1377,14 @@ class HsSlam:
 
     @property
     def trajectory(self) -> Trajectory:
+        """Every frame's pose: after :meth:`finish`, the smoothed one (``SlamConfig.smoothing``); before it, or
+        where the smoothing did nothing, :attr:`graph_trajectory`."""
+        if self._smoothing is not None and self._smoothing.status == "ok":
+            return Trajectory(np.asarray(self.stamps), self._smoothing.poses.copy())
+        return self.graph_trajectory
+
+    @property
+    def graph_trajectory(self) -> Trajectory:
         """Every frame's pose at the current estimate of its keyframe (loop closures included)."""
         P = compose(self.graph.poses[np.asarray(self._anchor, dtype=int)], np.asarray(self._offset))
         return Trajectory(np.asarray(self.stamps), np.asarray(P).reshape(-1, self.config.dof))
@@ -1464,7 +1550,8 @@ def run_slam(
                       peak, getattr(dataset, "name", ""), time.process_time() - c0,
                       loop_closure=slam.loop_summary(), tracked=slam.tracked_trajectory, skipped=skipped,
                       prior=prior_info, input_info=dataset.describe() if isinstance(dataset, Dataset) else {},
-                      odometry=slam.odometry_summary())
+                      odometry=slam.odometry_summary(), smoothing=slam.smoothing_summary(),
+                      unsmoothed=slam.graph_trajectory)
 
 
 def write_slam_outputs(result: SlamResult, out_dir: str | Path) -> dict[str, Path]:

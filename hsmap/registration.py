@@ -261,17 +261,17 @@ def _safe_inverse(info: NDArray[np.float64] | None) -> NDArray[np.float64]:
 
 
 def adjoint(T: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Adjoint of a rigid transform (3x3 in 2D, 4x4 in 3D) acting on twists ordered (translation, rotation).
+    """Adjoint of a rigid transform (3x3 in 2D, also a stack (..., 3, 3); 4x4 in 3D) acting on twists ordered
+    (translation, rotation).
 
     ``exp(adjoint(T) @ xi) @ T == T @ exp(xi)`` to first order: it maps a motion in T's own (body) frame to the
     same motion applied in the outer frame.
     """
     T = np.asarray(T, dtype=float)
-    if T.shape == (3, 3):
-        R, t = T[:2, :2], T[:2, 2]
-        A = np.eye(3)
-        A[:2, :2] = R
-        A[:2, 2] = [t[1], -t[0]]
+    if T.shape[-2:] == (3, 3):  # 2D, one transform or a stack of them (..., 3, 3)
+        A = np.zeros(T.shape)
+        A[..., :2, :2] = T[..., :2, :2]
+        A[..., 0, 2], A[..., 1, 2], A[..., 2, 2] = T[..., 1, 2], -T[..., 0, 2], 1.0
         return A
     R, t = T[:3, :3], T[:3, 3]
     tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])

@@ -46,7 +46,8 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.stats import chi2
 
 from .errors import ShapeError
-from .geometry import compose, invert, relative, wrap_angle
+from .geometry import compose, invert, pose_to_matrix, relative, wrap_angle
+from .registration import adjoint
 
 __all__ = ["SmoothingResult", "three_cornered_hat", "identify_noise", "vote", "smooth_with_odometry"]
 
@@ -168,16 +169,6 @@ def identify_noise(poses: NDArray[np.float64], odometry_motion: NDArray[np.float
     return v_slam / 2, v_odo, v_scan, n
 
 
-def _adjoint_inverse(z: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Per row of ``z`` (N, 3): the SE(2) adjoint (3, 3) of z^-1, on twists ordered (x, y, yaw)."""
-    zi = invert(z)
-    c, s = np.cos(zi[:, 2]), np.sin(zi[:, 2])
-    A = np.zeros((len(z), 3, 3))
-    A[:, 0, 0], A[:, 0, 1], A[:, 1, 0], A[:, 1, 1] = c, -s, s, c
-    A[:, 0, 2], A[:, 1, 2], A[:, 2, 2] = zi[:, 1], -zi[:, 0], 1.0
-    return A
-
-
 def _down_weight(m2: NDArray[np.float64], gate: float) -> NDArray[np.float64]:
     """1 within the chi-square gate, ``gate / m^2`` beyond it (as :func:`hsmap.slam._slip_weight`)."""
     return np.where(m2 > gate, gate / np.maximum(m2, 1e-300), 1.0)
@@ -252,8 +243,7 @@ def smooth_with_odometry(poses: ArrayLike, odometry_motion: ArrayLike, odometry_
         result.status = f"skipped: {n_compared} frames with odometry and a scan match, fewer than {MIN_FRAMES}"
         return result
     free = np.sqrt(white) > _NEGLIGIBLE
-    if not free.any():
-        result.status = "ok"  # the SLAM poses carry no white noise of their own that the data can tell
+    if not free.any():  # the SLAM poses carry no white noise of their own that the data can tell: status ok
         return result
     # the white noise's inverse sigmas; an axis without any is held (its pose component stays)
     w_pose = 1.0 / np.sqrt(np.maximum(white, _NEGLIGIBLE**2))
@@ -289,7 +279,7 @@ def smooth_with_odometry(poses: ArrayLike, odometry_motion: ArrayLike, odometry_
                 blocks.append((row + frames, 3 * frames + c, np.full(n, _HELD), np.zeros(n)))
             row += n
         # a step's residual: log(o^-1 z) + d_k - Ad(z^-1) d_{k-1}
-        A = _adjoint_inverse(z)
+        A = adjoint(pose_to_matrix(invert(z)))  # Ad(z^-1), one a step
         s = np.sqrt(a_odo)
         for c in range(3):
             r = row + np.arange(len(k1))

@@ -990,13 +990,16 @@ class HsSlam:
             return bool(np.linalg.norm(d[:2]) <= cfg.verify_sigmas * s[0]
                         and abs(wrap_angle(d[-1])) <= cfg.verify_sigmas * s[1])
 
+        r_first = None  # the scan's residuals at the first registration, computed once
         if within(sig):
             # within the configured model's gate; but a registration that explains too little of its scan to
             # overrule the prediction (STRICT_MIN_MATCHED) must not move the pose beyond what the odometry as
             # learned allows either: it is retried in the learned model's box
             tight = self.prediction(frame)
-            if (tight is None or within(tight[1])
-                    or _matched_share(_residuals(scan, self._target, res.pose, reg.threshold)) >= STRICT_MIN_MATCHED):
+            if tight is None or within(tight[1]):
+                return res, False, True
+            r_first = _residuals(scan, self._target, res.pose, reg.threshold)
+            if _matched_share(r_first) >= STRICT_MIN_MATCHED:
                 return res, False, True
             sig = tight[1]
         # retry in a box of the prediction's uncertainty, from the prediction, with a longer search
@@ -1013,7 +1016,9 @@ class HsSlam:
         alt = harmony_icp(scan, self._target, bounds=bounds, initial_guesses=guesses, config=retry_cfg,
                           rng=self.rng)
         boxed = _within_box(alt, centre, half, self.dim)
-        r_first, r_alt = (_residuals(scan, self._target, p, reg.threshold) for p in (res.pose, boxed.pose))
+        if r_first is None:
+            r_first = _residuals(scan, self._target, res.pose, reg.threshold)
+        r_alt = _residuals(scan, self._target, boxed.pose, reg.threshold)
         at_prediction = False
         if boxed is not alt:
             # the retry slid out of its box (towards the first registration's minimum, along a corridor's axis):

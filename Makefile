@@ -57,6 +57,7 @@ bench: setup
 	$(BIN)/python benchmarks/segmentation.py
 	$(BIN)/python benchmarks/slam.py
 	$(BIN)/python benchmarks/slam_buildings.py
+	$(BIN)/python benchmarks/slam_buildings.py --laser sparse
 	$(BIN)/python benchmarks/speed.py
 	$(BIN)/python benchmarks/simulate.py
 	$(BIN)/python benchmarks/readers.py

@@ -8,6 +8,10 @@ odometry's slip and the range noise), simulated into a temporary folder, then 2D
 default configuration (odometry and loop closure on) and ``--slam-seed``. The 3D LiDAR is not used here, so the
 simulation casts a minimal one (4 x 64 beams) to stay fast.
 
+``--laser`` picks the robot's 2D laser: ``default`` is the simulator's (270 deg, 0.25 deg beams, 10 m), ``sparse``
+another robot's, of the SICK LMS-200 class that Freiburg's intel and fr-clinic robots carried (180 deg, 1 deg
+beams, 30 m, 1 cm noise): a quarter of the beams and half the field of view, with the SLAM configuration unchanged.
+
 Per run: the largest and mean 2D position error and the largest yaw error along the route (the estimate and the
 ground truth each relative to their first pose, no alignment), the final position error, the raw odometry's
 largest error, loops closed, frames retried, frames, route length and SLAM time. Over all runs: the mean, median
@@ -16,7 +20,7 @@ per building and seed on the study's Dask runner (``--jobs`` worker processes). 
 reports/benchmarks/slam_buildings.json (atomically).
 
     .venv/bin/python benchmarks/slam_buildings.py [--only NAME ...] [--sim-seeds 0 1 2] [--slam-seed 1]
-        [--jobs 2] [--maps DIR]
+        [--jobs 2] [--maps DIR] [--laser default|sparse]
 """
 
 from __future__ import annotations
@@ -34,6 +38,13 @@ os.environ.setdefault("RERUN_ANALYTICS", "0")
 
 import hsmap  # noqa: E402
 
+#: The 2D lasers a run can carry (``--laser``): keyword arguments of :class:`hsmap.sim.sensors.Lidar2DConfig`.
+LASERS = {
+    "default": {},
+    "sparse": {"angle_min_deg": -90.0, "angle_max_deg": 90.0, "angle_increment_deg": 1.0, "range_max": 30.0,
+               "noise_sigma": 0.01},
+}
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
@@ -48,17 +59,19 @@ def floor_plan_names(maps: Path) -> list[str]:
                   if not p.stem.endswith(suffixes) and all((maps / f"{p.stem}{s}.png").is_file() for s in suffixes))
 
 
-def building_run(*, name: str, maps: str, sim_seed: int, slam_seed: int, threads: int | None = None) -> dict:
+def building_run(*, name: str, maps: str, sim_seed: int, slam_seed: int, threads: int | None = None,
+                 laser: str = "default") -> dict:
     """Simulate one building's exploring run and score 2D HS-SLAM on it (see the module docstring)."""
     from hsmap.datasets.simulated import SimulatedDataset
     from hsmap.evaluation import pose_errors
     from hsmap.sim.building import BuildingRunConfig, simulate_building
     from hsmap.sim.floorplan import read_floor_plan
-    from hsmap.sim.sensors import Lidar3DConfig
+    from hsmap.sim.sensors import Lidar2DConfig, Lidar3DConfig
     from hsmap.slam import SlamConfig, run_slam
 
     config = BuildingRunConfig()
     config.lidar3d = Lidar3DConfig(channels=4, columns=64)  # not used: 2D SLAM only
+    config.lidar2d = Lidar2DConfig(**LASERS[laser])
     with tempfile.TemporaryDirectory(prefix=f"hsmap-{name}-") as tmp:
         t = time.perf_counter()
         simulate_building(read_floor_plan(maps, name=name), Path(tmp) / "data", seed=sim_seed, config=config)
@@ -74,7 +87,7 @@ def building_run(*, name: str, maps: str, sim_seed: int, slam_seed: int, threads
     raw = pose_errors(res.unsmoothed, truth) if res.unsmoothed is not None else est
     xy_raw = np.hypot(raw.errors[:, 0], raw.errors[:, 1])
     m = res.metrics()
-    return {"building": name, "sim_seed": sim_seed, "slam_seed": slam_seed, "frames": len(frames),
+    return {"building": name, "sim_seed": sim_seed, "slam_seed": slam_seed, "laser": laser, "frames": len(frames),
             "route_m": round(float(truth.path_length()), 2),
             "max_error_m": float(xy.max()), "mean_error_m": float(xy.mean()),
             "unsmoothed_max_error_m": float(xy_raw.max()), "unsmoothed_mean_error_m": float(xy_raw.mean()),
@@ -109,8 +122,14 @@ def main(argv=None) -> int:
     ap.add_argument("--slam-seed", type=int, default=1)
     ap.add_argument("--jobs", type=int, default=2, help="runs at once")
     ap.add_argument("--maps", default=None, help="a Bormann-style folder (default $HSMAP_DATASETS/ipa_room_segmentation)")
-    ap.add_argument("--out", default=str(ROOT / "reports/benchmarks/slam_buildings.json"))
+    ap.add_argument("--laser", choices=sorted(LASERS), default="default",
+                    help="the robot's 2D laser (default: the simulator's; sparse: 180 deg, 1 deg beams, 30 m)")
+    ap.add_argument("--out", default=None,
+                    help="default reports/benchmarks/slam_buildings.json (slam_buildings_sparse.json with --laser sparse)")
     args = ap.parse_args(argv)
+    if args.out is None:
+        suffix = "" if args.laser == "default" else f"_{args.laser}"
+        args.out = str(ROOT / f"reports/benchmarks/slam_buildings{suffix}.json")
     if args.jobs < 1:
         ap.error("--jobs must be >= 1")
     from hsmap.study.distributed import Job
@@ -119,7 +138,7 @@ def main(argv=None) -> int:
     maps = Path(args.maps) if args.maps else datasets_dir() / "ipa_room_segmentation"
     out = {"benchmark": "slam_buildings",
            "machine": machine(),
-           "hsmap_version": hsmap.__version__, "maps": str(maps)}
+           "hsmap_version": hsmap.__version__, "maps": str(maps), "laser": {"name": args.laser, **LASERS[args.laser]}}
     names = floor_plan_names(maps) if maps.is_dir() else []
     if args.only:
         unknown = sorted(set(args.only) - set(names))
@@ -132,7 +151,8 @@ def main(argv=None) -> int:
     else:
         threads = max(1, (os.cpu_count() or 1) // args.jobs)
         batch = [Job(f"{n}-sim{s}", [("run", building_run)],
-                     {"name": n, "maps": str(maps), "sim_seed": s, "slam_seed": args.slam_seed, "threads": threads})
+                     {"name": n, "maps": str(maps), "sim_seed": s, "slam_seed": args.slam_seed, "threads": threads,
+                      "laser": args.laser})
                  for s in args.sim_seeds for n in names]
         runs_dir = Path(args.out).with_suffix("") / "runs"
         runs = run_fresh(batch, runs_dir, args.jobs, "", "runs")

@@ -40,7 +40,8 @@ from .registration import (
     harmony_icp,
 )
 
-__all__ = ["LoopClosureConfig", "Keyframe", "LoopCandidate", "LoopClosure", "LoopCloser", "correlative_match_2d"]
+__all__ = ["LoopClosureConfig", "Keyframe", "LoopCandidate", "LoopClosure", "LoopCloser", "correlative_match_2d",
+           "same_side_share"]
 
 
 def _loop_registration() -> RegistrationConfig:
@@ -283,6 +284,29 @@ class LoopClosure:
     correction_translation: float  # how far the measurement is from the graph's estimate
     correction_rotation: float
     registration: RegistrationResult
+
+
+def same_side_share(source: NDArray[np.float64], origins: NDArray[np.float64], target: RegistrationTarget,
+                    pose: NDArray[np.float64], threshold: float) -> float:
+    """Share of ``source``'s points that, at ``pose``, lie within ``threshold`` of a target point seen from
+    their own side.
+
+    ``origins`` holds each source point's sensor position (source frame); ``target``'s normals face the sensors
+    that saw them (:func:`hsmap.registration.orient_normals`). A wall's face matched to the face behind it, seen
+    from the next room, is matched from the wrong side: a match that slides a scan by a wall's thickness
+    explains as much of it as the true one (in simulated offices with a 180 deg laser, ten of ten such false
+    closures matched 60-94 % of their scans, 0-54 % from the right side; the true ones lose 0-10 points in 100).
+    """
+    if not len(source):
+        return 0.0
+    T = pose_to_matrix(pose)
+    moved = transform_points(T, source)
+    eye = transform_points(T, origins)
+    d, idx = target.nearest(moved, threshold)
+    ok = np.isfinite(d)
+    q = target.points[idx[ok]]
+    same = np.einsum("ij,ij->i", target.normals[idx[ok]], eye[ok] - q) > 0.0
+    return float(np.count_nonzero(same)) / len(source)
 
 
 def keyframe_voxel_map(poses, keyframes: list[Keyframe], which, dim: int, voxel: float, *,
@@ -547,13 +571,17 @@ class LoopCloser:
             self._cache.popitem(last=False)
         return target
 
-    def _source(self, graph: PoseGraph, keyframes: list[Keyframe], newest: int) -> NDArray[np.float64]:
+    def _source(self, graph: PoseGraph, keyframes: list[Keyframe], newest: int
+                ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The newest ``source_keyframes`` keyframes' points in keyframe ``newest``'s frame, and each point's
+        keyframe origin there (where the sensor stood, to a mounting offset)."""
         first = max(0, newest - self.config.source_keyframes + 1)
-        parts = []
+        parts, origins = [], []
         for k in range(first, newest + 1):
-            T = pose_to_matrix(relative(graph.poses[newest], graph.poses[k]))
-            parts.append(transform_points(T, keyframes[k].points))
-        return np.concatenate(parts)
+            rel = relative(graph.poses[newest], graph.poses[k])
+            parts.append(transform_points(pose_to_matrix(rel), keyframes[k].points))
+            origins.append(np.broadcast_to(rel[: self.dim], parts[-1].shape))
+        return np.concatenate(parts), np.concatenate(origins)
 
     def _reject(self, why: str) -> None:
         self.rejections[why] = self.rejections.get(why, 0) + 1
@@ -567,7 +595,7 @@ class LoopCloser:
         members = self.submap_members(candidate.submap, len(keyframes))
         anchor = members.start
         target = self._submap_target(candidate.submap, graph, keyframes)
-        source = self._source(graph, keyframes, newest)
+        source, origins = self._source(graph, keyframes, newest)
         predicted = relative(graph.poses[anchor], graph.poses[newest])
         wt, wr = (float(v) for v in self.window(candidate.path))
         if self.dof == 3:
@@ -587,15 +615,21 @@ class LoopCloser:
                     guesses.append(g)
         res = harmony_icp(source, target, bounds=bounds, initial_guesses=np.asarray(guesses),
                           config=cfg.registration, rng=rng)
-        return self._checked(res, anchor, newest, predicted, predicted, half)
+        return self._checked(res, anchor, newest, predicted, predicted, half,
+                             sides=(source, origins, target) if self.dof == 3 else None)
 
     def _checked(self, res: RegistrationResult, anchor: int, newest: int, predicted: NDArray[np.float64],
-                 centre: NDArray[np.float64], half: NDArray[np.float64], prefix: str = "") -> LoopClosure | None:
+                 centre: NDArray[np.float64], half: NDArray[np.float64], prefix: str = "",
+                 sides: tuple | None = None) -> LoopClosure | None:
         """The closure if ``res`` passes the checks (inliers, constrained, not on the edge of the box
-        ``centre +/- half``), else None with the rejection counted."""
+        ``centre +/- half``; with ``sides`` = (source, its origins, target), inliers seen from their own side:
+        :func:`same_side_share`), else None with the rejection counted."""
         cfg = self.config
         if res.inlier_ratio < cfg.min_inlier_ratio:
             self._reject(prefix + "inliers")
+            return None
+        if sides is not None and same_side_share(*sides, res.pose, cfg.registration.threshold) < cfg.min_inlier_ratio:
+            self._reject(prefix + "other_side")
             return None
         information = drop_degenerate(res.information, cfg.degenerate_ratio)
         cov = _safe_inverse(information)

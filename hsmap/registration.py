@@ -40,6 +40,7 @@ __all__ = [
     "harmony_icp",
     "refine_icp",
     "estimate_normals",
+    "orient_normals",
     "alignment_cost",
     "alignment_information",
     "adjoint",
@@ -453,6 +454,21 @@ class RegistrationTarget:
         if self._normals is None:
             self._normals = estimate_normals(self.points, tree=self.tree)
         return self._normals
+
+
+def orient_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
+                   viewpoint: ArrayLike | None = None) -> NDArray[np.float64]:
+    """``normals`` turned to face ``viewpoint`` (default: the origin), the sensor that saw ``points``.
+
+    A surface is seen from one side: a sensor-facing normal says which, so that a match can tell a wall's face
+    from the face behind it, seen from the next room (:func:`hsmap.loopclosure.same_side_share`). Only the signs
+    change, which no point-to-plane residual or information sees.
+    """
+    pts = np.asarray(points, dtype=float)
+    vp = np.zeros(pts.shape[1]) if viewpoint is None else np.asarray(viewpoint, dtype=float)
+    out = np.array(normals, dtype=float, copy=True)
+    out[np.einsum("ij,ij->i", out, vp - pts) < 0] *= -1.0
+    return out
 
 
 @blas_limited

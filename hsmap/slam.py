@@ -87,6 +87,7 @@ from .registration import (
     drop_degenerate,
     estimate_normals,
     harmony_icp,
+    orient_normals,
     refine_icp,
     spans_its_space,
 )
@@ -1154,6 +1155,8 @@ class HsSlam:
             normals = estimate_normals(dense, tree=tree)
             if frame.scan2d is not None:
                 normals = grazing_where_sparse(dense, normals, frame, cfg.effective_map_voxel(), tree)
+            # facing the laser: a loop match must tell a wall's face from the face behind it (same_side_share)
+            normals = orient_normals(dense, normals, frame.extrinsic2d[:2])
         else:
             normals = estimate_normals(dense)
         k = self.graph.add_node(pose)

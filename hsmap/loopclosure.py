@@ -628,9 +628,6 @@ class LoopCloser:
         if res.inlier_ratio < cfg.min_inlier_ratio:
             self._reject(prefix + "inliers")
             return None
-        if sides is not None and same_side_share(*sides, res.pose, cfg.registration.threshold) < cfg.min_inlier_ratio:
-            self._reject(prefix + "other_side")
-            return None
         information = drop_degenerate(res.information, cfg.degenerate_ratio)
         cov = _safe_inverse(information)
         st = float(np.sqrt(max(np.linalg.eigvalsh(cov[: self.dim, : self.dim]).max(), 0.0)))
@@ -642,6 +639,9 @@ class LoopCloser:
         off[self.dim:] = wrap_angle(off[self.dim:])
         if np.any(np.abs(off) > 0.95 * half):
             self._reject(prefix + "window_edge")
+            return None
+        if sides is not None and same_side_share(*sides, res.pose, cfg.registration.threshold) < cfg.min_inlier_ratio:
+            self._reject(prefix + "other_side")
             return None
         info = information_with_floor(information, cfg.edge_sigma_translation, cfg.edge_sigma_rotation)
         self.accepted += 1

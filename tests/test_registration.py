@@ -335,3 +335,17 @@ def test_constrained_axes_and_drop_degenerate_keep_what_the_scene_constrains():
     assert np.isclose(across @ kept[:2, :2] @ across, 100.0) and np.isclose(across @ kept[:2, 2], 2.0)
     assert kept[2, 2] == 50.0
     assert not drop_degenerate(np.diag([0.0, 0.0, 5.0]), 0.05).any()
+
+
+def test_orient_normals_face_the_viewpoint():
+    from hsmap.registration import orient_normals
+
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(-5, 5, (50, 2))
+    n = rng.normal(size=(50, 2))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    for vp in (None, np.array([1.0, -2.0])):
+        out = orient_normals(pts, n, vp)
+        eye = np.zeros(2) if vp is None else vp
+        assert np.all(np.einsum("ij,ij->i", out, eye - pts) >= 0)
+        np.testing.assert_array_equal(np.abs(out), np.abs(n))  # the signs alone

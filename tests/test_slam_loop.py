@@ -11,7 +11,7 @@ from hsmap.errors import HsmapWarning
 from hsmap.geometry import compose, relative, wrap_angle
 from hsmap.loopclosure import Keyframe, LoopCandidate, LoopCloser, LoopClosureConfig
 from hsmap.posegraph import PoseGraph
-from hsmap.registration import estimate_normals
+from hsmap.registration import estimate_normals, orient_normals
 from hsmap.slam import SlamConfig, run_slam, write_slam_outputs
 from hsmap.testing import raycast_2d
 
@@ -124,7 +124,7 @@ def test_loop_closes_on_the_ring(ring, tmp_path):
 
 
 def _keyframe(points):
-    return Keyframe(0, 0.0, points, estimate_normals(points))
+    return Keyframe(0, 0.0, points, orient_normals(points, estimate_normals(points)))
 
 
 def _corridor_scans():
@@ -168,6 +168,39 @@ def test_graph_failure_falls_back(ring, monkeypatch):
 
 
 # ------------------------------------------------------------------------------------------ far closures
+def _two_rooms_scan(pose):
+    """A 180 deg, 1 deg laser's scan (robot frame) in two 4 m rooms on either side of a wall 0.3 m thick
+    (its faces at y = 0 and y = 0.3, a door at x = 2.6-3.4), the building's outer walls running on past it."""
+    walls = np.array([[[0, -4], [4, -4]], [[0, -4], [0, 4.3]], [[4, -4], [4, 4.3]], [[0, 4.3], [4, 4.3]],
+                      [[0, 0], [2.6, 0]], [[3.4, 0], [4, 0]], [[0, 0.3], [2.6, 0.3]], [[3.4, 0.3], [4, 0.3]],
+                      [[2.6, 0], [2.6, 0.3]], [[3.4, 0], [3.4, 0.3]]], dtype=float)
+    r, a = raycast_2d(walls, pose, fov=np.pi, beams=181, noise=0.005, rng=0)
+    ok = np.isfinite(r)
+    return np.column_stack([r[ok] * np.cos(a[ok]), r[ok] * np.sin(a[ok])])
+
+
+def test_a_wall_matched_from_its_other_side_is_rejected():
+    """A scan of the wall from one room slid onto its other face, seen from the next room: the match explains
+    most of the scan (the wall fills the view, the outer walls run on), but from the wrong side."""
+    room_b = np.array([2.0, 0.9, -np.pi / 2])  # the submap's keyframe, looking down at the wall's upper face
+    cfg = LoopClosureConfig(submap_keyframes=1, source_keyframes=1, min_separation=1)
+    for newest, accepted in ((np.array([2.0, -0.6, np.pi / 2]), False), (np.array([2.3, 1.3, -np.pi / 2]), True)):
+        g = PoseGraph(3)
+        g.add_node(room_b)
+        g.add_node(newest)  # the graph's estimate is the truth
+        kfs = []
+        for pose in (room_b, newest):
+            pts = _two_rooms_scan(pose)
+            kfs.append(_keyframe(pts))
+        closer = LoopCloser(cfg, 3, 0.05)
+        out = closer.attempt(g, kfs, 1, LoopCandidate(0, 1.5, 2.0), np.random.default_rng(0))
+        if accepted:
+            assert out is not None
+            np.testing.assert_allclose(out.measurement, relative(room_b, newest), atol=0.03)
+        else:
+            assert out is None and closer.rejections == {"other_side": 1}
+
+
 def _office_scan(pose, seed=0):
     from hsmap.testing import office_segments
 

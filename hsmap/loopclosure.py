@@ -141,6 +141,15 @@ class LoopClosureConfig:
         Optimise at least this often (keyframes) while closures are pending, and at the end.
     registration : RegistrationConfig
         Harmony-ICP parameters of the loop matches.
+    same_side : bool
+        2D, off by default (a probe): a loop match's inliers count only where the target point was seen from the
+        match's own side (keyframe normals turned to face the laser: :func:`same_side_share`), so that a wall's
+        face matched to the face behind it, seen from the next room, is rejected as ``other_side``. In the
+        simulated buildings with a 180 deg, 1 deg laser such slides by a wall's thickness (0.2-0.45 m) were most
+        of the false closures, and the check brought the mean of the largest errors from 0.195 to 0.161 m
+        (`benchmarks/slam_buildings.py --laser sparse`); but it rejects marginal true closures too, and on
+        intel it gave 0.0189 +/- 0.0013 m against 0.0184 +/- 0.0005, on the buildings with their own laser
+        0.075 m against 0.069 (``docs/slam-results.md``, session 42).
     far_search : bool
         2D: also search submaps whose uncertainty the window above cannot cover (the window's uncapped half-width
         exceeds ``max_window_translation``: the robot comes back after a long excursion). A far search matches
@@ -213,6 +222,7 @@ class LoopClosureConfig:
     optimize_threshold_rotation: float = float(np.deg2rad(0.3))
     optimize_every: int = 25
     registration: RegistrationConfig = field(default_factory=_loop_registration)
+    same_side: bool = False
     far_search: bool = True
     max_far_window_translation: float = 100.0
     far_window_growth: float = 0.1
@@ -616,7 +626,7 @@ class LoopCloser:
         res = harmony_icp(source, target, bounds=bounds, initial_guesses=np.asarray(guesses),
                           config=cfg.registration, rng=rng)
         return self._checked(res, anchor, newest, predicted, predicted, half,
-                             sides=(source, origins, target) if self.dof == 3 else None)
+                             sides=(source, origins, target) if self.dof == 3 and cfg.same_side else None)
 
     def _checked(self, res: RegistrationResult, anchor: int, newest: int, predicted: NDArray[np.float64],
                  centre: NDArray[np.float64], half: NDArray[np.float64], prefix: str = "",

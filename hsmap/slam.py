@@ -1155,8 +1155,9 @@ class HsSlam:
             normals = estimate_normals(dense, tree=tree)
             if frame.scan2d is not None:
                 normals = grazing_where_sparse(dense, normals, frame, cfg.effective_map_voxel(), tree)
-            # facing the laser: a loop match must tell a wall's face from the face behind it (same_side_share)
-            normals = orient_normals(dense, normals, frame.extrinsic2d[:2])
+            if cfg.loop_closure.same_side:
+                # facing the laser: a loop match then tells a wall's face from the face behind it (same_side_share)
+                normals = orient_normals(dense, normals, frame.extrinsic2d[:2])
         else:
             normals = estimate_normals(dense)
         k = self.graph.add_node(pose)

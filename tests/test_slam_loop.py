@@ -181,10 +181,12 @@ def _two_rooms_scan(pose):
 
 def test_a_wall_matched_from_its_other_side_is_rejected():
     """A scan of the wall from one room slid onto its other face, seen from the next room: the match explains
-    most of the scan (the wall fills the view, the outer walls run on), but from the wrong side."""
+    most of the scan (the wall fills the view, the outer walls run on), but from the wrong side. With
+    ``same_side`` (off by default) it is rejected; without, it is accepted 0.3 m off."""
     room_b = np.array([2.0, 0.9, -np.pi / 2])  # the submap's keyframe, looking down at the wall's upper face
-    cfg = LoopClosureConfig(submap_keyframes=1, source_keyframes=1, min_separation=1)
-    for newest, accepted in ((np.array([2.0, -0.6, np.pi / 2]), False), (np.array([2.3, 1.3, -np.pi / 2]), True)):
+    cfg = LoopClosureConfig(submap_keyframes=1, source_keyframes=1, min_separation=1, same_side=True)
+    other_room = np.array([2.0, -0.6, np.pi / 2])
+    for newest, accepted in ((other_room, False), (np.array([2.3, 1.3, -np.pi / 2]), True)):
         g = PoseGraph(3)
         g.add_node(room_b)
         g.add_node(newest)  # the graph's estimate is the truth
@@ -199,6 +201,14 @@ def test_a_wall_matched_from_its_other_side_is_rejected():
             np.testing.assert_allclose(out.measurement, relative(room_b, newest), atol=0.03)
         else:
             assert out is None and closer.rejections == {"other_side": 1}
+    # the default: the slide is taken for a closure
+    g = PoseGraph(3)
+    g.add_node(room_b)
+    g.add_node(other_room)
+    kfs = [_keyframe(_two_rooms_scan(room_b)), _keyframe(_two_rooms_scan(other_room))]
+    out = LoopCloser(dataclasses.replace(cfg, same_side=False), 3, 0.05).attempt(
+        g, kfs, 1, LoopCandidate(0, 1.5, 2.0), np.random.default_rng(0))
+    assert out is not None and np.linalg.norm(out.measurement[:2] - relative(room_b, other_room)[:2]) > 0.2
 
 
 def _office_scan(pose, seed=0):

@@ -10,7 +10,8 @@ simulation casts a minimal one (4 x 64 beams) to stay fast.
 
 ``--laser`` picks the robot's 2D laser: ``default`` is the simulator's (270 deg, 0.25 deg beams, 10 m), ``sparse``
 another robot's, of the SICK LMS-200 class that Freiburg's intel and fr-clinic robots carried (180 deg, 1 deg
-beams, 30 m, 1 cm noise): a quarter of the beams and half the field of view, with the SLAM configuration unchanged.
+beams, 30 m, 1 cm noise): a quarter of the angular resolution (181 beams against 1081) and two thirds of the
+field of view, with the SLAM configuration unchanged.
 
 Per run: the largest and mean 2D position error and the largest yaw error along the route (the estimate and the
 ground truth each relative to their first pose, no alignment), the final position error, the raw odometry's

@@ -182,7 +182,8 @@ def _two_rooms_scan(pose):
 def test_a_wall_matched_from_its_other_side_is_rejected():
     """A scan of the wall from one room slid onto its other face, seen from the next room: the match explains
     most of the scan (the wall fills the view, the outer walls run on), but from the wrong side. With
-    ``same_side`` (off by default) it is rejected; without, it is accepted 0.3 m off."""
+    ``same_side`` (the default) it is rejected; without, it is accepted 0.3 m off."""
+    assert LoopClosureConfig().same_side
     room_b = np.array([2.0, 0.9, -np.pi / 2])  # the submap's keyframe, looking down at the wall's upper face
     cfg = LoopClosureConfig(submap_keyframes=1, source_keyframes=1, min_separation=1, same_side=True)
     other_room = np.array([2.0, -0.6, np.pi / 2])
@@ -201,9 +202,42 @@ def test_a_wall_matched_from_its_other_side_is_rejected():
     out, _ = attempt(same_room, cfg)
     assert out is not None
     np.testing.assert_allclose(out.measurement, relative(room_b, same_room), atol=0.03)
-    # the default: the slide is taken for a closure
+    # without the check the slide is taken for a closure
     out, _ = attempt(other_room, dataclasses.replace(cfg, same_side=False))
     assert out is not None and np.linalg.norm(out.measurement[:2] - relative(room_b, other_room)[:2]) > 0.2
+
+
+def test_same_side_check_only_for_closures_that_move_the_graph(monkeypatch):
+    """The sides are counted only for a match that moves the graph by more than the registration's inlier
+    distance: a slide by a wall's thickness moves it further, and a match that agrees with the graph is left to
+    the other checks (a laser's scan of thin clutter, seen from both sides, would fail the count)."""
+    import hsmap.loopclosure as lc
+
+    calls = []
+    real = lc.same_side_share
+
+    def counted(*args, **kwargs):
+        calls.append(1)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(lc, "same_side_share", counted)
+    room_b = np.array([2.0, 0.9, -np.pi / 2])
+    cfg = LoopClosureConfig(submap_keyframes=1, source_keyframes=1, min_separation=1)
+
+    def attempt(newest, estimate):
+        g = PoseGraph(3)
+        g.add_node(room_b)
+        g.add_node(estimate)
+        kfs = [_keyframe(_two_rooms_scan(pose)) for pose in (room_b, newest)]
+        closer = LoopCloser(cfg, 3, 0.05)
+        return closer.attempt(g, kfs, 1, LoopCandidate(0, 1.5, 2.0), np.random.default_rng(0)), closer
+
+    same_room = np.array([2.3, 1.3, -np.pi / 2])
+    out, _ = attempt(same_room, same_room)  # the graph is right: the match corrects it by millimetres
+    assert out is not None and out.correction_translation < cfg.registration.threshold and not calls
+    out, _ = attempt(same_room, same_room + np.array([0.25, 0.0, 0.0]))  # the graph 0.25 m off: counted, kept
+    assert len(calls) == 1 and out is not None
+    np.testing.assert_allclose(out.measurement, relative(room_b, same_room), atol=0.03)
 
 
 def _office_scan(pose, seed=0):

@@ -179,32 +179,37 @@ def _two_rooms_scan(pose):
     return np.column_stack([r[ok] * np.cos(a[ok]), r[ok] * np.sin(a[ok])])
 
 
+#: The submap's keyframe in the two-rooms world, looking down at the wall's upper face.
+_ROOM_B = np.array([2.0, 0.9, -np.pi / 2])
+_SAME_ROOM = np.array([2.3, 1.3, -np.pi / 2])
+_OTHER_ROOM = np.array([2.0, -0.6, np.pi / 2])
+
+
+def _two_rooms_attempt(newest, cfg, estimate=None):
+    """One loop attempt of a keyframe scanned at ``newest`` against a keyframe at :data:`_ROOM_B`, the graph
+    holding ``estimate`` for the newest (default: the truth); the closure (or None) and the closer."""
+    g = PoseGraph(3)
+    g.add_node(_ROOM_B)
+    g.add_node(newest if estimate is None else estimate)
+    kfs = [_keyframe(_two_rooms_scan(pose)) for pose in (_ROOM_B, newest)]
+    closer = LoopCloser(cfg, 3, 0.05)
+    return closer.attempt(g, kfs, 1, LoopCandidate(0, 1.5, 2.0), np.random.default_rng(0)), closer
+
+
 def test_a_wall_matched_from_its_other_side_is_rejected():
     """A scan of the wall from one room slid onto its other face, seen from the next room: the match explains
     most of the scan (the wall fills the view, the outer walls run on), but from the wrong side. With
     ``same_side`` (the default) it is rejected; without, it is accepted 0.3 m off."""
     assert LoopClosureConfig().same_side
-    room_b = np.array([2.0, 0.9, -np.pi / 2])  # the submap's keyframe, looking down at the wall's upper face
     cfg = LoopClosureConfig(submap_keyframes=1, source_keyframes=1, min_separation=1, same_side=True)
-    other_room = np.array([2.0, -0.6, np.pi / 2])
-
-    def attempt(newest, cfg):
-        g = PoseGraph(3)
-        g.add_node(room_b)
-        g.add_node(newest)  # the graph's estimate is the truth
-        kfs = [_keyframe(_two_rooms_scan(pose)) for pose in (room_b, newest)]
-        closer = LoopCloser(cfg, 3, 0.05)
-        return closer.attempt(g, kfs, 1, LoopCandidate(0, 1.5, 2.0), np.random.default_rng(0)), closer
-
-    out, closer = attempt(other_room, cfg)
+    out, closer = _two_rooms_attempt(_OTHER_ROOM, cfg)
     assert out is None and closer.rejections == {"other_side": 1}
-    same_room = np.array([2.3, 1.3, -np.pi / 2])
-    out, _ = attempt(same_room, cfg)
+    out, _ = _two_rooms_attempt(_SAME_ROOM, cfg)
     assert out is not None
-    np.testing.assert_allclose(out.measurement, relative(room_b, same_room), atol=0.03)
+    np.testing.assert_allclose(out.measurement, relative(_ROOM_B, _SAME_ROOM), atol=0.03)
     # without the check the slide is taken for a closure
-    out, _ = attempt(other_room, dataclasses.replace(cfg, same_side=False))
-    assert out is not None and np.linalg.norm(out.measurement[:2] - relative(room_b, other_room)[:2]) > 0.2
+    out, _ = _two_rooms_attempt(_OTHER_ROOM, dataclasses.replace(cfg, same_side=False))
+    assert out is not None and np.linalg.norm(out.measurement[:2] - relative(_ROOM_B, _OTHER_ROOM)[:2]) > 0.2
 
 
 def test_same_side_check_only_for_closures_that_move_the_graph(monkeypatch):
@@ -221,23 +226,13 @@ def test_same_side_check_only_for_closures_that_move_the_graph(monkeypatch):
         return real(*args, **kwargs)
 
     monkeypatch.setattr(lc, "same_side_share", counted)
-    room_b = np.array([2.0, 0.9, -np.pi / 2])
     cfg = LoopClosureConfig(submap_keyframes=1, source_keyframes=1, min_separation=1)
-
-    def attempt(newest, estimate):
-        g = PoseGraph(3)
-        g.add_node(room_b)
-        g.add_node(estimate)
-        kfs = [_keyframe(_two_rooms_scan(pose)) for pose in (room_b, newest)]
-        closer = LoopCloser(cfg, 3, 0.05)
-        return closer.attempt(g, kfs, 1, LoopCandidate(0, 1.5, 2.0), np.random.default_rng(0)), closer
-
-    same_room = np.array([2.3, 1.3, -np.pi / 2])
-    out, _ = attempt(same_room, same_room)  # the graph is right: the match corrects it by millimetres
+    out, _ = _two_rooms_attempt(_SAME_ROOM, cfg)  # the graph is right: the match corrects it by millimetres
     assert out is not None and out.correction_translation < cfg.registration.threshold and not calls
-    out, _ = attempt(same_room, same_room + np.array([0.25, 0.0, 0.0]))  # the graph 0.25 m off: counted, kept
+    # the graph 0.25 m off: counted, kept
+    out, _ = _two_rooms_attempt(_SAME_ROOM, cfg, estimate=_SAME_ROOM + np.array([0.25, 0.0, 0.0]))
     assert len(calls) == 1 and out is not None
-    np.testing.assert_allclose(out.measurement, relative(room_b, same_room), atol=0.03)
+    np.testing.assert_allclose(out.measurement, relative(_ROOM_B, _SAME_ROOM), atol=0.03)
 
 
 def _office_scan(pose, seed=0):

@@ -27,8 +27,8 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 # stage -> (module file suffix, function name) pairs whose cumulative times are summed
 STAGES = {
-    "process (one frame, all of it)": [("hsmap/slam.py", "process")],
-    "frame_points (range filter + voxel downsampling)": [("hsmap/slam.py", "frame_points")],
+    "process (one frame, all of it)": [("hsmap/slam/tracker.py", "process")],
+    "frame_points (range filter + voxel downsampling)": [("hsmap/slam/frames.py", "frame_points")],
     "harmony_icp (tracking + loop closure)": [("hsmap/registration.py", "harmony_icp")],
     "  harmony_search (HS rounds)": [("hsmap/harmony.py", "harmony_search")],
     "  refine_icp": [("hsmap/registration.py", "refine_icp")],
@@ -39,20 +39,20 @@ STAGES = {
     "  _information_and_cost": [("hsmap/registration.py", "_information_and_cost")],
     "  _subsample": [("hsmap/registration.py", "_subsample")],
     "  RegistrationTarget.tree (KD-tree builds)": [("hsmap/registration.py", "tree")],
-    "_verify (prediction check, retries)": [("hsmap/slam.py", "_verify")],
-    "_rebuild_target (local map crop, field)": [("hsmap/slam.py", "_rebuild_target")],
+    "Verifier.verify (prediction check, retries)": [("hsmap/slam/verify.py", "verify")],
+    "ensure_target (local map crop, field)": [("hsmap/slam/keyframes.py", "ensure_target")],
     "  DistanceField.__init__": [("hsmap/fitness.py", "__init__")],
-    "  _rebuild_map": [("hsmap/slam.py", "_rebuild_map")],
-    "_add_keyframe (normals, map, field, loops)": [("hsmap/slam.py", "_add_keyframe")],
+    "  _rebuild_map": [("hsmap/slam/keyframes.py", "_rebuild_map")],
+    "add_keyframe (normals, map, field, loops)": [("hsmap/slam/keyframes.py", "add_keyframe")],
     "  estimate_normals": [("hsmap/registration.py", "estimate_normals")],
     "  VoxelMap.add": [("hsmap/mapping.py", "add")],
     "  DistanceField.add": [("hsmap/fitness.py", "add")],
-    "  _pair_edges (scan-to-scan refinements)": [("hsmap/slam.py", "_pair_edges")],
+    "  _pair_edges (scan-to-scan refinements)": [("hsmap/slam/keyframes.py", "_pair_edges")],
     "  path_distances (graph distances)": [("hsmap/posegraph.py", "path_distances")],
-    "  _close_loops (search + verify)": [("hsmap/slam.py", "_close_loops")],
+    "  _close_loops (search + verify)": [("hsmap/slam/keyframes.py", "_close_loops")],
     "    attempt_far (far search, 2D)": [("hsmap/loopclosure.py", "attempt_far")],
     "      correlative_match_2d (exhaustive)": [("hsmap/loopclosure.py", "correlative_match_2d")],
-    "  _optimize (graph)": [("hsmap/slam.py", "_optimize")],
+    "  optimize (graph)": [("hsmap/slam/keyframes.py", "optimize")],
     "on_frame (recording)": [("benchmarks/profile_slam.py", "on_frame")],
 }
 

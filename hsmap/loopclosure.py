@@ -79,10 +79,6 @@ class LoopClosureConfig:
         The same for yaw (radians, radians per metre of path).
     window_z, window_roll_pitch : float
         6-DOF: fixed half-widths in z and in roll/pitch (gravity keeps them small).
-    attempts_per_keyframe : int
-        Submaps matched per new keyframe at most (the nearest ones first).
-    search_every : int
-        Search at every this many keyframes.
     retry_after : int
         A submap that was matched is not tried again before this many more keyframes.
     min_inlier_ratio : float
@@ -95,50 +91,6 @@ class LoopClosureConfig:
     edge_sigma_translation, edge_sigma_rotation : float
         Floors added to the covariance of every edge (tracking and loop): registration information treats every
         point as an independent measurement and is overconfident.
-    pair_edges : int
-        Scan-to-scan edges per new keyframe (Lu and Milios 1997; 0: none): the keyframe's points are refined
-        (point-to-plane, from the graph's current relative pose) against each of up to this many earlier keyframes
-        within ``pair_distance`` of it, the nearest first (the previous keyframe, tied by its tracking edge,
-        excluded), and each match with ``min_inlier_ratio`` of the points within the registration threshold becomes
-        a ``pair`` edge. A loop edge matches against a submap of tracked keyframes and carries their drift; a single
-        keyframe carries none, and the many overlapping pairs average the registrations' noise that a chain of
-        tracking edges adds up (a heading error that sets in early and turns the whole map). Measured with 4 against
-        0 (2026-12-01): the simulated two-rooms bag's largest 2D error, bags 1-4 x SLAM seeds 0-2, mean 1.78 cm
-        (worst 3.20) against 3.34 (6.40); intel and fr079 a little better; fr-clinic misses its late return about
-        as often; 1.3-1.4x the time (the denser graph's optimisations and the pairs' refinements).
-    pair_distance : float
-        Metres between the two keyframes' positions, at most, for a pair edge.
-    pair_iterations : int
-        Refinement iterations of a pair at most: it starts from the graph's relative pose, a few millimetres off
-        (on the simulated two-rooms bag 10 iterations land where 30 do, 5 within 0.2 mm and 0.01 deg; on intel's
-        noisy scans the 30 of the tracking refinement were mostly spent).
-    odometry_edges : bool
-        2D runs with wheel odometry: the graph holds the odometry's motion between consecutive keyframes as edges
-        of their own (kind ``wheel``), each with the covariance of the learned odometry model
-        (``SlamConfig.odometry_sigma`` scaled by what the run learned) propagated over the frames between them
-        and down-weighted beyond the chi-square 99.9 % quantile of its disagreement with the tracking edge (a wheel
-        slipped), and the tracking edges then hold the registration's information only (the fused pose's holds
-        the odometry's one-frame prediction, which would count it twice). This is how Cartographer's and most
-        factor-graph back ends take odometry in. Without them the odometry reached the graph only through one
-        frame's prediction in each tracking edge, and the laser's pair and loop edges alone decided how a
-        closure's correction bends the path. Measured with ``benchmarks/slam.py`` and ``slam_buildings.py``, on
-        against off (session 34, both with the far search's yaw window grown with the path): fr-clinic seeds 1-10
-        0.1195 +- 0.0013 m (worst 0.1213), 0.820 deg, against 0.1213 +- 0.0012 (0.1236), 0.858 deg, nine seeds of ten
-        better; intel seeds 1-5 0.0185 +- 0.0005 m (worst 0.0191), 0.294 deg, against 0.0184 +- 0.0004 (0.0190),
-        0.299 deg (its odometry is poor: the same); fr079 0.0329 +- 0.0003 m, 0.446 deg, against 0.0331 +- 0.0002,
-        0.446; the simulated buildings (45 runs) largest 2D error mean 0.076 m, median 0.052, worst 0.211, against
-        0.079, 0.060 and 0.307 (the worst run before, a registration turning 3.1 deg more than the odometry, 0.307
-        -> 0.030 m; without it the mean is 0.077 against 0.074, thirteen runs worse by more than 1 cm, seven
-        better). Session 31 took them off main after fr-clinic broke its map on seed 2 (4.85 m) with the far search's
-        yaw window capped at 30 deg; with the window grown with the path, seed 2 gives 0.1188 m.
-    tracking_path_distance : float
-        The tracking map holds the keyframes within this graph distance of the newest keyframe: places tied to it
-        by tracking or by closed loops, whose relative pose is known. Older places join it when a loop closes.
-    optimize_threshold_translation, optimize_threshold_rotation : float
-        After a closure whose measurement differs from the graph's current estimate by more than these, the graph
-        is optimised at once; smaller corrections are batched until ``optimize_every`` keyframes have passed.
-    optimize_every : int
-        Optimise at least this often (keyframes) while closures are pending, and at the end.
     registration : RegistrationConfig
         Harmony-ICP parameters of the loop matches.
     same_side : bool
@@ -183,8 +135,6 @@ class LoopClosureConfig:
         excursion the tracking's drift outgrows the regular window's 5 % of the path: on fr-clinic's return, after
         about 1000 m of graph path, the estimate was 43-67 m off (seeds 2, 4 and 5), beyond a 5 % window on all
         three; with 10 % the return closed on four seeds of five.
-    far_every : int
-        Far search at every this many keyframes.
     far_resolution, far_angle_step : float
         Grid resolution (m) and rotation step (rad) of the exhaustive search.
     far_ambiguity : float
@@ -207,8 +157,6 @@ class LoopClosureConfig:
     max_window_rotation: float = float(np.deg2rad(30.0))
     window_z: float = 0.1
     window_roll_pitch: float = float(np.deg2rad(2.0))
-    attempts_per_keyframe: int = 1
-    search_every: int = 1
     retry_after: int = 5
     min_inlier_ratio: float = 0.6
     max_sigma_translation: float = 0.05
@@ -216,20 +164,11 @@ class LoopClosureConfig:
     max_sigma_rotation: float = float(np.deg2rad(1.0))
     edge_sigma_translation: float = 0.005
     edge_sigma_rotation: float = float(np.deg2rad(0.1))
-    pair_edges: int = 4
-    pair_distance: float = 2.0
-    pair_iterations: int = 10
-    odometry_edges: bool = True
-    tracking_path_distance: float = 20.0
-    optimize_threshold_translation: float = 0.02
-    optimize_threshold_rotation: float = float(np.deg2rad(0.3))
-    optimize_every: int = 25
     registration: RegistrationConfig = field(default_factory=_loop_registration)
     same_side: bool = True
     far_search: bool = True
     max_far_window_translation: float = 100.0
     far_window_growth: float = 0.1
-    far_every: int = 5
     far_source_path: float = 20.0
     far_resolution: float = 0.2
     far_angle_step: float = float(np.deg2rad(1.0))
@@ -246,8 +185,7 @@ class LoopClosureConfig:
         for name in ("max_distance", "window_translation", "window_growth", "max_window_translation",
                      "window_rotation", "window_rotation_growth", "max_window_rotation", "window_z",
                      "window_roll_pitch", "max_sigma_translation", "max_sigma_rotation", "edge_sigma_translation",
-                     "edge_sigma_rotation", "pair_distance", "tracking_path_distance",
-                     "optimize_threshold_translation", "optimize_threshold_rotation", "max_far_window_translation",
+                     "edge_sigma_rotation", "max_far_window_translation",
                      "far_source_path", "far_window_growth",
                      "far_agreement_translation", "far_agreement_rotation"):
             v = getattr(self, name)
@@ -261,10 +199,9 @@ class LoopClosureConfig:
             raise ConfigError(f"slam.loop_closure.far_ambiguity must be in (0, 1], got {self.far_ambiguity!r}")
         if not 0.0 <= self.min_inlier_ratio <= 1.0:
             raise ConfigError(f"slam.loop_closure.min_inlier_ratio must be in [0, 1], got {self.min_inlier_ratio!r}")
-        for name in ("pair_edges", "pair_iterations", "submap_keyframes", "source_keyframes", "min_separation",
-                     "attempts_per_keyframe", "search_every", "retry_after", "optimize_every", "far_every",
+        for name in ("submap_keyframes", "source_keyframes", "min_separation", "retry_after",
                      "far_corroborate_within"):
-            v, low = getattr(self, name), 0 if name == "pair_edges" else 1
+            v, low = getattr(self, name), 1
             if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < low:
                 raise ConfigError(f"slam.loop_closure.{name} must be an integer >= {low}, got {v!r}")
 

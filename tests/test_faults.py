@@ -400,7 +400,7 @@ def test_slam_interrupted_keeps_the_previous_run(bag, previous, tmp_path, monkey
 
         monkeypatch.setattr(hsmap.slam.HsSlam, "process", process)
     else:
-        real_json = hsmap.slam.write_json
+        real_json = hsmap.slam.run.write_json
 
         def write_json(path, *a, **k):
             if Path(path).name == "metrics.json":
@@ -409,7 +409,7 @@ def test_slam_interrupted_keeps_the_previous_run(bag, previous, tmp_path, monkey
                 os.kill(os.getpid(), sig)
             return real_json(path, *a, **k)
 
-        monkeypatch.setattr(hsmap.slam, "write_json", write_json)
+        monkeypatch.setattr(hsmap.slam.run, "write_json", write_json)
     try:
         assert slam(bag, out) == code
     finally:
@@ -459,8 +459,8 @@ if where == "frame":
     process = hsmap.slam.HsSlam.process
     hsmap.slam.HsSlam.process = lambda self, frame: stop() if frame.index == 6 else process(self, frame)
 else:
-    write_json = hsmap.slam.write_json
-    hsmap.slam.write_json = lambda path, *a, **k: (
+    write_json = hsmap.slam.run.write_json
+    hsmap.slam.run.write_json = lambda path, *a, **k: (
         stop() if Path(path).name == "metrics.json" else write_json(path, *a, **k))
 sys.exit(main(sys.argv[3:]))
 """

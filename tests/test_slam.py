@@ -88,11 +88,11 @@ def test_odometry_sigma_is_learned_from_the_run():
     # the retry check never gets tighter than the configured model: slips are what it is for
     slam = HsSlam(SlamConfig())
     configured = np.array(SlamConfig().odometry_sigma)
-    slam._odometry_scale = np.array([0.2, 0.3])
-    np.testing.assert_allclose(slam.odometry_sigma(gate=True), configured)
-    np.testing.assert_allclose(slam.odometry_sigma(), configured * [0.2, 0.2, 0.3, 0.3, 0.3])
-    slam._odometry_scale = np.array([2.0, 3.0])
-    np.testing.assert_allclose(slam.odometry_sigma(gate=True), configured * [2, 2, 3, 3, 3])
+    slam.odometry.scale = np.array([0.2, 0.3])
+    np.testing.assert_allclose(slam.odometry.sigma(gate=True), configured)
+    np.testing.assert_allclose(slam.odometry.sigma(), configured * [0.2, 0.2, 0.3, 0.3, 0.3])
+    slam.odometry.scale = np.array([2.0, 3.0])
+    np.testing.assert_allclose(slam.odometry.sigma(gate=True), configured * [2, 2, 3, 3, 3])
     # both scales learned, from registrations 16 frames apart: the precise odometry's translation too
     assert g["scale_translation"] < 0.5 and g["sigma"][0] == pytest.approx(
         SlamConfig().odometry_sigma[0] * g["scale_translation"])
@@ -176,7 +176,7 @@ def test_wheel_odometry_is_an_edge_of_its_own_between_keyframes():
     spans = {(e.i, e.j) for e in lost.graph.edges if e.kind == EdgeKind.WHEEL}
     assert not {(k - 1, k) for k in gap_keys} & spans
     assert_wheel_edges_measure_the_odometry(lost, gap)
-    off = HsSlam(SlamConfig(loop_closure={"odometry_edges": False}), rng=1)
+    off = HsSlam(SlamConfig(graph={"odometry_edges": False}), rng=1)
     for f in frames:
         off.process(f)
     assert not [e for e in off.graph.edges if e.kind == EdgeKind.WHEEL]
@@ -405,9 +405,9 @@ def test_points_on_one_line_are_unusable():
     (dict(map_voxel=0.0), "slam.map_voxel must be None or > 0"),
     (dict(odometry_scale_bounds=(2.0, 1.0)), "slam.odometry_scale_bounds must be two numbers 0 < low <= high"),
     (dict(odometry_window=0), "slam.odometry_window must be an integer >= 1"),
-    (dict(loop_closure={"pair_edges": -1}), "slam.loop_closure.pair_edges must be an integer >= 0"),
-    (dict(loop_closure={"pair_edges": 2.5}), "slam.loop_closure.pair_edges must be a whole number"),
-    (dict(loop_closure={"pair_distance": float("nan")}), "slam.loop_closure.pair_distance must be a number"),
+    (dict(graph={"pair_edges": -1}), "slam.graph.pair_edges must be an integer >= 0"),
+    (dict(graph={"pair_edges": 2.5}), "slam.graph.pair_edges must be a whole number"),
+    (dict(graph={"pair_distance": float("nan")}), "slam.graph.pair_distance must be a number"),
 ])
 def test_bad_config(kwargs, match):
     with pytest.raises(ConfigError, match=match):
@@ -570,7 +570,7 @@ def test_a_retried_registration_stays_in_the_box_it_searched(monkeypatch):
     itself: the edge is no pose the scan chose (in a simulated office a retry slid 20 cm towards the first
     registration's minimum, was held at the edge 14 cm out, aligned the scan worse than the prediction there, and
     so lost to the first registration, 20 cm off, though the prediction was right to 7 mm)."""
-    import hsmap.slam as slam_module
+    from hsmap.slam import frame_points, verify as slam_module
     from hsmap.registration import RegistrationTarget, harmony_icp
 
     walls = np.array([((-20.0, y), (20.0, y)) for y in (-0.8, 0.8)])
@@ -578,14 +578,14 @@ def test_a_retried_registration_stays_in_the_box_it_searched(monkeypatch):
     rng = np.random.default_rng(3)
     r, a = raycast_2d(walls, truth, noise=0.005, rng=rng)
     frame = Frame(stamp=1.0, scan2d=LaserScan2D(r, a, 0.05, 10.0), odometry=truth.copy(), index=1)
-    scan = slam_module.frame_points(frame, 3, 0.1, 30.0, 0.03)
+    scan = frame_points(frame, 3, 0.1, 30.0, 0.03)
     slam = HsSlam(SlamConfig(), rng=0)
-    slam._target = RegistrationTarget(np.vstack([np.column_stack([np.linspace(-15, 15, 601), np.full(601, y)])
+    slam.keyframe_graph.target = RegistrationTarget(np.vstack([np.column_stack([np.linspace(-15, 15, 601), np.full(601, y)])
                                                  for y in (-0.8, 0.8)]), slam.config.registration)
     sig = np.array([0.02, np.deg2rad(1.0)])
     predicted = truth.copy()
     monkeypatch.setattr(slam, "prediction", lambda frame, gate=False: (predicted.copy(), sig))
-    first = harmony_icp(scan, slam._target, initial_guesses=[[0.9, 0.0, 0.0]], config=slam.config.registration,
+    first = harmony_icp(scan, slam.keyframe_graph.target, initial_guesses=[[0.9, 0.0, 0.0]], config=slam.config.registration,
                         rng=1)
     first = dataclasses.replace(first, pose=np.array([0.9, first.pose[1], first.pose[2]]))  # 0.9 m along
     slid = dataclasses.replace(first, pose=np.array([0.5, 0.002, 0.0005]))  # the retry's refinement slid too
@@ -605,9 +605,9 @@ def test_a_retried_registration_stays_in_the_box_it_searched(monkeypatch):
     np.testing.assert_allclose(kept.transformation[:2, 2], kept.pose[:2])
     # a result inside the box is returned as it is
     inside = dataclasses.replace(first, pose=np.array([0.03, -0.01, 0.01]))
-    assert slam_module._within_box(inside, truth, half, 2) is inside
+    assert slam_module.within_box(inside, truth, half, 2) is inside
     # the box is the search's, in world axes, and yaw wraps
-    out = slam_module._within_box(dataclasses.replace(first, pose=np.array([1.0, -1.0, np.pi - 0.01])),
+    out = slam_module.within_box(dataclasses.replace(first, pose=np.array([1.0, -1.0, np.pi - 0.01])),
                                   np.array([0.0, 0.0, -np.pi + 0.01]), np.array([0.1, 0.2, 0.05]), 2)
     np.testing.assert_allclose(out.pose, [0.1, -0.2, np.pi - 0.01])
 
@@ -616,11 +616,11 @@ def test_a_registration_overrules_the_prediction_only_on_evidence():
     """The first registration stands against the motion prediction only if its residuals are lower beyond
     chance, over enough points: a few points fitting better, or a handful of matches, do not overrule the
     odometry (on fr-clinic such registrations turned single frames by 16-46 degrees)."""
-    import hsmap.slam as slam_module
+    from hsmap.slam import frame_points, verify as slam_module
 
     def decide(ra, rb, n=100):  # residuals of a 2D scan of n points at the registration's pose and the other's
         assert len(ra) == len(rb) == n
-        return slam_module._at_least_as_good(ra, rb, 2, strict=True)
+        return slam_module.at_least_as_good(ra, rb, 2, strict=True)
 
     rng = np.random.default_rng(0)
     noise = rng.normal(0.0, 0.002, 100)
@@ -648,27 +648,27 @@ def test_a_registration_that_explains_little_of_its_scan_cannot_veto_the_predict
     the 60 % it needs to overrule the prediction. It cannot veto it either: the prediction's pose is confirmed, so
     it can become a keyframe and extend the map. Where the registration explains most of its scan and the
     prediction's pose aligns it worse, the prediction stays unconfirmed (no keyframe) as before."""
-    import hsmap.slam as slam_module
+    from hsmap.slam import frame_points, verify as slam_module
     from hsmap.registration import RegistrationTarget, harmony_icp
 
     walls = np.array([((-20.0, y), (20.0, y)) for y in (-1.0, 1.0)])
     truth = np.array([0.0, 0.0, 0.0])
     r, a = raycast_2d(walls, truth, fov=2 * np.pi, noise=0.005, rng=np.random.default_rng(3))
     frame = Frame(stamp=1.0, scan2d=LaserScan2D(r, a, 0.05, 10.0), odometry=truth.copy(), index=1)
-    scan = slam_module.frame_points(frame, 3, 0.1, 30.0, 0.03)
+    scan = frame_points(frame, 3, 0.1, 30.0, 0.03)
 
     def verify(mapped_to):
         """``_verify`` with the map holding the corridor's walls up to x = ``mapped_to``, the first registration
         2 m back along it and the retry returning the prediction."""
         slam = HsSlam(SlamConfig(), rng=0)
         xs = np.arange(-15.0, mapped_to, 0.05)
-        slam._target = RegistrationTarget(np.vstack([np.column_stack([xs, np.full(len(xs), y)]) for y in (-1.0, 1.0)]),
+        slam.keyframe_graph.target = RegistrationTarget(np.vstack([np.column_stack([xs, np.full(len(xs), y)]) for y in (-1.0, 1.0)]),
                                           slam.config.registration)
         monkeypatch.setattr(slam, "prediction", lambda frame, gate=False: (truth.copy(), np.array([0.02, 0.02])))
-        found = harmony_icp(scan, slam._target, initial_guesses=[truth], config=slam.config.registration, rng=1)
+        found = harmony_icp(scan, slam.keyframe_graph.target, initial_guesses=[truth], config=slam.config.registration, rng=1)
         back = dataclasses.replace(found, pose=np.array([-2.0, 0.0, 0.0]))
         monkeypatch.setattr(slam_module, "harmony_icp", lambda *a, **k: dataclasses.replace(found, pose=truth.copy()))
-        fractions = [float(np.isfinite(slam_module._residuals(scan, slam._target, p, 0.1)).mean())
+        fractions = [float(np.isfinite(slam_module.residuals(scan, slam.keyframe_graph.target, p, 0.1)).mean())
                      for p in (back.pose, truth)]
         return slam._verify(frame, scan, back), fractions
 
@@ -690,27 +690,27 @@ def test_a_registration_that_explains_little_of_its_scan_stays_within_the_learne
     seed 1), a registration matching 46 % of its scan turned the pose by 1.8 deg and moved it 11 cm, inside the
     configured gate (4.5 deg), and the route ended 0.25 m off; the odometry was right to 1 cm. A registration
     explaining most of its scan stands as before."""
-    import hsmap.slam as slam_module
+    from hsmap.slam import frame_points, verify as slam_module
     from hsmap.registration import RegistrationTarget, harmony_icp
 
     walls = np.array([((-20.0, y), (20.0, y)) for y in (-1.0, 1.0)] + [((-20.0, -1.0), (-20.0, 1.0))])
     truth = np.array([0.0, 0.0, 0.0])
     r, a = raycast_2d(walls, truth, fov=2 * np.pi, noise=0.005, rng=np.random.default_rng(3))
     frame = Frame(stamp=1.0, scan2d=LaserScan2D(r, a, 0.05, 10.0), odometry=truth.copy(), index=1)
-    scan = slam_module.frame_points(frame, 3, 0.1, 30.0, 0.03)
+    scan = frame_points(frame, 3, 0.1, 30.0, 0.03)
     configured, learned = np.array([0.05, np.deg2rad(1.5)]), np.array([0.01, np.deg2rad(0.2)])
 
     def verify(mapped_to):
         slam = HsSlam(SlamConfig(), rng=0)
         xs = np.arange(-15.0, mapped_to, 0.05)
-        slam._target = RegistrationTarget(np.vstack([np.column_stack([xs, np.full(len(xs), y)]) for y in (-1.0, 1.0)]),
+        slam.keyframe_graph.target = RegistrationTarget(np.vstack([np.column_stack([xs, np.full(len(xs), y)]) for y in (-1.0, 1.0)]),
                                           slam.config.registration)
         monkeypatch.setattr(slam, "prediction",
                             lambda frame, gate=False: (truth.copy(), (configured if gate else learned).copy()))
-        found = harmony_icp(scan, slam._target, initial_guesses=[truth], config=slam.config.registration, rng=1)
+        found = harmony_icp(scan, slam.keyframe_graph.target, initial_guesses=[truth], config=slam.config.registration, rng=1)
         turned = dataclasses.replace(found, pose=np.array([0.0, 0.06, np.deg2rad(1.8)]))  # inside the wide gate
         monkeypatch.setattr(slam_module, "harmony_icp", lambda *a, **k: dataclasses.replace(found, pose=truth.copy()))
-        share = float(np.isfinite(slam_module._residuals(scan, slam._target, turned.pose, 0.1)).mean())
+        share = float(np.isfinite(slam_module.residuals(scan, slam.keyframe_graph.target, turned.pose, 0.1)).mean())
         return slam._verify(frame, scan, turned), share, turned
 
     (kept, retried, confirmed), share, _ = verify(mapped_to=-3.0)

@@ -292,7 +292,7 @@ def _far_setup(error):
     for p in truth[2:]:
         g.add_node(compose(error, p))
     kfs = [_keyframe(_office_scan(p, seed=k)) for k, p in enumerate(truth)]
-    cfg = LoopClosureConfig(submap_keyframes=1, source_keyframes=1, min_separation=1, far_every=1)
+    cfg = LoopClosureConfig(submap_keyframes=1, source_keyframes=1, min_separation=1)
     path = np.array([300.0, 300.0, 0.0, 0.0])
     return truth, g, kfs, LoopCloser(cfg, 3, 0.05), path
 
@@ -377,7 +377,7 @@ def test_far_search_tells_look_alike_places_apart_by_the_recent_path():
     truth = old + new
 
     def attempt(source_path):
-        cfg = LoopClosureConfig(submap_keyframes=1, source_keyframes=1, min_separation=1, far_every=1,
+        cfg = LoopClosureConfig(submap_keyframes=1, source_keyframes=1, min_separation=1,
                                 far_source_path=source_path)
         closer = LoopCloser(cfg, 3, 0.05)
         cands = closer.far_candidates(g, newest, path)

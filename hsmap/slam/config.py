@@ -1,0 +1,237 @@
+"""HS-SLAM's settings: the tracker's (:class:`SlamConfig`) and the keyframe graph's policy
+(:class:`KeyframeGraphConfig`); lengths in metres, angles in radians."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..config import from_dict
+from ..errors import ConfigError
+from ..harmony import HarmonyConfig
+from ..loopclosure import LoopClosureConfig
+from ..registration import RegistrationConfig
+
+__all__ = ["SlamConfig", "KeyframeGraphConfig"]
+
+
+def _tracking_registration() -> RegistrationConfig:
+    return RegistrationConfig(
+        harmony=HarmonyConfig(batch_size=16, max_iterations=500, patience=15, convergence_tol=1e-6, init="lhs"),
+        search_threshold=0.3,
+        threshold=0.1,
+        max_points=150,
+        refine_points=4000,  # 3D: every point of a 0.15 m-voxel cloud
+        robust_kernel=0.07,
+        translation_range=0.4,
+        yaw_range=np.deg2rad(20.0),
+        z_range=0.05,
+        roll_pitch_range=np.deg2rad(2.0),
+    )
+
+
+@dataclass
+class KeyframeGraphConfig:
+    """When the keyframe graph gains edges, searches for loops and is optimised.
+
+    Attributes
+    ----------
+    pair_edges : int
+        Scan-to-scan edges per new keyframe (0: none), to the nearest earlier keyframes within
+        ``pair_distance``; each is a refinement from the graph's relative pose.
+    pair_distance : float
+        Metres between the two keyframes' positions, at most, for a pair edge.
+    pair_iterations : int
+        Refinement iterations of a pair edge at most (it starts a few millimetres off).
+    odometry_edges : bool
+        2D runs with wheel odometry: the odometry's motion between consecutive keyframes is an edge of its own,
+        with the learned model's covariance, down-weighted where a wheel slipped.
+    tracking_path_distance : float
+        The tracking map holds the keyframes within this graph distance of the newest keyframe.
+    attempts_per_keyframe : int
+        Loop-closure submaps matched per new keyframe at most (the nearest first).
+    search_every : int
+        Search for loops at every this many keyframes.
+    far_every : int
+        Far loop search (``loop_closure.far_search``) at every this many keyframes.
+    optimize_threshold_translation, optimize_threshold_rotation : float
+        A closure that corrects the graph's estimate by more than these optimises the graph at once.
+    optimize_every : int
+        Otherwise the graph is optimised at least this often (keyframes) while edges are pending, and at the end.
+    """
+
+    pair_edges: int = 4
+    pair_distance: float = 2.0
+    pair_iterations: int = 10
+    odometry_edges: bool = True
+    tracking_path_distance: float = 20.0
+    attempts_per_keyframe: int = 1
+    search_every: int = 1
+    far_every: int = 5
+    optimize_threshold_translation: float = 0.02
+    optimize_threshold_rotation: float = float(np.deg2rad(0.3))
+    optimize_every: int = 25
+
+    def __post_init__(self) -> None:
+        for name in ("pair_distance", "tracking_path_distance", "optimize_threshold_translation",
+                     "optimize_threshold_rotation"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float, np.floating)) and np.isfinite(v) and v >= 0):
+                raise ConfigError(f"slam.graph.{name} must be a finite number >= 0, got {v!r}")
+        for name in ("pair_edges", "pair_iterations", "attempts_per_keyframe", "search_every", "optimize_every",
+                     "far_every"):
+            v, low = getattr(self, name), 0 if name == "pair_edges" else 1
+            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < low:
+                raise ConfigError(f"slam.graph.{name} must be an integer >= {low}, got {v!r}")
+
+
+@dataclass
+class SlamConfig:
+    """HS-SLAM parameters (lengths in metres, angles in radians).
+
+    Attributes
+    ----------
+    dof : int
+        3 (x, y, yaw from the 2D scans) or 6 (x, y, z, roll, pitch, yaw from the 3D clouds).
+    registration : RegistrationConfig
+        Harmony-ICP parameters of the tracking; its ranges are the half-widths of the search box around the seeds.
+    use_odometry : bool
+        Seed the search with the odometry prediction when the input has odometry.
+    prior_translation_range, prior_yaw_range : float
+        Half-widths of the search box instead when a 6-DOF run is seeded by a prior (2D) trajectory.
+    sync_tolerance : float
+        Seconds: a frame takes the prior's pose interpolated between the poses just before and after its stamp
+        when both lie within this time of it.
+    recent_poses : int
+        How many recent poses the "mean of recent poses" seed averages.
+    warmup_frames : int
+        The first frames are all keyframes.
+    map_voxel : float or None
+        Voxel size of the point map; None: 0.05 m (2D), 0.1 m (3D).
+    map_average : bool
+        Each voxel of the map holds the mean of the keyframe points in it (else the first keyframe's point).
+    scan_voxel : float or None
+        Voxel size the scans are downsampled to before registration; None: 0.03 m (2D), 0.15 m (3D).
+    local_map_radius : float
+        Radius of the local map (the registration target) around the robot.
+    keyframe_distance, keyframe_angle : float
+        A frame becomes a keyframe (added to the map) when the robot moved or turned this much since the last one.
+    min_range, max_range : float
+        Points of the scans outside [min_range, max_range] from the sensor are ignored.
+    odometry_sigma : tuple of 5 floats
+        Wheel odometry's uncertainty over one frame, (a [m], b, c [rad], d, e [rad/m]): translation sigma
+        a + b * distance, rotation sigma c + d * |turn| + e * distance.
+    learn_odometry : bool
+        Learn the odometry's bias and the scale of its sigma model as the run goes (``odometry_model`` of the
+        metrics); the fusion down-weights a prediction beyond the chi-square 99.9 % gate (a wheel slip).
+    odometry_window : int
+        Disagreements with the registrations that set the scale (1 until a tenth of them are in) and the bias.
+    odometry_lag : int
+        Frames between the two registrations whose motion is compared with the odometry's for the scale.
+    odometry_scale_bounds : tuple of 2 floats
+        The learned scale stays within these bounds.
+    motion_sigma : tuple of 5 floats
+        As ``odometry_sigma``, for the constant-velocity prediction (no odometry).
+    prior_sigma : tuple of 5 floats
+        As ``odometry_sigma``, for the motion of a prior trajectory (a 6-DOF run seeded by a 2D run).
+    degenerate_ratio : float
+        Translation directions with less than this fraction of the best constrained one's information count as
+        unconstrained (:func:`hsmap.registration.drop_degenerate`): the prediction carries the pose along them.
+    verify_sigmas : float
+        A registration further than this many sigmas from the prediction is retried around the prediction.
+    loop_closure : LoopClosureConfig
+        Loop-closure candidates, matching and verification.
+    graph : KeyframeGraphConfig
+        When the keyframe graph gains edges, searches for loops and is optimised.
+    smoothing : bool
+        2D runs with wheel odometry: the final trajectory is smoothed with the odometry
+        (:func:`hsmap.smoothing.smooth_with_odometry`); the map stays the graph's.
+    """
+
+    dof: int = 3
+    registration: RegistrationConfig = field(default_factory=_tracking_registration)
+    use_odometry: bool = True
+    prior_translation_range: float = 0.15
+    prior_yaw_range: float = np.deg2rad(4.0)
+    sync_tolerance: float = 0.1
+    recent_poses: int = 5
+    warmup_frames: int = 3
+    map_voxel: float | None = None
+    map_average: bool = True
+    scan_voxel: float | None = None
+    local_map_radius: float = 20.0
+    keyframe_distance: float = 0.5
+    keyframe_angle: float = np.deg2rad(15.0)
+    min_range: float = 0.1
+    max_range: float = 30.0
+    odometry_sigma: tuple[float, ...] = (0.02, 0.05, float(np.deg2rad(1.0)), 0.05, float(np.deg2rad(1.0)))
+    learn_odometry: bool = True
+    odometry_window: int = 400
+    odometry_lag: int = 16
+    odometry_scale_bounds: tuple[float, float] = (0.1, 5.0)
+    motion_sigma: tuple[float, ...] = (0.1, 0.5, float(np.deg2rad(5.0)), 0.5, float(np.deg2rad(5.0)))
+    prior_sigma: tuple[float, ...] = (0.01, 0.02, float(np.deg2rad(0.2)), 0.02, float(np.deg2rad(0.5)))
+    verify_sigmas: float = 3.0
+    degenerate_ratio: float = 0.05
+    loop_closure: LoopClosureConfig = field(default_factory=LoopClosureConfig)
+    graph: KeyframeGraphConfig = field(default_factory=KeyframeGraphConfig)
+    smoothing: bool = True
+
+    def __post_init__(self) -> None:
+        if self.dof not in (3, 6):
+            raise ConfigError(f"slam.dof must be 3 (2D scans) or 6 (3D clouds), got {self.dof!r}")
+        if isinstance(self.registration, dict):
+            self.registration = from_dict(RegistrationConfig, self.registration, "slam.registration")
+        if isinstance(self.loop_closure, dict):
+            self.loop_closure = from_dict(LoopClosureConfig, self.loop_closure, "slam.loop_closure")
+        if isinstance(self.graph, dict):
+            self.graph = from_dict(KeyframeGraphConfig, self.graph, "slam.graph")
+        for name in ("odometry_sigma", "motion_sigma", "prior_sigma"):
+            v = getattr(self, name)
+            try:
+                arr = np.asarray(v, dtype=float)
+            except (TypeError, ValueError):
+                arr = np.array([])
+            if arr.shape != (5,) or not np.all(np.isfinite(arr)) or np.any(arr < 0) or arr[0] <= 0 or arr[2] <= 0:
+                # a and c > 0: a robot standing still has a finite information
+                raise ConfigError(f"slam.{name} must be 5 finite numbers >= 0, the first and third > 0 (a [m], "
+                                  f"b, c [rad], d, e [rad/m]), got {v!r}")
+            setattr(self, name, tuple(float(x) for x in arr))
+        for name in ("verify_sigmas", "degenerate_ratio"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise ConfigError(f"slam.{name} must be a finite number > 0, got {v!r}")
+        for name in ("prior_translation_range", "prior_yaw_range", "sync_tolerance", "local_map_radius",
+                     "keyframe_distance", "keyframe_angle", "min_range", "max_range"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0):
+                raise ConfigError(f"slam.{name} must be a finite number >= 0, got {v!r}")
+        if self.max_range <= self.min_range:
+            raise ConfigError(f"slam.max_range ({self.max_range}) must exceed slam.min_range ({self.min_range})")
+        lo_hi = np.asarray(self.odometry_scale_bounds, dtype=float)
+        if lo_hi.shape != (2,) or not np.all(np.isfinite(lo_hi)) or not 0 < lo_hi[0] <= lo_hi[1]:
+            raise ConfigError(f"slam.odometry_scale_bounds must be two numbers 0 < low <= high, got "
+                              f"{self.odometry_scale_bounds!r}")
+        self.odometry_scale_bounds = (float(lo_hi[0]), float(lo_hi[1]))
+        for name in ("recent_poses", "warmup_frames", "odometry_window", "odometry_lag"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, np.integer)) or v < 1:
+                raise ConfigError(f"slam.{name} must be an integer >= 1, got {v!r}")
+        for name in ("map_voxel", "scan_voxel"):
+            v = getattr(self, name)
+            if v is not None and not (np.isfinite(v) and v > 0):
+                raise ConfigError(f"slam.{name} must be None or > 0, got {v!r}")
+
+    @property
+    def dim(self) -> int:
+        """2 (3-DOF) or 3 (6-DOF): the dimension of the points."""
+        return 2 if self.dof == 3 else 3
+
+    def effective_map_voxel(self) -> float:
+        """``map_voxel`` or its default for the dof."""
+        return self.map_voxel or (0.05 if self.dof == 3 else 0.1)
+
+    def effective_scan_voxel(self) -> float:
+        """``scan_voxel`` or its default for the dof."""
+        return self.scan_voxel or (0.03 if self.dof == 3 else 0.15)

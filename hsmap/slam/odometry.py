@@ -1,0 +1,213 @@
+"""The wheel odometry as HS-SLAM uses it (:class:`OdometryModel`): increments, their sigma model, the bias and
+scale learned from the registrations, and the motion accumulated between keyframes (the graph's wheel edges)."""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..datasets.frames import Frame
+from ..geometry import body_covariance_2d, compose, compose_with_covariance_2d, relative, wrap_angle
+from ..registration import RegistrationResult, constrained_axes
+from .config import SlamConfig
+from .verify import slip_weight
+
+__all__ = ["OdometryModel", "constrains_xy"]
+
+
+def constrains_xy(info: NDArray[np.float64] | None, degenerate_ratio: float) -> bool:
+    """Whether a registration's information (dof, dof) constrains its translation along both x and y (6-DOF: z
+    may see walls only)."""
+    return (info is not None and bool(np.all(np.isfinite(info)))
+            and constrained_axes(info[:2, :2], degenerate_ratio).shape[1] == 2)
+
+
+class OdometryModel:
+    """The odometry of one run: what it predicts and how far to trust it.
+
+    Parameters
+    ----------
+    config : SlamConfig
+        ``use_odometry``, ``odometry_sigma`` and the ``odometry_*`` learning settings.
+    learn : bool
+        Learn the bias and the scale of the sigma model from the registrations.
+    wheel_edges : bool
+        Accumulate the motion (and its covariance) since the newest keyframe for the graph's wheel edges.
+
+    Attributes
+    ----------
+    scale : ndarray of shape (2,)
+        The learned scale of the sigma model (translation, rotation).
+    bias : ndarray of shape (3,)
+        The learned systematic error (x, y, yaw) in sigmas of the configured model.
+    """
+
+    def __init__(self, config: SlamConfig, *, learn: bool, wheel_edges: bool) -> None:
+        self.config = config
+        self.dim = config.dim
+        self.learn = learn
+        self.wheel_edges = wheel_edges
+        self.previous: NDArray[np.float64] | None = None  # the last frame's odometry reading
+        self.scale = np.ones(2)
+        self.bias = np.zeros(3)
+        # the one-frame disagreements with the registrations (bias) and the lagged ones (scale), in model sigmas
+        self._disagreement: deque[tuple[float, float, float]] = deque(maxlen=config.odometry_window)
+        self._lagged: deque[tuple[float, float, float]] = deque(maxlen=config.odometry_window)
+        # per frame, for the scale: the registration's pose, whether its translation was constrained, the raw
+        # odometry, and the configured model's variances summed from the first frame (translation, rotation)
+        self._history: deque[tuple] = deque(maxlen=config.odometry_lag + 1)
+        self._variance = np.zeros(2)
+        # the motion since the newest keyframe and its covariance, in that keyframe's frame (None: a frame
+        # without odometry came between)
+        self.wheel_motion: NDArray[np.float64] | None = np.zeros(3)
+        self.wheel_covariance = np.zeros((3, 3))
+        self.wheel_gated = 0  # wheel edges down-weighted (slipped)
+
+    def step(self, frame: Frame) -> NDArray[np.float64] | None:
+        """The odometry increment since the previous frame, as a pose vector of the run's dof, or None."""
+        odom = None if frame.odometry is None else np.asarray(frame.odometry, dtype=float)
+        if not (self.config.use_odometry and odom is not None and self.previous is not None):
+            return None
+        delta = relative(self.previous, odom)  # (x, y, yaw) increment in the robot frame
+        if self.config.dof == 3:
+            return delta
+        return np.array([delta[0], delta[1], 0.0, 0.0, 0.0, delta[2]])
+
+    def advance(self, frame: Frame) -> None:
+        """The frame is done: the next increment starts at its odometry (where it has one)."""
+        if frame.odometry is not None:
+            self.previous = np.asarray(frame.odometry, dtype=float)
+
+    def sigma(self, gate: bool = False) -> tuple[float, ...]:
+        """The sigma model (``SlamConfig.odometry_sigma``) scaled by what was learned (``gate``: never below the
+        configured model)."""
+        a, b, c, d, e = self.config.odometry_sigma
+        st, sr = np.maximum(self.scale, 1.0) if gate else self.scale
+        return a * st, b * st, c * sr, d * sr, e * sr
+
+    def model_sigmas(self, step: NDArray[np.float64], model: tuple[float, ...] | None = None
+                     ) -> tuple[float, float]:
+        """A sigma model's (translation, rotation) sigmas for one step: ``model`` (a, b, c, d, e as
+        ``SlamConfig.odometry_sigma``), by default the configured odometry model."""
+        a, b, c, d, e = self.config.odometry_sigma if model is None else model
+        dist = float(np.linalg.norm(step[: self.dim]))
+        turn = float(np.abs(wrap_angle(step[self.dim:])).max())
+        return a + b * dist, c + d * turn + e * dist
+
+    def corrected(self, step: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The step with the learned bias taken out (in the model's sigmas: it grows with distance and turn)."""
+        if not self.bias.any():
+            return step
+        st, sr = self.model_sigmas(step)
+        fix = np.zeros(self.config.dof)
+        fix[0], fix[1], fix[-1] = self.bias[0] * st, self.bias[1] * st, self.bias[2] * sr
+        return compose(step, fix)
+
+    def learn_bias(self, frame: Frame, res: RegistrationResult, previous_pose: NDArray[np.float64]) -> None:
+        """Record how far the frame's first registration lies from the raw odometry's prediction (from
+        ``previous_pose``); the bias is the median of these disagreements, x and y only where the scene constrains
+        the registration's translation."""
+        cfg = self.config
+        if not self.learn:
+            return
+        step = self.step(frame)
+        if step is None:
+            return
+        st0, sr0 = self.model_sigmas(step)
+        off = relative(compose(previous_pose, step), res.pose)  # the registration in the raw prediction's frame
+        constrained = constrains_xy(res.information, cfg.degenerate_ratio)
+        xy = (float(off[0]) / st0, float(off[1]) / st0) if constrained else (np.nan, np.nan)
+        self._disagreement.append((*xy, float(wrap_angle(off[-1])) / sr0))
+        r = np.asarray(self._disagreement)
+        enough = np.isfinite(r).sum(axis=0) >= max(cfg.odometry_window // 10, 1)
+        if enough.any():
+            self.bias = np.where(enough, np.nanmedian(np.where(enough, r, 0.0), axis=0), 0.0)
+
+    def learn_scale(self, frame: Frame, res: RegistrationResult) -> None:
+        """Learn the model's scale from how the registrations' and the odometry's motions disagree over
+        ``odometry_lag`` frames, between two frames whose registrations the scene constrained in translation: the
+        robust spread (MAD, as a Gaussian's sigma) of the last ``odometry_window`` disagreements, normalised by
+        the configured model summed over the lag."""
+        cfg = self.config
+        if not self.learn or not cfg.use_odometry or frame.odometry is None:
+            self._history.clear()
+            return
+        step = self.step(frame)
+        if step is None:
+            self._history.clear()  # the first frame with odometry: nothing to compare with yet
+        else:
+            self._variance = self._variance + np.square(self.model_sigmas(step))
+        constrained = constrains_xy(res.information, cfg.degenerate_ratio)
+        pose = res.pose if cfg.dof == 3 else res.pose[[0, 1, 5]]
+        odom = np.asarray(frame.odometry, dtype=float)
+        self._history.append((pose.copy(), constrained, odom, self._variance.copy()))
+        if len(self._history) <= cfg.odometry_lag or not constrained:
+            return
+        p0, c0, o0, v0 = self._history[0]
+        if not c0:
+            return
+        dv = self._variance - v0
+        e = relative(relative(o0, odom), relative(p0, pose))  # the registrations' motion in the odometry's frame
+        st, sr = np.sqrt(dv)
+        z = (float(e[0]) / st, float(e[1]) / st, float(wrap_angle(e[2])) / sr)
+        if not np.all(np.isfinite(z)):
+            return
+        self._lagged.append(z)
+        if len(self._lagged) < max(cfg.odometry_window // 10, 1):
+            return
+        r = np.asarray(self._lagged)
+        spread = 1.4826 * np.median(np.abs(r - np.median(r, axis=0)), axis=0)  # MAD as a Gaussian's sigma
+        lo, hi = cfg.odometry_scale_bounds
+        self.scale = np.clip([max(spread[0], spread[1]), spread[2]], lo, hi)
+
+    def accumulate_wheel(self, frame: Frame) -> None:
+        """Add the frame's step (bias out) to the wheel motion since the newest keyframe, its covariance
+        propagated to first order from the learned sigma model."""
+        step = self.step(frame)
+        if self.wheel_motion is None or step is None or not self.wheel_edges:
+            self.wheel_motion = None
+            return
+        step = self.corrected(step)
+        # the sigma model as model_sigmas evaluates it, with hypot for the distance
+        a, b, c, d, e = self.sigma()
+        dist = float(np.hypot(step[0], step[1]))
+        st, sr = a + b * dist, c + d * abs(float(wrap_angle(step[2]))) + e * dist
+        self.wheel_motion, self.wheel_covariance = compose_with_covariance_2d(
+            self.wheel_motion, self.wheel_covariance, step, np.diag([st ** 2, st ** 2, sr ** 2]))
+
+    def restart_wheel(self, frame: Frame) -> None:
+        """A keyframe at ``frame``: the next wheel edge measures from its odometry (none without one)."""
+        self.wheel_motion = np.zeros(3) if frame.odometry is not None else None
+        self.wheel_covariance = np.zeros((3, 3))
+
+    def wheel_edge(self, z_tracking: NDArray[np.float64], info_tracking: NDArray[np.float64]
+                   ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+        """The wheel edge from the previous keyframe to the new one (measurement (3,), information (3, 3)), or None.
+
+        Its information is the inverse of the propagated covariance in the edge's end frame; an edge further from
+        the tracking edge ``z_tracking`` than their joint uncertainty allows (a wheel slipped) is down-weighted.
+        """
+        z, cov = self.wheel_motion, self.wheel_covariance
+        if z is None or not (np.all(np.isfinite(z)) and np.all(np.isfinite(cov))) or cov[2, 2] <= 0.0:
+            return None
+        info = np.linalg.inv(body_covariance_2d(z, cov))
+        d = relative(z_tracking, z)
+        d[2] = wrap_angle(d[2])
+        info_t = np.linalg.inv(body_covariance_2d(z_tracking, cov))
+        w = slip_weight(d, info_tracking, info_t)
+        if w < 1.0:
+            info = info * w
+            self.wheel_gated += 1
+        return z.copy(), 0.5 * (info + info.T)
+
+    def summary(self) -> dict:
+        """The learned scale and bias and how many frames taught them (JSON-ready)."""
+        return {"learned": bool(self.config.learn_odometry and len(self._disagreement) > 0),
+                "frames": len(self._disagreement),  # the bias's one-frame disagreements
+                "lagged_frames": len(self._lagged),  # the scale's
+                "scale_translation": float(self.scale[0]),
+                "scale_rotation": float(self.scale[1]),
+                "bias": [float(v) for v in self.bias],  # x, y, yaw in sigmas of the configured model
+                "sigma": [float(v) for v in self.sigma()]}

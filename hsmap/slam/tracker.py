@@ -1,0 +1,334 @@
+"""HS-SLAM's tracker (:class:`HsSlam`): each frame registered by Harmony-ICP against the local map, seeded by the
+motion predictions, checked and fused by the :class:`~hsmap.slam.verify.Verifier`, its odometry learned by the
+:class:`~hsmap.slam.odometry.OdometryModel`, keyframes kept by the :class:`~hsmap.slam.keyframes.KeyframeGraph`."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..datasets.frames import Frame
+from ..errors import InputError, UnusableFrameError
+from ..geometry import compose, relative, wrap_angle
+from ..harmony import as_rng
+from ..loopclosure import Keyframe
+from ..mapping import VoxelMap
+from ..posegraph import PoseGraph
+from ..registration import RegistrationResult, RegistrationTarget, harmony_icp, spans_its_space
+from ..smoothing import SmoothingResult, smooth_with_odometry
+from ..trajectory import Trajectory
+from .config import SlamConfig
+from .frames import frame_points, unusable_reason
+from .keyframes import KeyframeGraph, pair_match
+from .odometry import OdometryModel, constrains_xy
+from .verify import Prediction, Verifier
+
+__all__ = ["HsSlam", "FrameResult", "mean_pose"]
+
+
+@dataclass
+class FrameResult:
+    """What HS-SLAM did with one frame."""
+
+    index: int
+    stamp: float
+    pose: NDArray[np.float64]
+    fitness: float
+    inlier_ratio: float
+    rmse: float
+    evaluations: int
+    seconds: float
+    keyframe: bool
+    points: int
+    map_points: int
+    retried: bool = False
+    verified: bool = True
+    cost: float = float("nan")
+
+
+def mean_pose(poses: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The mean of poses (K, dof), angles averaged on the circle."""
+    dim = 2 if poses.shape[1] == 3 else 3
+    out = poses.mean(axis=0)
+    ang = poses[:, dim:]
+    out[dim:] = np.arctan2(np.sin(ang).mean(0), np.cos(ang).mean(0))
+    return out
+
+
+class HsSlam:
+    """Incremental HS-SLAM: call :meth:`process` with each frame in order, then :meth:`finish`.
+
+    Parameters
+    ----------
+    config : SlamConfig, optional
+    rng : int or numpy.random.Generator, optional
+        Seed for every random choice (default 0).
+    initial_pose : array_like of shape (dof,), optional
+        Pose of the first frame (default: the origin).
+    prior : Trajectory, optional
+        6-DOF only: (x, y, yaw) poses from a 2D run, looked up by stamp, used as seeds with a narrower range.
+
+    Attributes
+    ----------
+    poses : list of ndarray of shape (dof,)
+        The pose of every frame as tracked; :attr:`trajectory` gives the current estimate of all of them.
+    odometry : OdometryModel
+    verifier : Verifier
+    keyframe_graph : KeyframeGraph
+        The keyframes, their pose graph (:attr:`graph`) and maps (:attr:`map`).
+    """
+
+    def __init__(self, config: SlamConfig | None = None, *, rng: int | np.random.Generator | None = None,
+                 initial_pose: NDArray[np.float64] | None = None, prior: Trajectory | None = None) -> None:
+        self.config = config or SlamConfig()
+        cfg = self.config
+        self.rng = as_rng(rng)
+        loop_rng = self.rng.spawn(1)[0]  # loop closure's own stream: its searches do not shift the tracking's
+        self.dim = cfg.dim
+        self.poses: list[NDArray[np.float64]] = []
+        self.stamps: list[float] = []
+        self.results: list[FrameResult] = []
+        self._initial = None if initial_pose is None else np.asarray(initial_pose, dtype=float)
+        if self._initial is not None and self._initial.shape != (cfg.dof,):
+            raise InputError(f"initial_pose must have {cfg.dof} values, got shape {self._initial.shape}")
+        self._prior = None
+        if prior is not None:
+            if cfg.dof != 6:
+                raise InputError("a prior trajectory seeds 6-DOF runs only (dof=6)")
+            self._prior = prior.as_3dof()
+        self.odometry = OdometryModel(cfg, learn=cfg.learn_odometry and prior is None,
+                                      wheel_edges=cfg.dof == 3 and prior is None and cfg.graph.odometry_edges)
+        self.verifier = Verifier(cfg)
+        self.keyframe_graph = KeyframeGraph(cfg, self.odometry, loop_rng)
+        # per frame, for the smoothing: the odometry's motion from the previous frame (bias out), its sigmas
+        # (x, y, yaw), and the scan matched against the previous frame's scan alone (NaN where none)
+        self._smooth = cfg.smoothing and cfg.dof == 3 and prior is None
+        self._odometry_motion: list[NDArray[np.float64]] = []
+        self._odometry_motion_sigma: list[NDArray[np.float64]] = []
+        self._scan_motion: list[NDArray[np.float64]] = []
+        self._prev_scan: RegistrationTarget | None = None
+        self._smoothing: SmoothingResult | None = None
+        self._smoothing_seconds = 0.0  # the scan matches against the previous scan, and the smoothing itself
+
+    @property
+    def graph(self) -> PoseGraph:
+        """The pose graph: one node per keyframe."""
+        return self.keyframe_graph.graph
+
+    @property
+    def keyframes(self) -> list[Keyframe]:
+        return self.keyframe_graph.keyframes
+
+    @property
+    def map(self) -> VoxelMap:
+        """The tracking map (keyframes near the newest one along the graph)."""
+        return self.keyframe_graph.map
+
+    # --------------------------------------------------------------------------------------------- seeds
+    def _prior_pose(self, stamp: float) -> NDArray[np.float64] | None:
+        if self._prior is None:
+            return None
+        poses, found = self._prior.interpolate([stamp], self.config.sync_tolerance)
+        if not found[0]:
+            return None
+        (x, y, yaw), prev = poses[0], self.poses[-1]
+        return np.array([x, y, prev[2], prev[3], prev[4], yaw])
+
+    def seeds(self, frame: Frame) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Initial guesses (K, dof) for ``frame`` and the half-widths (dof,) of the box around them: the previous
+        pose, the last motion repeated, the odometry's prediction, the recent poses' mean, a prior's pose."""
+        cfg = self.config
+        prev = self.poses[-1]
+        seeds = [prev]
+        if len(self.poses) >= 2:
+            seeds.append(compose(prev, relative(self.poses[-2], prev)))
+        step = self.odometry.step(frame)
+        if step is not None:
+            seeds.append(compose(prev, step))
+        if len(self.poses) >= 2:
+            seeds.append(mean_pose(np.asarray(self.poses[-cfg.recent_poses:])))
+        half = self._ranges(prior=False)
+        prior = self._prior_pose(frame.stamp)
+        if prior is not None:
+            seeds = [prior, *seeds]
+            half = self._ranges(prior=True)
+        s = np.asarray(seeds)
+        # unwrap angles next to the previous pose so that the box is continuous across +/- pi
+        s[:, self.dim:] = prev[self.dim:] + wrap_angle(s[:, self.dim:] - prev[self.dim:])
+        return s, half
+
+    def _ranges(self, prior: bool) -> NDArray[np.float64]:
+        cfg, reg = self.config, self.config.registration
+        t = cfg.prior_translation_range if prior else reg.translation_range
+        y = cfg.prior_yaw_range if prior else reg.yaw_range
+        if cfg.dof == 3:
+            return np.array([t, t, y])
+        return np.array([t, t, reg.z_range, reg.roll_pitch_range, reg.roll_pitch_range, y])
+
+    def prediction(self, frame: Frame, gate: bool = False) -> Prediction:
+        """The predicted pose of ``frame`` and the sigmas (translation, yaw) of its x/y and yaw, or None.
+
+        The previous pose moved by: (6-DOF) the prior trajectory's motion (``prior_sigma``); else the odometry
+        increment (``odometry_sigma``, learned; ``gate``: never tighter than configured); else the last motion
+        repeated (``motion_sigma``). None for the first two frames with none of these.
+        """
+        cfg = self.config
+        prev = self.poses[-1]
+        step, model = None, None
+        prior_now = self._prior_pose(frame.stamp)
+        prior_prev = self._prior_pose(self.stamps[-1]) if prior_now is not None else None
+        if prior_now is not None and prior_prev is not None:
+            step, model = relative(prior_prev, prior_now), cfg.prior_sigma
+            step[2:5] = 0.0  # the prior knows x, y and yaw only
+        elif (odo := self.odometry.step(frame)) is not None:
+            step, model = self.odometry.corrected(odo), self.odometry.sigma(gate)
+        elif len(self.poses) >= 2:
+            step, model = relative(self.poses[-2], prev), cfg.motion_sigma
+        if step is None:
+            return None
+        pred = compose(prev, step)
+        sig = np.array(self.odometry.model_sigmas(step, model))
+        pred = pred.copy()
+        pred[self.dim:] = prev[self.dim:] + wrap_angle(pred[self.dim:] - prev[self.dim:])
+        return pred, sig
+
+    # ---------------------------------------------------------------------------------------------- loop
+    def _verify(self, frame: Frame, scan: NDArray[np.float64], res: RegistrationResult
+                ) -> tuple[RegistrationResult, bool, bool]:
+        """:meth:`Verifier.verify` of a registration of ``frame`` against the current target."""
+        return self.verifier.verify(scan, self.keyframe_graph.target, res,
+                                    lambda gate: self.prediction(frame, gate), self._ranges(prior=False), self.rng)
+
+    def process(self, frame: Frame) -> FrameResult:
+        """Register one frame and update the map (and the pose graph); returns what was done."""
+        t0 = time.perf_counter()
+        cfg = self.config
+        kg = self.keyframe_graph
+        scan = frame_points(frame, cfg.dof, cfg.min_range, cfg.max_range, voxel=cfg.effective_scan_voxel())
+        if len(scan) < 3 * cfg.dim or not spans_its_space(scan):
+            raise UnusableFrameError(unusable_reason(frame, cfg.dof, cfg.min_range, cfg.max_range, scan),
+                                     frame.index, frame.stamp)
+        first = not self.poses
+        fitness = inlier = rmse = 0.0
+        evaluations = 0
+        retried, verified, cost = False, True, 0.0
+        registration_information = None
+        if first:
+            pose = self._initial if self._initial is not None else np.zeros(cfg.dof)
+            fitness, inlier, rmse = 0.0, 1.0, 0.0
+        else:
+            target = kg.ensure_target(self.poses[-1])
+            guesses, half = self.seeds(frame)
+            bounds = np.column_stack([guesses.min(0) - half, guesses.max(0) + half])
+            res = harmony_icp(scan, target, bounds=bounds, initial_guesses=guesses,
+                              config=cfg.registration, rng=self.rng)
+            self.odometry.learn_bias(frame, res, self.poses[-1])
+            res, retried, verified = self._verify(frame, scan, res)
+            self.odometry.learn_scale(frame, res)
+            self.odometry.accumulate_wheel(frame)  # with the bias and scale the prediction below uses
+            pose, information, registration_information = self.verifier.fuse(res, self.prediction(frame))
+            fitness, inlier, rmse, evaluations, cost = (res.fitness, res.inlier_ratio, res.rmse, res.evaluations,
+                                                        res.cost)
+        keyframe = first or (verified and (len(self.poses) < cfg.warmup_frames or kg.is_keyframe(pose)))
+        if self._smooth:
+            self._record_motions(frame, scan, pose)
+        self.poses.append(pose)
+        self.stamps.append(float(frame.stamp))
+        kg.attach(pose, keyframe)
+        if keyframe and kg.add_keyframe(frame, len(self.results), scan, pose, None if first else information,
+                                        registration_information):
+            self._reanchor_recent()
+        self.odometry.advance(frame)
+        if keyframe:
+            # the next frame's target, built in the keyframe's step: the next frame only tracks
+            kg.ensure_target(self.poses[-1])
+        result = FrameResult(frame.index, float(frame.stamp), pose, float(fitness), float(inlier), float(rmse),
+                             int(evaluations), time.perf_counter() - t0, bool(keyframe), len(scan), len(kg.map),
+                             retried, verified, float(cost))
+        self.results.append(result)
+        return result
+
+    def _record_motions(self, frame: Frame, scan: NDArray[np.float64], pose: NDArray[np.float64]) -> None:
+        """The frame's motion from the previous frame as the odometry has it (with its sigmas) and as its scan
+        matched against the previous frame's scan has it, for the smoothing (NaN where there is none, or where the
+        match overlaps too little or its scene does not constrain x and y)."""
+        t0 = time.perf_counter()
+        none = np.full(3, np.nan)
+        step = self.odometry.step(frame) if self._prev_scan is not None else None
+        if step is None:
+            self._odometry_motion.append(none)
+            self._odometry_motion_sigma.append(none)
+            self._scan_motion.append(none)
+        else:
+            st, sr = self.odometry.model_sigmas(step, self.odometry.sigma())
+            self._odometry_motion.append(self.odometry.corrected(step))
+            self._odometry_motion_sigma.append(np.array([st, st, sr]))
+            gc, lc = self.config.graph, self.config.loop_closure
+            match = pair_match(scan, self._prev_scan, relative(self.poses[-1], pose), self.config.registration,
+                               gc.pair_iterations, lc.min_inlier_ratio)
+            ok = match is not None and constrains_xy(match[1], self.config.degenerate_ratio)
+            self._scan_motion.append(match[0] if ok else none)
+        # the next frame's reference (its normals are estimated when it is first matched)
+        self._prev_scan = RegistrationTarget(scan, self.config.registration) if frame.odometry is not None else None
+        self._smoothing_seconds += time.perf_counter() - t0
+
+    def _reanchor_recent(self) -> None:
+        """Move the recent tracked poses (the seeds' history) with their keyframes."""
+        for i in range(max(0, len(self.poses) - self.config.recent_poses - 1), len(self.poses)):
+            self.poses[i] = self.keyframe_graph.pose_of(i)
+
+    def finish(self) -> None:
+        """Optimise the graph once more if edges are pending, then smooth the trajectory with the odometry
+        (``SlamConfig.smoothing``). Call after the last frame."""
+        if self.keyframe_graph.finish():
+            self._reanchor_recent()
+        if self._smooth and self.poses:
+            t0 = time.perf_counter()
+            self._smoothing = smooth_with_odometry(self.graph_trajectory.poses, np.asarray(self._odometry_motion),
+                                                   np.asarray(self._odometry_motion_sigma),
+                                                   np.asarray(self._scan_motion))
+            self._smoothing_seconds += time.perf_counter() - t0
+
+    # ------------------------------------------------------------------------------------------ results
+    def odometry_summary(self) -> dict:
+        """The learned odometry model (JSON-ready)."""
+        return self.odometry.summary()
+
+    def loop_summary(self) -> dict:
+        """Loop-closure counts (JSON-ready)."""
+        return self.keyframe_graph.summary()
+
+    def smoothing_summary(self) -> dict:
+        """What the smoothing measured and did (JSON-ready), or why it did nothing."""
+        if self._smoothing is not None:
+            return self._smoothing.as_dict() | {"seconds": self._smoothing_seconds}
+        cfg = self.config
+        why = ("off (slam.smoothing: false)" if not cfg.smoothing else "not applicable: 6-DOF" if cfg.dof != 3
+               else "not applicable: seeded by a prior trajectory" if self._prior is not None
+               else "not run (finish() was not called)")
+        return {"status": why}
+
+    def global_map(self) -> VoxelMap:
+        """The point map of every keyframe at its current (optimised) pose."""
+        return self.keyframe_graph.global_map()
+
+    @property
+    def trajectory(self) -> Trajectory:
+        """Every frame's pose: after :meth:`finish`, the smoothed one (``SlamConfig.smoothing``); before it, or
+        where the smoothing did nothing, :attr:`graph_trajectory`."""
+        if self._smoothing is not None and self._smoothing.status == "ok":
+            return Trajectory(np.asarray(self.stamps), self._smoothing.poses.copy())
+        return self.graph_trajectory
+
+    @property
+    def graph_trajectory(self) -> Trajectory:
+        """Every frame's pose at the current estimate of its keyframe (loop closures included)."""
+        return self.keyframe_graph.graph_trajectory(np.asarray(self.stamps))
+
+    @property
+    def tracked_trajectory(self) -> Trajectory:
+        """Every frame's pose from the tracking alone: the keyframes chained by their tracking edges."""
+        return self.keyframe_graph.tracked_trajectory(np.asarray(self.stamps))

@@ -87,8 +87,8 @@ def test_map_of_a_robot_recording(recording):
     e3, y3 = _errors(t3.as_3dof(), bag.clouds)
     print(f"2D HS-SLAM: {100 * e2:.2f} cm, {y2:.3f} deg; 6-DOF: {100 * e3:.2f} cm, {y3:.3f} deg")
     assert e3 < 0.02 and y3 < 0.5
-    # issue 13 asks 2 cm and 0.5 deg of both paths. Over `hsmap map --seed 0..4` on this bag (session 34, wheel
-    # edges on): the 6-DOF run's height 0.57-1.87 cm (roll and pitch at most 0.2 deg); the 2D path's largest
+    # issue 13 asks 2 cm and 0.5 deg of both paths. Over `hsmap map --seed 0..4` on this bag (wheel edges
+    # on): the 6-DOF run's height 0.57-1.87 cm (roll and pitch at most 0.2 deg); the 2D path's largest
     # error 1.09-1.82 cm, 0.39-0.51 deg (with the wheel edges off 1.54-3.14 cm; at 0f7caad 1.16-1.51 cm, at most
     # 0.32 deg), with the pair edges that are on by default (without them 6.40 and 5.39 cm on seeds 0 and 1: a
     # heading error from the registrations' noise, 1 cm range noise, that the overlapping pairs average out).
@@ -166,8 +166,8 @@ def test_map_failing_midway_keeps_the_stages_done_and_the_previous_outputs(recor
     import os
     import shutil
 
+    import hsmap.pipeline.chain
     import hsmap.segmentation
-    import hsmap.study.chain
 
     bag, done, _ = recording
     out = tmp_path / "out"
@@ -190,7 +190,7 @@ def test_map_failing_midway_keeps_the_stages_done_and_the_previous_outputs(recor
                                                                                    figdir.parent.iterdir()}
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(figdir / "trajectories.png"))
 
-        monkeypatch.setattr(hsmap.study.chain, "_figures", figures)
+        monkeypatch.setattr(hsmap.pipeline.chain, "_figures", figures)
     args = ("map", str(bag.path), "--out", str(out), "--sync-tolerance", "0.2", "--quiet", "--no-recording")
     code, err = run_cli(*args)
     assert code == 2 and err.startswith("hsmap: error: ") and "No space left on device" in err, err
@@ -366,3 +366,37 @@ def test_slam_6dof_on_a_recording_with_a_faster_2d_lidar(tmp_path):
     code, err = run_cli("slam", str(bag.path), "--out", str(tmp_path / "y"), "--dof", "6", "--cloud-topic", "",
                         "--quiet")
     assert code == 2 and "frames made by the clouds need a 3D cloud" in err and "--cloud-topic" in err
+
+
+def test_map_config_file_sets_every_stage_and_flags_override_it(tiny_bag, tmp_path, monkeypatch):
+    import hsmap.pipeline
+
+    seen = {}
+    monkeypatch.setattr(hsmap.pipeline, "map_recording", lambda dataset, out, **kw: seen.update(kw) or {})
+    cfg = tmp_path / "chain.yaml"
+    cfg.write_text(yaml.safe_dump({"slam2d": {"keyframe_distance": 0.4}, "slam3d": {"use_odometry": False},
+                                   "grids": {"resolution": 0.1, "slice": [1.5, 1.6]},
+                                   "segmentation": {"method": "paper"}}))
+    code, err = run_cli("map", str(tiny_bag.path), "--out", str(tmp_path / "o"), "--quiet", "--config", str(cfg))
+    assert code == 0, err
+    assert seen["slam2d"].dof == 3 and seen["slam2d"].keyframe_distance == 0.4
+    assert seen["slam3d"].dof == 6 and not seen["slam3d"].use_odometry and seen["slam2d"].use_odometry
+    assert seen["z_range"] == (1.5, 1.6) and seen["resolution"] == 0.1 and seen["segmentation"].method == "paper"
+    code, err = run_cli("map", str(tiny_bag.path), "--out", str(tmp_path / "o"), "--quiet", "--config", str(cfg),
+                        "--resolution", "0.2", "--method", "critical", "--no-odometry")
+    assert code == 0, err
+    assert seen["resolution"] == 0.2 and seen["segmentation"].method == "critical"
+    assert not seen["slam2d"].use_odometry and seen["slam2d"].keyframe_distance == 0.4
+
+
+@pytest.mark.parametrize("text, message", [
+    ("grids: {resolution: 0}", "grids.resolution must be > 0"),
+    ("slam: {}", "unknown key(s) ['slam']"),
+    ("slam3d: {dof: 3}", "slam3d.dof must be 6"),
+    ("[1, 2]", "expected a mapping with the sections slam2d, slam3d, grids, segmentation"),
+])
+def test_map_bad_config_file_is_one_line(tiny_bag, tmp_path, text, message):
+    cfg = tmp_path / "chain.yaml"
+    cfg.write_text(text)
+    code, err = run_cli("map", str(tiny_bag.path), "--out", str(tmp_path / "o"), "--quiet", "--config", str(cfg))
+    assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err

@@ -83,3 +83,20 @@ def open_input(args: argparse.Namespace, drive: str | None = None, progress: boo
                         odom_topic=args.odom_topic, base_frame=args.base_frame, extrinsic2d=ext2, extrinsic3d=ext3,
                         sync_tolerance=sync_tolerance(args), drive=drive, cloud_rate=args.cloud_rate,
                         scans=args.scans, scan_rate=args.scan_rate, option_names=FLAGS, progress=progress)
+
+
+def slam_overrides(cfg, args: argparse.Namespace):
+    """``cfg`` (a :class:`~hsmap.slam.SlamConfig`) with the command line's SLAM flags applied: ``--dof`` (where the
+    command has it), ``--no-odometry``, ``--no-loop-closure``, ``--sync-tolerance``."""
+    import dataclasses
+
+    if getattr(args, "dof", None) is not None:
+        cfg = dataclasses.replace(cfg, dof=args.dof)  # validated like any SlamConfig
+    if args.no_odometry:
+        cfg = dataclasses.replace(cfg, use_odometry=False)
+    if args.no_loop_closure:
+        cfg = dataclasses.replace(cfg, loop_closure=dataclasses.replace(cfg.loop_closure, enabled=False))
+    tol = sync_tolerance(args)
+    if tol is not None:
+        cfg = dataclasses.replace(cfg, sync_tolerance=tol)
+    return cfg

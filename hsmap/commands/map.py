@@ -17,6 +17,7 @@ failed or interrupted run leaves the previous run's outputs as they were, and th
 from __future__ import annotations
 
 import argparse
+import math
 
 NAME = "map"
 HELP = "the paper's whole chain on one recording: both SLAM maps, Nav2 grids, overlay, rooms, doors, graph"
@@ -28,9 +29,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("input", help=INPUT_HELP + "; it needs 2D scans and 3D clouds")
     parser.add_argument("--out", required=True, help="output folder")
     parser.add_argument("--seed", type=int, default=0, help="seed of every random choice (default 0)")
-    parser.add_argument("--slice", metavar="ZMIN,ZMAX", default="1.7,1.8",
-                        help="heights (m above the base frame) of the 3D map's slice (default 1.7,1.8, the paper's)")
-    parser.add_argument("--resolution", type=float, default=0.05, help="metres per grid cell (default 0.05)")
+    parser.add_argument("--config", help="YAML file with the sections slam2d, slam3d, grids, segmentation "
+                                         "(hsmap config show lists every key)")
+    parser.add_argument("--slice", metavar="ZMIN,ZMAX",
+                        help="heights (m above the base frame) of the 3D map's slice (default: grids.slice, "
+                             "1.7,1.8, the paper's)")
+    parser.add_argument("--resolution", type=float,
+                        help="metres per grid cell (default: grids.resolution, 0.05)")
     parser.add_argument("--method", choices=("critical", "paper"), default=None,
                         help="door detection: critical points + narrowing test (default) or the paper's band")
     parser.add_argument("--no-odometry", action="store_true", help="ignore the input's odometry")
@@ -42,39 +47,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     import dataclasses
-    import math
 
-    from ..errors import InputError
+    from ..datasets.carmen import CarmenDataset
+    from ..errors import DatasetError, InputError
     from ..io import prepare_output_dir
-    from ..segmentation import SegmentationConfig
-    from ..slam import SlamConfig
-    from ..study.chain import map_recording
-    from .inputs import open_input, parse_vector, sync_tolerance
+    from ..pipeline import load_chain_config, map_recording
+    from .inputs import open_input, parse_vector, slam_overrides
 
     if args.seed < 0:
         raise InputError(f"--seed must be >= 0, got {args.seed}")
-    z = parse_vector(args.slice, 2, "--slice")
-    if not z[0] < z[1]:
-        raise InputError(f"--slice must be ZMIN,ZMAX with ZMIN < ZMAX (metres), got {args.slice!r}")
-    if not (math.isfinite(args.resolution) and args.resolution > 0):
-        raise InputError(f"--resolution must be > 0 metres per cell, got {args.resolution}")
+    cfg = load_chain_config(args.config)
+    grids = cfg.grids
+    if args.slice is not None:
+        z = parse_vector(args.slice, 2, "--slice")
+        if not z[0] < z[1]:
+            raise InputError(f"--slice must be ZMIN,ZMAX with ZMIN < ZMAX (metres), got {args.slice!r}")
+        grids = dataclasses.replace(grids, slice=(float(z[0]), float(z[1])))
+    if args.resolution is not None:
+        if not (math.isfinite(args.resolution) and args.resolution > 0):
+            raise InputError(f"--resolution must be > 0 metres per cell, got {args.resolution}")
+        grids = dataclasses.replace(grids, resolution=float(args.resolution))
+    seg = cfg.segmentation if args.method is None else dataclasses.replace(cfg.segmentation, method=args.method)
     # before the long work: a file, a folder that cannot be created or written is reported now
     out = prepare_output_dir(args.out, "--out", create=False)
-    slam2d, slam3d = SlamConfig(dof=3), SlamConfig(dof=6)
-    if args.no_odometry:
-        slam2d, slam3d = (dataclasses.replace(c, use_odometry=False) for c in (slam2d, slam3d))
-    if args.no_loop_closure:
-        slam2d, slam3d = (dataclasses.replace(c, loop_closure=dataclasses.replace(c.loop_closure, enabled=False))
-                          for c in (slam2d, slam3d))
-    tol = sync_tolerance(args)
-    if tol is not None:
-        slam2d, slam3d = (dataclasses.replace(c, sync_tolerance=tol) for c in (slam2d, slam3d))
-    seg = SegmentationConfig() if args.method is None else SegmentationConfig(method=args.method)
+    slam2d, slam3d = slam_overrides(cfg.slam2d, args), slam_overrides(cfg.slam3d, args)
     progress = False if args.quiet else None
     dataset = open_input(args, progress=progress)
-    from ..datasets.carmen import CarmenDataset
-    from ..errors import DatasetError
-
     if isinstance(dataset, CarmenDataset):
         raise DatasetError(f"{args.input}: a CARMEN log has 2D scans only; hsmap map needs 2D scans and 3D clouds")
     for sensor in ("scan", "cloud"):
@@ -83,7 +81,8 @@ def run(args: argparse.Namespace) -> int:
         except DatasetError as exc:
             raise DatasetError(f"hsmap map needs 2D scans and 3D clouds: {exc}") from None
     m = map_recording(dataset, out, seed=args.seed, slam2d=slam2d, slam3d=slam3d, segmentation=seg,
-                      z_range=(float(z[0]), float(z[1])), resolution=float(args.resolution),
+                      z_range=grids.slice, resolution=grids.resolution, slice_bins=grids.slice_bins,
+                      door_depth=grids.door_depth, door_margin=grids.door_margin,
                       recording=not args.no_recording, progress=progress)
     if not args.quiet:
         import sys

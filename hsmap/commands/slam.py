@@ -62,27 +62,17 @@ REPLAY_GRID_CELLS = 4_000_000
 
 
 def run(args: argparse.Namespace) -> int:
-    import dataclasses
 
     from ..config import load_config
     from ..errors import InputError
     from ..io import prepare_output_dir, staged_outputs, sweep_stale_temporaries
     from ..slam import SlamConfig, run_slam, write_slam_outputs
     from ..trajectory import read_tum
+    from .inputs import open_input, slam_overrides
 
     if args.seed < 0:
         raise InputError(f"--seed must be >= 0, got {args.seed}")
-    cfg = load_config(SlamConfig, args.config) if args.config else SlamConfig()
-    if args.dof is not None:
-        cfg = dataclasses.replace(cfg, dof=args.dof)  # validated like any SlamConfig
-    if args.no_odometry:
-        cfg = dataclasses.replace(cfg, use_odometry=False)
-    if args.no_loop_closure:
-        cfg = dataclasses.replace(cfg, loop_closure=dataclasses.replace(cfg.loop_closure, enabled=False))
-    from .inputs import open_input, sync_tolerance
-
-    if sync_tolerance(args) is not None:
-        cfg = dataclasses.replace(cfg, sync_tolerance=args.sync_tolerance)
+    cfg = slam_overrides(load_config(SlamConfig, args.config) if args.config else SlamConfig(), args)
     if args.threads is not None and args.threads < 1:
         raise InputError(f"--threads must be >= 1, got {args.threads}")
     if args.max_frames is not None and args.max_frames < 1:

@@ -2,10 +2,8 @@
 together, kept apart from the core library (which knows nothing of the repository, its ``data/`` or its
 caches).
 
-- :mod:`~hsmap.study.cache`: the one cache (a folder per result, a lock, a key over the whole core package,
-  validated on load, published atomically);
 - :mod:`~hsmap.study.datasets`, :mod:`~hsmap.study.runs`, :mod:`~hsmap.study.maps`: simulated datasets, cached
-  HS-SLAM runs, the maps made from them;
+  HS-SLAM runs, the maps made from them, kept by the one cache (:mod:`hsmap.pipeline.cache`) under ``data/``;
 - :mod:`~hsmap.study.recording`: a cached run replayed into a rerun recording;
 - :mod:`~hsmap.study.benchmarks`: the Freiburg and IPA benchmarks beside the published numbers
   (``hsmap/study/published.yaml``);

@@ -5,7 +5,7 @@ For each building of a folder of floor plans in the Bormann et al. format (``NAM
 
 1. ``simulate``: the world and the exploring run (:func:`hsmap.sim.building.simulate_building`) into
    ``OUT/NAME/data``;
-2. ``chain``: the paper's chain on it (:func:`hsmap.study.chain.map_recording`: 2D HS-SLAM, 6-DOF HS-SLAM seeded
+2. ``chain``: the paper's chain on it (:func:`hsmap.pipeline.chain.map_recording`: 2D HS-SLAM, 6-DOF HS-SLAM seeded
    by it, both with loop closure, the floor-level grid and the 1.7-1.8 m slice grid from the estimated poses,
    one segmentation on both) into ``OUT/NAME/chain``;
 3. ``score``: both segmentations sampled onto the ground truth's pixels and scored with Bormann's per-room mean
@@ -69,7 +69,7 @@ def simulate_stage(*, name: str, maps: str, out: str, seed: int = 0, quick: bool
 def chain_stage(state: dict) -> dict:
     """Stage 2: the paper's chain on the simulated run."""
     from ..datasets.simulated import SimulatedDataset
-    from .chain import map_recording
+    from ..pipeline.chain import map_recording
 
     t = time.perf_counter()
     folder = Path(state["folder"])

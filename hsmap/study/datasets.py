@@ -14,8 +14,8 @@ from pathlib import Path
 
 from ..datasets.simulated import SimulatedDataset
 from ..errors import DatasetError, InputError
+from ..pipeline.cache import FolderCache, description_digest, slug
 from ..sim.scenario import Scenario
-from .cache import FolderCache, description_digest, slug
 from .paths import generated_dir
 
 __all__ = ["simulated_dataset"]

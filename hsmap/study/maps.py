@@ -49,9 +49,9 @@ from ..errors import InputError
 from ..geometry import pose_to_matrix, transform_points
 from ..grid import GridGeometry, OccupancyGrid, ScanGridConfig, grid_from_scans
 from ..mapping import VoxelMap, first_per_voxel
+from ..pipeline.cache import FolderCache, description_digest, slug
 from ..slam import frame_points
 from ..trajectory import Trajectory
-from .cache import FolderCache, description_digest, slug
 from .paths import generated_dir
 from .runs import SimulatedRuns, simulated_slam_runs
 

@@ -187,19 +187,13 @@ def _slam_legend(dof: int, paths: list[str], grid: bool) -> str:
 # --- layouts and recordings of the study's figures ---------------------------------------------------------
 
 
-def _bounds_of_grid(geometry: Any, z: tuple[float, float] = (0.0, 2.8)) -> tuple[np.ndarray, np.ndarray]:
-    h, w = geometry.shape
-    x0, y0 = float(geometry.origin[0]), float(geometry.origin[1])
-    return (np.array([x0, y0, z[0]]), np.array([x0 + w * geometry.resolution, y0 + h * geometry.resolution, z[1]]))
-
-
 def slam_blueprint(run: SlamRun, *, grid: Any = None, names: dict[str, str] | None = None) -> Any:
     """The layout of a SLAM run's recording (:func:`record_slam_run`): the 3D world framed on the run's map
     (the grid's extent, else the path's with 5 m around it), the 2D map when there is a grid, and the legend."""
     from ..viz import rerun as hv
 
     if grid is not None:
-        lo, hi = _bounds_of_grid(grid.geometry)
+        lo, hi = hv.grid_bounds(grid.geometry)
     else:
         p = np.asarray(run.trajectory.poses, dtype=float)
         lo = np.array([p[:, 0].min() - 5.0, p[:, 1].min() - 5.0, 0.0])
@@ -260,7 +254,7 @@ def overlap_blueprint(geometry: Any) -> Any:
     from ..viz import rerun as hv
 
     return hv.default_blueprint(
-        graph=False, legend=True, eye=hv.eye_for_bounds(*_bounds_of_grid(geometry)),
+        graph=False, legend=True, eye=hv.eye_for_bounds(*hv.grid_bounds(geometry)),
         hidden=("world/map/slice", "world/map/ceiling"),
         names={"3D world": "Figure 13: 3D map, slice and floor-level map", "2D map": "Figure 13: overlay"})
 
@@ -322,7 +316,7 @@ def topology_blueprint(geometry: Any) -> Any:
     """The layout of :func:`record_topology`'s recording, framed on ``geometry``."""
     from ..viz import rerun as hv
 
-    lo, hi = _bounds_of_grid(geometry, (0.0, 3.0))
+    lo, hi = hv.grid_bounds(geometry, (0.0, 3.0))
     return hv.default_blueprint(
         legend=True, eye=hv.eye_for_bounds(lo, hi), hidden=("world/map/ceiling",),
         names={"3D world": "Figures 15/16: rooms, doors and graph in 3D", "2D map": "Figure 12: rooms and doors",

@@ -62,6 +62,7 @@ __all__ = [
     "open_recording",
     "default_blueprint",
     "eye_for_bounds",
+    "grid_bounds",
     "log_legend",
     "series_legend",
     "log_rgba_grid",
@@ -291,6 +292,13 @@ def open_recording(path: str | os.PathLike, **kwargs: Any) -> Recording:
     """A :class:`Recording` on ``path`` with :func:`default_blueprint` unless ``blueprint=`` is given."""
     kwargs.setdefault("blueprint", default_blueprint())
     return Recording(path, **kwargs)
+
+
+def grid_bounds(geometry: Any, z: tuple[float, float] = (0.0, 2.8)) -> tuple[np.ndarray, np.ndarray]:
+    """The box (lo, hi corners, world x, y, z) over a grid's extent between the heights ``z``."""
+    h, w = geometry.shape
+    x0, y0 = float(geometry.origin[0]), float(geometry.origin[1])
+    return (np.array([x0, y0, z[0]]), np.array([x0 + w * geometry.resolution, y0 + h * geometry.resolution, z[1]]))
 
 
 def eye_for_bounds(lo: ArrayLike, hi: ArrayLike, *, elevation_deg: float = 55.0) -> rrb.EyeControls3D:

@@ -1,4 +1,4 @@
-"""hsmap.study.cache: the one cached-folder helper (hit, miss, stale key, damaged folder, lock, atomic
+"""hsmap.pipeline.cache: the one cached-folder helper (hit, miss, stale key, damaged folder, lock, atomic
 publication) and the code digest that keys it (the whole core package; loud when a file it expects is missing).
 
 The end-to-end check: in a temporary copy of the package, one simulator source file changes, and the simulated
@@ -21,7 +21,7 @@ from _worlds import TINY_SCENARIO
 
 import hsmap
 from hsmap.errors import CacheError, DatasetError
-from hsmap.study.cache import EXCLUDED, MARKER, FolderCache, code_digest
+from hsmap.pipeline.cache import EXCLUDED, MARKER, FolderCache, code_digest
 
 PACKAGE = Path(hsmap.__file__).resolve().parent
 
@@ -204,7 +204,7 @@ def test_two_threads_compute_once(tmp_path):
 def test_lock_held_by_another_process(tmp_path):
     code = textwrap.dedent(f"""
         import time
-        from hsmap.study.cache import FolderCache
+        from hsmap.pipeline.cache import FolderCache
         with FolderCache({str(tmp_path)!r}).lock("slot"):
             print("held", flush=True)
             time.sleep(1.5)

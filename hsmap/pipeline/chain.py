@@ -14,7 +14,7 @@ a simulator folder) goes through the paper's pipeline, stage by stage:
 5. ``rooms``: doors, rooms and the room/door graph of the slice and, for the paper's Figure 18 comparison, of
    the floor grid (:func:`hsmap.segmentation.segment_rooms`, :func:`hsmap.topology.room_graph`).
 
-Each stage is a folder of :class:`hsmap.study.cache.FolderCache` under ``DIR/.stages/``, keyed on its inputs
+Each stage is a folder of :class:`hsmap.pipeline.cache.FolderCache` under ``DIR/.stages/``, keyed on its inputs
 (the recording's contents, the reader's options, the configuration, the seed, the stages before it) and on the
 code: a second run with the same inputs reads every stage back ("unchanged") and only rewrites the outputs.
 Every stage shows a progress bar.
@@ -286,7 +286,7 @@ def map_recording(
     root = out / ".stages"
     cache = FolderCache(root)
 
-    # 1-2: the two HS-SLAM runs (the run cache of the study, in this folder)
+    # 1-2: the two HS-SLAM runs (in this folder)
     t = time.perf_counter()
     init2 = _start_pose(ds2)
     run2 = cached_slam(ds2, slam2d, seed, initial_pose=init2, cache_dir=root / "slam", progress=progress)
@@ -588,11 +588,10 @@ MAP_LEGEND = """### hsmap map: the paper's chain on one recording
 def _record(path: Path, run2, run3, grids, fusion, seg, graph, doors, pts2, pts3, h2) -> None:
     from ..viz import map_figures
     from ..viz import rerun as hv
-    from .recording import _bounds_of_grid
 
     g = grids["slice"]
     blueprint = hv.default_blueprint(
-        legend=True, eye=hv.eye_for_bounds(*_bounds_of_grid(g.geometry, (0.0, 3.0))),
+        legend=True, eye=hv.eye_for_bounds(*hv.grid_bounds(g.geometry, (0.0, 3.0))),
         hidden=("world/map/ceiling", "world/map/floor"),
         names={"3D world": "3D map, rooms, doors and graph (Figures 15/16)", "2D map": "slice: rooms and doors",
                "Room graph": "room/door graph (Figure 16)"})

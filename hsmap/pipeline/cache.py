@@ -58,7 +58,7 @@ __all__ = ["EXCLUDED", "MARKER", "Cached", "FolderCache", "code_digest", "descri
 
 #: Parts of the package (relative to ``hsmap/``) left out of :func:`code_digest`: they draw, orchestrate and
 #: parse command lines, and compute nothing a cached result is made of.
-EXCLUDED: tuple[str, ...] = ("viz", "study", "cli.py", "__main__.py", "commands")
+EXCLUDED: tuple[str, ...] = ("viz", "study", "pipeline", "cli.py", "__main__.py", "commands")
 
 #: The file that marks a published cache folder and holds its key; written last.
 MARKER = "cache.json"

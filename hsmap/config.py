@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import inspect
 import os
 import types
 import typing
@@ -17,7 +18,8 @@ from .io import to_plain, write_text
 
 T = TypeVar("T")
 
-__all__ = ["from_dict", "to_dict", "read_yaml", "load_config", "dump_config", "yaml_error_text"]
+__all__ = ["from_dict", "to_dict", "read_yaml", "load_config", "dump_config", "yaml_error_text", "field_docs",
+           "config_reference"]
 
 
 def to_dict(cfg: Any) -> dict[str, Any]:
@@ -118,3 +120,59 @@ def load_config(cls: type[T], path: str | os.PathLike) -> T:
 def dump_config(cfg: Any, path: str | os.PathLike) -> None:
     """Write a configuration dataclass as YAML, atomically."""
     write_text(path, yaml.safe_dump(to_dict(cfg), sort_keys=False))
+
+
+def field_docs(cls: type) -> dict[str, str]:
+    """Each field's meaning from the numpydoc ``Attributes`` section of dataclass ``cls``'s docstring, joined into
+    one line (``a, b : float`` documents both)."""
+    doc = inspect.cleandoc(cls.__doc__ or "")
+    lines = doc.splitlines()
+    try:
+        start = next(i for i, line in enumerate(lines[:-1])
+                     if line.strip() == "Attributes" and set(lines[i + 1].strip()) == {"-"}) + 2
+    except StopIteration:
+        return {}
+    out: dict[str, str] = {}
+    names: list[str] = []
+    text: list[str] = []
+
+    def flush() -> None:
+        for name in names:
+            out[name] = " ".join(text)
+
+    for i in range(start, len(lines)):
+        line = lines[i]
+        if i + 1 < len(lines) and lines[i + 1].strip() and set(lines[i + 1].strip()) == {"-"}:
+            break  # the next section's title
+        if line and not line[0].isspace():
+            flush()
+            names = [n.strip() for n in line.split(" : ")[0].split(",")]
+            text = []
+        elif line.strip():
+            text.append(line.strip())
+    flush()
+    return out
+
+
+def _default_text(value: Any) -> str:
+    value = to_plain(value)
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    if isinstance(value, list):
+        return "[" + ", ".join(_default_text(v) for v in value) + "]"
+    return "null" if value is None else str(value).lower() if isinstance(value, bool) else str(value)
+
+
+def config_reference(cfg: Any, prefix: str = "") -> list[tuple[str, str, str]]:
+    """Every key of a configuration dataclass instance (nested ones flattened with dots), its value (the
+    defaults, for ``cls()``) as YAML writes it and its meaning (:func:`field_docs`; empty where undocumented)."""
+    docs = field_docs(type(cfg))
+    rows: list[tuple[str, str, str]] = []
+    for f in dataclasses.fields(cfg):
+        value = getattr(cfg, f.name)
+        key = f"{prefix}{f.name}"
+        if dataclasses.is_dataclass(value):
+            rows.extend(config_reference(value, key + "."))
+        else:
+            rows.append((key, _default_text(value), docs.get(f.name, "")))
+    return rows

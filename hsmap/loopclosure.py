@@ -56,7 +56,7 @@ def _loop_registration() -> RegistrationConfig:
 
 @dataclass
 class LoopClosureConfig:
-    """Loop-closure parameters (lengths in metres, angles in radians).
+    """Loop-closure candidates, matching and verification (lengths in metres, angles in radians).
 
     Attributes
     ----------
@@ -67,81 +67,54 @@ class LoopClosureConfig:
     source_keyframes : int
         The newest keyframe and up to this many - 1 before it form the source cloud matched against a submap.
     min_separation : int
-        A submap is a candidate only if its newest keyframe is at least this many keyframes older than the
-        newest keyframe.
+        A submap is a candidate only if its newest keyframe is at least this many keyframes older than the newest.
     max_distance : float
-        A submap is a candidate if one of its keyframes lies within this distance of the newest keyframe (plus
-        the window's half-width).
+        A submap is a candidate if one of its keyframes lies within this distance (plus the window's half-width).
     window_translation, window_growth, max_window_translation : float
         Half-width of the search window in x and y: ``window_translation + window_growth * path``, at most
         ``max_window_translation``; ``path`` is the graph distance between the two places.
     window_rotation, window_rotation_growth, max_window_rotation : float
         The same for yaw (radians, radians per metre of path).
     window_z, window_roll_pitch : float
-        6-DOF: fixed half-widths in z and in roll/pitch (gravity keeps them small).
+        6-DOF: fixed half-widths in z and in roll/pitch.
     retry_after : int
         A submap that was matched is not tried again before this many more keyframes.
     min_inlier_ratio : float
-        A match needs at least this fraction of the source points within the registration threshold.
+        A match (and a pair edge) needs at least this fraction of the source points within the registration
+        threshold.
     max_sigma_translation, max_sigma_rotation : float
-        A match must constrain every direction: the registration's standard deviation along the worst
-        translation (rotation) direction must not exceed these.
+        A match must constrain every direction: its standard deviation along the worst translation (rotation)
+        direction at most these.
     degenerate_ratio : float
-        See :func:`hsmap.registration.drop_degenerate`.
+        Directions with less than this fraction of the best one's information count as unconstrained
+        (:func:`hsmap.registration.drop_degenerate`).
     edge_sigma_translation, edge_sigma_rotation : float
-        Floors added to the covariance of every edge (tracking and loop): registration information treats every
-        point as an independent measurement and is overconfident.
+        Floors added to the covariance of every edge: registration information counts every point as independent.
     registration : RegistrationConfig
         Harmony-ICP parameters of the loop matches.
     same_side : bool
-        2D, on by default: a loop match that would move the graph by more than the registration's inlier distance
-        (``registration.threshold``) counts its inliers only where the target point was seen from the match's own
-        side (keyframe normals turned to face the laser: :func:`same_side_share`), so that a wall's face matched
-        to the face behind it, seen from the next room, is rejected as ``other_side``. Such a slide moves the graph
-        by a wall's thickness, more than the inlier distance; a match that agrees with the graph within it is left
-        to the other checks (a laser's scan of thin clutter, seen from both sides, would fail the count: checking
-        every match rejected marginal true closures, four matching 60-61 % of their scans in one simulated
-        building). Far-search closures are not checked (their source is a voxel map that keeps no sensor
-        positions; they need a second match that agrees). In the simulated buildings with a 180 deg, 1 deg laser
-        (``benchmarks/slam_buildings.py --laser sparse``) slides by a wall's thickness were most of the false
-        closures (measurements: ``docs/slam-results.md``, sessions 42 and 43).
+        2D: a match that would move the graph by more than ``registration.threshold`` counts its inliers only
+        where the target was seen from the match's own side (:func:`same_side_share`), rejecting a wall's face
+        matched to the face behind it.
     far_search : bool
-        2D: also search submaps whose uncertainty the window above cannot cover (the window's uncapped half-width
-        exceeds ``max_window_translation``: the robot comes back after a long excursion). A far search matches
-        the recent path against the old map: its source is every keyframe within ``far_source_path`` of the newest
-        in the graph, its target every *far* candidate submap within reach, together, at their estimates. It is
-        exhaustive (:func:`correlative_match_2d`) over ``min(window, max_far_window_translation)`` in x and y and
-        ``window_rotation + window_rotation_growth * path`` in yaw, up to 180 deg. The regular window's 30 deg cap
-        does not bound the heading's drift after a long excursion: fr-clinic's return, some 1000 m of graph path
-        after the place it comes back to, closed with corrections of 20 and 27 deg (seeds 5 and 4); where small
-        changes to the tracking let it drift 40 deg, no far search could find it (every try ambiguous, at the
-        wrong headings) and the map broke. The match is refined and verified by Harmony-ICP, and becomes a loop
-        edge (to the old keyframe nearest to it) only when a second far match, from a keyframe at most
-        ``far_corroborate_within`` keyframes apart, agrees with it (within ``far_agreement_translation`` /
-        ``far_agreement_rotation`` once both are carried to one keyframe by tracking). Corroborated far edges are
-        not under the robust kernel (a correction of metres is what they are for; the kernel would discard it);
-        the chi-square gate still judges them.
+        2D: also search submaps the regular window cannot cover (a return after a long excursion), exhaustively
+        (:func:`correlative_match_2d`) with the recent path as source; kept only when a second far match agrees.
     far_source_path : float
-        Metres of graph distance from the newest keyframe within which keyframes form a far search's source. A few
-        keyframes look like many places of a building's corridors (on fr-clinic's return, after 20-47 m and 15-23
-        deg of drift, three keyframes matched against one submap were ambiguous on every try); a stretch of path
-        with its turns and doors does not (20 m of it found the true pose within 0.2-0.9 m on every try that was
-        not ambiguous).
+        Graph distance from the newest keyframe within which keyframes form a far search's source.
     max_far_window_translation : float
-        Largest half-width of a far search (a bound on its cost: the coarse level of :func:`correlative_match_2d`
-        keeps a 100 m window to about a second).
+        Largest half-width of a far search in x and y (a bound on its cost).
     far_window_growth : float
-        A far search's half-width in x and y is ``window_translation + far_window_growth * path``. After a long
-        excursion the tracking's drift outgrows the regular window's 5 % of the path: on fr-clinic's return, after
-        about 1000 m of graph path, the estimate was 43-67 m off (seeds 2, 4 and 5), beyond a 5 % window on all
-        three; with 10 % the return closed on four seeds of five.
+        A far search's half-width in x and y is ``window_translation + far_window_growth * path``.
     far_resolution, far_angle_step : float
         Grid resolution (m) and rotation step (rad) of the exhaustive search.
     far_ambiguity : float
-        A far match is ambiguous (a look-alike place, a corridor) when the best pose more than ``2 m`` from it
-        scores at least this fraction of its score.
+        A far match is ambiguous (a look-alike place) when the best pose more than 2 m from it scores at least
+        this fraction of its score.
     far_corroborate_within : int
+        A far match becomes a loop edge only when a second far match from a keyframe at most this many keyframes
+        apart agrees with it.
     far_agreement_translation, far_agreement_rotation : float
+        How closely the two far matches must agree, once both are carried to one keyframe by the tracking.
     """
 
     enabled: bool = True

@@ -112,10 +112,8 @@ class SegmentationConfig:
         The filter may only turn free pixels occupied (removing free speckle), never erase occupied ones:
         a plain median erases walls one pixel thick. False gives the plain median of the paper.
     min_obstacle_area, min_obstacle_length : float
-        Occupied blobs surrounded by free space that are smaller than ``min_obstacle_area`` (m^2) and
-        shorter than ``min_obstacle_length`` (m, the longer side of their bounding box) are clutter
-        (specks, chairs, table legs) and ignored by the door detection; a thin free-standing wall piece
-        is kept by its length.
+        Occupied blobs in free space smaller than ``min_obstacle_area`` (m^2) and shorter than
+        ``min_obstacle_length`` (m, the longer side of their bounding box) are clutter the door detection ignores.
     door_half_width, door_half_width_tolerance : float
         The paper's band of half door widths, metres (40 +/- 5 cm). Used by ``method="paper"``.
     min_door_half_width, max_door_half_width : float

@@ -60,8 +60,8 @@ def main() -> int:
 
     import_s = time.perf_counter() - t
     from hsmap.sim import load_scenario, motion_for, resolve_scenario, simulate
-    from hsmap.sim.plot import preview_dataset
     from hsmap.sim.world import World
+    from hsmap.viz.scenario_figures import preview_dataset
 
     results = {}
     for name in args.scenarios:

@@ -28,6 +28,7 @@ from scipy.spatial import cKDTree
 
 from .errors import InputError
 from .geometry import euler_to_matrix
+from .neighbours import tree_query
 
 __all__ = ["DistanceField", "KDTreeLookup", "FieldObjective", "transform_batch", "Fitness", "score"]
 
@@ -235,7 +236,7 @@ class DistanceField:
 
 class KDTreeLookup:
     """Exact truncated nearest-neighbour distances with scipy's cKDTree (``workers``: query threads, scipy's
-    meaning; None: hsmap's compute threads for large queries, :func:`hsmap.registration.tree_query`)."""
+    meaning; None: hsmap's compute threads for large queries, :func:`hsmap.neighbours.tree_query`)."""
 
     def __init__(self, points: ArrayLike, truncation: float, workers: int | None = 1) -> None:
         if not truncation > 0:
@@ -253,8 +254,6 @@ class KDTreeLookup:
     def __call__(self, points: NDArray[np.floating]) -> NDArray[np.float64]:
         flat = points.reshape(-1, points.shape[-1])
         if self.workers is None:  # the compute threads for a large query
-            from .registration import tree_query
-
             d, _ = tree_query(self.tree, flat, distance_upper_bound=self.truncation)
         else:
             d, _ = self.tree.query(flat, k=1, distance_upper_bound=self.truncation, workers=self.workers)

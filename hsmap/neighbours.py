@@ -19,11 +19,12 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.spatial import cKDTree
 
 from ._threads import current_threads, helper_pool
 from .errors import InputError, ShapeError
 
-__all__ = ["NeighbourGrid", "grid_fits", "MAX_CELLS", "MAX_CELLS_PER_POINT"]
+__all__ = ["NeighbourGrid", "grid_fits", "tree_query", "MAX_CELLS", "MAX_CELLS_PER_POINT"]
 
 #: At most this many cells in a grid (4 bytes each: 128 MB)...
 MAX_CELLS = 1 << 25
@@ -127,3 +128,28 @@ class NeighbourGrid:
         for f in futures:
             f.result()
         return d, idx
+
+
+#: KD-tree queries of at least this many points are split between the compute threads
+#: (:func:`hsmap._threads.current_threads`); each point's answer is its own, so the result does not depend on the
+#: number of threads. Smaller ones stay on the calling thread (250 points: 0.10 ms alone, 0.11 ms split in two;
+#: 500: 0.21 and 0.15 ms).
+TREE_PARALLEL_MIN_QUERIES = 500
+
+
+def tree_query(tree: cKDTree, points: NDArray[np.float64], *, k: int = 1,
+               distance_upper_bound: float = np.inf) -> tuple[NDArray[np.float64], NDArray[np.intp]]:
+    """``tree.query(points, k, distance_upper_bound=...)``, split between the compute threads for a large query.
+
+    The calling thread answers the first share and :func:`hsmap._threads.helper_pool`'s threads the others
+    (cKDTree releases the GIL); the answers are the same, bit for bit, whatever the number of threads.
+    """
+    t = current_threads()
+    if t <= 1 or len(points) < TREE_PARALLEL_MIN_QUERIES:
+        return tree.query(points, k=k, distance_upper_bound=distance_upper_bound)
+    parts = np.array_split(points, t)
+    pool = helper_pool(t - 1)
+    futures = [pool.submit(tree.query, part, k=k, distance_upper_bound=distance_upper_bound) for part in parts[1:]]
+    answers = [tree.query(parts[0], k=k, distance_upper_bound=distance_upper_bound)]
+    answers += [f.result() for f in futures]
+    return np.concatenate([d for d, _ in answers]), np.concatenate([i for _, i in answers])

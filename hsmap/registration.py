@@ -23,13 +23,13 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
 from ._blas import blas_limited
-from ._threads import current_threads, helper_pool, threads_limited
+from ._threads import threads_limited
 from .errors import ConfigError, DegenerateInputError, EmptyInputError, InputError, ShapeError
 from .fitness import DistanceField, FieldObjective, KDTreeLookup, score
 from .geometry import dof_of_dim, matrix_to_pose, pose_to_matrix, relative, transform_points, wrap_angle
 from .harmony import HarmonyConfig, HarmonyResult, as_rng, harmony_search
 from .mapping import voxel_downsample
-from .neighbours import NeighbourGrid, grid_fits
+from .neighbours import NeighbourGrid, grid_fits, tree_query
 
 __all__ = [
     "Backend",
@@ -111,15 +111,9 @@ class RegistrationConfig:
     refine_points : int
         Source points used by the refinement.
     refine_reach : float or None
-        Metres. The global search's objective is rounded to the distance field's cells, so it cannot tell apart
-        poses that move the sample's points by less than a cell; a refinement that moves the search's pose by at
-        most this much (and turns it by at most the angle that moves the source's typical point as much) is kept
-        even where its truncated cost is a little higher. A truncated cost favours poses that pull a few unmatched
-        points within the threshold: on the simulated two-rooms bag the search's pose was kept 0.2-0.5 deg off
-        where the refinement's was within 0.1 deg. None: the search field's cell in 2D, and 0 in 3D, where the
-        6-DOF field's 10 cm cells would free the refinement from the check (kept within them, the same bag's 6-DOF
-        z error grew from 1.3 to 2.9 cm). 0 (the default): the cost alone decides; None was not measured apart
-        from the pair edges on the Freiburg logs.
+        Metres: a refinement that moves the search's pose by at most this much is kept even where its truncated
+        cost is a little higher (the search cannot tell poses within a field cell apart). None: the search
+        field's cell in 2D, 0 in 3D; 0: the cost alone decides.
     refine_seeds : int
         Also refine from this many of the initial guesses (in the order given) and keep, of all refined
         candidates, the one with the lowest point-to-plane cost. Guards against a global search that settles in
@@ -528,31 +522,6 @@ def _check_bounds(bounds: ArrayLike, dof: int) -> NDArray[np.float64]:
         raise InputError(f"bounds[{i}] spans {b[i, 0]:g}..{b[i, 1]:g}, wider than a float can hold; expected a "
                          "search box of finite width")
     return b
-
-
-#: KD-tree queries of at least this many points are split between the compute threads
-#: (:func:`hsmap._threads.current_threads`); each point's answer is its own, so the result does not depend on the
-#: number of threads. Smaller ones stay on the calling thread (250 points: 0.10 ms alone, 0.11 ms split in two;
-#: 500: 0.21 and 0.15 ms).
-PARALLEL_MIN_QUERIES = 500
-
-
-def tree_query(tree: cKDTree, points: NDArray[np.float64], *, k: int = 1,
-               distance_upper_bound: float = np.inf) -> tuple[NDArray[np.float64], NDArray[np.intp]]:
-    """``tree.query(points, k, distance_upper_bound=...)``, split between the compute threads for a large query.
-
-    The calling thread answers the first share and :func:`hsmap._threads.helper_pool`'s threads the others
-    (cKDTree releases the GIL); the answers are the same, bit for bit, whatever the number of threads.
-    """
-    t = current_threads()
-    if t <= 1 or len(points) < PARALLEL_MIN_QUERIES:
-        return tree.query(points, k=k, distance_upper_bound=distance_upper_bound)
-    parts = np.array_split(points, t)
-    pool = helper_pool(t - 1)
-    futures = [pool.submit(tree.query, part, k=k, distance_upper_bound=distance_upper_bound) for part in parts[1:]]
-    answers = [tree.query(parts[0], k=k, distance_upper_bound=distance_upper_bound)]
-    answers += [f.result() for f in futures]
-    return np.concatenate([d for d, _ in answers]), np.concatenate([i for _, i in answers])
 
 
 def _subsample(points: NDArray[np.float64], voxel: float, n: int, gen: np.random.Generator) -> NDArray[np.float64]:

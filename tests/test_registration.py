@@ -299,7 +299,7 @@ def test_a_split_kdtree_query_answers_as_one_query(n, k):
     from scipy.spatial import cKDTree
 
     from hsmap._threads import using_threads
-    from hsmap.registration import tree_query
+    from hsmap.neighbours import tree_query
 
     rng = np.random.default_rng(n)
     tree = cKDTree(rng.uniform(-5, 5, (3000, 3)))

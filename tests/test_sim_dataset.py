@@ -184,7 +184,7 @@ def test_cli_simulate_writes_a_folder(tmp_path):
 @pytest.mark.slow
 def test_previews_are_written(tmp_path, written):
     out, _ = written
-    from hsmap.sim.plot import preview_dataset
+    from hsmap.viz.scenario_figures import preview_dataset
 
     copy = tmp_path / "copy"
     copy.mkdir()

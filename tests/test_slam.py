@@ -287,9 +287,9 @@ def test_slam_6dof_in_a_room():
 def test_the_number_of_threads_changes_nothing(monkeypatch):
     """6-DOF HS-SLAM on one thread and on two, every KD-tree query split between the threads: the same
     trajectory, bit for bit (the parallel harmony batches: tests/test_fitness.py)."""
-    from hsmap import registration
+    from hsmap import neighbours
 
-    monkeypatch.setattr(registration, "PARALLEL_MIN_QUERIES", 1)
+    monkeypatch.setattr(neighbours, "TREE_PARALLEL_MIN_QUERIES", 1)
     frames, _ = _room_frames_3d(6)
     one, two = (run_slam(frames, SlamConfig(dof=6), rng=0, progress=False, threads=t) for t in (1, 2))
     np.testing.assert_array_equal(one.trajectory.poses, two.trajectory.poses)
@@ -570,8 +570,9 @@ def test_a_retried_registration_stays_in_the_box_it_searched(monkeypatch):
     itself: the edge is no pose the scan chose (in a simulated office a retry slid 20 cm towards the first
     registration's minimum, was held at the edge 14 cm out, aligned the scan worse than the prediction there, and
     so lost to the first registration, 20 cm off, though the prediction was right to 7 mm)."""
-    from hsmap.slam import frame_points, verify as slam_module
     from hsmap.registration import RegistrationTarget, harmony_icp
+    from hsmap.slam import frame_points
+    from hsmap.slam import verify as slam_module
 
     walls = np.array([((-20.0, y), (20.0, y)) for y in (-0.8, 0.8)])
     truth = np.array([0.0, 0.0, 0.0])
@@ -616,7 +617,7 @@ def test_a_registration_overrules_the_prediction_only_on_evidence():
     """The first registration stands against the motion prediction only if its residuals are lower beyond
     chance, over enough points: a few points fitting better, or a handful of matches, do not overrule the
     odometry (on fr-clinic such registrations turned single frames by 16-46 degrees)."""
-    from hsmap.slam import frame_points, verify as slam_module
+    from hsmap.slam import verify as slam_module
 
     def decide(ra, rb, n=100):  # residuals of a 2D scan of n points at the registration's pose and the other's
         assert len(ra) == len(rb) == n
@@ -648,8 +649,9 @@ def test_a_registration_that_explains_little_of_its_scan_cannot_veto_the_predict
     the 60 % it needs to overrule the prediction. It cannot veto it either: the prediction's pose is confirmed, so
     it can become a keyframe and extend the map. Where the registration explains most of its scan and the
     prediction's pose aligns it worse, the prediction stays unconfirmed (no keyframe) as before."""
-    from hsmap.slam import frame_points, verify as slam_module
     from hsmap.registration import RegistrationTarget, harmony_icp
+    from hsmap.slam import frame_points
+    from hsmap.slam import verify as slam_module
 
     walls = np.array([((-20.0, y), (20.0, y)) for y in (-1.0, 1.0)])
     truth = np.array([0.0, 0.0, 0.0])
@@ -690,8 +692,9 @@ def test_a_registration_that_explains_little_of_its_scan_stays_within_the_learne
     seed 1), a registration matching 46 % of its scan turned the pose by 1.8 deg and moved it 11 cm, inside the
     configured gate (4.5 deg), and the route ended 0.25 m off; the odometry was right to 1 cm. A registration
     explaining most of its scan stands as before."""
-    from hsmap.slam import frame_points, verify as slam_module
     from hsmap.registration import RegistrationTarget, harmony_icp
+    from hsmap.slam import frame_points
+    from hsmap.slam import verify as slam_module
 
     walls = np.array([((-20.0, y), (20.0, y)) for y in (-1.0, 1.0)] + [((-20.0, -1.0), (-20.0, 1.0))])
     truth = np.array([0.0, 0.0, 0.0])

@@ -63,6 +63,10 @@ def run(args: argparse.Namespace) -> int:
 
     prepare_output_dir(args.out, "--out", create=False)
     summary = simulate(scn, args.out, args.seed, max_frames=args.max_frames,
-                       label_resolution=args.label_resolution, figures=args.figures)
+                       label_resolution=args.label_resolution)
+    if args.figures:
+        from ..viz.scenario_figures import preview_dataset
+
+        preview_dataset(args.out)
     print(json.dumps(summary.as_dict(), indent=2))
     return 0

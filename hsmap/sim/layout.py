@@ -15,16 +15,12 @@ Plain numpy (no open3d): the scenario checks, the ground truth and the mesh buil
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 from numpy.typing import NDArray
 
 from ..grid import GridGeometry
+from .model import Door, Furniture, Scenario
 from .shapes import box_sdf, make_box, points_in_polygon
-
-if TYPE_CHECKING:  # pragma: no cover
-    from .scenario import Door, Furniture, Scenario
 
 __all__ = [
     "wall_footprints",

@@ -30,7 +30,7 @@ import yaml
 
 from .. import __version__
 from ..config import to_dict
-from ..datasets.simulated import FORMAT, FORMAT_VERSION, encode_range_image, range_image_to_points
+from ..datasets.simulated import FORMAT, FORMAT_VERSION, encode_range_image
 from ..errors import DatasetError, ScenarioError
 from ..io import atomic_path, sweep_stale_temporaries, write_json, write_text
 from ..trajectory import Trajectory, write_tum
@@ -125,7 +125,7 @@ def _as_scenario(scenario: Scenario | str | os.PathLike) -> Scenario:
 
 def simulate(scenario: Scenario | str | os.PathLike, out: str | os.PathLike, seed: int | None = None, *,
              max_frames: int | None = None, label_resolution: float | None = None,
-             batch_frames: int = 8, compresslevel: int = 1, figures: bool = False) -> SimulationSummary:
+             batch_frames: int = 8, compresslevel: int = 1) -> SimulationSummary:
     """Simulate a scenario and write its dataset folder.
 
     Parameters
@@ -144,8 +144,6 @@ def simulate(scenario: Scenario | str | os.PathLike, out: str | os.PathLike, see
         3D frames ray-cast per open3d call.
     compresslevel : int
         zlib level of the 3D range images (1 is fast and nearly as small as 9 for noisy ranges).
-    figures : bool
-        Also write preview pictures (top view, one 3D cloud, odometry-only map) into ``figures/``.
 
     Returns
     -------
@@ -172,9 +170,8 @@ def simulate(scenario: Scenario | str | os.PathLike, out: str | os.PathLike, see
     world = World(scn)
     timings["world"] = time.perf_counter() - t
 
-    ranges2d = write_sensor_frames(out, world, motion, scn.lidar2d, scn.lidar3d, seed, timings,
-                                   batch_frames=batch_frames, compresslevel=compresslevel)
-    dirs = scn.lidar3d.directions()
+    write_sensor_frames(out, world, motion, scn.lidar2d, scn.lidar3d, seed, timings, batch_frames=batch_frames,
+                        compresslevel=compresslevel)
 
     t = time.perf_counter()
     gt = Trajectory(motion.stamps, motion.groundtruth)
@@ -205,17 +202,6 @@ def simulate(scenario: Scenario | str | os.PathLike, out: str | os.PathLike, see
     summary = SimulationSummary(out, scn.name, seed, n, float(motion.stamps[-1] - motion.stamps[0]),
                                 gt.path_length(), end_err, yaw_err, timings)
     files = dict(FILE_DESCRIPTIONS)
-    if figures:
-        t = time.perf_counter()
-        from .plot import write_previews
-
-        k = n // 2
-        cloud_k = world.scan3d(motion.groundtruth[k:k + 1], scn.lidar3d, noise_rngs(seed, 3, [k]), dirs)[0]
-        cloud_k = range_image_to_points(encode_range_image(cloud_k), dirs)
-        for name in write_previews(out, scn, motion.groundtruth, motion.odometry, ranges2d, k, cloud_k,
-                                   motion.stamps):
-            files[f"figures/{name}"] = "preview picture (see README.md)"
-        timings["figures"] = time.perf_counter() - t
     write_text(out / "README.md", _readme(scn, summary, grid))
     meta = {
         "format": FORMAT,

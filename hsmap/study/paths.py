@@ -30,6 +30,7 @@ __all__ = [
     "notebooks_dir",
     "user_cache_dir",
     "datasets_dir",
+    "fetch_dir",
     "DATASETS_ENV",
     "GENERATED_ENV",
     "CACHE_ENV",
@@ -85,19 +86,23 @@ def notebooks_dir() -> Path:
     return Path(str(resources.files(__package__).joinpath("notebooks")))
 
 
+def fetch_dir() -> Path:
+    """Where ``hsmap data fetch`` puts the data: ``datasets/`` in hsmap's user cache (``$HSMAP_CACHE``, else e.g.
+    ``~/.cache/hsmap``), laid out as ``$HSMAP_DATASETS`` is."""
+    return user_cache_dir() / "datasets"
+
+
 def datasets_dir() -> Path:
     """The third-party datasets folder (``slam2d/``, ``ipa_room_segmentation/``).
 
     ``$HSMAP_DATASETS`` when it is set (the only place looked at then); else the folder ``hsmap data fetch``
-    downloads into (:func:`hsmap.study.public_data.fetch_dir`) when it holds anything; else
+    downloads into (:func:`fetch_dir`) when it holds anything; else
     ``../shared/datasets`` beside a checkout when that exists; else the download folder (empty: notebook 08 and
     the benchmark tests then say to run ``hsmap data fetch``).
     """
     env = os.environ.get(DATASETS_ENV)
     if env:
         return Path(env)
-    from .public_data import fetch_dir
-
     fetched = fetch_dir()
     if fetched.is_dir() and any(fetched.iterdir()):
         return fetched

@@ -5,7 +5,7 @@ The registry is package data, ``hsmap/study/public_data.yaml``: per dataset its 
 (``slam2d/``, ``ipa_room_segmentation/``), citation, licence and sources, and per file the URL of the original
 at a pinned commit of its public repository and the SHA-256 of its bytes. :func:`fetch` downloads with
 `pooch <https://www.fatiando.org/pooch/>`_ (a download goes to a temporary file, is hash-checked and only then
-moved into place; a file whose hash differs is deleted and refused) into :func:`fetch_dir`, under a
+moved into place; a file whose hash differs is deleted and refused) into :func:`hsmap.study.paths.fetch_dir`, under a
 ``filelock`` lock, so that two fetches at once do not trip over each other.
 
 ``$HSMAP_DATA_MIRROR`` (or ``mirror=``) replaces the original URLs with one base URL that serves the datasets
@@ -26,6 +26,7 @@ from importlib import resources
 from pathlib import Path
 
 from ..errors import ConfigError, DatasetError, InputError
+from .paths import datasets_dir, fetch_dir
 
 __all__ = [
     "PublicFile",
@@ -117,14 +118,6 @@ def registry() -> dict[str, PublicDataset]:
     return out
 
 
-def fetch_dir() -> Path:
-    """Where :func:`fetch` puts the data: ``datasets/`` in hsmap's user cache (``$HSMAP_CACHE``, else e.g.
-    ``~/.cache/hsmap``), laid out as ``$HSMAP_DATASETS`` is."""
-    from .paths import user_cache_dir
-
-    return user_cache_dir() / "datasets"
-
-
 def _choose(names: Sequence[str] | None) -> list[PublicDataset]:
     reg = registry()
     if not names:
@@ -139,8 +132,6 @@ def _choose(names: Sequence[str] | None) -> list[PublicDataset]:
 def dataset_folder(name: str, root: str | os.PathLike | None = None) -> Path | None:
     """The folder of public dataset ``name`` under ``root`` (default :func:`hsmap.study.paths.datasets_dir`)
     when every file of it is there (not hash-checked: :func:`fetch` checked them), else None."""
-    from .paths import datasets_dir
-
     ds = _choose([name])[0]
     folder = Path(root if root is not None else datasets_dir()) / ds.folder
     if all((folder / f.path).is_file() for f in ds.files):
@@ -150,8 +141,6 @@ def dataset_folder(name: str, root: str | os.PathLike | None = None) -> Path | N
 
 def missing_data_reason(names: Sequence[str], root: str | os.PathLike | None = None) -> str:
     """One line saying which public datasets are missing under ``root``, and how to get them ('' if none)."""
-    from .paths import datasets_dir
-
     base = Path(root if root is not None else datasets_dir())
     missing = [n for n in names if dataset_folder(n, base) is None]
     if not missing:
@@ -190,7 +179,7 @@ def fetch(
     names : sequence of str, optional
         ``freiburg`` and/or ``bormann``.
     dest : path, optional
-        Default :func:`fetch_dir`.
+        Default :func:`hsmap.study.paths.fetch_dir`.
     mirror : str, optional
         Base URL serving the datasets layout, replacing the original URLs (default ``$HSMAP_DATA_MIRROR``).
     timeout : float

@@ -17,10 +17,15 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike
 
+from ..datasets.simulated import SimulatedDataset
+from ..geometry import transform_points
+from ..grid import scans_to_points
 from ..io import atomic_path
-from . import layout
-from .scenario import Scenario
-from .shapes import box_corners
+from ..sim import layout
+from ..sim.robot import plan_legs, sample_legs
+from ..sim.scenario import Scenario, load_scenario
+from ..sim.shapes import box_corners
+from ..sim.world import sensor_poses_3d
 
 __all__ = ["plot_world", "plot_cloud", "plot_odometry_map", "write_previews", "preview_dataset", "draw_floorplan",
            "FURNITURE_COLOURS"]
@@ -117,7 +122,6 @@ def plot_world(scn: Scenario, path: str | os.PathLike | None = None, route: Arra
     fig, (ax,) = _figure(min(16.0, 1.2 + 0.75 * span[0]), min(12.0, 1.0 + 0.75 * span[1]) + 0.6)
     draw_floorplan(ax, scn)
     if route is None:
-        from .robot import plan_legs, sample_legs
 
         legs = plan_legs(scn.start, scn.steps, scn.robot)
         t = np.linspace(0.0, legs[-1].t0 + legs[-1].duration, 4000)
@@ -207,7 +211,6 @@ def _scans_to_world(ranges: ArrayLike, angles: ArrayLike, poses: ArrayLike, extr
                     step: int = 1) -> np.ndarray:
     """All valid 2D returns (P, 2) in the world, for scans (N, M) taken at base poses (N, 3); every ``step``-th
     beam."""
-    from ..grid import scans_to_points
 
     a = np.asarray(angles, dtype=float)[::step]
     scans = [np.column_stack([r * np.cos(a), r * np.sin(a)]) for r in np.asarray(ranges, dtype=float)[:, ::step]]
@@ -278,8 +281,6 @@ def write_previews(folder: str | os.PathLike, scn: Scenario, groundtruth: ArrayL
     list of str
         The file names written under ``figures/``.
     """
-    from ..geometry import transform_points
-    from .world import sensor_poses_3d
 
     out = Path(folder) / "figures"
     gt, odo = np.asarray(groundtruth, dtype=float), np.asarray(odometry, dtype=float)
@@ -298,8 +299,6 @@ def write_previews(folder: str | os.PathLike, scn: Scenario, groundtruth: ArrayL
 
 def preview_dataset(folder: str | os.PathLike, frame: int | None = None) -> list[str]:
     """:func:`write_previews` for a complete dataset folder (reads it with SimulatedDataset)."""
-    from ..datasets.simulated import SimulatedDataset
-    from .scenario import load_scenario
 
     ds = SimulatedDataset(folder)
     scn = load_scenario(ds.scenario_path(), check=False)

@@ -424,7 +424,7 @@ def _run(cmd: list[str], *, code: str | None = None, pre: list[str] = (), **kw) 
     env = dict(os.environ, RERUN_ANALYTICS="0", PYTHONUNBUFFERED="1")
     head = ["-c", code, *pre] if code is not None else ["-m", "hsmap.cli"]
     return subprocess.Popen([sys.executable, *head, *cmd], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env=env, start_new_session=True,
+                            stderr=subprocess.PIPE, text=True, env=env, process_group=0,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL), **kw)
 
 
@@ -547,6 +547,7 @@ def test_a_batch_finishing_later_keeps_the_entries_another_wrote_meanwhile(tmp_p
     """Issue 12, reproduction 2: batch A runs 01 (long); meanwhile batch B runs 02, which fails, and writes its
     entry; A finishes last. A's index must keep B's entry, not its own stale copy of 02's earlier "ok"."""
     import hsmap.study.batch as batch
+    import hsmap.study.execute as batch_execute
     from hsmap.io import folder_lock, write_json
 
     nbdir, out = tmp_path / "notebooks", tmp_path / "reports"
@@ -554,17 +555,17 @@ def test_a_batch_finishing_later_keeps_the_entries_another_wrote_meanwhile(tmp_p
     _notebook(nbdir / "01-wait.ipynb")
     _notebook(nbdir / "02-quick.ipynb")
     spec = {s.name: s for s in batch.discover(nbdir)}
-    earlier = batch.NotebookRun(name="02-quick", notebook=str(spec["02-quick"].path), status="ok",
+    earlier = batch_execute.NotebookRun(name="02-quick", notebook=str(spec["02-quick"].path), status="ok",
                                 started="2026-01-01T00:00:00+00:00", duration_s=1.0)
     write_json(out / "02-quick" / "run.json", earlier.to_dict())  # what A sees of 02 when it starts
 
     def a_runs_01_while_b_runs_02(s, *args):
-        failed = batch.NotebookRun(name="02-quick", notebook=str(spec["02-quick"].path), status="failed",
-                                   error="RuntimeError: asked to fail", started=batch._now(), duration_s=0.5)
+        failed = batch_execute.NotebookRun(name="02-quick", notebook=str(spec["02-quick"].path), status="failed",
+                                   error="RuntimeError: asked to fail", started=batch_execute.now_text(), duration_s=0.5)
         with folder_lock(out):  # what batch B publishes meanwhile, as it does: run.json, then its index
             write_json(out / "02-quick" / "run.json", failed.to_dict())
             write_json(out / "index.json", {"notebooks": [failed.to_dict()]})
-        return batch.NotebookRun(name=s.name, notebook=str(s.path), status="ok", started=batch._now(),
+        return batch_execute.NotebookRun(name=s.name, notebook=str(s.path), status="ok", started=batch_execute.now_text(),
                                  duration_s=2.0).to_dict()
 
     monkeypatch.setattr(batch, "_worker", a_runs_01_while_b_runs_02)
@@ -705,13 +706,13 @@ def test_an_interrupted_batch_drops_the_notebook_machinerys_last_words(caplog):
     they are heard."""
     import logging
 
-    from hsmap.study import batch
+    from hsmap.study import interrupts
 
-    batch._quiet_papermill_log()
+    interrupts.quiet_papermill_log()
     outer = signal.signal(signal.SIGINT, signal.default_int_handler)  # as in a terminal (pytest-xdist ignores it)
     try:
         with pytest.raises(KeyboardInterrupt):
-            with batch._marking_interrupts():
+            with interrupts.marking_interrupts():
                 logging.getLogger("papermill").error("a cell failed")
                 os.kill(os.getpid(), signal.SIGINT)
                 time.sleep(5)  # the signal arrives before this ends
@@ -721,11 +722,11 @@ def test_an_interrupted_batch_drops_the_notebook_machinerys_last_words(caplog):
         assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the terminal's Ctrl-C is back
         # a process that ignores Ctrl-C (a batch worker) keeps ignoring it
         signal.signal(signal.SIGINT, signal.SIG_IGN)
-        with batch._marking_interrupts():
+        with interrupts.marking_interrupts():
             assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
     finally:
         signal.signal(signal.SIGINT, outer)
-        batch._interrupted = False
+        interrupts._interrupted = False
 
 
 def _params(folder: Path, markers: list[Path]) -> Path:

@@ -15,7 +15,8 @@ import pytest
 
 from hsmap.cli import main
 from hsmap.errors import ConfigError, InputError
-from hsmap.study.batch import discover, load_parameters_file, parse_value, run_notebooks, select
+from hsmap.study.batch import discover, load_parameters_file, run_notebooks, select
+from hsmap.study.discovery import parse_value
 from hsmap.study.report import format_duration, format_value, headline_rows, render_index
 
 HERE = Path(__file__).parent
@@ -299,16 +300,16 @@ def test_an_interrupted_run_leaves_no_temporaries_and_says_so(tmp_path, monkeypa
 
 
 def test_kernels_run_blas_on_hsmap_blas_threads_unless_the_caller_chose(monkeypatch):
-    from hsmap.study.batch import _kernel_env
+    from hsmap.study.execute import kernel_env
 
     for var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS", "HSMAP_BLAS_THREADS"):
         monkeypatch.delenv(var, raising=False)
-    env = _kernel_env("01-x", jobs=1)
+    env = kernel_env("01-x", jobs=1)
     assert env["OPENBLAS_NUM_THREADS"] == env["MKL_NUM_THREADS"] == "1" and "OMP_NUM_THREADS" not in env
     monkeypatch.setenv("HSMAP_BLAS_THREADS", "2")
-    assert _kernel_env("01-x", jobs=1)["OPENBLAS_NUM_THREADS"] == "2"
+    assert kernel_env("01-x", jobs=1)["OPENBLAS_NUM_THREADS"] == "2"
     monkeypatch.setenv("OPENBLAS_NUM_THREADS", "4")
-    env = _kernel_env("01-x", jobs=2)
+    env = kernel_env("01-x", jobs=2)
     assert "OPENBLAS_NUM_THREADS" not in env and env["OMP_NUM_THREADS"] == str(max(1, (os.cpu_count() or 1) // 2))
 
 

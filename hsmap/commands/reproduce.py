@@ -74,7 +74,8 @@ def _list(notebooks_dir, only) -> int:
 
 def run(args: argparse.Namespace) -> int:
     from ..io import prepare_output_dir
-    from ..study.batch import load_parameters_file, parse_value, run_notebooks
+    from ..study.batch import run_notebooks
+    from ..study.discovery import load_parameters_file, parse_value
 
     notebooks_dir = _notebooks_dir(args.notebooks)
     if args.list:

@@ -1,0 +1,375 @@
+"""One notebook executed by papermill in a fresh kernel into a hidden staging folder of the reports folder,
+its report published as a whole once complete (:func:`execute_notebook`); the kernelspec and the study tooling."""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as dt
+import json
+import os
+import platform
+import shutil
+import sys
+import time
+from collections.abc import Iterator, Mapping
+from dataclasses import asdict, dataclass, field
+from html import escape
+from pathlib import Path
+from typing import Any
+
+from ..errors import OutputError
+from ..io import atomic_open, write_json, write_text
+from .discovery import NotebookSpec
+from .interrupts import quiet_papermill_log
+from .notebook_html import notebook_to_html
+from .report import NOTEBOOK_ENV, read_metrics
+from .tooling import lighten_jupyter_imports
+
+__all__ = ["KERNEL_NAME", "NotebookRun", "execute_notebook", "write_kernelspec"]
+
+KERNEL_NAME = "hsmap-python"
+_BLAS_VARS = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+@dataclass
+class NotebookRun:
+    """What became of one notebook (also written as ``reports/NAME/run.json``)."""
+
+    name: str
+    notebook: str
+    title: str = ""
+    status: str = "not run"  # "ok", "skipped", "failed", "running", "pending", "not run", "interrupted"
+    error: str | None = None
+    error_cell: int | None = None
+    started: str | None = None
+    duration_s: float | None = None
+    parameters: dict[str, Any] = field(default_factory=dict)
+    html: str | None = None
+    ipynb: str | None = None
+    figures: list[str] = field(default_factory=list)
+    recordings: list[str] = field(default_factory=list)
+    metrics: dict[str, Any] | None = None
+    warnings: list[str] = field(default_factory=list)
+    pid: int | None = None  # of the batch that has it pending or running (a dead one's entry is stale)
+
+    @property
+    def ok(self) -> bool:
+        """Ran through: "ok", or "skipped" (its inputs are missing, and it said so)."""
+        return self.status in ("ok", "skipped")
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> NotebookRun:
+        known = {f for f in cls.__dataclass_fields__}
+        return cls(**{k: v for k, v in d.items() if k in known})
+
+
+def now_text() -> str:
+    return dt.datetime.now().astimezone().isoformat(timespec="seconds")
+
+
+def _staging_prefix(name: str) -> str:
+    """Prefix of the hidden staging folders of notebook ``name`` in the reports folder."""
+    from ..io import STAGING_PREFIX
+
+    return f"{STAGING_PREFIX}{name}-"
+
+
+def _publish(stage: Path, out_dir: Path, name: str) -> None:
+    """Replace the notebook's report in ``out_dir`` (``NAME/``, ``NAME.ipynb``, ``NAME.html``) by the complete
+    one in ``stage``, under the reports folder's lock (a concurrent batch publishing the same notebook waits).
+
+    The previous folder is moved aside (into ``stage``, deleted with it) and the new one renamed into place; the
+    two files are replaced by renames. Nothing of the old run survives beside the new one.
+    """
+    from ..io import folder_lock
+
+    old, aside = out_dir / name, stage / ".previous"
+    with folder_lock(out_dir):
+        moved = False
+        if old.is_symlink() or old.is_file():
+            old.unlink()
+        elif old.exists():
+            os.rename(old, aside)
+            moved = True
+        try:
+            os.rename(stage / name, old)
+        except OSError:
+            if moved:
+                os.rename(aside, old)
+            raise
+        for suffix in (".ipynb", ".html"):
+            os.replace(stage / f"{name}{suffix}", out_dir / f"{name}{suffix}")
+
+
+def _kernel_manager_class(stderr_path: Path):
+    """The batch's kernel manager: a kernel's stderr goes to ``stderr_path`` (the report keeps it when it is not
+    empty) instead of the terminal, and shutting a kernel down does not interrupt it first: jupyter_client sends
+    SIGINT before its shutdown request, which a kernel between two messages reports as "[IPKernelApp] ERROR |
+    KeyboardInterrupt caught in kernel." after every notebook, and one whose parent was interrupted answers with
+    a ZMQ traceback."""
+    from jupyter_client.manager import AsyncKernelManager
+
+    class BatchKernelManager(AsyncKernelManager):
+        async def _async_interrupt_kernel(self) -> None:
+            if self.shutting_down:
+                return
+            await super()._async_interrupt_kernel()
+
+        async def _async_launch_kernel(self, kernel_cmd, **kw):
+            with open(stderr_path, "ab") as err:  # the kernel gets its own copy of the descriptor
+                kw["stderr"] = err
+                await super()._async_launch_kernel(kernel_cmd, **kw)
+
+    return BatchKernelManager
+
+
+def _retarget(nb: Any, stage: Path, out_dir: Path) -> Any:
+    """The executed notebook with the staging folder's path replaced by the reports folder's (the injected
+    ``out_dir`` parameter, any printed path)."""
+    import nbformat
+
+    text = nbformat.writes(nb)
+    old, new = json.dumps(str(stage))[1:-1], json.dumps(str(out_dir))[1:-1]
+    return nbformat.reads(text.replace(old, new), as_version=4) if old in text else nb
+
+
+def _died_at_start(exc: BaseException) -> bool:
+    """Whether the kernel died before it ran anything (jupyter_client's "Kernel died before replying to
+    kernel_info"): the notebook itself is not at fault."""
+    return "died before replying to kernel_info" in str(exc)
+
+
+def _error_text(exc: BaseException) -> tuple[str, int | None]:
+    from papermill.exceptions import PapermillExecutionError
+
+    if isinstance(exc, PapermillExecutionError):
+        evalue = str(exc.evalue).strip()
+        return (f"{exc.ename}: {evalue}" if evalue else exc.ename), exc.exec_count
+    text = str(exc).strip()
+    # nbclient's timeout and dead-kernel messages are long; keep their first lines
+    lines = [line for line in text.splitlines() if line.strip()]
+    text = " ".join(lines[:3])
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__, None
+
+
+def kernel_env(name: str, jobs: int) -> dict[str, str]:
+    """The environment of a notebook's kernel (hsmap's own process): BLAS on ``$HSMAP_BLAS_THREADS`` threads
+    (default 1, see :mod:`hsmap._blas`) and, for parallel kernels, one share of the cores each for the other
+    native thread pools; a variable the caller set is left alone."""
+    from .._blas import blas_threads
+
+    env = {NOTEBOOK_ENV: name, "RERUN_ANALYTICS": "0", "PYTHONHASHSEED": os.environ.get("PYTHONHASHSEED", "0")}
+    for var in _BLAS_VARS:
+        if var not in os.environ:
+            env[var] = str(blas_threads())
+    if jobs > 1:  # parallel kernels share the cores: one native thread pool each
+        per = str(max(1, (os.cpu_count() or 1) // jobs))
+        if "OMP_NUM_THREADS" not in os.environ:
+            env["OMP_NUM_THREADS"] = per
+    return env
+
+
+@contextlib.contextmanager
+def environ(updates: Mapping[str, str]) -> Iterator[None]:
+    old = {k: os.environ.get(k) for k in updates}
+    os.environ.update(updates)
+    try:
+        yield
+    finally:
+        for k, v in old.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def _sweep_temporaries(folder: Path) -> list[str]:
+    """Delete temporary files (``.name.XXXX...``) left in a notebook's folder; returns their names."""
+    left = []
+    if folder.is_dir():
+        for p in sorted(folder.rglob(".*")):
+            if p.is_file():
+                left.append(str(p.relative_to(folder)))
+                p.unlink()
+    return left
+
+
+def _open_recordings_in_viewer(run: NotebookRun, folder: Path, out_dir: Path | None = None) -> None:
+    """Open each recording (``run.recordings``, relative to ``folder``: the notebook's staging folder) in the
+    headless viewer (where a graphics stack allows): a view that reports an error, or that should show something
+    and is empty, fails the notebook, naming the recording where it is published (under ``out_dir``). Where the
+    viewer cannot run, the run says so in its warnings."""
+    from ..errors import HsmapError
+    from ..viz.viewer import HeadlessViewer, viewer_unavailable
+
+    reason = viewer_unavailable()
+    if reason is not None:
+        run.warnings.append(f"recordings not opened in the viewer: {reason}")
+        return
+    try:
+        viewer = HeadlessViewer()
+    except HsmapError as exc:  # the viewer itself did not start: not the notebook's fault
+        run.warnings.append(f"recordings not opened in the viewer: {exc}")
+        return
+    with viewer:
+        for rel in run.recordings:
+            try:
+                check = viewer.screenshots(folder / rel, None, positions=("end",))
+                errors = check.errors
+            except Exception as exc:  # noqa: BLE001 - a recording the viewer cannot open fails the notebook
+                errors = [f"{type(exc).__name__}: {exc}"]
+            if out_dir is not None:
+                errors = [e.replace(str(folder), str(out_dir)) for e in errors]
+            if errors:
+                run.status, run.error = "failed", f"recording {rel} in the viewer: {'; '.join(errors)}"
+                return
+
+
+def execute_notebook(
+    spec: NotebookSpec,
+    out_dir: str | os.PathLike,
+    parameters: Mapping[str, Any],
+    *,
+    kernel_name: str = KERNEL_NAME,
+    timeout: float | None = None,
+    verify_recordings: bool = True,
+    versions: Mapping[str, str] | None = None,
+) -> NotebookRun:
+    """Execute one notebook with papermill into ``out_dir`` and collect its outputs (see module docstring).
+
+    The caller provides the kernel (``kernel_name`` must be findable by jupyter) and the environment
+    (``$HSMAP_NOTEBOOK``); :func:`run_notebooks` does both. Never raises for a failing notebook: the returned
+    run says ``failed`` with the error.
+    """
+    lighten_jupyter_imports()
+    quiet_papermill_log()
+    import nbformat
+    import papermill
+
+    from ..io import locked_staging_folder
+
+    out_dir = Path(out_dir).resolve()
+    out_dir.mkdir(parents=True, exist_ok=True)
+    run = NotebookRun(name=spec.name, notebook=str(spec.path), title=spec.title(), status="running",
+                      started=now_text(), parameters=dict(parameters))
+    # everything is written into a locked staging folder and published when complete: an interrupted or broken
+    # run leaves the previous report as it was, and a killed one leaves a folder the next batch removes
+    lock_fd, stage = locked_staging_folder(out_dir, _staging_prefix(spec.name))
+    folder = stage / spec.name
+    tmp_ipynb = stage / f"{spec.name}.ipynb"
+    kernel_log = stage / "kernel-stderr.txt"
+    staged_parameters = {**parameters, "out_dir": str(stage)} if "out_dir" in parameters else dict(parameters)
+    try:
+        t0 = time.perf_counter()
+        for attempt in (1, 2):
+            try:
+                papermill.execute_notebook(
+                    str(spec.path), str(tmp_ipynb), parameters=staged_parameters, kernel_name=kernel_name,
+                    language="python", cwd=str(spec.path.parent), progress_bar=False, log_output=False,
+                    execution_timeout=timeout, kernel_manager_class=_kernel_manager_class(kernel_log),
+                )
+                run.status = "ok"
+            except Exception as exc:  # the notebook failed (or its kernel died): record it, carry on
+                if attempt == 1 and _died_at_start(exc):
+                    # no cell ran: a kernel that could not start (on a busy machine, parallel kernels can race
+                    # for the same ports) gets one more try
+                    run.warnings.append(f"the kernel died before it started ({exc}); started again")
+                    continue
+                run.status = "failed"
+                run.error, run.error_cell = _error_text(exc)
+            break
+        run.duration_s = round(time.perf_counter() - t0, 3)
+
+        left = _sweep_temporaries(folder)
+        if left:
+            run.warnings.append(f"temporary files left behind and removed (an output not closed?): {left}")
+        if kernel_log.is_file() and kernel_log.stat().st_size > 0:
+            folder.mkdir(exist_ok=True)
+            os.replace(kernel_log, folder / kernel_log.name)
+            if not run.ok:
+                run.warnings.append(f"the kernel wrote to stderr: {spec.name}/{kernel_log.name}")
+        if folder.is_dir():
+            run.figures = sorted(str(p.relative_to(stage)) for p in folder.rglob("*.png"))
+            run.recordings = sorted(str(p.relative_to(stage)) for p in folder.rglob("*.rrd"))
+        run.metrics = read_metrics(folder / "metrics.json")
+        if run.ok and run.metrics is None:
+            run.warnings.append("the notebook wrote no metrics.json (study.metrics(...))")
+        if run.ok and run.metrics is not None:
+            if run.metrics.get("skipped"):
+                run.status, run.error = "skipped", str(run.metrics["skipped"])
+            for part, why in (run.metrics.get("skipped_parts") or {}).items():
+                run.warnings.append(f"skipped {part}: {why}")
+        if run.recordings and verify_recordings:
+            from ..viz.rerun import rerun_binary, verify_rrd
+
+            if rerun_binary() is None:
+                run.warnings.append("rerun binary not found: recordings not verified")
+            else:
+                for rel in run.recordings:
+                    try:
+                        verify_rrd(stage / rel)
+                    except Exception as exc:
+                        if run.ok:
+                            msg = str(exc).replace(f"{stage / rel}: ", "")
+                            run.status, run.error = "failed", f"recording {rel} does not verify: {msg}"
+            if run.ok:
+                _open_recordings_in_viewer(run, stage, out_dir)  # not published yet: in the staging folder
+
+        # the executed notebook and its HTML, marked with the run's status
+        nb = None
+        if tmp_ipynb.exists() and tmp_ipynb.stat().st_size > 0:
+            try:
+                nb = _retarget(nbformat.read(str(tmp_ipynb), as_version=4), stage, out_dir)
+            except Exception as exc:  # papermill died before writing a whole notebook
+                run.warnings.append(f"executed notebook unreadable: {exc}")
+        if nb is None:
+            nb = nbformat.read(str(spec.path), as_version=4)
+        nb.metadata["hsmap"] = {k: v for k, v in run.to_dict().items() if k != "metrics"}
+        try:
+            html = notebook_to_html(nb, run, versions)
+        except Exception as exc:
+            if run.ok:
+                run.status = "failed"
+                run.error = f"HTML conversion failed: {type(exc).__name__}: {exc}"
+            html = (f"<html><body><h1>{run.name}: FAILED</h1><pre>{escape(run.error or '')}</pre>"
+                    f"<p>HTML conversion failed too: {escape(str(exc))}</p></body></html>")
+        nb.metadata["hsmap"]["status"] = run.status
+        nb.metadata["hsmap"]["error"] = run.error
+        run.ipynb, run.html = f"{spec.name}.ipynb", f"{spec.name}.html"
+        try:
+            with atomic_open(tmp_ipynb, "w", encoding="utf-8") as fh:
+                nbformat.write(nb, fh)
+            write_text(stage / f"{spec.name}.html", html)
+            write_json(folder / "run.json", run.to_dict())
+            _publish(stage, out_dir, spec.name)
+        except OSError as exc:  # name the report where it was to appear, not its staging copy
+            if not isinstance(exc, OutputError):
+                exc = OutputError(f"{out_dir / spec.name}: cannot publish the report ({exc.strerror or exc})")
+            raise OutputError(str(exc).replace(str(stage), str(out_dir))) from None
+        return run
+    finally:  # published, or interrupted (Ctrl-C) or the machinery failed: no temporary is left behind
+        shutil.rmtree(stage, ignore_errors=True)
+        os.close(lock_fd)
+
+
+def write_kernelspec(root: str | os.PathLike) -> Path:
+    """A jupyter kernelspec ``hsmap-python`` for the current interpreter under ``root/kernels/``.
+
+    Its kernels run with analytics off, the inline matplotlib backend (the Makefile's ``MPLBACKEND=Agg``
+    would hide inline figures) and no IPython history database (parallel kernels would contend for it).
+    """
+    d = Path(root) / "kernels" / KERNEL_NAME
+    d.mkdir(parents=True, exist_ok=True)
+    spec = {
+        "argv": [sys.executable, "-m", "ipykernel_launcher", "-f", "{connection_file}",
+                 "--HistoryManager.enabled=False", "--IPKernelApp.log_level=ERROR"],
+        "display_name": f"hsmap (Python {platform.python_version()})",
+        "language": "python",
+        "env": {"RERUN_ANALYTICS": "0", "MPLBACKEND": "module://matplotlib_inline.backend_inline"},
+        "metadata": {"debugger": False},
+    }
+    (d / "kernel.json").write_text(json.dumps(spec, indent=1), encoding="utf-8")
+    return d

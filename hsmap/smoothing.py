@@ -25,14 +25,6 @@ few, that left the track where the odometry and its neighbours say otherwise), i
 in the passes after the first, plain least-squares one (iteratively reweighted least squares), and put back where
 they say. A scan match that its scene does not constrain (a featureless corridor) says nothing and confirms
 nothing.
-
-Measured (``benchmarks/slam.py --jobs 2 --threads 1``, seeds 1-5, the same runs scored before and after the
-smoother, session 38): fr-clinic 0.1206 +- 0.0011 m -> 0.1188 +- 0.0009 m (every seed better by 1.3-2.8 mm; the
-white noise measured at 0.50 / 0.35 cm in x / y and none in yaw, so the rotation is as before; four frames 1 m
-off at t = 2056 s, where a corridor left the scans nothing to say, put back; some 7 s of a 115 s run); intel
-0.0184 m and fr079 0.0329 m before and after (their dense, close scans leave the poses 0-1.7 mm of white noise:
-nothing moves by more than 2.3 cm); the 45 simulated building runs of ``benchmarks/slam_buildings.py`` the same
-to the fourth digit (under 0.14 mm measured).
 """
 
 from __future__ import annotations

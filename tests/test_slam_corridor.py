@@ -48,9 +48,9 @@ def _check(route, res):
 
 @pytest.mark.parametrize(("fov_deg", "beams"), [(270.0, 541), (180.0, 181)])
 def test_corridor_follows_odometry_along_its_axis(fov_deg, beams):
-    """Before session 37 the tracking ended 29-39 m off over the 39 m (270 deg: 28.7 m, 180 deg: 38.0 m): the far,
-    sparse wall points got normals from neighbours on both walls, facing the axis, the registrations claimed
-    millimetres along it, and the odometry learned a bias of a whole step backwards from them."""
+    """Down a featureless corridor the tracking follows the odometry along its axis: the far, sparse wall points
+    must not get normals from neighbours on both walls (facing the axis), which would claim millimetres along it
+    and teach the odometry a bias of a whole step backwards."""
     _check(*corridor_run(fov_deg, beams))
 
 

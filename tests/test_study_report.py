@@ -20,7 +20,6 @@ PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 @pytest.fixture
 def no_notebook_env(monkeypatch):
     monkeypatch.delenv(NOTEBOOK_ENV, raising=False)
-    monkeypatch.delenv("JPY_SESSION_NAME", raising=False)
 
 
 def test_report_writes_metrics_beside_the_paper(tmp_path, no_notebook_env):
@@ -50,8 +49,7 @@ def test_report_name_comes_from_the_runner_and_must_agree(tmp_path, no_notebook_
     assert NotebookReport(tmp_path, "03-slam-6dof").name == "03-slam-6dof"
     with pytest.raises(ConfigError, match="03-slam-6dof"):
         NotebookReport(tmp_path, "03-old-name")
-    monkeypatch.delenv(NOTEBOOK_ENV)
-    monkeypatch.setenv("JPY_SESSION_NAME", "/home/u/notebooks/05-voronoi-steps.ipynb")
+    monkeypatch.setenv(NOTEBOOK_ENV, "05-voronoi-steps")
     assert NotebookReport(tmp_path).name == "05-voronoi-steps"
     with pytest.raises(InputError):
         NotebookReport(tmp_path, "../escape")

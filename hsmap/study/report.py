@@ -83,10 +83,7 @@ def _in_ipython() -> bool:
 
 
 def _notebook_file_stem() -> str | None:
-    """The running notebook's file stem where the front end tells it (Jupyter server, VS Code)."""
-    session = os.environ.get("JPY_SESSION_NAME", "")
-    if session.endswith(".ipynb"):
-        return Path(session).stem
+    """The running notebook's file stem where the front end tells it (VS Code)."""
     try:
         from IPython import get_ipython
     except ImportError:  # pragma: no cover

@@ -547,7 +547,7 @@ def test_a_batch_finishing_later_keeps_the_entries_another_wrote_meanwhile(tmp_p
     """Issue 12, reproduction 2: batch A runs 01 (long); meanwhile batch B runs 02, which fails, and writes its
     entry; A finishes last. A's index must keep B's entry, not its own stale copy of 02's earlier "ok"."""
     import hsmap.study.batch as batch
-    import hsmap.study.execute as batch_execute
+    import hsmap.study.notebook_run as notebook_run
     from hsmap.io import folder_lock, write_json
 
     nbdir, out = tmp_path / "notebooks", tmp_path / "reports"
@@ -555,17 +555,17 @@ def test_a_batch_finishing_later_keeps_the_entries_another_wrote_meanwhile(tmp_p
     _notebook(nbdir / "01-wait.ipynb")
     _notebook(nbdir / "02-quick.ipynb")
     spec = {s.name: s for s in batch.discover(nbdir)}
-    earlier = batch_execute.NotebookRun(name="02-quick", notebook=str(spec["02-quick"].path), status="ok",
+    earlier = notebook_run.NotebookRun(name="02-quick", notebook=str(spec["02-quick"].path), status="ok",
                                 started="2026-01-01T00:00:00+00:00", duration_s=1.0)
     write_json(out / "02-quick" / "run.json", earlier.to_dict())  # what A sees of 02 when it starts
 
     def a_runs_01_while_b_runs_02(s, *args):
-        failed = batch_execute.NotebookRun(name="02-quick", notebook=str(spec["02-quick"].path), status="failed",
-                                   error="RuntimeError: asked to fail", started=batch_execute.now_text(), duration_s=0.5)
+        failed = notebook_run.NotebookRun(name="02-quick", notebook=str(spec["02-quick"].path), status="failed",
+                                   error="RuntimeError: asked to fail", started=notebook_run.now_text(), duration_s=0.5)
         with folder_lock(out):  # what batch B publishes meanwhile, as it does: run.json, then its index
             write_json(out / "02-quick" / "run.json", failed.to_dict())
             write_json(out / "index.json", {"notebooks": [failed.to_dict()]})
-        return batch_execute.NotebookRun(name=s.name, notebook=str(s.path), status="ok", started=batch_execute.now_text(),
+        return notebook_run.NotebookRun(name=s.name, notebook=str(s.path), status="ok", started=notebook_run.now_text(),
                                  duration_s=2.0).to_dict()
 
     monkeypatch.setattr(batch, "_worker", a_runs_01_while_b_runs_02)

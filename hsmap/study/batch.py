@@ -60,15 +60,14 @@ from .discovery import (
 )
 from .execute import (
     KERNEL_NAME,
-    NotebookRun,
     environ,
     execute_notebook,
     kernel_env,
-    now_text,
     write_kernelspec,
 )
 from .interrupts import busy, marking_interrupts, stop_workers, worker_signals
 from .notebook_html import notebook_to_html
+from .notebook_run import NotebookRun, now_text
 from .tooling import require_study_tooling
 
 __all__ = [

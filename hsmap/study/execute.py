@@ -4,7 +4,6 @@ its report published as a whole once complete (:func:`execute_notebook`); the ke
 from __future__ import annotations
 
 import contextlib
-import datetime as dt
 import json
 import os
 import platform
@@ -12,7 +11,6 @@ import shutil
 import sys
 import time
 from collections.abc import Iterator, Mapping
-from dataclasses import asdict, dataclass, field
 from html import escape
 from pathlib import Path
 from typing import Any
@@ -22,6 +20,7 @@ from ..io import atomic_open, write_json, write_text
 from .discovery import NotebookSpec
 from .interrupts import quiet_papermill_log
 from .notebook_html import notebook_to_html
+from .notebook_run import NotebookRun, now_text
 from .report import NOTEBOOK_ENV, read_metrics
 from .tooling import lighten_jupyter_imports
 
@@ -29,45 +28,6 @@ __all__ = ["KERNEL_NAME", "NotebookRun", "execute_notebook", "write_kernelspec"]
 
 KERNEL_NAME = "hsmap-python"
 _BLAS_VARS = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
-
-
-@dataclass
-class NotebookRun:
-    """What became of one notebook (also written as ``reports/NAME/run.json``)."""
-
-    name: str
-    notebook: str
-    title: str = ""
-    status: str = "not run"  # "ok", "skipped", "failed", "running", "pending", "not run", "interrupted"
-    error: str | None = None
-    error_cell: int | None = None
-    started: str | None = None
-    duration_s: float | None = None
-    parameters: dict[str, Any] = field(default_factory=dict)
-    html: str | None = None
-    ipynb: str | None = None
-    figures: list[str] = field(default_factory=list)
-    recordings: list[str] = field(default_factory=list)
-    metrics: dict[str, Any] | None = None
-    warnings: list[str] = field(default_factory=list)
-    pid: int | None = None  # of the batch that has it pending or running (a dead one's entry is stale)
-
-    @property
-    def ok(self) -> bool:
-        """Ran through: "ok", or "skipped" (its inputs are missing, and it said so)."""
-        return self.status in ("ok", "skipped")
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> NotebookRun:
-        known = {f for f in cls.__dataclass_fields__}
-        return cls(**{k: v for k, v in d.items() if k in known})
-
-
-def now_text() -> str:
-    return dt.datetime.now().astimezone().isoformat(timespec="seconds")
 
 
 def _staging_prefix(name: str) -> str:

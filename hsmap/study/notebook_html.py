@@ -3,11 +3,9 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-if TYPE_CHECKING:
-    from .execute import NotebookRun
-
+from .notebook_run import NotebookRun
 from .tooling import lighten_jupyter_imports
 
 __all__ = ["notebook_to_html"]

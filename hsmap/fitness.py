@@ -26,6 +26,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
+from . import _kernels
+from ._threads import current_threads, helper_pool, start_threading_layer
 from .errors import InputError
 from .geometry import euler_to_matrix
 from .neighbours import tree_query
@@ -149,7 +151,6 @@ class DistanceField:
         Each node within the truncation band of a point takes the exact distance from its centre to the point if
         that is smaller (cheaper than a Euclidean distance transform when only short distances matter).
         """
-        from . import _kernels
 
         pts = np.ascontiguousarray(points, dtype=float)
         if len(pts) == 0:
@@ -175,7 +176,6 @@ class DistanceField:
         if self.dim == 2:
             _kernels.splat_field_2d(pts, self.origin, self.resolution, self.values, self._radius)
             return
-        from ._threads import current_threads, helper_pool
 
         # slabs along x, one per compute thread, each node lowered by one thread: the same field for any count
         t = current_threads() if len(pts) * (2 * self._radius + 1) ** 3 >= PARALLEL_MIN_SPLAT else 1
@@ -199,8 +199,6 @@ class DistanceField:
 
     def score_batch(self, poses: NDArray[np.float64], points: NDArray[np.float64]) -> tuple[NDArray, NDArray]:
         """Mean truncated distance (B,) and inlier ratio (B,) of ``points`` moved by each of the B ``poses``."""
-        from . import _kernels
-        from ._threads import start_threading_layer
 
         start_threading_layer()
         poses = np.ascontiguousarray(poses, dtype=np.float64)
@@ -275,8 +273,6 @@ class FieldObjective:
         return score(poses, self.source, self.field, self.inlier_weight).value
 
     def run_chunk(self, *args) -> None:
-        from . import _kernels
-        from ._threads import start_threading_layer
 
         start_threading_layer()
         f = self.field

@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .errors import DataFormatError, DatasetError, EmptyInputError, HsmapWarning, InputError, ShapeError
+from .geometry import compose, pose_to_matrix, transform_points
 from .io import atomic_path, write_text
 
 __all__ = [
@@ -461,7 +462,6 @@ def _placed_scans(scans, poses: ArrayLike, extrinsic: ArrayLike | None = None
     ``poses`` (M, 3) are the robot's; ``extrinsic`` is the sensor's pose in the robot frame, one (3,) for all
     scans or one per scan (M, 3); default identity.
     """
-    from .geometry import compose, pose_to_matrix, transform_points
 
     poses = np.asarray(poses, dtype=float)
     scans = list(scans)

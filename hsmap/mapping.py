@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from . import _kernels
 from .errors import InputError, ShapeError
 
 __all__ = ["VoxelMap", "voxel_keys", "first_per_voxel", "voxel_downsample"]
@@ -59,7 +60,6 @@ def voxel_downsample(points: NDArray[np.floating], voxel: float, min_range: floa
     limit = min(max_range, float(np.nanmax(np.abs(pts), initial=0.0)))
     if limit >= (1 << 20) * voxel:
         raise InputError(f"points beyond +/-{(1 << 20) * voxel:.0f} m cannot be downsampled at {voxel} m voxels")
-    from . import _kernels  # numba: compiled on first use
 
     return _kernels.voxel_centroids(np.ascontiguousarray(pts), float(voxel), float(min_range), float(max_range))
 
@@ -122,7 +122,6 @@ class VoxelMap:
         pts, nrm = pts[ok], nrm[ok]
         if len(pts) == 0:
             return (pts, nrm) if return_normals else pts
-        from . import _kernels
 
         # the voxels' sorted keys, first rows, sums (in input order) and counts: one pass of a hash table
         keys, first, sums, counts = _kernels.voxel_reduce(np.ascontiguousarray(pts), self.voxel, _BIAS)

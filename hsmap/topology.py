@@ -16,7 +16,7 @@ from pathlib import Path
 import networkx as nx
 import numpy as np
 
-from .io import atomic_path, write_json
+from .io import atomic_path, write_json, write_text
 
 __all__ = ["room_graph", "topology_listing", "write_topology", "graph_to_json", "read_topology_json"]
 
@@ -106,7 +106,6 @@ def read_topology_json(path: str | os.PathLike) -> nx.Graph:
 
 def write_topology(g: nx.Graph, folder: str | os.PathLike, stem: str = "topology") -> dict[str, Path]:
     """Write ``<stem>.json``, ``<stem>.graphml`` and ``<stem>.txt`` (the listing) into ``folder``, atomically."""
-    from .io import write_text
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)

@@ -36,6 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import DataFormatError, DatasetError, InputError
+from ..io import read_number_rows
 from ..trajectory import nearest_index
 from .frames import SOURCE_DEFAULT, Dataset, Frame, LaserScan2D
 
@@ -139,7 +140,6 @@ class _Stream:
         if times is None:
             raise DatasetError(f"{folder}: no {TIMES} in the folder or beside it; give the {what}s' rate with "
                                f"{rate_flag} HZ")
-        from ..io import read_number_rows
 
         arr = read_number_rows(times, "t", "stamps")
         if len(arr) != n:

@@ -7,6 +7,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from ..errors import HsmapWarning, ShapeError
+
 __all__ = ["LaserScan2D", "Frame", "Dataset", "SOURCE_INPUT", "SOURCE_DEFAULT"]
 
 
@@ -126,7 +128,6 @@ class Dataset:
         source : str, optional
             What gave them, recorded in :attr:`extrinsic_sources` (default the argument's name).
         """
-        from ..errors import ShapeError
 
         for name, value, n in (("extrinsic2d", extrinsic2d, 3), ("extrinsic3d", extrinsic3d, 6)):
             if value is None:
@@ -188,7 +189,6 @@ class Dataset:
         """Record a warning in :attr:`warnings` and issue it as :class:`~hsmap.errors.HsmapWarning`."""
         import warnings
 
-        from ..errors import HsmapWarning
 
         self.warnings.append(message)
         warnings.warn(message, HsmapWarning, stacklevel=stacklevel)

@@ -20,11 +20,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .. import slam
+from ..config import from_dict, to_dict
 from ..datasets.frames import Dataset, Frame
 from ..errors import DatasetError, HsmapError, InputError
 from ..io import to_plain
 from ..slam import SlamConfig
-from ..trajectory import Trajectory
+from ..trajectory import Trajectory, read_tum
 from .cache import MARKER, FolderCache, description_digest, slug
 
 __all__ = ["SlamRun", "cached_slam", "slam_key", "dataset_fingerprint"]
@@ -221,8 +222,6 @@ def _load_run(folder: Path) -> SlamRun:
     """Read a run folder; DatasetError when it is incomplete or inconsistent."""
     import json
 
-    from ..config import from_dict
-    from ..trajectory import read_tum
 
     for name in _RUN_FILES:
         if not (folder / name).is_file():
@@ -247,7 +246,6 @@ def _load_run(folder: Path) -> SlamRun:
 
 def _slam_description(dataset, config: SlamConfig, seed: int, prior: Trajectory | None, max_frames: int | None,
                       initial_pose: ArrayLike | None, open_kwargs: Mapping[str, Any] | None) -> dict:
-    from ..config import to_dict
 
     return {
         "dataset": dataset_fingerprint(dataset, open_kwargs),

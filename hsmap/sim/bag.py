@@ -36,6 +36,8 @@ from . import layout
 from .robot import sample_legs, simulate_motion
 from .scenario import Scenario
 from .sensors import Lidar3DConfig
+from .world import World
+from .writer import _as_scenario, noise_rngs
 
 __all__ = ["OUSTER_POINT", "SimulatedBag", "write_simulated_bag", "ouster_cloud_bytes"]
 
@@ -146,8 +148,6 @@ def write_simulated_bag(
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
 
-    from .world import World
-    from .writer import _as_scenario, noise_rngs
 
     scn = _as_scenario(scenario)
     if lidar3d is not None:

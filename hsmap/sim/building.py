@@ -24,12 +24,14 @@ from .. import __version__
 from ..config import to_dict
 from ..datasets.simulated import FORMAT, FORMAT_VERSION
 from ..errors import ScenarioError
+from ..grid import write_label_image
 from ..io import sweep_stale_temporaries, write_json, write_text
 from ..trajectory import Trajectory, write_tum
 from .explore import Exploration, ExploreConfig, plan_exploration
 from .floorplan import FloorPlan, FloorPlanWorld, FloorPlanWorldConfig, build_world
 from .robot import Motion, OdometryConfig, RobotConfig, simulate_motion
 from .sensors import Lidar2DConfig, Lidar3DConfig
+from .writer import open_dataset_folder, write_sensor_frames
 
 __all__ = ["BuildingRunConfig", "BuildingRun", "simulate_building", "building_motion"]
 
@@ -108,8 +110,6 @@ def simulate_building(plan: FloorPlan, out: str | os.PathLike, *, seed: int = 0,
     -------
     BuildingRun
     """
-    from ..grid import write_label_image
-    from .writer import open_dataset_folder, write_sensor_frames
 
     cfg = config or BuildingRunConfig()
     seed = int(seed)

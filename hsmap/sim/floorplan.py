@@ -37,7 +37,9 @@ from numpy.typing import NDArray
 from scipy import ndimage as ndi
 
 from ..errors import ConfigError, DataFormatError, DatasetError
-from ..grid import IMAGE_FREE_MIN, GridGeometry
+from ..evaluation.segmentation import ground_truth_rooms
+from ..grid import IMAGE_FREE_MIN, GridGeometry, read_image_gray
+from .world import World
 
 __all__ = ["FloorPlan", "FloorPlanWorldConfig", "FurniturePiece", "FloorPlanWorld", "read_floor_plan",
            "floor_plan_files", "list_floor_plans", "build_world", "mask_rectangles", "BORMANN_RESOLUTION"]
@@ -139,8 +141,6 @@ def read_floor_plan(plain: str | os.PathLike, furnished: str | os.PathLike | Non
         A file is not an image, the sizes differ, the plain map has no free pixel, or the ground truth has no room;
         the message names the file.
     """
-    from ..evaluation.segmentation import ground_truth_rooms
-    from ..grid import read_image_gray
 
     if not (np.isfinite(resolution) and resolution > 0):
         raise ConfigError(f"resolution must be > 0 metres per pixel, got {resolution}")
@@ -310,7 +310,6 @@ class FloorPlanWorld:
 
     def world(self):
         """The :class:`~hsmap.sim.world.World` (open3d ray-casting scene) of the boxes."""
-        from .world import World
 
         x0, x1, y0, y1 = self.plan.geometry.extent()
         return World.from_boxes(self.boxes, self.kinds, ((x0, y0), (x1, y1)), self.config.ceiling_height)

@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 
 from ..grid import GridGeometry
 from .model import Door, Furniture, Scenario
-from .shapes import box_sdf, make_box, points_in_polygon
+from .shapes import box_corners, box_sdf, make_box, points_in_polygon
 
 __all__ = [
     "wall_footprints",
@@ -155,7 +155,6 @@ def solid_boxes(scn: Scenario) -> tuple[NDArray[np.float64], list[str]]:
 
 def bounds(scn: Scenario) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """(xy_min, xy_max) of the walls' footprints."""
-    from .shapes import box_corners
 
     corners = box_corners(wall_footprints(scn)).reshape(-1, 2)
     return corners.min(0), corners.max(0)

@@ -32,6 +32,7 @@ from . import layout
 from .model import FURNITURE_TYPES, Door, Furniture, Room, Scenario, Wall
 from .robot import OdometryConfig, RobotConfig, RouteStep, plan_legs
 from .sensors import Lidar2DConfig, Lidar3DConfig
+from .shapes import boxes_overlap, segment_box_distance
 
 __all__ = ["Wall", "Door", "Room", "Furniture", "Scenario", "load_scenario", "parse_scenario",
            "FURNITURE_TYPES"]
@@ -323,7 +324,6 @@ def _polygon_area(poly: NDArray[np.float64]) -> float:
 
 def check_scenario(scn: Scenario) -> None:
     """The geometric checks (walls, doors, rooms, furniture, route); raises ScenarioError naming the key."""
-    from .shapes import boxes_overlap, segment_box_distance
 
     P = _Parser(scn.path)
     # walls overlapping along their length (parallel, closer than their thickness, sharing more than a joint)

@@ -38,6 +38,7 @@ from . import layout
 from .catalog import resolve_scenario
 from .robot import Motion, simulate_motion
 from .scenario import Scenario, load_scenario
+from .world import World
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "SimulationSummary", "simulate", "save_npz", "motion_for", "noise_rngs",
            "write_sensor_frames"]
@@ -149,7 +150,6 @@ def simulate(scenario: Scenario | str | os.PathLike, out: str | os.PathLike, see
     -------
     SimulationSummary
     """
-    from .world import World
 
     t_start = time.perf_counter()
     scn = _as_scenario(scenario)

@@ -48,7 +48,7 @@ from typing import Any
 
 from .. import __version__
 from ..errors import ConfigError, InputError
-from ..io import write_json, write_text
+from ..io import folder_lock, prepare_output_dir, sweep_stale_temporaries, write_json, write_text
 from .discovery import (
     PATH_PARAMETERS,
     STANDARD_PARAMETERS,
@@ -68,6 +68,7 @@ from .execute import (
 from .interrupts import busy, marking_interrupts, stop_workers, worker_signals
 from .notebook_html import notebook_to_html
 from .notebook_run import NotebookRun, now_text
+from .report import render_index
 from .tooling import require_study_tooling
 
 __all__ = [
@@ -273,7 +274,6 @@ def run_notebooks(
 
     common = _absolute_paths(common)
     per_nb = {k: _absolute_paths(v) for k, v in per_nb.items()}
-    from ..io import folder_lock, prepare_output_dir, sweep_stale_temporaries
 
     out = prepare_output_dir(Path(out_dir).resolve(), "reports folder")
     versions = environment_info(Path(notebooks_dir).resolve())
@@ -290,7 +290,6 @@ def run_notebooks(
         """Rewrite the index under the folder's lock, merging what other batches wrote: this batch's entries for
         the notebooks it runs, for the others the newer of the index's entry (unless its batch died) and the
         notebook's run.json."""
-        from .report import render_index
 
         meta = {"started": started, "duration_s": time.perf_counter() - t0, "quick": quick, "jobs": jobs,
                 "final": final, "versions": versions, "ran": [s.name for s in chosen]}

@@ -20,8 +20,12 @@ from typing import Any
 import numpy as np
 
 from ..config import read_yaml
+from ..datasets.open import open_dataset
+from ..datasets.relations import read_relations
 from ..errors import ConfigError, InputError
-from ..segmentation import SegmentationConfig
+from ..evaluation import relations_error, segmentation_scores
+from ..grid import read_image_gray
+from ..segmentation import SegmentationConfig, segment_rooms
 from ..slam import SlamConfig
 from .runs import SlamRun, cached_slam
 
@@ -88,7 +92,6 @@ def open_freiburg(folder: str | os.PathLike, name: str, *, extrinsic2d: Sequence
     -------
     RosbagDataset
     """
-    from ..datasets.open import open_dataset
 
     if name not in FREIBURG_LOGS:
         raise InputError(f"unknown Freiburg log {name!r}; expected one of {sorted(FREIBURG_LOGS)}")
@@ -103,7 +106,6 @@ SHORT_DT, LONG_DT = 10.0, 60.0
 
 
 def _relations_numbers(traj, rel, skip_unmatched: bool) -> dict:
-    from ..evaluation import relations_error
 
     r = relations_error(traj, rel, skip_unmatched=skip_unmatched)
     dt = np.abs(rel.t_j - rel.t_i)[r.used]
@@ -202,7 +204,6 @@ def freiburg_relations(folder: str | os.PathLike, logs: Sequence[str] = tuple(FR
     log : callable, optional
         Receives one line per run.
     """
-    from ..datasets.relations import read_relations
 
     seeds = [int(s) for s in seeds]
     if not seeds:
@@ -288,9 +289,6 @@ def room_segmentation_benchmark(folder: str | os.PathLike, buildings: Sequence[s
         One row per map: building, kind (plain/furnished), map, precision, recall, precision_area, recall_area,
         rooms, segments, doors, seconds (median wall time of ``segment_rooms``, map in memory), times_s, pixels.
     """
-    from ..evaluation import segmentation_scores
-    from ..grid import read_image_gray
-    from ..segmentation import segment_rooms
 
     if int(repeats) < 1:
         raise InputError(f"repeats must be >= 1, got {repeats}")

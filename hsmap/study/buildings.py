@@ -27,8 +27,17 @@ from pathlib import Path
 
 import numpy as np
 
+from ..datasets.simulated import SimulatedDataset
 from ..errors import DatasetError
+from ..evaluation import pose_errors, segmentation_scores
+from ..grid import IMAGE_FREE_MIN, read_image_gray, read_label_image, read_map, resample_labels
 from ..io import write_json, write_text
+from ..pipeline.chain import map_recording
+from ..sim.building import BuildingRunConfig, simulate_building
+from ..sim.floorplan import floor_plan_files, list_floor_plans, read_floor_plan
+from ..sim.sensors import Lidar3DConfig
+from ..trajectory import read_tum
+from .benchmarks import published_references
 from .distributed import Job, run_jobs
 
 __all__ = ["run_buildings", "building_config", "simulate_stage", "chain_stage", "score_stage", "summarise",
@@ -40,8 +49,6 @@ SCHEMA_VERSION = 1
 def building_config(quick: bool = False):
     """The one run configuration of every building (:class:`hsmap.sim.building.BuildingRunConfig`); quick: a
     32 x 512 3D LiDAR (half the columns)."""
-    from ..sim.building import BuildingRunConfig
-    from ..sim.sensors import Lidar3DConfig
 
     cfg = BuildingRunConfig()
     if quick:
@@ -51,8 +58,6 @@ def building_config(quick: bool = False):
 
 def simulate_stage(*, name: str, maps: str, out: str, seed: int = 0, quick: bool = False) -> dict:
     """Stage 1: read the floor plan, build the world, plan and drive the route, write the dataset."""
-    from ..sim.building import simulate_building
-    from ..sim.floorplan import read_floor_plan
 
     t = time.perf_counter()
     plan = read_floor_plan(maps, name=name)
@@ -68,8 +73,6 @@ def simulate_stage(*, name: str, maps: str, out: str, seed: int = 0, quick: bool
 
 def chain_stage(state: dict) -> dict:
     """Stage 2: the paper's chain on the simulated run."""
-    from ..datasets.simulated import SimulatedDataset
-    from ..pipeline.chain import map_recording
 
     t = time.perf_counter()
     folder = Path(state["folder"])
@@ -85,7 +88,6 @@ def chain_stage(state: dict) -> dict:
 
 
 def _pose_error_record(est, gt) -> dict:
-    from ..evaluation import pose_errors
 
     e = pose_errors(est, gt).as_dict()
     mx = e["max_abs_error"]
@@ -96,11 +98,6 @@ def _pose_error_record(est, gt) -> dict:
 
 def score_stage(state: dict) -> dict:
     """Stage 3: both segmentations against the ground truth, both paths against the true one; the record."""
-    from ..datasets.simulated import SimulatedDataset
-    from ..evaluation import segmentation_scores
-    from ..grid import read_label_image, read_map, resample_labels
-    from ..sim.floorplan import read_floor_plan
-    from ..trajectory import read_tum
 
     t = time.perf_counter()
     folder = Path(state["folder"])
@@ -202,7 +199,6 @@ def run_buildings(maps: str | os.PathLike, out: str | os.PathLike, *, only: Sequ
     DatasetError
         ``maps`` holds no floor plan, or a name of ``only`` is not one of them.
     """
-    from ..sim.floorplan import list_floor_plans
 
     t0 = time.perf_counter()
     maps, out = Path(maps), Path(out)
@@ -226,14 +222,11 @@ def run_buildings(maps: str | os.PathLike, out: str | os.PathLike, *, only: Sequ
 
 
 def _free_pixels(maps: Path, name: str) -> int:
-    from ..grid import IMAGE_FREE_MIN, read_image_gray
-    from ..sim.floorplan import floor_plan_files
 
     return int((read_image_gray(floor_plan_files(maps, name)[0]) >= IMAGE_FREE_MIN).sum())
 
 
 def _paper_table2() -> dict | None:
-    from .benchmarks import published_references
 
     try:
         return published_references().get("table2")

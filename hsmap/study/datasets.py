@@ -1,7 +1,7 @@
 """The study's simulated datasets: one folder per scenario and seed, simulated once and then reused.
 
 ``data/generated/<scenario>-seed<seed>`` (or ``...-first<N>`` for quick runs) is a folder of
-:func:`hsmap.sim.simulate`, kept by :class:`hsmap.study.cache.FolderCache` and keyed on the parsed scenario, the
+:func:`hsmap.sim.simulate`, kept by :class:`hsmap.pipeline.cache.FolderCache` and keyed on the parsed scenario, the
 seed, the frame count and the code of the whole core package (the simulator included): change a simulator
 module and the dataset is simulated again, and with it every SLAM run and map made from it.
 """
@@ -12,10 +12,12 @@ import dataclasses
 import os
 from pathlib import Path
 
-from ..datasets.simulated import SimulatedDataset
+from ..datasets.simulated import FORMAT, FORMAT_VERSION, SimulatedDataset
 from ..errors import DatasetError, InputError
 from ..pipeline.cache import FolderCache, description_digest, slug
-from ..sim.scenario import Scenario
+from ..sim import writer
+from ..sim.catalog import resolve_scenario
+from ..sim.scenario import Scenario, load_scenario
 from .paths import generated_dir
 
 __all__ = ["simulated_dataset"]
@@ -24,7 +26,6 @@ __all__ = ["simulated_dataset"]
 def _scenario_description(scn: Scenario, seed: int, max_frames: int | None) -> dict:
     """The parsed scenario (not its file's bytes: a scenario changed in memory by ``replace`` counts too), the
     seed and the frame count of a simulated dataset."""
-    from ..datasets.simulated import FORMAT, FORMAT_VERSION
 
     content = dataclasses.asdict(scn)
     for k in ("raw", "path", "sha256"):
@@ -45,9 +46,8 @@ def _dataset_loader(frames: int | None):
 
 def _simulate_into(scn: Scenario, seed: int, max_frames: int | None):
     def compute(folder: Path) -> None:
-        from ..sim.writer import simulate
 
-        simulate(scn, folder, seed, max_frames=max_frames)
+        writer.simulate(scn, folder, seed, max_frames=max_frames)
 
     return compute
 
@@ -67,9 +67,6 @@ def simulated_dataset(scenario: str | os.PathLike | Scenario = "slam-office", se
     -------
     SimulatedDataset
     """
-    from ..sim.catalog import resolve_scenario
-    from ..sim.scenario import load_scenario
-    from ..sim.writer import motion_for
 
     scn = scenario if isinstance(scenario, Scenario) else load_scenario(resolve_scenario(scenario))
     seed = int(seed)
@@ -83,9 +80,9 @@ def simulated_dataset(scenario: str | os.PathLike | Scenario = "slam-office", se
         if full is not None:
             return full.value
         n = int(max_frames)
-        frames = len(motion_for(scn, seed, n))
+        frames = len(writer.motion_for(scn, seed, n))
         return cache.get(f"{slot}-first{n}", _scenario_description(scn, seed, n), _simulate_into(scn, seed, n),
                          _dataset_loader(frames)).value
-    frames = len(motion_for(scn, seed, None))
+    frames = len(writer.motion_for(scn, seed, None))
     return cache.get(slot, _scenario_description(scn, seed, None), _simulate_into(scn, seed, None),
                      _dataset_loader(frames)).value

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from ..config import read_yaml
 from ..errors import ConfigError, InputError
 from .tooling import lighten_jupyter_imports, require_study_tooling
 
@@ -127,7 +128,6 @@ def load_parameters_file(path: str | os.PathLike) -> tuple[dict[str, Any], dict[
 
     Returns (common parameters, per-notebook parameters keyed by selector).
     """
-    from ..config import read_yaml
 
     path = Path(path)
     doc = read_yaml(path, "parameters file")

@@ -15,8 +15,9 @@ from html import escape
 from pathlib import Path
 from typing import Any
 
-from ..errors import OutputError
-from ..io import atomic_open, write_json, write_text
+from .._blas import blas_threads
+from ..errors import HsmapError, OutputError
+from ..io import STAGING_PREFIX, atomic_open, folder_lock, locked_staging_folder, write_json, write_text
 from .discovery import NotebookSpec
 from .interrupts import quiet_papermill_log
 from .notebook_html import notebook_to_html
@@ -32,7 +33,6 @@ _BLAS_VARS = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 def _staging_prefix(name: str) -> str:
     """Prefix of the hidden staging folders of notebook ``name`` in the reports folder."""
-    from ..io import STAGING_PREFIX
 
     return f"{STAGING_PREFIX}{name}-"
 
@@ -44,7 +44,6 @@ def _publish(stage: Path, out_dir: Path, name: str) -> None:
     The previous folder is moved aside (into ``stage``, deleted with it) and the new one renamed into place; the
     two files are replaced by renames. Nothing of the old run survives beside the new one.
     """
-    from ..io import folder_lock
 
     old, aside = out_dir / name, stage / ".previous"
     with folder_lock(out_dir):
@@ -119,7 +118,6 @@ def kernel_env(name: str, jobs: int) -> dict[str, str]:
     """The environment of a notebook's kernel (hsmap's own process): BLAS on ``$HSMAP_BLAS_THREADS`` threads
     (default 1, see :mod:`hsmap._blas`) and, for parallel kernels, one share of the cores each for the other
     native thread pools; a variable the caller set is left alone."""
-    from .._blas import blas_threads
 
     env = {NOTEBOOK_ENV: name, "RERUN_ANALYTICS": "0", "PYTHONHASHSEED": os.environ.get("PYTHONHASHSEED", "0")}
     for var in _BLAS_VARS:
@@ -162,7 +160,6 @@ def _open_recordings_in_viewer(run: NotebookRun, folder: Path, out_dir: Path | N
     headless viewer (where a graphics stack allows): a view that reports an error, or that should show something
     and is empty, fails the notebook, naming the recording where it is published (under ``out_dir``). Where the
     viewer cannot run, the run says so in its warnings."""
-    from ..errors import HsmapError
     from ..viz.viewer import HeadlessViewer, viewer_unavailable
 
     reason = viewer_unavailable()
@@ -209,7 +206,6 @@ def execute_notebook(
     import nbformat
     import papermill
 
-    from ..io import locked_staging_folder
 
     out_dir = Path(out_dir).resolve()
     out_dir.mkdir(parents=True, exist_ok=True)

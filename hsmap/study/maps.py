@@ -44,16 +44,22 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
 from ..datasets.frames import Dataset, Frame
+from ..datasets.open import open_dataset
 from ..datasets.simulated import SimulatedDataset
 from ..errors import InputError
+from ..evaluation import segmentation_scores
+from ..fusion import resample_grid, slice_scans
 from ..geometry import pose_to_matrix, transform_points
-from ..grid import GridGeometry, OccupancyGrid, ScanGridConfig, grid_from_scans
-from ..mapping import VoxelMap, first_per_voxel
+from ..grid import GridGeometry, OccupancyGrid, ScanGridConfig, grid_from_scans, scans_to_points
+from ..io import write_json
+from ..mapping import VoxelMap, first_per_voxel, voxel_downsample
 from ..pipeline.cache import FolderCache, description_digest, slug
-from ..slam import frame_points
+from ..segmentation import segment_rooms
+from ..slam import SlamConfig, frame_points
 from ..trajectory import Trajectory
+from .datasets import simulated_dataset
 from .paths import generated_dir
-from .runs import SimulatedRuns, simulated_slam_runs
+from .runs import SimulatedRuns, cached_slam, dataset_fingerprint, simulated_slam_runs
 
 __all__ = ["point_maps", "point_map", "scan_grid", "map_distances", "TwoLidarMaps", "two_lidar_maps",
            "recording_maps", "default_maps_dir", "MapSegmentations", "segment_maps", "door_errors",
@@ -327,7 +333,6 @@ def _grid_from(z, prefix: str) -> OccupancyGrid:
 
 
 def _thin(points: NDArray[np.float64], voxel: float) -> NDArray[np.float64]:
-    from ..mapping import voxel_downsample
 
     return voxel_downsample(np.asarray(points, dtype=float), voxel)
 
@@ -343,9 +348,6 @@ def _compute_maps(ds: SimulatedDataset, n: int, runs: SimulatedRuns | None, z_ra
     """The maps' folder writer: ``maps.npz`` (poses, point maps, grids, slice scans) and ``meta.json``."""
 
     def compute(folder: Path) -> None:
-        from ..fusion import slice_scans
-        from ..grid import scans_to_points
-        from ..io import write_json
 
         gt = ds.groundtruth.poses[:n]
         seconds: dict[str, float] = {}
@@ -404,10 +406,6 @@ def _compute_recording_maps(dataset, open_kwargs: Mapping[str, Any] | None, n: i
     """The maps' folder writer for a recording (any Dataset, matched to the SLAM poses by stamp)."""
 
     def compute(folder: Path) -> None:
-        from ..datasets.open import open_dataset
-        from ..fusion import slice_scans
-        from ..grid import scans_to_points
-        from ..io import write_json
 
         ds = dataset if isinstance(dataset, Dataset) else open_dataset(dataset, **dict(open_kwargs or {}))
         run3, run6 = runs
@@ -503,9 +501,6 @@ def recording_maps(
 
     Other parameters are those of :func:`two_lidar_maps`.
     """
-    from ..datasets.open import open_dataset
-    from ..slam import SlamConfig
-    from .runs import cached_slam, dataset_fingerprint
 
     if isinstance(dataset, (str, os.PathLike)) and not str(dataset).strip():
         raise InputError("dataset: empty path")
@@ -590,8 +585,6 @@ def two_lidar_maps(
     -------
     TwoLidarMaps
     """
-    from .datasets import simulated_dataset
-    from .runs import dataset_fingerprint
 
     if poses not in ("slam", "groundtruth"):
         raise InputError(f"poses must be 'slam' or 'groundtruth', got {poses!r}")
@@ -684,9 +677,6 @@ def segment_maps(maps: TwoLidarMaps, config: Any = None, *,
     log : callable or None
         Receives one line per map.
     """
-    from ..evaluation import segmentation_scores
-    from ..fusion import resample_grid
-    from ..segmentation import segment_rooms
 
     truth = maps.true_rooms()
     segs, scores, coverage = {}, {}, {}
@@ -726,7 +716,6 @@ def true_room_names(segmentation: Any, truth: tuple | None) -> dict[int, str]:
     """
     if truth is None:
         return {}
-    from ..fusion import resample_grid
 
     gt, gt_geo, gt_names = truth
     ours = resample_grid(segmentation.labels.astype(np.int32), segmentation.geometry, gt_geo, fill=0)

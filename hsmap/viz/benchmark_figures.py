@@ -17,6 +17,8 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from ..errors import InputError
+from ..grid import read_label_image, read_map
+from ..trajectory import read_tum
 from .figures import new_figure
 
 __all__ = ["relations_figure", "relations_dt_figure", "precision_recall_figure", "buildings_gain_figure",
@@ -184,8 +186,6 @@ def building_page_figure(folder: str | os.PathLike, plan, record: Mapping[str, A
     """One building of the benchmark on one page: the route over the ground truth, the floor-level map segmented,
     the slice segmented, the ground-truth rooms. ``folder``: the building's folder (``data/``, ``chain/``);
     ``plan``: its :class:`hsmap.sim.floorplan.FloorPlan`."""
-    from ..grid import read_label_image, read_map
-    from ..trajectory import read_tum
     from .figures import plot_labels, plot_trajectories
 
     folder = Path(folder)

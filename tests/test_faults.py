@@ -296,7 +296,7 @@ def test_a_recording_cut_short_by_the_disk_ends_the_run_with_one_line(bag, previ
     the interpreter's exit) that waited for it: the real-filesystem test found runs that hung. The recording's
     bytes now reach the file through a thread of hsmap's, whose first failed write ends the run on one line,
     wherever the disk fills (at once, after one byte, a block, 32 KB, or in the last write, the footer's)."""
-    from hsmap.viz import rerun as hrr
+    from hsmap.viz import rerun_core as hrr
 
     if not hrr._FileFeed.available():
         pytest.skip("the recording is written by rerun's own file writer on this platform")

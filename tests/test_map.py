@@ -183,7 +183,7 @@ def test_map_failing_midway_keeps_the_stages_done_and_the_previous_outputs(recor
                 raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), "rooms.npz")
             return real(*a, **k)
 
-        monkeypatch.setattr(hsmap.segmentation, "segment_rooms", segment_rooms)
+        monkeypatch.setattr(hsmap.pipeline.chain, "segment_rooms", segment_rooms)
     else:  # the figures, after the trajectories, grids, rooms and point maps were written
         def figures(figdir, *a, **k):
             assert {"trajectory2d.tum", "slice.yaml", "rooms.png", "map3d.ply"} <= {p.name for p in

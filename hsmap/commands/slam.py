@@ -55,10 +55,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 #: The files ``hsmap slam`` writes into --out (their stale temporaries are removed by the next run).
 OUTPUTS = ("trajectory.tum", "map.ply", "config.yaml", "metrics.json", "slam.rrd")
-# the recording's growing 2D map: 5 cm cells up to a 2000 x 2000 image (a building such as intel or fr079), coarser
-# beyond (fr-clinic's 444 m x 237 m at 5 cm are 42 million cells a grid: a sixth of the run's time went into drawing
-# and logging eleven of them)
-REPLAY_GRID_CELLS = 4_000_000
 
 
 def run(args: argparse.Namespace) -> int:
@@ -68,6 +64,7 @@ def run(args: argparse.Namespace) -> int:
     from ..io import prepare_output_dir, staged_outputs, sweep_stale_temporaries
     from ..slam import SlamConfig, run_slam, write_slam_outputs
     from ..trajectory import read_tum
+    from ..viz.replay import SlamRecorder
     from .inputs import open_input, slam_overrides
 
     if args.seed < 0:
@@ -85,49 +82,20 @@ def run(args: argparse.Namespace) -> int:
     sweep_stale_temporaries(out, OUTPUTS)  # left by a killed run
 
     with staged_outputs(out, last="metrics.json") as stage:
-        rec = None
-        on_frame = None
-        if not args.no_recording:
-            from ..viz import rerun as hv
-
-            # a 2D map view only where there is a 2D map: the occupancy grid of a 3-DOF run, logged at the end
-            rec = hv.open_recording(stage / "slam.rrd", application_id="hsmap_slam",
-                                    blueprint=hv.default_blueprint(graph=False, map2d=cfg.dof == 3, legend=True))
-            hv.log_legend(rec, _legend(cfg.dof))
-            map_logger = hv.PointMapLogger(rec, block=10, voxel=0.05 if cfg.dof == 3 else 0.15)
-            # the frames are logged in blocks, as columns: a few calls per block instead of a few per frame
-            frame_logger = hv.FrameLogger(rec, block=64, cloud_voxel=0.25)
-
-            keyscans: list = []  # 3-DOF: the keyframes' scans, for the grid at their final poses
-
-            def on_frame(frame, result, slam):
-                frame_logger.add(frame, result.pose)
-                if result.keyframe and cfg.dof == 3:
-                    keyscans.append(frame)
-                if result.keyframe:
-                    from ..geometry import pose_to_matrix, transform_points
-                    from ..slam import frame_points
-
-                    pts = frame_points(frame, cfg.dof, cfg.min_range, cfg.max_range)
-                    hv.set_frame_time(rec, frame.index, frame.stamp)  # the map block's time
-                    map_logger.add(transform_points(pose_to_matrix(result.pose), pts))
-
+        recorder = None if args.no_recording else SlamRecorder(stage / "slam.rrd", cfg)
         try:
             result = run_slam(dataset, cfg, rng=args.seed, prior=prior, max_frames=args.max_frames,
-                              progress=False if args.quiet else None, on_frame=on_frame,
+                              progress=False if args.quiet else None,
+                              on_frame=None if recorder is None else recorder.on_frame,
                               prior_name=f"--prior {args.prior}", strict=args.strict, threads=args.threads)
-            if rec is not None:
-                frame_logger.flush()
-                if result.frames:
-                    hv.set_frame_time(rec, result.frames[-1].index, result.frames[-1].stamp)
-                map_logger.flush()
-                _log_replay(rec, keyscans, result)
+            if recorder is not None:
+                recorder.finish(result)
         except BaseException:
-            if rec is not None:
-                rec.abort()
+            if recorder is not None:
+                recorder.abort()
             raise
-        if rec is not None:
-            rec.close()
+        if recorder is not None:
+            recorder.close()
         write_slam_outputs(result, stage)
     if not args.quiet:
         m = result.metrics()
@@ -138,70 +106,3 @@ def run(args: argparse.Namespace) -> int:
         sys.stderr.write(f"\nwrote {out}/{{trajectory.tum, map.ply, metrics.json, config.yaml"
                          f"{'' if args.no_recording else ', slam.rrd'}}}\n")
     return 0
-
-
-def _legend(dof: int) -> str:
-    from ..viz.rerun import series_legend
-
-    lines = [f"### hsmap slam ({'3-DOF' if dof == 3 else '6-DOF'})",
-             "Move the time cursor (timelines `time` and `scan`) to replay the run.", "",
-             series_legend(["estimate"]) + " (after loop closure: the optimised poses, drawn up to the current time)",
-             "- **orange box** (3D)" + (" / **orange arrow** (2D map)" if dof == 3 else "") + ": the robot",
-             "- **orange-red points**: the current scan" + ("" if dof == 3 else " and cloud (coloured by height)"),
-             "- **points**: the map, the keyframes at their poses when they were added"]
-    if dof == 3:
-        lines.append("- **2D map**: the occupancy grid of the keyframes' scans so far, at their final poses")
-    return "\n".join(lines)
-
-
-def _log_replay(rec, keyscans, result, grid_updates: int = 10, path_updates: int = 60) -> None:
-    """After the run: the final (optimised) path drawn up to each time, and, in 3-DOF, the occupancy grid of
-    the keyframes' scans so far (at their final poses) growing along the timelines in both views, with the
-    robot in the 2D map view."""
-    import numpy as np
-
-    from ..grid import grids_from_scan_prefixes
-    from ..viz import rerun as hv
-
-    traj = result.trajectory
-    n = len(traj)
-    if n == 0:
-        return
-    idx = np.array([f.index for f in result.frames]) if len(result.frames) == n else np.arange(n)
-    stamps = np.asarray(traj.stamps, dtype=float)
-    poses = np.asarray(traj.poses, dtype=float)
-    grid = geo = None
-    grids: dict = {}
-    if keyscans and result.config.dof == 3:
-        kposes, found = traj.as_3dof().at([f.stamp for f in keyscans], max_dt=1e-3)
-        kept = [f for f, ok in zip(keyscans, found, strict=True) if ok]
-        if kept:
-            scans = [f.scan2d for f in kept]
-            ext = np.asarray([f.extrinsic2d for f in kept], dtype=float)
-            kstamps = np.array([f.stamp for f in kept])
-            # the growing grid at every update and the final one, all in one pass over the scans (keyframes
-            # come in stamp order: the scans up to a time are a prefix)
-            at = sorted(set(np.linspace(0, n - 1, grid_updates).round().astype(int)) - {n - 1})
-            counts = [int((kstamps <= stamps[r]).sum()) for r in at]
-            *partial, grid = grids_from_scan_prefixes(scans, kposes, [*counts, len(kept)], 0.05, extrinsic=ext,
-                                                      max_cells=REPLAY_GRID_CELLS)
-            geo = grid.geometry
-            grids = {**dict(zip(at, partial, strict=True)), n - 1: grid}
-    grid_at = set(grids) if geo is not None else set()
-    path_at = set(np.linspace(0, n - 1, path_updates).round().astype(int))
-    robot_every = max(1, n // 600)
-    if geo is not None:  # the robot in the 2D map view, as columns (one call)
-        hv.log_map2d_robots(rec, poses[::robot_every], geo, idx[::robot_every], stamps[::robot_every])
-    for r in range(n):
-        g, p = r in grid_at, r in path_at
-        if not (g or p):
-            continue
-        hv.set_frame_time(rec, int(idx[r]), stamps[r])
-        if p and r > 0:
-            hv.log_path(rec, "estimate", poses[: r + 1], static=False)
-            if geo is not None:
-                hv.log_map2d_path(rec, "estimate", poses[: r + 1], geo, static=False)
-        if g:
-            if r < n - 1 and not (kstamps <= stamps[r]).any():
-                continue
-            hv.log_occupancy_grid(rec, grids[r].data, geo, static=False)

@@ -42,9 +42,11 @@ from typing import Any
 
 import numpy as np
 
+from ..config import to_dict
 from ..datasets.frames import Dataset, Frame
 from ..errors import InputError
-from ..grid import GridGeometry, OccupancyGrid
+from ..fusion import align_maps, slice_scans
+from ..grid import GridGeometry, OccupancyGrid, grid_from_scans, scans_to_points, write_label_image, write_map
 from ..io import (
     atomic_path,
     prepare_output_dir,
@@ -55,9 +57,11 @@ from ..io import (
     write_ply_points,
     write_text,
 )
-from ..segmentation import Door, Segmentation, SegmentationConfig
+from ..mapping import voxel_downsample
+from ..segmentation import Door, Segmentation, SegmentationConfig, points_in_doors, segment_rooms
 from ..slam import SlamConfig
-from ..trajectory import Trajectory
+from ..topology import room_graph, topology_listing, write_topology
+from ..trajectory import Trajectory, write_tum
 from .cache import FolderCache, description_digest
 from .runs import cached_slam
 
@@ -123,7 +127,6 @@ def _grid_from(z, prefix: str) -> OccupancyGrid:
 
 
 def _thin(points: np.ndarray, voxel: float) -> np.ndarray:
-    from ..mapping import voxel_downsample
 
     return voxel_downsample(np.asarray(points, dtype=float), voxel)
 
@@ -133,8 +136,6 @@ def _thin(points: np.ndarray, voxel: float) -> np.ndarray:
 def _grids_stage(ds2: Dataset, ds3: Dataset, traj2: Trajectory, traj3: Trajectory, z_range, resolution: float,
                  bins: int, stages: _Stages) -> tuple[Callable, Callable]:
     def compute(folder: Path) -> None:
-        from ..fusion import slice_scans
-        from ..grid import grid_from_scans, scans_to_points
 
         bar = stages.bar("grids", len(ds2) + len(ds3), "frame")
         scans, poses, ext = [], [], []
@@ -172,7 +173,6 @@ def _grids_stage(ds2: Dataset, ds3: Dataset, traj2: Trajectory, traj3: Trajector
 
 def _fusion_stage(grids: dict, seed: int) -> tuple[Callable, Callable]:
     def compute(folder: Path) -> None:
-        from ..fusion import align_maps
 
         a = align_maps(grids["floor"], grids["slice"], floor_points=grids["floor_points"],
                        slice_points=grids["slice_points"], rng=seed)
@@ -198,7 +198,6 @@ def _door_from(d: dict) -> Door:
 
 def _rooms_stage(grids: dict, config: SegmentationConfig) -> tuple[Callable, Callable]:
     def compute(folder: Path) -> None:
-        from ..segmentation import segment_rooms
 
         arrays, doors = {}, {}
         for name in ("slice", "floor"):
@@ -321,7 +320,6 @@ def map_recording(
 
     t = time.perf_counter()
     bar = stages.bar("rooms", 1)
-    from ..config import to_dict
 
     compute, load = _rooms_stage(grids, seg_cfg)
     got = cache.get("rooms", {"grids": keys["grids"], "segmentation": to_dict(seg_cfg)}, compute, load)
@@ -374,7 +372,6 @@ def _slam_summary(run) -> dict:
 
 
 def _segmentation_record(seg: Segmentation, graph) -> dict:
-    from ..topology import topology_listing
 
     return {"rooms": seg.n_rooms, "doors": len(seg.doors),
             "room_areas_m2": {f"R{r.label}": round(r.area, 3) for r in seg.rooms()},
@@ -387,10 +384,6 @@ def _write_outputs(out: Path, dataset: Dataset, ds2: Dataset, ds3: Dataset, run2
                    bar) -> dict:
     from PIL import Image
 
-    from ..grid import write_label_image, write_map
-    from ..segmentation import points_in_doors
-    from ..topology import room_graph, write_topology
-    from ..trajectory import write_tum
     from ..viz.colors import label_overlay
 
     # trajectories, maps for Nav2, pictures of them
@@ -468,7 +461,9 @@ def _write_outputs(out: Path, dataset: Dataset, ds2: Dataset, ds3: Dataset, run2
     bar.update(1)
 
     if recording:
-        _record(out / "map.rrd", run2, run3, grids, fusion, segs["slice"], graphs["slice"], doors, pts2, pts3, h2)
+        from ..viz.replay import record_map  # rerun: only when a recording is asked for
+
+        record_map(out / "map.rrd", run2, run3, grids, fusion, segs["slice"], graphs["slice"], doors, pts2, pts3, h2)
     bar.update(1)
     return to_plain(metrics)
 
@@ -572,55 +567,3 @@ img{{max-width:100%}}figure{{margin:1.5em 0}}.warn{{color:#a40}}</style></head><
 <code>ros2 run nav2_map_server map_server --ros-args -p yaml_filename:=slice.yaml</code>.</p>
 </body></html>
 """
-
-
-MAP_LEGEND = """### hsmap map: the paper's chain on one recording
-- **coloured cells**: the rooms found on the 3D map's slice, one colour per room; the graph floats above the
-  map (rooms and doors, each edge's length at its middle)
-- **height-coloured points**: the 6-DOF HS-SLAM 3D map below 2.4 m (`world/map/ceiling`, above it, is hidden at
-  first; the eye icon in the blueprint panel shows it)
-- **red points** at the 2D LiDAR's height: the 2D HS-SLAM map; `world/map/floor`, its grid, is hidden at first
-- **red / black points** in a door: the door's points in the 3D / 2D map (`world/doors/D<k>`)
-- **blue line**: the 6-DOF trajectory (estimate); **yellow line**: the 2D trajectory; **orange box**: the robot
-"""
-
-
-def _record(path: Path, run2, run3, grids, fusion, seg, graph, doors, pts2, pts3, h2) -> None:
-    from ..viz import map_figures
-    from ..viz import rerun as hv
-
-    g = grids["slice"]
-    blueprint = hv.default_blueprint(
-        legend=True, eye=hv.eye_for_bounds(*hv.grid_bounds(g.geometry, (0.0, 3.0))),
-        hidden=("world/map/ceiling", "world/map/floor"),
-        names={"3D world": "3D map, rooms, doors and graph (Figures 15/16)", "2D map": "slice: rooms and doors",
-               "Room graph": "room/door graph (Figure 16)"})
-    with hv.open_recording(path, application_id="hsmap_map", blueprint=blueprint) as rec:
-        hv.log_legend(rec, MAP_LEGEND)
-        hv.log_occupancy_grid(rec, g.data, g.geometry)
-        f = fusion["floor"]
-        hv.log_occupancy_grid(rec, f.data, f.geometry, entity="world/map/floor", map_entity=None, z=h2,
-                              opacity=0.6)
-        hv.log_room_labels(rec, seg.labels, g.geometry)
-        if graph.number_of_nodes():
-            hv.log_room_graph(rec, map_figures.graph_for_plot(graph), geometry=g.geometry, z=2.9)
-        m3 = np.asarray(run3.map_points, dtype=float)
-        low = m3[:, 2] <= 2.4 if len(m3) else np.zeros(0, bool)
-        hv.log_points(rec, "world/map/points3d", m3[low], color_by_height=True, z_range=(0.0, 2.8),
-                      voxel=0.1, static=True, radius=0.015)
-        hv.log_points(rec, "world/map/ceiling", m3[~low], color_by_height=True, z_range=(0.0, 2.8),
-                      voxel=0.1, static=True, radius=0.015)
-        m2 = run2.map_points
-        hv.log_points(rec, "world/map/points2d", np.column_stack([m2, np.full(len(m2), h2)]), colors=(214, 39, 40),
-                      radius=0.02, static=True)
-        hv.log_path(rec, "estimate", run3.trajectory.poses)
-        hv.log_path(rec, "2d", run2.trajectory.poses, z=h2)
-        hv.log_map2d_path(rec, "estimate", run3.trajectory, g.geometry)
-        hv.log_trajectory(rec, run3.trajectory, name="estimate")
-        for k, (p2, p3) in enumerate(zip(pts2, pts3, strict=True), start=1):
-            if len(p3):
-                hv.log_points(rec, f"world/doors/D{k}/points3d", p3, colors=(214, 39, 40), radius=0.04, static=True)
-            if len(p2):
-                hv.log_points(rec, f"world/doors/D{k}/points2d", np.column_stack([p2, np.full(len(p2), h2)]),
-                              colors=(20, 20, 20), radius=0.05, static=True)
-

@@ -19,6 +19,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage as ndi
 
 from ..errors import InputError, ShapeError
+from ..fusion import OVERLAY_COLORS, overlap_scores, overlay_image
 from ..grid import GridGeometry, OccupancyGrid
 from . import figures
 
@@ -63,7 +64,6 @@ def plot_overlay(floor: OccupancyGrid, slice_: OccupancyGrid, *, ax: Axes | None
                  title: str | None = None, legend: bool = True) -> Axes:
     """Two grids on one geometry overlaid (:func:`hsmap.fusion.overlay_image`): structure seen by both dark,
     by the floor map only red, by the slice only blue, free white, unknown light grey."""
-    from ..fusion import OVERLAY_COLORS, overlay_image
 
     _check_grid(floor, "floor")
     _check_grid(slice_, "slice_")
@@ -111,7 +111,6 @@ def overlap_figure(floor: OccupancyGrid, slice_: OccupancyGrid, alignment: Any,
 
 
 def _overlap(grids: tuple[OccupancyGrid, OccupancyGrid], tolerance: float) -> float:
-    from ..fusion import overlap_scores
 
     a, b = grids
     if not a.occupied.any() or not b.occupied.any():
@@ -361,7 +360,8 @@ def log_overlay(rec: Any, rgb: ArrayLike, geometry: GridGeometry, *, entity: str
     (static)."""
     import rerun as rr
 
-    from .rerun import _stream, log_rgba_grid
+    from .rerun_core import _stream
+    from .rerun_maps import log_rgba_grid
 
     img = np.asarray(rgb)
     if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8:

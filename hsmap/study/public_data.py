@@ -97,7 +97,7 @@ class FetchResult:
 
 
 def registry() -> dict[str, PublicDataset]:
-    """The public datasets by name (``freiburg``, ``bormann``), read from the package's ``public_data.yaml``."""
+    """The public datasets by name (``freiburg``, ``bormann``, ``octomap``), read from the package's ``public_data.yaml``."""
     import yaml
 
     where = "hsmap/study/public_data.yaml"
@@ -188,7 +188,7 @@ def fetch(
     Parameters
     ----------
     names : sequence of str, optional
-        ``freiburg`` and/or ``bormann``.
+        ``freiburg``, ``bormann`` and/or ``octomap``.
     dest : path, optional
         Default :func:`fetch_dir`.
     mirror : str, optional

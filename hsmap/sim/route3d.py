@@ -110,7 +110,7 @@ class Route3D:
         """Rooms (labels) the route's driven path passes through, in label order."""
         wp = np.vstack([self.route.start[None, :2], self.route.waypoints])
         pts = [wp[:1]]
-        for a, b in zip(wp[:-1], wp[1:]):
+        for a, b in zip(wp[:-1], wp[1:], strict=True):
             n = max(2, int(np.ceil(np.hypot(*(b - a)) / (self.geometry.resolution / 2))))
             pts.append(a + np.linspace(0, 1, n)[:, None] * (b - a))
         rc = self.geometry.world_to_index(np.vstack(pts))

@@ -164,3 +164,14 @@ def test_geb079_route_and_frames(tmp_path):
     assert 0.2 < (img > 0).mean() < 0.98  # walls and floor return, unknown space does not
     if os.environ.get("HSMAP_SLOW"):
         assert run.frames == 6
+
+
+def test_route_keeps_the_mast_lidar_out_of_unknown_pockets():
+    w = _office()
+    ix = lambda x: int(round(x / RES)) + 2  # noqa: E731
+    w.state[ix(1.6):ix(2.4), ix(0.6):ix(1.4), 12:20] = UNKNOWN  # blind pocket around the mast at (2, 1)
+    r = plan_route3d(w)
+    assert r.visible[r.geometry.world_to_index([2.0, 1.0])[0], r.geometry.world_to_index([2.0, 1.0])[1]] < 0.3
+    pts = np.vstack([r.route.start[None, :2], r.route.waypoints])
+    xy = np.vstack([a + np.linspace(0, 1, 50)[:, None] * (b - a) for a, b in zip(pts[:-1], pts[1:], strict=True)])
+    assert not ((np.abs(xy[:, 0] - 2.0) < 0.4) & (np.abs(xy[:, 1] - 1.0) < 0.4)).any()

@@ -7,14 +7,18 @@ exploration (:func:`hsmap.sim.explore.plan_exploration`) and plans with it:
    height band (``body``, from just above the floor to above the mast's LiDAR) is occupied and where the map
    knows the space is free at floor level (``known``, every voxel of that band free: clutter the map never saw
    may stand in unknown space) and at both LiDARs' heights (a sensor inside unknown space would see nothing);
-2. rooms: the map's own rooms, found by :func:`hsmap.segmentation.segment_rooms` on its ``rooms_band``
+2. visibility: the robot may only stand where the mast LiDAR would see the map: at least ``min_visible`` of a
+   coarse set of its beams (``visibility_beams``, over its vertical field of view, cast from the column's centre
+   at the LiDAR's height) return a hit; a sensor inside a pocket of unknown space (where the map's own recording
+   sensor stood, or a room seen only through its door) sees nothing, and a SLAM run would be blind there;
+3. rooms: the map's own rooms, found by :func:`hsmap.segmentation.segment_rooms` on its ``rooms_band``
    (the paper's 1.7-1.8 m slice, trinary: free only where every voxel of the band is known free);
-3. goals covering the space the robot fits in: the largest connected part of the traversable columns with the
+4. goals covering the space the robot fits in: the largest connected part of the traversable columns with the
    robot's clearance (:class:`~hsmap.sim.explore.ExploreConfig`) is cut into cells around seeds spread by
    farthest-point sampling until every pixel is within ``cover_spacing`` of a seed (from the pixel with most
    room around it; ties to the lowest index), so the route reaches the corridor's ends and every part of a room
    the robot fits into, not only one centre per room of the slice;
-4. the route: :func:`~hsmap.sim.explore.plan_exploration` with those cells as its rooms (footprint clearance,
+5. the route: :func:`~hsmap.sim.explore.plan_exploration` with those cells as its rooms (footprint clearance,
    costs keeping to the middle of corridors and doorways, each cell's free centre in turn, straight legs).
 
 Heights are metres above the floor (the world's z = 0).
@@ -30,11 +34,13 @@ from numpy.typing import NDArray
 from ..errors import ConfigError, EmptyInputError
 from ..grid import FREE, OCCUPIED, UNKNOWN, GridGeometry, OccupancyGrid
 from .explore import Exploration, ExploreConfig, plan_exploration
+from .sensors import Lidar3DConfig
 from .voxelworld import FREE as VFREE
 from .voxelworld import OCCUPIED as VOCC
 from .voxelworld import VoxelWorld
 
-__all__ = ["Route3DConfig", "Route3D", "plan_route3d", "traversable", "band_image", "voxel_geometry", "cover_cells"]
+__all__ = ["Route3DConfig", "Route3D", "plan_route3d", "traversable", "band_image", "voxel_geometry", "cover_cells",
+           "visibility"]
 
 
 def _band(name: str, v) -> tuple[float, float]:
@@ -61,6 +67,10 @@ class Route3DConfig:
         Heights of the slice whose rooms are reported (:meth:`Route3D.rooms_entered`).
     cover_spacing : float
         Every place the robot fits is within this many metres of a goal of the route.
+    min_visible : float
+        Least share of the mast LiDAR's beams that return where the robot stands.
+    visibility_beams : list of 2 int
+        Channels and columns of the coarse beam set the visibility is measured with.
     explore : ExploreConfig
         Clearance and path costs, as for the floor-plan buildings.
     """
@@ -69,6 +79,8 @@ class Route3DConfig:
     known: list[float] = field(default_factory=lambda: [0.05, 0.45])
     rooms_band: list[float] = field(default_factory=lambda: [1.7, 1.8])
     cover_spacing: float = 3.0
+    min_visible: float = 0.3
+    visibility_beams: list[int] = field(default_factory=lambda: [8, 32])
     explore: ExploreConfig = field(default_factory=ExploreConfig)
 
     def __post_init__(self) -> None:
@@ -78,6 +90,12 @@ class Route3DConfig:
         if not (isinstance(self.cover_spacing, (int, float)) and np.isfinite(self.cover_spacing)
                 and self.cover_spacing > 0):
             raise ConfigError(f"route3d.cover_spacing must be > 0 metres, got {self.cover_spacing!r}")
+        if not (isinstance(self.min_visible, (int, float)) and 0 <= self.min_visible <= 1):
+            raise ConfigError(f"route3d.min_visible must be in [0, 1], got {self.min_visible!r}")
+        v = self.visibility_beams
+        if not (isinstance(v, (list, tuple)) and len(v) == 2 and all(isinstance(k, int) and k >= 1 for k in v)):
+            raise ConfigError(f"route3d.visibility_beams must be [channels, columns] >= 1, got {v!r}")
+        self.visibility_beams = [int(k) for k in v]
 
 
 @dataclass
@@ -90,13 +108,15 @@ class Route3D:
     geometry : GridGeometry
         One pixel per voxel column.
     traversable : ndarray of shape (H, W), bool
-        Where the robot's centre may be before the clearance is applied.
+        Where the robot's centre may be before the clearance is applied (traversable and visible).
     rooms : ndarray of shape (H, W), int32
         The map's rooms in its ``rooms_band`` (0 = none).
     slice_grid : OccupancyGrid
         The ``rooms_band`` grid the rooms were found on.
     cells : ndarray of shape (H, W), int32
         The cells whose free centres are the route's goals.
+    visible : ndarray of shape (H, W), float
+        Share of the mast LiDAR's coarse beams that return, per traversable column.
     """
 
     route: Exploration
@@ -105,6 +125,7 @@ class Route3D:
     rooms: NDArray[np.int32]
     slice_grid: OccupancyGrid
     cells: NDArray[np.int32]
+    visible: NDArray[np.float64]
 
     def rooms_entered(self) -> list[int]:
         """Rooms (labels) the route's driven path passes through, in label order."""
@@ -173,8 +194,31 @@ class _VoxelPlan:
         self.files = {"furnished": name}
 
 
+def visibility(world: VoxelWorld, where: NDArray[np.bool_], lidar3d: Lidar3DConfig,
+               beams: tuple[int, int] = (8, 32)) -> NDArray[np.float64]:
+    """Share (H, W) of a coarse set of the mast LiDAR's beams (``beams`` = channels, columns over its vertical
+    field of view) that return a hit within its range, cast from each pixel of ``where`` (H, W) at the LiDAR's
+    height; 0 elsewhere."""
+    geo = voxel_geometry(world)
+    coarse = Lidar3DConfig(channels=beams[0], columns=beams[1], vertical_fov_deg=list(lidar3d.vertical_fov_deg),
+                           range_min=lidar3d.range_min, range_max=lidar3d.range_max)
+    d = coarse.directions().reshape(-1, 3).astype(np.float32)
+    rc = np.argwhere(where)
+    out = np.zeros(where.shape)
+    for a in range(0, len(rc), 4096):
+        xy = geo.pixel_to_world(rc[a:a + 4096].astype(float))
+        rays = np.empty((len(xy), len(d), 6), dtype=np.float32)
+        rays[:, :, 0], rays[:, :, 1] = xy[:, :1], xy[:, 1:]
+        rays[:, :, 2] = lidar3d.position[2]
+        rays[:, :, 3:] = d[None]
+        r = world.cast_rays(rays.reshape(-1, 6)).reshape(len(xy), len(d))
+        ok = np.isfinite(r) & (r >= lidar3d.range_min) & (r <= lidar3d.range_max)
+        out[rc[a:a + 4096, 0], rc[a:a + 4096, 1]] = ok.mean(axis=1)
+    return out
+
+
 def plan_route3d(world: VoxelWorld, config: Route3DConfig | None = None,
-                 sensor_heights: tuple[float, ...] = ()) -> Route3D:
+                 sensor_heights: tuple[float, ...] = (), lidar3d: Lidar3DConfig | None = None) -> Route3D:
     """Plan the route through a voxel world (see the module docstring).
 
     Parameters
@@ -183,6 +227,8 @@ def plan_route3d(world: VoxelWorld, config: Route3DConfig | None = None,
     config : Route3DConfig, optional
     sensor_heights : tuple of float
         Heights of the robot's sensors above the floor, metres: their voxels must be known free.
+    lidar3d : Lidar3DConfig, optional
+        The mast LiDAR (its height, field of view and range set the visibility); default the study's.
 
     Returns
     -------
@@ -198,12 +244,14 @@ def plan_route3d(world: VoxelWorld, config: Route3DConfig | None = None,
     cfg = config or Route3DConfig()
     geo = voxel_geometry(world)
     free = traversable(world, cfg, sensor_heights)
+    vis = visibility(world, free, lidar3d or Lidar3DConfig(), tuple(cfg.visibility_beams))
+    free &= vis >= cfg.min_visible
     grid = band_image(world, *cfg.rooms_band)
     seg = segment_rooms(grid)
     rooms = np.asarray(seg.labels, dtype=np.int32)
     cells = cover_cells(free, geo.resolution, cfg)
     route = plan_exploration(_VoxelPlan(world.source, geo, free, cells), cfg.explore)
-    return Route3D(route, geo, free, rooms, grid, cells)
+    return Route3D(route, geo, free, rooms, grid, cells, vis)
 
 
 def cover_cells(free: NDArray[np.bool_], resolution: float, config: Route3DConfig | None = None) -> NDArray[np.int32]:

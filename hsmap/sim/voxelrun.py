@@ -119,7 +119,7 @@ def simulate_world(world: VoxelWorld | str | os.PathLike, out: str | os.PathLike
     sweep_stale_temporaries(out / "clouds3d")
 
     t = time.perf_counter()
-    route = plan_route3d(world, cfg.route)
+    route = plan_route3d(world, cfg.route, lidar3d=cfg.lidar3d)
     timings["route"] = time.perf_counter() - t
     t = time.perf_counter()
     bcfg = BuildingRunConfig(frame_rate=cfg.frame_rate, robot=cfg.robot, odometry=cfg.odometry)

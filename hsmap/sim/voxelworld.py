@@ -119,13 +119,14 @@ def cast_voxels(state: NDArray[np.uint8], origin: ArrayLike, resolution: float,
 def ground_surface(state: NDArray[np.uint8], origin: ArrayLike, resolution: float, floor: float) -> float:
     """The height the robot's wheels stand on, in the map's frame: the top face of the floor's voxels.
 
-    From the layer holding ``floor`` (a height inside the floor, :func:`hsmap.maps3d.floor_height`), the layers
+    From the layer holding ``floor`` (a height in the floor or on its top face, :func:`hsmap.maps3d.floor_height`;
+    a face counts for the layer below it), the layers
     above it count as floor while each holds at least half as many occupied voxels as the one below (a floor
     several voxels thick); the surface is the top of the last.
     """
     st = np.asarray(state)
     nz = st.shape[2]
-    k = int(np.clip(np.floor((floor - float(np.asarray(origin)[2])) / resolution), 0, nz - 1))
+    k = int(np.clip(np.ceil((floor - float(np.asarray(origin)[2])) / resolution - 1e-6) - 1, 0, nz - 1))
     occ = (st == OCCUPIED).sum(axis=(0, 1))
     while k + 1 < nz and occ[k] > 0 and occ[k + 1] >= 0.5 * occ[k]:
         k += 1

@@ -65,7 +65,6 @@ def _read_2d(path: str, resolution: float | None):
 
 def _covered(grid, other_geo, T) -> dict:
     """Which part of ``grid``'s occupied cells lie inside the box of ``other_geo`` after moving by ``T``."""
-    import numpy as np
 
     from ..fusion import occupied_points
 

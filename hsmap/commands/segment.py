@@ -5,7 +5,10 @@ or a ROS map_server YAML (its image, resolution, origin and thresholds), or a 3D
 .ply/.pcd point map) with --band LO,HI: the band's occupancy grid in heights above the floor (the floor found as
 the lowest large horizontal layer of occupied voxels, or --floor Z) is written as grid.yaml + grid.pgm
 (map_server trinary: occupied, observed free, unknown) and band.json (floor, band, cell counts), and segmented as
-an image would be (its observed free cells are the free space). Writes into --out: rooms.png
+an image would be. The free space segmented is the band's observed free cells and its unknown cells whose column
+the sensor saw through (observed free at another height: no wall there; ``hsmap.maps3d.seen_through``), so that a
+room seen through its door from a corridor is one space and not a fan of rays; its occupied cells stay walls.
+Writes into --out: rooms.png
 (16-bit room labels, 0 = no room, same size as the map), doors.json, topology.json, topology.graphml,
 topology.txt (readable listing), segmentation.png (coloured overlay) and segmentation_config.yaml (the
 effective configuration); --steps adds steps.png, a panel per step of the algorithm.
@@ -46,13 +49,14 @@ MAP3D_SUFFIXES = (".bt", ".ot", ".ply", ".pcd")
 
 
 def _band_grid(args: argparse.Namespace):
-    """A 3D map's band as an occupancy grid, and what band.json says about it."""
+    """A 3D map's band: its occupancy grid, the grid segmented (seen-through cells free), band.json's facts."""
     import math
 
     import numpy as np
 
     from ..errors import InputError
-    from ..maps3d import band_grid, band_layers, floor_height, read_map3d
+    from ..grid import FREE, OccupancyGrid
+    from ..maps3d import band_grid, band_layers, floor_height, read_map3d, seen_through
     from .inputs import parse_vector
 
     if args.band is None:
@@ -70,6 +74,7 @@ def _band_grid(args: argparse.Namespace):
     floor = found if args.floor is None else float(args.floor)
     layers = band_layers(m, lo, hi, floor=floor)
     grid = band_grid(m, lo, hi, floor=floor)
+    seen = seen_through(m, lo, hi, floor=floor)
     z = m.origin[2] + np.arange(layers.start, layers.stop + 1) * m.resolution
     info = {
         "map": str(args.map),
@@ -83,9 +88,12 @@ def _band_grid(args: argparse.Namespace):
         "band": [float(lo), float(hi)],
         "band_heights": [float(z[0]), float(z[-1])],
         "cells": {"occupied": int(grid.occupied.sum()), "free": int(grid.free.sum()),
-                  "unknown": int((~grid.occupied & ~grid.free).sum())},
+                  "unknown": int((~grid.occupied & ~grid.free).sum()),
+                  "unknown_seen_through": int(seen.sum())},
     }
-    return grid, info
+    data = grid.data.copy()
+    data[seen] = FREE
+    return grid, OccupancyGrid(data, grid.geometry), info
 
 
 def run(args: argparse.Namespace) -> int:
@@ -113,11 +121,12 @@ def run(args: argparse.Namespace) -> int:
     out = prepare_output_dir(args.out, "--out", create=False)
     band = None
     if Path(args.map).suffix.lower() in MAP3D_SUFFIXES:
-        grid, band = _band_grid(args)
+        band_map, grid, band = _band_grid(args)
         print(f"floor at z = {band['floor']:.3f} m ({band['floor_source']}); band {band['band'][0]:g}-"
               f"{band['band'][1]:g} m above it: voxel layers z = {band['band_heights'][0]:.3f}-"
               f"{band['band_heights'][1]:.3f} m; {band['cells']['occupied']} occupied, {band['cells']['free']} free, "
-              f"{band['cells']['unknown']} unknown cells")
+              f"{band['cells']['unknown']} unknown cells ({band['cells']['unknown_seen_through']} of them seen through: "
+              "segmented as free)")
     elif args.band is not None or args.floor is not None:
         raise InputError(f"--band and --floor apply to 3D maps ({', '.join(MAP3D_SUFFIXES)}), not {args.map}")
     else:
@@ -152,7 +161,7 @@ def run(args: argparse.Namespace) -> int:
             Image.fromarray(label_overlay(seg.labels, grid.free, doors=seg.doors)).save(tmp, format="PNG")
         dump_config(cfg, stage / "segmentation_config.yaml")
         if band is not None:
-            write_map(stage / "grid.yaml", grid)
+            write_map(stage / "grid.yaml", band_map)
             write_json(stage / "band.json", {**band, "rooms": seg.n_rooms, "doors": len(seg.doors)})
         if args.steps:
             from ..viz.map_figures import voronoi_steps_figure

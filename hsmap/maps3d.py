@@ -31,6 +31,8 @@ __all__ = [
     "read_map3d",
     "floor_height",
     "band_grid",
+    "band_layers",
+    "seen_through",
 ]
 
 #: Voxel states of :attr:`Map3D.state`.
@@ -492,3 +494,24 @@ def band_grid(m: Map3D, lo: float, hi: float, *, floor: float | None = None):
     data[occ] = G_OCCUPIED
     img = np.ascontiguousarray(data.T[::-1])
     return OccupancyGrid(img, GridGeometry(img.shape, m.resolution, (float(m.origin[0]), float(m.origin[1]))))
+
+
+def seen_through(m: Map3D, lo: float, hi: float, *, floor: float | None = None) -> NDArray[np.bool_]:
+    """The cells of :func:`band_grid` that are unknown in the band but whose column the sensor saw through.
+
+    A column observed free at some height above the floor holds no floor-to-ceiling wall; when nothing in the
+    band is observed there (the band was never swept at that spot: a room seen through its door from the
+    corridor, below a desk top), the band is taken to be open space like the heights that were seen.
+
+    Returns
+    -------
+    ndarray of shape (ny, nx), bool
+        In :func:`band_grid`'s image layout (row 0 at the largest y).
+    """
+    f = floor_height(m) if floor is None else float(floor)
+    layers = band_layers(m, lo, hi, floor=f)
+    band = m.state[:, :, layers]
+    unknown = (band == UNKNOWN).all(axis=2)
+    above = m.origin[2] + (np.arange(m.state.shape[2]) + 0.5) * m.resolution > f
+    column_free = (m.state[:, :, above] == FREE).any(axis=2)
+    return np.ascontiguousarray((unknown & column_free).T[::-1])

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hsmap.errors import DatasetError, DataFormatError, EmptyInputError, HsmapError, InputError
+from hsmap.errors import DataFormatError, DatasetError, EmptyInputError, HsmapError, InputError
 from hsmap.grid import FREE as G_FREE
 from hsmap.grid import OCCUPIED as G_OCCUPIED
 from hsmap.grid import UNKNOWN as G_UNKNOWN

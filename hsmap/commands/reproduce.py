@@ -7,7 +7,8 @@ leaves it as it was), and two batches into the same folder keep each other's ent
 First the public data the notebooks read (the Freiburg logs, Bormann's maps, the OctoMap map: ``hsmap data
 list``) that is missing is downloaded (``hsmap data fetch``, hash-checked, into the user cache); with no network
 the run goes on and the notebooks lacking data skip, saying why. With $HSMAP_DATASETS set nothing is downloaded
-(that folder is the only one looked at). --no-fetch skips the step."""
+(that folder is the only one looked at). The step runs for the study's own notebooks, not for another folder
+given with --notebooks; --no-fetch skips it."""
 
 from __future__ import annotations
 
@@ -139,7 +140,7 @@ def run(args: argparse.Namespace) -> int:
     def log(line: str) -> None:
         print(line, flush=True)
 
-    if not args.no_fetch:
+    if not args.no_fetch and args.notebooks is None:
         fetch_missing(log)
     common, per = ({}, {})
     if args.parameters_file:

@@ -175,3 +175,15 @@ def test_route_keeps_the_mast_lidar_out_of_unknown_pockets():
     pts = np.vstack([r.route.start[None, :2], r.route.waypoints])
     xy = np.vstack([a + np.linspace(0, 1, 50)[:, None] * (b - a) for a, b in zip(pts[:-1], pts[1:], strict=True)])
     assert not ((np.abs(xy[:, 0] - 2.0) < 0.4) & (np.abs(xy[:, 1] - 1.0) < 0.4)).any()
+
+
+def test_a_map_with_no_room_for_the_robot_is_a_one_line_error(tmp_path, capsys):
+    from hsmap.cli import main
+
+    ply = tmp_path / "points.ply"  # occupied points only: no known free space to drive in
+    pts = np.random.default_rng(0).uniform(0, 3, (500, 3))
+    ply.write_text("ply\nformat ascii 1.0\nelement vertex 500\nproperty float x\nproperty float y\n"
+                   "property float z\nend_header\n" + "\n".join(" ".join(f"{v:.4f}" for v in p) for p in pts) + "\n")
+    assert main(["simulate", "--world", str(ply), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "points.ply" in err[0]

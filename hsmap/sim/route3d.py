@@ -247,9 +247,11 @@ def plan_route3d(world: VoxelWorld, config: Route3DConfig | None = None,
     vis = visibility(world, free, lidar3d or Lidar3DConfig(), tuple(cfg.visibility_beams))
     free &= vis >= cfg.min_visible
     grid = band_image(world, *cfg.rooms_band)
-    seg = segment_rooms(grid)
-    rooms = np.asarray(seg.labels, dtype=np.int32)
-    cells = cover_cells(free, geo.resolution, cfg)
+    try:
+        cells = cover_cells(free, geo.resolution, cfg)
+        rooms = np.asarray(segment_rooms(grid).labels, dtype=np.int32)
+    except EmptyInputError as exc:
+        raise EmptyInputError(f"{world.source}: {exc}") from None
     route = plan_exploration(_VoxelPlan(world.source, geo, free, cells), cfg.explore)
     return Route3D(route, geo, free, rooms, grid, cells, vis)
 

@@ -11,8 +11,10 @@ exploration (:func:`hsmap.sim.explore.plan_exploration`) and plans with it:
    coarse set of its beams (``visibility_beams``, over its vertical field of view, cast from the column's centre
    at the LiDAR's height) return a hit; a sensor inside a pocket of unknown space (where the map's own recording
    sensor stood, or a room seen only through its door) sees nothing, and a SLAM run would be blind there;
-3. rooms: the map's own rooms, found by :func:`hsmap.segmentation.segment_rooms` on its ``rooms_band``
-   (the paper's 1.7-1.8 m slice, trinary: free only where every voxel of the band is known free);
+3. rooms: the map's own rooms in its ``rooms_band`` (the paper's 1.7-1.8 m slice), as ``hsmap segment MAP3D
+   --band`` finds them (:func:`hsmap.maps3d.band_grid` with the cells seen through at other heights free,
+   :func:`hsmap.maps3d.seen_through`, segmented by :func:`hsmap.segmentation.segment_rooms`): reported, not
+   planned on;
 4. goals covering the space the robot fits in: the largest connected part of the traversable columns with the
    robot's clearance (:class:`~hsmap.sim.explore.ExploreConfig`) is cut into cells around seeds spread by
    farthest-point sampling until every pixel is within ``cover_spacing`` of a seed (from the pixel with most
@@ -32,7 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import ConfigError, EmptyInputError
-from ..grid import FREE, OCCUPIED, UNKNOWN, GridGeometry, OccupancyGrid
+from ..grid import FREE, GridGeometry, OccupancyGrid
 from .explore import Exploration, ExploreConfig, plan_exploration
 from .sensors import Lidar3DConfig
 from .voxelworld import FREE as VFREE
@@ -161,14 +163,16 @@ def _image(columns: NDArray) -> NDArray:
     return np.ascontiguousarray(columns.T[::-1])
 
 
-def band_image(world: VoxelWorld, lo: float, hi: float) -> OccupancyGrid:
-    """The trinary grid of a height band: occupied where a voxel of the band is occupied, free where every voxel
-    of it is known free, else unknown."""
-    b = world.state[:, :, _layers(world, lo, hi)]
-    data = np.full(b.shape[:2], UNKNOWN, dtype=np.int8)
-    data[(b == VFREE).all(axis=2)] = FREE
-    data[(b == VOCC).any(axis=2)] = OCCUPIED
-    return OccupancyGrid(_image(data), voxel_geometry(world))
+def band_image(world: VoxelWorld, lo: float, hi: float) -> tuple[OccupancyGrid, OccupancyGrid]:
+    """A height band (metres above the floor) as :func:`hsmap.maps3d.band_grid` makes it, and the grid
+    ``hsmap segment MAP3D --band`` segments (the cells seen through at other heights free)."""
+    from ..maps3d import Map3D, band_grid, seen_through
+
+    m = Map3D(world.state, world.origin, world.resolution, world.source)
+    grid = band_grid(m, lo, hi, floor=0.0)
+    data = grid.data.copy()
+    data[seen_through(m, lo, hi, floor=0.0)] = FREE
+    return grid, OccupancyGrid(data, grid.geometry)
 
 
 def traversable(world: VoxelWorld, config: Route3DConfig | None = None,
@@ -246,10 +250,10 @@ def plan_route3d(world: VoxelWorld, config: Route3DConfig | None = None,
     free = traversable(world, cfg, sensor_heights)
     vis = visibility(world, free, lidar3d or Lidar3DConfig(), tuple(cfg.visibility_beams))
     free &= vis >= cfg.min_visible
-    grid = band_image(world, *cfg.rooms_band)
+    grid, segmented = band_image(world, *cfg.rooms_band)
     try:
         cells = cover_cells(free, geo.resolution, cfg)
-        rooms = np.asarray(segment_rooms(grid).labels, dtype=np.int32)
+        rooms = np.asarray(segment_rooms(segmented).labels, dtype=np.int32)
     except EmptyInputError as exc:
         raise EmptyInputError(f"{world.source}: {exc}") from None
     route = plan_exploration(_VoxelPlan(world.source, geo, free, cells), cfg.explore)

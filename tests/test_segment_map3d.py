@@ -104,6 +104,10 @@ def test_seen_through_cells():
     m = Map3D(state, np.zeros(3), 1.0, "synthetic")
     seen = seen_through(m, 1.2, 1.8)          # the band is layer 2
     assert list(seen[0]) == [True, False, False, False]
+    # a wall seen just above the band (layer 3) keeps the column unknown when within the margin
+    state[0, 0, 3] = OCCUPIED
+    assert list(seen_through(m, 1.2, 1.8, wall_margin=1.0)[0]) == [False, False, False, False]
+    assert list(seen_through(m, 1.2, 1.8, wall_margin=0.3)[0]) == [True, False, False, False]
 
 
 def test_synthetic_octree_two_rooms(tmp_path):

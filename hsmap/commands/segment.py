@@ -6,12 +6,12 @@ or a ROS map_server YAML (its image, resolution, origin and thresholds), or a 3D
 the lowest large horizontal layer of occupied voxels, or --floor Z) is written as grid.yaml + grid.pgm
 (map_server trinary: occupied, observed free, unknown) and band.json (floor, band, cell counts), and segmented as
 an image would be. The free space segmented is the band's observed free cells and its unknown cells whose column
-the sensor saw through (observed free at another height: no wall there; ``hsmap.maps3d.seen_through``), so that a
-room seen through its door from a corridor is one space and not a fan of rays; its occupied cells stay walls.
-Writes into --out: rooms.png
-(16-bit room labels, 0 = no room, same size as the map), doors.json, topology.json, topology.graphml,
-topology.txt (readable listing), segmentation.png (coloured overlay) and segmentation_config.yaml (the
-effective configuration); --steps adds steps.png, a panel per step of the algorithm.
+the sensor saw through (observed free at another height, nothing occupied within 0.3 m of the band: no wall there;
+``hsmap.maps3d.seen_through``), so that a room seen through its door from a corridor is one space and not a fan
+of rays; its occupied cells stay walls. Writes into --out: rooms.png (16-bit room labels, 0 = no room, same
+size as the map), doors.json, topology.json, topology.graphml, topology.txt (readable listing), segmentation.png
+(coloured overlay) and segmentation_config.yaml (the effective configuration); --steps adds steps.png, a panel
+per step of the algorithm.
 """
 
 from __future__ import annotations

@@ -33,6 +33,7 @@ __all__ = [
     "band_grid",
     "band_layers",
     "seen_through",
+    "segmentation_free",
 ]
 
 #: Voxel states of :attr:`Map3D.state`.
@@ -537,3 +538,48 @@ def seen_through(m: Map3D, lo: float, hi: float, *, floor: float | None = None,
     near = above & (z > f + lo - wall_margin) & (z < f + hi + wall_margin)
     wall_near = (m.state[:, :, near] == OCCUPIED).any(axis=2)
     return np.ascontiguousarray((unknown & column_free & ~wall_near).T[::-1])
+
+
+def segmentation_free(m: Map3D, lo: float, hi: float, *, floor: float | None = None,
+                      min_passage: float = 0.0, wall_margin: float = WALL_MARGIN) -> NDArray[np.bool_]:
+    """The free space of a band to segment into rooms: observed free or :func:`seen_through`, without passages
+    narrower than ``min_passage``.
+
+    A crack a voxel or two wide between two rooms is a part of a wall the sensor missed, not a way through: the
+    free space is opened (eroded, then dilated) and the occupied cells closed (dilated, then eroded) with a
+    square ``min_passage`` wide at the map's resolution, so that such cracks close (through a thick wall and
+    between two wall pieces) and doors at least ``min_passage`` wide stay open.
+
+    Parameters
+    ----------
+    m : Map3D
+    lo, hi : float
+        The band, metres above the floor.
+    floor : float, optional
+        The floor's world height; default :func:`floor_height`.
+    min_passage : float
+        Metres; e.g. the narrowest door the segmentation accepts. 0 keeps every passage.
+    wall_margin : float
+        See :func:`seen_through`.
+
+    Returns
+    -------
+    ndarray of shape (ny, nx), bool
+        In :func:`band_grid`'s image layout.
+    """
+    from scipy import ndimage as ndi
+
+    if not (np.isfinite(min_passage) and min_passage >= 0):
+        raise InputError(f"min_passage must be a number of metres >= 0, got {min_passage}")
+    f = floor_height(m) if floor is None else float(floor)
+    layers = band_layers(m, lo, hi, floor=f)
+    band = m.state[:, :, layers]
+    observed = (~(band == OCCUPIED).any(axis=2) & (band == FREE).any(axis=2)).T[::-1]
+    free = observed | seen_through(m, lo, hi, floor=f, wall_margin=wall_margin)
+    r = int(np.floor(min_passage / 2.0 / m.resolution))
+    if r >= 1:
+        square = np.ones((2 * r + 1, 2 * r + 1), dtype=bool)
+        occupied = ((band == OCCUPIED).any(axis=2)).T[::-1]
+        walls = ndi.binary_closing(np.pad(occupied, r), structure=square)[r:-r, r:-r]
+        free = ndi.binary_opening(free, structure=square) & ~walls
+    return np.ascontiguousarray(free)

@@ -48,11 +48,12 @@ def test_geb079_bands(geb079, tmp_path, band, capsys):
     assert int(grid.free.sum()) == info["cells"]["free"] and int(grid.occupied.sum()) == info["cells"]["occupied"]
     labels = read_label_image(out / "rooms.png")
     assert labels.shape == grid.geometry.shape
-    # every observed free cell of the band is in a room (but for specks dropped as such)
-    assert (labels[grid.free] > 0).mean() > 0.95
+    # every observed free cell of the band is in a room (but for specks and cracks dropped as such)
+    assert (labels[grid.free] > 0).mean() > 0.94
     assert not (labels[grid.occupied] > 0).any()
     n = len(np.unique(labels[labels > 0]))
-    assert n == info["rooms"] and 8 <= n <= 45
+    # the floor has about 17 rooms as the map saw them; the clutter near the floor cuts it into many more pieces
+    assert n == info["rooms"] and (10 <= n <= 35 if band == "1.7,1.8" else 20 <= n <= 80)
     doors = json.loads((out / "doors.json").read_text())["doors"]
     assert len(doors) == info["doors"] >= 4
     topo = json.loads((out / "topology.json").read_text())
@@ -69,6 +70,7 @@ def test_floor_override_and_flags(geb079, tmp_path, capsys):
     info = _segment(geb079, "1.7,1.8", tmp_path / "o", "--floor", "0.0")
     assert info["floor"] == 0.0 and info["floor_source"] == "--floor"
     assert abs(info["band_heights"][0] - 1.6) < 0.09
+    assert 0 < info["cells"]["segmented_free"] <= info["cells"]["free"] + info["cells"]["unknown_seen_through"]
     for args, words in ((["--band", "1.8,1.7"], "--band must be LO,HI"), ([], "needs --band LO,HI"),
                         (["--band", "10,11"], "outside"), (["--band", "1,2", "--resolution", "0.1"],
                                                           "--resolution applies to point maps")):
@@ -108,6 +110,26 @@ def test_seen_through_cells():
     state[0, 0, 3] = OCCUPIED
     assert list(seen_through(m, 1.2, 1.8, wall_margin=1.0)[0]) == [False, False, False, False]
     assert list(seen_through(m, 1.2, 1.8, wall_margin=0.3)[0]) == [True, False, False, False]
+
+
+def test_segmentation_free_closes_cracks_not_doors():
+    from hsmap.maps3d import segmentation_free
+
+    # two 2 x 2 m rooms of 0.1 m voxels, a floor, a wall between them with a 0.1 m crack and a 0.9 m door
+    state = np.full((41, 20, 4), FREE, np.uint8)
+    state[:, :, 0] = OCCUPIED
+    state[20, :, 1:] = OCCUPIED
+    state[20, 3, 1:] = FREE                      # the crack
+    m = Map3D(state.copy(), np.zeros(3), 0.1, "synthetic")
+    free = segmentation_free(m, 0.05, 0.25, min_passage=0.3)
+    col = 20                                     # x index 20 is image column 20; y index j is row 19 - j
+    assert not free[19 - 3, col]
+    assert free[:, col].sum() == 0
+    state[20, 8:17, 1:] = FREE                   # a door 0.9 m wide
+    m = Map3D(state, np.zeros(3), 0.1, "synthetic")
+    free = segmentation_free(m, 0.05, 0.25, min_passage=0.3)
+    assert free[19 - 12, col] and not free[19 - 3, col]
+    assert segmentation_free(m, 0.05, 0.25)[19 - 3, col]      # no minimum passage: the crack stays
 
 
 def test_synthetic_octree_two_rooms(tmp_path):

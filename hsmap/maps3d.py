@@ -33,6 +33,7 @@ __all__ = [
     "band_grid",
     "band_layers",
     "seen_through",
+    "segmentation_free",
 ]
 
 #: Voxel states of :attr:`Map3D.state`.
@@ -50,6 +51,11 @@ _MAX_HEADER_LINES = 64
 #: A horizontal layer of occupied voxels counts as large (a floor candidate) when it holds at least this share
 #: of the largest layer's occupied voxels.
 FLOOR_LAYER_SHARE = 0.5
+
+#: :func:`seen_through`: an occupied voxel within this many metres above or below a band keeps its column unknown
+#: there (a wall seen just off the band: a 3D LiDAR's rings 1-2 deg apart leave gaps of this size on walls up to
+#: about 10 m away).
+WALL_MARGIN = 0.3
 
 
 @dataclass(frozen=True)
@@ -496,22 +502,84 @@ def band_grid(m: Map3D, lo: float, hi: float, *, floor: float | None = None):
     return OccupancyGrid(img, GridGeometry(img.shape, m.resolution, (float(m.origin[0]), float(m.origin[1]))))
 
 
-def seen_through(m: Map3D, lo: float, hi: float, *, floor: float | None = None) -> NDArray[np.bool_]:
+def seen_through(m: Map3D, lo: float, hi: float, *, floor: float | None = None,
+                 wall_margin: float = WALL_MARGIN) -> NDArray[np.bool_]:
     """The cells of :func:`band_grid` that are unknown in the band but whose column the sensor saw through.
 
     A column observed free at some height above the floor holds no floor-to-ceiling wall; when nothing in the
     band is observed there (the band was never swept at that spot: a room seen through its door from the
-    corridor, below a desk top), the band is taken to be open space like the heights that were seen.
+    corridor, below a desk top) and nothing occupied lies within ``wall_margin`` above or below the band (a
+    wall seen just off the band, between two of a LiDAR's rings), the band is taken to be open space like the
+    heights that were seen.
+
+    Parameters
+    ----------
+    m : Map3D
+    lo, hi : float
+        The band, metres above the floor.
+    floor : float, optional
+        The floor's world height; default :func:`floor_height`.
+    wall_margin : float
+        Metres above and below the band in which an occupied voxel keeps a column unknown.
 
     Returns
     -------
     ndarray of shape (ny, nx), bool
         In :func:`band_grid`'s image layout (row 0 at the largest y).
     """
+    if not (np.isfinite(wall_margin) and wall_margin >= 0):
+        raise InputError(f"wall_margin must be a number of metres >= 0, got {wall_margin}")
+    f = floor_height(m) if floor is None else float(floor)
+    layers = band_layers(m, lo, hi, floor=f)
+    unknown = (m.state[:, :, layers] == UNKNOWN).all(axis=2)
+    z = m.z_centres()
+    above = z > f
+    column_free = (m.state[:, :, above] == FREE).any(axis=2)
+    near = above & (z > f + lo - wall_margin) & (z < f + hi + wall_margin)
+    wall_near = (m.state[:, :, near] == OCCUPIED).any(axis=2)
+    return np.ascontiguousarray((unknown & column_free & ~wall_near).T[::-1])
+
+
+def segmentation_free(m: Map3D, lo: float, hi: float, *, floor: float | None = None,
+                      min_passage: float = 0.0, wall_margin: float = WALL_MARGIN) -> NDArray[np.bool_]:
+    """The free space of a band to segment into rooms: observed free or :func:`seen_through`, without passages
+    narrower than ``min_passage``.
+
+    A crack a voxel or two wide between two rooms is a part of a wall the sensor missed, not a way through: the
+    free space is opened (eroded, then dilated) and the occupied cells closed (dilated, then eroded) with a
+    square ``min_passage`` wide at the map's resolution, so that such cracks close (through a thick wall and
+    between two wall pieces) and doors at least ``min_passage`` wide stay open.
+
+    Parameters
+    ----------
+    m : Map3D
+    lo, hi : float
+        The band, metres above the floor.
+    floor : float, optional
+        The floor's world height; default :func:`floor_height`.
+    min_passage : float
+        Metres; e.g. the narrowest door the segmentation accepts. 0 keeps every passage.
+    wall_margin : float
+        See :func:`seen_through`.
+
+    Returns
+    -------
+    ndarray of shape (ny, nx), bool
+        In :func:`band_grid`'s image layout.
+    """
+    from scipy import ndimage as ndi
+
+    if not (np.isfinite(min_passage) and min_passage >= 0):
+        raise InputError(f"min_passage must be a number of metres >= 0, got {min_passage}")
     f = floor_height(m) if floor is None else float(floor)
     layers = band_layers(m, lo, hi, floor=f)
     band = m.state[:, :, layers]
-    unknown = (band == UNKNOWN).all(axis=2)
-    above = m.origin[2] + (np.arange(m.state.shape[2]) + 0.5) * m.resolution > f
-    column_free = (m.state[:, :, above] == FREE).any(axis=2)
-    return np.ascontiguousarray((unknown & column_free).T[::-1])
+    observed = (~(band == OCCUPIED).any(axis=2) & (band == FREE).any(axis=2)).T[::-1]
+    free = observed | seen_through(m, lo, hi, floor=f, wall_margin=wall_margin)
+    r = int(np.floor(min_passage / 2.0 / m.resolution))
+    if r >= 1:
+        square = np.ones((2 * r + 1, 2 * r + 1), dtype=bool)
+        occupied = ((band == OCCUPIED).any(axis=2)).T[::-1]
+        walls = ndi.binary_closing(np.pad(occupied, r), structure=square)[r:-r, r:-r]
+        free = ndi.binary_opening(free, structure=square) & ~walls
+    return np.ascontiguousarray(free)

@@ -6,12 +6,13 @@ or a ROS map_server YAML (its image, resolution, origin and thresholds), or a 3D
 the lowest large horizontal layer of occupied voxels, or --floor Z) is written as grid.yaml + grid.pgm
 (map_server trinary: occupied, observed free, unknown) and band.json (floor, band, cell counts), and segmented as
 an image would be. The free space segmented is the band's observed free cells and its unknown cells whose column
-the sensor saw through (observed free at another height: no wall there; ``hsmap.maps3d.seen_through``), so that a
-room seen through its door from a corridor is one space and not a fan of rays; its occupied cells stay walls.
-Writes into --out: rooms.png
-(16-bit room labels, 0 = no room, same size as the map), doors.json, topology.json, topology.graphml,
-topology.txt (readable listing), segmentation.png (coloured overlay) and segmentation_config.yaml (the
-effective configuration); --steps adds steps.png, a panel per step of the algorithm.
+the sensor saw through (observed free at another height, nothing occupied within 0.3 m of the band: no wall there;
+``hsmap.maps3d.seen_through``), so that a room seen through its door from a corridor is one space and not a fan
+of rays, less passages narrower than the narrowest door (2 x min_door_half_width: cracks in walls the sensor
+partly missed); its occupied cells stay walls. Writes into --out: rooms.png (16-bit room labels, 0 = no room, same
+size as the map), doors.json, topology.json, topology.graphml, topology.txt (readable listing), segmentation.png
+(coloured overlay) and segmentation_config.yaml (the effective configuration); --steps adds steps.png, a panel
+per step of the algorithm.
 """
 
 from __future__ import annotations
@@ -48,15 +49,15 @@ OUTPUTS = ("rooms.png", "doors.json", "topology.json", "topology.graphml", "topo
 MAP3D_SUFFIXES = (".bt", ".ot", ".ply", ".pcd")
 
 
-def _band_grid(args: argparse.Namespace):
+def _band_grid(args: argparse.Namespace, min_passage: float):
     """A 3D map's band: its occupancy grid, the grid segmented (seen-through cells free), band.json's facts."""
     import math
 
     import numpy as np
 
     from ..errors import InputError
-    from ..grid import FREE, OccupancyGrid
-    from ..maps3d import band_grid, band_layers, floor_height, read_map3d, seen_through
+    from ..grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
+    from ..maps3d import band_grid, band_layers, floor_height, read_map3d, seen_through, segmentation_free
     from .inputs import parse_vector
 
     if args.band is None:
@@ -91,8 +92,9 @@ def _band_grid(args: argparse.Namespace):
                   "unknown": int((~grid.occupied & ~grid.free).sum()),
                   "unknown_seen_through": int(seen.sum())},
     }
-    data = grid.data.copy()
-    data[seen] = FREE
+    free = segmentation_free(m, lo, hi, floor=floor, min_passage=min_passage)
+    info["cells"]["segmented_free"] = int(free.sum())
+    data = np.where(free, FREE, np.where(grid.occupied, OCCUPIED, UNKNOWN)).astype(np.int8)
     return grid, OccupancyGrid(data, grid.geometry), info
 
 
@@ -121,12 +123,12 @@ def run(args: argparse.Namespace) -> int:
     out = prepare_output_dir(args.out, "--out", create=False)
     band = None
     if Path(args.map).suffix.lower() in MAP3D_SUFFIXES:
-        band_map, grid, band = _band_grid(args)
+        band_map, grid, band = _band_grid(args, 2.0 * cfg.min_door_half_width)
         print(f"floor at z = {band['floor']:.3f} m ({band['floor_source']}); band {band['band'][0]:g}-"
               f"{band['band'][1]:g} m above it: voxel layers z = {band['band_heights'][0]:.3f}-"
               f"{band['band_heights'][1]:.3f} m; {band['cells']['occupied']} occupied, {band['cells']['free']} free, "
-              f"{band['cells']['unknown']} unknown cells ({band['cells']['unknown_seen_through']} of them seen through: "
-              "segmented as free)")
+              f"{band['cells']['unknown']} unknown ({band['cells']['unknown_seen_through']} seen through); "
+              f"{band['cells']['segmented_free']} cells segmented as free space")
     elif args.band is not None or args.floor is not None:
         raise InputError(f"--band and --floor apply to 3D maps ({', '.join(MAP3D_SUFFIXES)}), not {args.map}")
     else:

@@ -12,8 +12,8 @@ exploration (:func:`hsmap.sim.explore.plan_exploration`) and plans with it:
    at the LiDAR's height) return a hit; a sensor inside a pocket of unknown space (where the map's own recording
    sensor stood, or a room seen only through its door) sees nothing, and a SLAM run would be blind there;
 3. rooms: the map's own rooms in its ``rooms_band`` (the paper's 1.7-1.8 m slice), as ``hsmap segment MAP3D
-   --band`` finds them (:func:`hsmap.maps3d.band_grid` with the cells seen through at other heights free,
-   :func:`hsmap.maps3d.seen_through`, segmented by :func:`hsmap.segmentation.segment_rooms`): reported, not
+   --band`` finds them (:func:`hsmap.maps3d.band_grid` with :func:`hsmap.maps3d.segmentation_free`'s free
+   space, segmented by :func:`hsmap.segmentation.segment_rooms`): reported, not
    planned on;
 4. goals covering the space the robot fits in: the largest connected part of the traversable columns with the
    robot's clearance (:class:`~hsmap.sim.explore.ExploreConfig`) is cut into cells around seeds spread by
@@ -165,13 +165,15 @@ def _image(columns: NDArray) -> NDArray:
 
 def band_image(world: VoxelWorld, lo: float, hi: float) -> tuple[OccupancyGrid, OccupancyGrid]:
     """A height band (metres above the floor) as :func:`hsmap.maps3d.band_grid` makes it, and the grid
-    ``hsmap segment MAP3D --band`` segments (the cells seen through at other heights free)."""
-    from ..maps3d import Map3D, band_grid, seen_through
+    ``hsmap segment MAP3D --band`` segments (:func:`hsmap.maps3d.segmentation_free`'s free space)."""
+    from ..grid import OCCUPIED, UNKNOWN
+    from ..maps3d import Map3D, band_grid, segmentation_free
+    from ..segmentation import SegmentationConfig
 
     m = Map3D(world.state, world.origin, world.resolution, world.source)
     grid = band_grid(m, lo, hi, floor=0.0)
-    data = grid.data.copy()
-    data[seen_through(m, lo, hi, floor=0.0)] = FREE
+    free = segmentation_free(m, lo, hi, floor=0.0, min_passage=2.0 * SegmentationConfig().min_door_half_width)
+    data = np.where(free, FREE, np.where(grid.occupied, OCCUPIED, UNKNOWN)).astype(np.int8)
     return grid, OccupancyGrid(data, grid.geometry)
 
 

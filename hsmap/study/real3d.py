@@ -1,7 +1,7 @@
 """Notebook 10's steps: a real building in 3D (OctoMap's Freiburg building 079 floor).
 
 - :func:`band_rooms`: the rooms, doors and room/door graph of a height band of a 3D map (the grid of
-  :func:`hsmap.maps3d.band_grid` with its seen-through cells free, :func:`hsmap.maps3d.seen_through`,
+  :func:`hsmap.maps3d.band_grid` with the free space :func:`hsmap.maps3d.segmentation_free` gives it,
   segmented by :func:`hsmap.segmentation.segment_rooms` with the defaults, as ``hsmap segment MAP3D --band
   LO,HI`` does): the paper's Table 2 row and Figure 18 for a real building;
 - :func:`world_runs`: the simulated robot in the real voxel world (:func:`hsmap.sim.voxelrun.simulate_world`),
@@ -48,7 +48,7 @@ class BandRooms:
     grid : OccupancyGrid
         The band as the map knows it (free only where observed free in the band).
     segmented : OccupancyGrid
-        The grid that was segmented: ``grid`` with its seen-through cells free.
+        The grid that was segmented: ``grid`` with :func:`hsmap.maps3d.segmentation_free`'s free space.
     segmentation : Segmentation
     graph : networkx.Graph
         The room/door graph.
@@ -82,18 +82,19 @@ def band_rooms(m, band: tuple[float, float], *, floor: float | None = None, conf
         The floor's height in the map's frame (default :func:`hsmap.maps3d.floor_height`).
     config : SegmentationConfig, optional
     """
-    from ..grid import FREE, OccupancyGrid
-    from ..maps3d import band_grid, seen_through
-    from ..segmentation import segment_rooms
+    from ..grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
+    from ..maps3d import band_grid, segmentation_free
+    from ..segmentation import SegmentationConfig, segment_rooms
     from ..topology import room_graph
 
     t = time.perf_counter()
+    cfg = config or SegmentationConfig()
     lo, hi = float(band[0]), float(band[1])
     grid = band_grid(m, lo, hi, floor=floor)
-    data = grid.data.copy()
-    data[seen_through(m, lo, hi, floor=floor)] = FREE
-    segmented = OccupancyGrid(data, grid.geometry)
-    seg = segment_rooms(segmented, config=config)
+    free = segmentation_free(m, lo, hi, floor=floor, min_passage=2.0 * cfg.min_door_half_width)
+    segmented = OccupancyGrid(np.where(free, FREE, np.where(grid.occupied, OCCUPIED, UNKNOWN)).astype(np.int8),
+                              grid.geometry)
+    seg = segment_rooms(segmented, config=cfg)
     return BandRooms((lo, hi), grid, segmented, seg, room_graph(seg), time.perf_counter() - t)
 
 

@@ -1,0 +1,206 @@
+"""Issue 47's reproductions (the second round of bad inputs and faults), run as a user runs them: each gives one
+line ``hsmap: error: ...`` naming the file, key, field or flag (exit 2), a warning saying what was done, or the
+right result. The property-based search over configuration files and map YAMLs is in ``test_properties.py``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import struct
+import warnings
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hsmap.cli import main
+
+
+def run_cli(*argv: str) -> tuple[int, str]:
+    """``hsmap ARGV`` in this process: exit status and stderr."""
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), warnings.catch_warnings():
+        warnings.simplefilter("always")
+        code = main([str(a) for a in argv])
+    return code, err.getvalue()
+
+
+def error_line(err: str) -> str:
+    """The one ``hsmap: error:`` line of ``err`` (warnings aside), at most 1000 characters after the prefix."""
+    lines = [line for line in err.splitlines() if not line.startswith("hsmap: warning:")]
+    assert len(lines) == 1 and lines[0].startswith("hsmap: error: "), err[:2000]
+    assert len(lines[0]) <= 1000 + len("hsmap: error: ")
+    return lines[0][len("hsmap: error: "):]
+
+
+def alias_bomb(levels: int, key: str = "odometry_sigma") -> str:
+    """A YAML document of a few hundred bytes whose one key's value expands to about 9**levels numbers."""
+    items = ["&l0 [1, 1, 1, 1, 1, 1, 1, 1, 1]"]
+    for i in range(1, levels):
+        items.append(f"&l{i} [" + ", ".join([f"*l{i - 1}"] * 9) + "]")
+    return f"{key}: [" + ", ".join(items) + "]\n"
+
+
+# --- configuration files -------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("text, expected", [
+    ("1: 2\n", "key 1 is not a name; SlamConfig has"),
+    ("loop_closure: 5\n", "loop_closure must be a mapping of LoopClosureConfig fields"),
+    ("loop_closure:\n", "loop_closure must be a mapping of LoopClosureConfig fields"),
+    ("registration: [1, 2]\n", "registration must be a mapping of RegistrationConfig fields"),
+    ("registration: {harmony: {memory_size: 1000000000000}}\n", "harmony.memory_size must be at most 100000"),
+    ("registration: {harmony: {batch_size: 1000000000}}\n", "harmony.batch_size must be at most 100000"),
+])
+def test_bad_config_files_are_one_line_naming_the_file_and_key(tmp_path, text, expected):
+    """Before: ``1: 2`` and ``loop_closure: 5`` were tracebacks (TypeError, AttributeError), ``memory_size:
+    1e12`` an allocation of terabytes."""
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(text)
+    code, err = run_cli("slam", tmp_path / "missing", "--out", tmp_path / "o", "--config", cfg)
+    assert code == 2
+    line = error_line(err)
+    assert line.startswith(str(cfg)) and expected in line, line
+
+
+def test_yaml_1_2_numbers_are_numbers_in_configs_and_scenarios(tmp_path):
+    """Before: ``1e-1`` (no dot) was read as text by YAML 1.1: 'must be a number, got '1e-1''."""
+    from hsmap.config import load_config
+    from hsmap.sim.scenario import load_scenario
+    from hsmap.slam import SlamConfig
+
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("verify_sigmas: 3e0\nkeyframe_distance: 1e-1\n")
+    c = load_config(SlamConfig, cfg)
+    assert (c.verify_sigmas, c.keyframe_distance) == (3.0, 0.1)
+    src = Path(__file__).parents[1] / "hsmap" / "sim" / "scenarios" / "two-rooms.yaml"
+    scn = tmp_path / "s.yaml"
+    scn.write_text(src.read_text().replace("\nframe_rate: 2.0\n", "\nframe_rate: 2e0\n"))
+    assert load_scenario(scn, check=False).frame_rate == 2.0
+
+
+def test_a_yaml_alias_bomb_is_refused_in_one_short_line(tmp_path):
+    """Before: a 300-byte config whose value expands through aliases to billions of numbers made a message that
+    quotes the value grow to gigabytes (here 9**7 = 4.8 million numbers: a message of 14 MB)."""
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(alias_bomb(7))
+    assert cfg.stat().st_size < 600
+    code, err = run_cli("slam", tmp_path / "missing", "--out", tmp_path / "o", "--config", cfg)
+    assert code == 2
+    line = error_line(err)
+    assert line.startswith(f"{cfg}: not valid YAML") and "aliases" in line, line
+    small = tmp_path / "s.yaml"  # within the bound: the value is quoted, shortened
+    small.write_text(alias_bomb(3))
+    code, err = run_cli("slam", tmp_path / "missing", "--out", tmp_path / "o", "--config", small)
+    assert code == 2 and "odometry_sigma must be 5 finite numbers" in error_line(err)
+
+
+# --- scenarios and simulator folders -------------------------------------------------------------------------------
+
+
+def test_a_scenario_frame_rate_is_bounded(tmp_path):
+    """Before: ``frame_rate: 1e9`` allocated terabytes (numpy's ArrayMemoryError, a traceback)."""
+    src = Path(__file__).parents[1] / "hsmap" / "sim" / "scenarios" / "two-rooms.yaml"
+    scn = tmp_path / "s.yaml"
+    scn.write_text(src.read_text().replace("\nframe_rate: 2.0\n", "\nframe_rate: 1000000000\n"))
+    code, err = run_cli("simulate", scn, "--check")
+    assert code == 2
+    assert error_line(err) == f"{scn}: frame_rate: must be at most 1000 Hz (a LiDAR's scan rate), got 1e+09"
+
+
+def test_a_simulator_folder_without_sensors_names_the_key(tmp_path):
+    """Before: 'bad sensor description: 'NoneType' object is not subscriptable'."""
+    from hsmap.sim.writer import simulate
+
+    out = tmp_path / "sim"
+    simulate("two-rooms", out, max_frames=2)
+    meta = out / "dataset.yaml"
+    lines = meta.read_text().splitlines()
+    start = next(i for i, s in enumerate(lines) if s.startswith("sensors:"))
+    end = next((i for i in range(start + 1, len(lines)) if lines[i] and not lines[i][0].isspace()), len(lines))
+    meta.write_text("\n".join(lines[:start] + lines[end:]) + "\n")
+    code, err = run_cli("slam", out, "--out", tmp_path / "o")
+    assert code == 2
+    assert error_line(err) == (f"{meta}: 'sensors' must be a mapping with the 'lidar2d' and 'lidar3d' "
+                               f"descriptions, got None")
+
+
+# --- sizes ---------------------------------------------------------------------------------------------------------
+
+
+def png_header_only(path: Path, width: int, height: int) -> Path:
+    """A PNG file of a few dozen bytes whose header declares ``width`` x ``height`` 8-bit gray pixels."""
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
+                     + chunk(b"IDAT", zlib.compress(b"\x00" * 16)) + chunk(b"IEND", b""))
+    return path
+
+
+@pytest.mark.parametrize("side", [20000, 12000])
+def test_huge_map_images_are_refused_before_decoding(tmp_path, monkeypatch, side):
+    """Before: 20000 x 20000 was PIL's DecompressionBombError (a traceback), 12000 x 12000 a MemoryError in the
+    distance transform. The memory available is set to 8 GiB so that the check does not depend on the machine."""
+    monkeypatch.setattr("hsmap.limits.available_memory", lambda: 8 << 30)
+    png = png_header_only(tmp_path / "big.png", side, side)
+    code, err = run_cli("segment", png, "--out", tmp_path / "o")
+    assert code == 2
+    line = error_line(err)
+    assert line.startswith(f"{png}: ") and (f"{side} x {side}" in line or "pixels" in line), line
+    assert not (tmp_path / "o").exists()
+
+
+def test_an_occupancy_grid_too_large_for_the_memory_is_refused():
+    """Before: ``hsmap map --resolution 0.0001`` allocated 22 GiB and was killed with nothing on stderr."""
+    from hsmap.errors import InputError
+    from hsmap.grid import grid_from_scans
+
+    scan = np.array([[30.0, 0.0], [0.0, 30.0], [-30.0, 0.0]])
+    with pytest.raises(InputError, match=r"occupancy grid at 1e-05 m per cell \(the resolution\) needs .* GiB"):
+        grid_from_scans([scan], np.zeros((1, 3)), 1e-5)
+
+
+def test_memory_errors_are_one_line(tmp_path, monkeypatch):
+    """A size no check foresees still ends in one line, not a traceback."""
+    def boom(*a, **k):
+        raise MemoryError()
+
+    monkeypatch.setattr("hsmap.grid.read_map", boom)
+    png = png_header_only(tmp_path / "m.png", 10, 10)
+    code, err = run_cli("segment", png, "--out", tmp_path / "o")
+    assert code == 2 and error_line(err).startswith("segment: out of memory ("), err
+
+
+# --- a slow 2D LiDAR -------------------------------------------------------------------------------------------------
+
+
+def test_map_of_a_slow_2d_lidar_whose_clouds_are_not_on_its_scans(tmp_path):
+    """Acceptance: scans at 2 Hz, a cloud 13 ms after each. Before: ``prior: none of the input's 16 frames lies
+    between two of its poses within the sync tolerance of 0.1 s`` from ``hsmap map`` with its defaults."""
+    from hsmap.sim import Lidar3DConfig
+    from hsmap.sim.bag import write_simulated_bag
+
+    bag = write_simulated_bag("two-rooms", tmp_path / "b.mcap", seed=1, scan_rate=2.0, cloud_every=1,
+                              cloud_offset=0.026, duration=8.0, lidar3d=Lidar3DConfig(channels=16, columns=256))
+    out = tmp_path / "out"
+    code, err = run_cli("map", bag.path, "--out", out, "--quiet", "--no-recording")
+    assert code == 0, err
+    m = json.loads((out / "metrics.json").read_text())
+    prior = m["slam3d"]["prior"]
+    assert prior["frames_with_prior"] == prior["frames"] - 1  # the last cloud is after the last scan
+
+
+def test_a_prior_interpolates_over_its_own_cadence_only():
+    """A stamp between two consecutive poses of the trajectory's regular cadence gets a pose, whatever the
+    sync tolerance; one in a gap where poses are missing does not."""
+    from hsmap.trajectory import Trajectory
+
+    t = np.array([0.0, 0.5, 1.0, 1.5, 3.0, 3.5])  # one pose every 0.5 s, none between 1.5 and 3.0
+    p = np.c_[t, np.zeros(len(t)), np.zeros(len(t))]
+    poses, found = Trajectory(t, p).interpolate([0.013, 0.75, 2.0, 3.2, 4.0], 0.1)
+    assert found.tolist() == [True, True, False, True, False]
+    np.testing.assert_allclose(poses[:, 0], [0.013, 0.75, 3.2])

@@ -185,13 +185,13 @@ def test_map_of_a_slow_2d_lidar_whose_clouds_are_not_on_its_scans(tmp_path):
     from hsmap.sim.bag import write_simulated_bag
 
     bag = write_simulated_bag("two-rooms", tmp_path / "b.mcap", seed=1, scan_rate=2.0, cloud_every=1,
-                              cloud_offset=0.026, duration=8.0, lidar3d=Lidar3DConfig(channels=16, columns=256))
+                              cloud_offset=0.026, duration=5.0, lidar3d=Lidar3DConfig(channels=16, columns=128))
     out = tmp_path / "out"
     code, err = run_cli("map", bag.path, "--out", out, "--quiet", "--no-recording")
     assert code == 0, err
     m = json.loads((out / "metrics.json").read_text())
     prior = m["slam3d"]["prior"]
-    assert prior["frames_with_prior"] == prior["frames"] - 1  # the last cloud is after the last scan
+    assert prior["frames_with_prior"] == prior["frames"] == len(bag.clouds)
 
 
 def test_a_prior_interpolates_over_its_own_cadence_only():
@@ -204,3 +204,72 @@ def test_a_prior_interpolates_over_its_own_cadence_only():
     poses, found = Trajectory(t, p).interpolate([0.013, 0.75, 2.0, 3.2, 4.0], 0.1)
     assert found.tolist() == [True, True, False, True, False]
     np.testing.assert_allclose(poses[:, 0], [0.013, 0.75, 3.2])
+
+
+# --- point cloud files ---------------------------------------------------------------------------------------------
+
+
+@pytest.fixture
+def clouds(tmp_path):
+    """A binary and a text PLY and PCD file of 1000 points each."""
+    o3d = pytest.importorskip("open3d")
+    pts = np.random.default_rng(0).normal(size=(1000, 3)) + 5.0
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+    files = []
+    for name, ascii_ in (("bin.ply", False), ("text.ply", True), ("bin.pcd", False), ("text.pcd", True)):
+        o3d.io.write_point_cloud(str(tmp_path / name), pc, write_ascii=ascii_)
+        files.append(tmp_path / name)
+    return files
+
+
+def test_a_truncated_cloud_file_is_named_as_damaged(clouds):
+    """Before: a binary PLY cut in half gave 1000 points, half of them uninitialised, and a cut PCD 0 points, each
+    without a word."""
+    from hsmap.datasets.clouds import read_points
+    from hsmap.errors import DataFormatError
+
+    for f in clouds:
+        assert len(read_points(f)) == 1000
+        data = f.read_bytes()
+        f.write_bytes(data[: len(data) // 2])
+        with pytest.raises(DataFormatError, match=rf"^{f}: damaged: its header declares 1000 points"):
+            read_points(f)
+
+
+def test_a_cloud_header_declaring_more_points_than_the_memory_is_refused(tmp_path, monkeypatch):
+    """Before: a 300-byte PLY declaring 500 million points was a MemoryError (a traceback)."""
+    from hsmap.datasets.clouds import read_points
+    from hsmap.errors import DataFormatError
+
+    monkeypatch.setattr("hsmap.limits.available_memory", lambda: 8 << 30)
+    f = tmp_path / "bomb.ply"
+    f.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 500000000\nproperty float x\n"
+                  b"property float y\nproperty float z\nend_header\n" + bytes(120))
+    with pytest.raises(DataFormatError, match=rf"^{f}: 500000000 points declared in its header needs 29.8 GiB"):
+        read_points(f)
+
+
+# --- the batch's cluster -------------------------------------------------------------------------------------------
+
+
+def test_a_scheduler_that_is_not_an_address_is_one_line():
+    """Before: ``--scheduler 'not a url'`` was a traceback (ValueError from Dask)."""
+    from hsmap.errors import ConfigError
+    from hsmap.study.distributed import _client
+
+    with pytest.raises(ConfigError, match=r"^--scheduler not a url: cannot reach a Dask scheduler there \("):
+        _client(None, "not a url")
+
+
+def test_the_local_cluster_and_its_dashboard_listen_on_loopback_only():
+    """Before: the local cluster's dashboard (no authentication) listened on every address."""
+    psutil = pytest.importorskip("psutil")
+    from hsmap.study.distributed import _client
+
+    client, cluster = _client(1, None)
+    try:
+        listening = [c.laddr for c in psutil.Process().net_connections(kind="tcp") if c.status == psutil.CONN_LISTEN]
+    finally:
+        client.close()
+        cluster.close()
+    assert listening and all(a.ip in ("127.0.0.1", "::1") for a in listening), listening

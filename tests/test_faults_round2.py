@@ -273,3 +273,28 @@ def test_the_local_cluster_and_its_dashboard_listen_on_loopback_only():
         client.close()
         cluster.close()
     assert listening and all(a.ip in ("127.0.0.1", "::1") for a in listening), listening
+
+
+# --- inputs --------------------------------------------------------------------------------------------------------
+
+
+def test_an_input_that_is_not_a_regular_file_is_refused(tmp_path):
+    """Before: a ``.bag`` linking to /dev/zero was read until the memory ran out, ignoring SIGTERM."""
+    link = tmp_path / "zero.bag"
+    link.symlink_to("/dev/zero")
+    code, err = run_cli("slam", link, "--out", tmp_path / "o")
+    assert code == 2
+    assert error_line(err) == (f"{link}: not a regular file or a folder (a link to /dev/zero); expected a "
+                               "recording file or folder")
+
+
+@pytest.mark.parametrize("flag, value", [("--extrinsic3d", "1e300,0,1,0,0,0"), ("--extrinsic2d", "0,0,1e300")])
+def test_an_absurd_extrinsic_names_the_flag(tmp_path, flag, value):
+    """Before: ``--extrinsic3d 1e300,...`` ran and blamed every frame's points for lying 'all on one plane'."""
+    from hsmap.sim.writer import simulate
+
+    simulate("two-rooms", tmp_path / "sim", max_frames=2)
+    code, err = run_cli("slam", tmp_path / "sim", "--out", tmp_path / "o", "--dof", "6", flag, value)
+    assert code == 2
+    line = error_line(err)
+    assert line.startswith(f"{flag}: a sensor offset of up to ") and "expected at most 100 m" in line, line

@@ -298,3 +298,86 @@ def test_an_absurd_extrinsic_names_the_flag(tmp_path, flag, value):
     assert code == 2
     line = error_line(err)
     assert line.startswith(f"{flag}: a sensor offset of up to ") and "expected at most 100 m" in line, line
+
+
+# --- notebook parameters -------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("key, value, expected", [
+    ("sead", "3", "-p sead: no such parameter in 01-probe; they have fast, out_dir, quick, seed, step"),
+    ("seed", "abc", "-p seed: 01-probe declares it int (a whole number; default 1), got 'abc'"),
+    ("fast", "notabool", "-p fast: 01-probe declares it bool (true or false; default False), got 'notabool'"),
+    ("step", "fast", "-p step: 01-probe declares it float (a number; default 0.5), got 'fast'"),
+])
+def test_notebook_parameters_are_checked_against_their_declarations(tmp_path, key, value, expected):
+    """Before: ``-p sead 3`` ran (exit 0), ``-p quick notabool`` ran as true, ``-p seed abc`` was a ValueError
+    inside the notebook that did not name ``seed``."""
+    pytest.importorskip("papermill")
+    from test_study_batch import _notebook
+
+    nbdir = tmp_path / "notebooks"
+    nbdir.mkdir()
+    cells = ['quick: bool = False\nout_dir: str = ""\nseed: int = 1\nfast: bool = False\nstep: float = 0.5',
+             'raise SystemExit("the notebook ran")']
+    (nbdir / "01-probe.ipynb").write_text(json.dumps(_notebook(cells, "Probe")), encoding="utf-8")
+    code, err = run_cli("reproduce", "--notebooks", nbdir, "--out", tmp_path / "reports", "--no-verify",
+                        "-p", key, value)
+    assert code == 2 and error_line(err) == expected
+    assert not (tmp_path / "reports").exists()
+
+
+def test_notebook_parameter_values_read_yaml_1_2_numbers():
+    from hsmap.study.batch import parse_value
+
+    assert parse_value("1e-1") == 0.1 and parse_value("abc") == "abc" and parse_value("true") is True
+
+
+# --- outputs -------------------------------------------------------------------------------------------------------
+
+
+def small_map(path: Path) -> Path:
+    """A 120 x 80 pixel map of two rooms joined by a door, as PNG."""
+    from PIL import Image
+
+    a = np.full((80, 120), 255, np.uint8)
+    a[:3], a[-3:], a[:, :3], a[:, -3:] = 0, 0, 0, 0
+    a[:, 58:62] = 0
+    a[35:50, 58:62] = 255
+    Image.fromarray(a).save(path)
+    return path
+
+
+def test_an_output_folder_that_is_the_input_is_refused(tmp_path):
+    """Before: ``hsmap map S --out S`` wrote its estimates over the simulator folder's ground truth (rooms.png,
+    doors.json); ``hsmap segment rooms.png --out .`` over its own input."""
+    from hsmap.sim.writer import simulate
+
+    sim = tmp_path / "sim"
+    simulate("two-rooms", sim, max_frames=2)
+    before = {p.name: p.read_bytes() for p in sim.iterdir() if p.is_file()}
+    code, err = run_cli("map", sim, "--out", sim)
+    assert code == 2 and error_line(err) == f"--out {sim}: would write over the input {sim}; choose another output folder"
+    assert {p.name: p.read_bytes() for p in sim.iterdir() if p.is_file()} == before
+    png = small_map(tmp_path / "rooms.png")
+    data = png.read_bytes()
+    code, err = run_cli("segment", png, "--out", tmp_path)
+    assert code == 2 and "would write over the input" in error_line(err) and png.read_bytes() == data
+
+
+def test_a_rerun_leaves_no_output_of_the_earlier_run(tmp_path):
+    """Before: a rerun into the same --out kept the earlier run's steps.png (segment without --steps) and slam.rrd
+    (slam with --no-recording, of another input) beside its own outputs."""
+    png = small_map(tmp_path / "map.png")
+    out = tmp_path / "seg"
+    assert run_cli("segment", png, "--out", out, "--steps")[0] == 0 and (out / "steps.png").is_file()
+    assert run_cli("segment", png, "--out", out)[0] == 0
+    assert (out / "rooms.png").is_file() and not (out / "steps.png").exists()
+    out = tmp_path / "slam"
+    (out).mkdir()
+    (out / "slam.rrd").write_bytes(b"an earlier run's recording")
+    from hsmap.sim.writer import simulate
+
+    simulate("two-rooms", tmp_path / "sim", max_frames=3)
+    code, err = run_cli("slam", tmp_path / "sim", "--out", out, "--no-recording", "--quiet")
+    assert code == 0, err
+    assert (out / "trajectory.tum").is_file() and not (out / "slam.rrd").exists()

@@ -43,7 +43,8 @@ def run(args: argparse.Namespace) -> int:
     from ..config import dump_config, load_config
     from ..errors import EmptyInputError, HsmapWarning, InputError
     from ..grid import read_map, write_label_image
-    from ..io import atomic_path, prepare_output_dir, staged_outputs, sweep_stale_temporaries, write_json
+    from ..io import (atomic_path, prepare_output_dir, refuse_overwriting_input, staged_outputs,
+                      sweep_stale_temporaries, write_json)
     from ..segmentation import SegmentationConfig, check_scale, segment_rooms
     from ..topology import room_graph, topology_listing, write_topology
     from ..viz.colors import label_overlay
@@ -55,6 +56,7 @@ def run(args: argparse.Namespace) -> int:
         cfg = dataclasses.replace(cfg, method=args.method)
     if args.furniture:
         cfg = dataclasses.replace(cfg, assign_furniture=True)
+    refuse_overwriting_input(args.out, [args.map, args.config], OUTPUTS)
     out = prepare_output_dir(args.out, "--out", create=False)
     grid = read_map(args.map, args.resolution)
     try:
@@ -73,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
                       stacklevel=2)
     g = room_graph(seg)
     sweep_stale_temporaries(out, OUTPUTS)
-    with staged_outputs(out) as stage:
+    with staged_outputs(out, replaces=OUTPUTS) as stage:
         write_label_image(stage / "rooms.png", seg.labels)
         write_json(stage / "doors.json", {
             "map": str(args.map),

@@ -527,6 +527,8 @@ def staged_outputs(out: str | os.PathLike, *, last: str | None = None, folders: 
             for f in replaces:
                 if f not in files and (out / f).is_file():
                     (out / f).unlink()
+                elif f not in files and folders and (out / f).is_dir() and not (out / f).is_symlink():
+                    os.replace(out / f, stage / f".replaced-{f}")  # deleted with the staging folder
             for f in order:
                 if f in dirs:
                     old = out / f

@@ -381,3 +381,25 @@ def test_a_rerun_leaves_no_output_of_the_earlier_run(tmp_path):
     code, err = run_cli("slam", tmp_path / "sim", "--out", out, "--no-recording", "--quiet")
     assert code == 0, err
     assert (out / "trajectory.tum").is_file() and not (out / "slam.rrd").exists()
+
+
+def test_an_interrupted_simulation_leaves_the_previous_dataset_as_it_was(tmp_path, monkeypatch):
+    """Before: Ctrl-C during ``hsmap simulate --out D`` deleted D's dataset.yaml and half-rewrote the rest: D was
+    unreadable afterwards."""
+    from hsmap.datasets.simulated import SimulatedDataset
+
+    out = tmp_path / "d"
+    assert run_cli("simulate", "two-rooms", "--out", out, "--max-frames", "2", "--figures")[0] == 0
+    before = {str(p.relative_to(out)): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+
+    def interrupt(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("hsmap.sim.writer.write_tum", interrupt)  # after the scans and clouds are written
+    assert run_cli("simulate", "two-rooms", "--out", out, "--max-frames", "3", "--seed", "5")[0] == 130
+    assert {str(p.relative_to(out)): p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    assert len(SimulatedDataset(out)) == 2
+    monkeypatch.undo()  # a complete rerun without --figures replaces everything, the old figures/ included
+    assert run_cli("simulate", "two-rooms", "--out", out, "--max-frames", "3")[0] == 0
+    assert len(SimulatedDataset(out)) == 3 and not (out / "figures").exists()
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]

@@ -958,9 +958,10 @@ def run_notebooks(
             if h.name in per_nb:
                 per_nb[h.name].update(params)
 
-    from .parameters import check_parameters  # each against the names and types the notebooks declare
+    if common or any(per_nb.values()):  # each against the names and types the notebooks declare
+        from .parameters import check_parameters, declared_parameters
 
-    check_parameters({s.name: inspect_parameters(s) for s in chosen}, common, per_nb)
+        check_parameters({s.name: declared_parameters(s) for s in chosen}, common, per_nb)
     common = _absolute_paths(common)
     per_nb = {k: _absolute_paths(v) for k, v in per_nb.items()}
     from ..io import folder_lock, prepare_output_dir, sweep_stale_temporaries

@@ -403,3 +403,29 @@ def test_an_interrupted_simulation_leaves_the_previous_dataset_as_it_was(tmp_pat
     assert run_cli("simulate", "two-rooms", "--out", out, "--max-frames", "3")[0] == 0
     assert len(SimulatedDataset(out)) == 3 and not (out / "figures").exists()
     assert not [p for p in out.iterdir() if p.name.startswith(".")]
+
+
+# --- downloads -----------------------------------------------------------------------------------------------------
+
+
+def test_a_failed_fetch_does_not_shadow_the_data_beside_the_checkout(tmp_path, monkeypatch):
+    """Before: a failed ``hsmap data fetch`` left an almost empty download folder (its lock file, a dataset folder
+    with nothing in it), which then took precedence over ``../shared/datasets``: ``data list`` said 'missing',
+    notebooks 08/09 skipped."""
+    from hsmap.study import paths
+    from hsmap.study.public_data import fetch_dir, registry
+
+    monkeypatch.setenv("HSMAP_CACHE", str(tmp_path / "cache"))
+    monkeypatch.delenv("HSMAP_DATASETS", raising=False)
+    monkeypatch.setattr(paths, "repository_root", lambda: tmp_path / "repo")
+    beside = tmp_path / "shared" / "datasets"
+    beside.mkdir(parents=True)
+    partial = fetch_dir()
+    (partial / registry()["bormann"].folder).mkdir(parents=True)
+    (partial / ".fetch.lock").write_text("")
+    assert paths.datasets_dir() == beside.resolve()
+    ds = registry()["bormann"]  # a complete download counts
+    for f in ds.files:
+        (partial / ds.folder / f.path).parent.mkdir(parents=True, exist_ok=True)
+        (partial / ds.folder / f.path).write_bytes(b"x")
+    assert paths.datasets_dir() == partial

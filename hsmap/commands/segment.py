@@ -43,8 +43,14 @@ def run(args: argparse.Namespace) -> int:
     from ..config import dump_config, load_config
     from ..errors import EmptyInputError, HsmapWarning, InputError
     from ..grid import read_map, write_label_image
-    from ..io import (atomic_path, prepare_output_dir, refuse_overwriting_input, staged_outputs,
-                      sweep_stale_temporaries, write_json)
+    from ..io import (
+        atomic_path,
+        prepare_output_dir,
+        refuse_overwriting_input,
+        staged_outputs,
+        sweep_stale_temporaries,
+        write_json,
+    )
     from ..segmentation import SegmentationConfig, check_scale, segment_rooms
     from ..topology import room_graph, topology_listing, write_topology
     from ..viz.colors import label_overlay

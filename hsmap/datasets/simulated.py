@@ -18,8 +18,8 @@ import yaml
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import DataFormatError, DatasetError, InputError
-from ..limits import load_yaml, quote
 from ..grid import GridGeometry
+from ..limits import load_yaml, quote
 from ..trajectory import Trajectory, read_tum
 from .frames import Dataset, Frame, LaserScan2D
 

@@ -630,6 +630,7 @@ class HsSlam:
         self._field_centre = np.zeros(self.dim)
         self._last_key: NDArray[np.float64] | None = None
         self._prev_odom: NDArray[np.float64] | None = None
+        self._odometry_outliers: list[int] = []  # frames whose odometry step was set aside (_odometry_outlier)
         # the odometry's disagreements with the registrations, normalised by the sigma model: (x, y, yaw)
         self._odometry_disagreement: deque[tuple[float, float, float]] = deque(maxlen=cfg.odometry_window)
         self._odometry_scale = np.ones(2)
@@ -687,6 +688,8 @@ class HsSlam:
         """The odometry increment since the previous frame, as a pose vector of this run's dof."""
         odom = None if frame.odometry is None else np.asarray(frame.odometry, dtype=float)
         if not (self.config.use_odometry and odom is not None and self._prev_odom is not None):
+            return None
+        if self._odometry_outliers and self._odometry_outliers[-1] == frame.index:
             return None
         delta = relative(self._prev_odom, odom)  # (x, y, yaw) increment in the robot frame
         if self.config.dof == 3:
@@ -918,7 +921,11 @@ class HsSlam:
             k = len(self.keyframes) - 1
             self._anchor.append(k)
             self._offset.append(relative(self.graph.poses[k], pose))
-        if frame.odometry is not None:
+        if frame.odometry is not None and self._odometry_outliers[-1:] == [frame.index]:
+            # the odometry as it would read had it moved as the scan match did: the next step is the wheels' again
+            moved = relative(self.poses[-2], pose)
+            self._prev_odom = compose(self._prev_odom, moved if self.config.dof == 3 else moved[[0, 1, 5]])
+        elif frame.odometry is not None:
             self._prev_odom = np.asarray(frame.odometry, dtype=float)
         if keyframe and self._target is None:
             # the next frame's target (local map crop, neighbour grid), built from what it will be built from
@@ -1003,6 +1010,8 @@ class HsSlam:
             if _matched_share(r_first) >= STRICT_MIN_MATCHED:
                 return res, False, True
             sig = tight[1]
+        elif self._odometry_outlier(frame, res):
+            return res, False, True
         # retry in a box of the prediction's uncertainty, from the prediction, with a longer search
         hs = reg.harmony
         retry_cfg = replace(reg, refine_seeds=1,
@@ -1050,6 +1059,37 @@ class HsSlam:
         # a registration that explains too little of its scan to overrule the prediction cannot veto it either:
         # the scan sees space the map does not hold (the prediction's pose then extends the map)
         return alt, True, first_matched < STRICT_MIN_MATCHED or _at_least_as_good(r_alt, r_first, self.dim)
+
+    def _odometry_outlier(self, frame: Frame, res: RegistrationResult) -> bool:
+        """Whether the frame's odometry step is an outlier to be set aside (with a warning): the registration lies
+        outside the odometry's gate (the caller checked), while it and the previous motion repeated agree with
+        each other and both disagree with the odometry, by more than ``verify_sigmas`` of the motion model
+        (``motion_sigma``) at the previous motion's length. The frame is then tracked without its odometry."""
+        cfg = self.config
+        if self._prior is not None or len(self.poses) < 2 or frame.index is None:
+            return False
+        odo = self._odometry_step(frame)
+        if odo is None:
+            return False
+        prev = self.poses[-1]
+        motion = relative(self.poses[-2], prev)
+        st, sr = self._model_sigmas(motion, cfg.motion_sigma)
+
+        def apart(a: NDArray[np.float64], b: NDArray[np.float64]) -> bool:
+            d = relative(a, b)
+            return bool(np.linalg.norm(d[:2]) > cfg.verify_sigmas * st or
+                        abs(wrap_angle(d[-1])) > cfg.verify_sigmas * sr)
+
+        by_motion, by_odometry = compose(prev, motion), compose(prev, self._odometry_corrected(odo))
+        if not apart(by_motion, by_odometry) or apart(by_motion, res.pose):
+            return False
+        self._odometry_outliers.append(int(frame.index))
+        d = relative(by_odometry, res.pose)
+        warnings.warn(f"frame {frame.index} (stamp {frame.stamp:.6f}): its odometry puts it "
+                      f"{float(np.linalg.norm(d[:2])):.2f} m and {float(np.rad2deg(abs(wrap_angle(d[-1])))):.1f} deg "
+                      "from where the scan match and the previous motion agree it is; that odometry step is not "
+                      "used", HsmapWarning, stacklevel=2)
+        return True
 
     def _fuse(self, frame: Frame, res: RegistrationResult
               ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
@@ -1463,7 +1503,8 @@ def prior_coverage(prior: Trajectory, stamps, tolerance: float, *, name: str = "
         raise InputError(
             f"{name}: none of the input's {n} frames ({t.min():.3f}..{t.max():.3f} s) lies between two of its "
             f"{len(prior)} poses ({prior.stamps.min():.3f}..{prior.stamps.max():.3f} s) within the sync tolerance "
-            f"of {tolerance:g} s; expected the trajectory.tum of a 2D run of the same input (or a larger tolerance)")
+            f"of {tolerance:g} s or in a gap of its regular cadence; expected the trajectory.tum of a 2D run of the "
+            f"same input (or a larger --sync-tolerance)")
     if k < n:
         warnings.warn(f"{name} gives a pose to {k} of the {n} frames ({100.0 * k / n:.1f} %) within the sync "
                       f"tolerance of {tolerance:g} s; the others are seeded without it", HsmapWarning, stacklevel=3)

@@ -40,12 +40,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress bars or summary")
 
 
+MAP_OUTPUTS = ("summary.html", "metrics.json", "slice.yaml", "slice.pgm", "floor.yaml", "floor.pgm", "rooms.png",
+               "doors.json", "topology.json", "map2d.ply", "map3d.ply", "map.rrd")
+
+
 def run(args: argparse.Namespace) -> int:
     import dataclasses
     import math
 
     from ..errors import InputError
-    from ..io import prepare_output_dir
+    from ..io import prepare_output_dir, refuse_overwriting_input
     from ..segmentation import SegmentationConfig
     from ..slam import SlamConfig
     from ..study.chain import map_recording
@@ -59,6 +63,7 @@ def run(args: argparse.Namespace) -> int:
     if not (math.isfinite(args.resolution) and args.resolution > 0):
         raise InputError(f"--resolution must be > 0 metres per cell, got {args.resolution}")
     # before the long work: a file, a folder that cannot be created or written is reported now
+    refuse_overwriting_input(args.out, [args.input, args.scans], MAP_OUTPUTS)
     out = prepare_output_dir(args.out, "--out", create=False)
     slam2d, slam3d = SlamConfig(dof=3), SlamConfig(dof=6)
     if args.no_odometry:

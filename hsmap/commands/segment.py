@@ -108,7 +108,14 @@ def run(args: argparse.Namespace) -> int:
     from ..config import dump_config, load_config
     from ..errors import EmptyInputError, HsmapWarning, InputError
     from ..grid import read_map, write_label_image, write_map
-    from ..io import atomic_path, prepare_output_dir, staged_outputs, sweep_stale_temporaries, write_json
+    from ..io import (
+        atomic_path,
+        prepare_output_dir,
+        refuse_overwriting_input,
+        staged_outputs,
+        sweep_stale_temporaries,
+        write_json,
+    )
     from ..segmentation import SegmentationConfig, check_scale, segment_rooms
     from ..topology import room_graph, topology_listing, write_topology
     from ..viz.colors import label_overlay
@@ -120,6 +127,7 @@ def run(args: argparse.Namespace) -> int:
         cfg = dataclasses.replace(cfg, method=args.method)
     if args.furniture:
         cfg = dataclasses.replace(cfg, assign_furniture=True)
+    refuse_overwriting_input(args.out, [args.map, args.config], OUTPUTS)
     out = prepare_output_dir(args.out, "--out", create=False)
     band = None
     if Path(args.map).suffix.lower() in MAP3D_SUFFIXES:
@@ -149,7 +157,7 @@ def run(args: argparse.Namespace) -> int:
                       stacklevel=2)
     g = room_graph(seg)
     sweep_stale_temporaries(out, OUTPUTS)
-    with staged_outputs(out) as stage:
+    with staged_outputs(out, replaces=OUTPUTS) as stage:
         write_label_image(stage / "rooms.png", seg.labels)
         write_json(stage / "doors.json", {
             "map": str(args.map),

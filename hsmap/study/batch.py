@@ -228,8 +228,10 @@ def parse_value(text: str) -> Any:
     """A ``-p KEY VALUE`` value read as YAML (``true``, ``3``, ``0.5``, ``[1, 2]``; otherwise the string)."""
     import yaml
 
+    from ..limits import load_yaml
+
     try:
-        return yaml.safe_load(text)
+        return load_yaml(text)
     except yaml.YAMLError:
         return text
 
@@ -956,6 +958,10 @@ def run_notebooks(
             if h.name in per_nb:
                 per_nb[h.name].update(params)
 
+    if common or any(per_nb.values()):  # each against the names and types the notebooks declare
+        from .parameters import check_parameters, declared_parameters
+
+        check_parameters({s.name: declared_parameters(s) for s in chosen}, common, per_nb)
     common = _absolute_paths(common)
     per_nb = {k: _absolute_paths(v) for k, v in per_nb.items()}
     from ..io import folder_lock, prepare_output_dir, sweep_stale_temporaries

@@ -89,17 +89,18 @@ def datasets_dir() -> Path:
     """The third-party datasets folder (``slam2d/``, ``ipa_room_segmentation/``).
 
     ``$HSMAP_DATASETS`` when it is set (the only place looked at then); else the folder ``hsmap data fetch``
-    downloads into (:func:`hsmap.study.public_data.fetch_dir`) when it holds anything; else
+    downloads into (:func:`hsmap.study.public_data.fetch_dir`) when it holds a complete dataset (every file of
+    it; what a failed download left does not count); else
     ``../shared/datasets`` beside a checkout when that exists; else the download folder (empty: notebook 08 and
     the benchmark tests then say to run ``hsmap data fetch``).
     """
     env = os.environ.get(DATASETS_ENV)
     if env:
         return Path(env)
-    from .public_data import fetch_dir
+    from .public_data import dataset_folder, fetch_dir, registry
 
     fetched = fetch_dir()
-    if fetched.is_dir() and any(fetched.iterdir()):
+    if fetched.is_dir() and any(dataset_folder(name, fetched) is not None for name in registry()):
         return fetched
     root = repository_root()
     if root is not None:

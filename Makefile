@@ -36,6 +36,7 @@ $(STAMP): requirements.lock pyproject.toml
 	@$(BIN)/python -m pip install --quiet --disable-pip-version-check uv==$(UV_VERSION)
 	$(BIN)/uv pip sync --quiet --python $(BIN)/python requirements.lock
 	$(BIN)/uv pip install --quiet --python $(BIN)/python --no-deps -e .
+	@$(BIN)/python tools/warm_kernels.py
 	@$(BIN)/python -c "import open3d, rerun, hsmap; print('hsmap', hsmap.__version__, 'ready in $(VENV)')"
 	@touch $@
 

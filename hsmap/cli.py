@@ -23,6 +23,7 @@ from . import __version__
 from ._blas import limited_blas
 from .commands import COMMANDS
 from .errors import HsmapError, HsmapWarning
+from .limits import MAX_MESSAGE
 
 _NEGATIVE = re.compile(r"^-\.?\d")  # '-0.04,0,0', '-.5', '-2'
 
@@ -83,7 +84,14 @@ def _on_sigterm(signum, frame) -> None:
 
 
 def _one_line(text: str) -> str:
-    return " ".join(str(text).split())
+    line = " ".join(str(text).split())
+    return line if len(line) <= MAX_MESSAGE else line[: MAX_MESSAGE - 3] + "..."
+
+
+def _size_hint() -> str:
+    from .limits import available_memory
+
+    return f"{available_memory() / 2**30:.1f} GiB available; a smaller input or a coarser resolution needs less"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -114,6 +122,9 @@ def _main(argv: list[str] | None) -> int:
     except OSError as exc:  # an output (or input) the system refused: full disk, read-only folder, ...
         where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
         print(f"hsmap: error: {where}{_one_line(exc.strerror or exc)}", file=sys.stderr)
+        return 2
+    except MemoryError:  # a size no check foresaw: still one line, not a traceback
+        print(f"hsmap: error: {args.command}: out of memory ({_size_hint()})", file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:
         print("hsmap: interrupted", file=sys.stderr)

@@ -15,6 +15,7 @@ import yaml
 
 from .errors import ConfigError
 from .io import to_plain, write_text
+from .limits import load_yaml, quote
 
 T = TypeVar("T")
 
@@ -52,7 +53,7 @@ def _check_type(value: Any, hint: Any, where: str) -> None:
     kind = kinds[0]
     if isinstance(kind, type) and issubclass(kind, enum.Enum):
         if not isinstance(value, (str, kind)):
-            raise ConfigError(f"{where} must be one of {[m.value for m in kind]}, got {value!r}")
+            raise ConfigError(f"{where} must be one of {[m.value for m in kind]}, got {quote(value)}")
         return
     expected = {float: "a number", int: "a whole number", bool: "true or false", str: "text"}.get(kind)
     if expected is None:
@@ -62,7 +63,8 @@ def _check_type(value: Any, hint: Any, where: str) -> None:
           isinstance(value, int) and not isinstance(value, bool) if kind is int else
           isinstance(value, (int, float)) and not isinstance(value, bool))
     if not ok:
-        raise ConfigError(f"{where} must be {expected}{' or null' if type(None) in options else ''}, got {value!r}")
+        raise ConfigError(f"{where} must be {expected}{' or null' if type(None) in options else ''}, "
+                          f"got {quote(value)}")
     if kind is float and value != value:
         raise ConfigError(f"{where} must be a number, got NaN")
 
@@ -76,6 +78,9 @@ def from_dict(cls: type[T], data: dict[str, Any] | None, where: str = "config") 
         raise ConfigError(f"{where}: expected a mapping of {cls.__name__} fields, got {type(data).__name__}")
     fields = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
     hints = typing.get_type_hints(cls)
+    odd = [k for k in data if not isinstance(k, str)]
+    if odd:
+        raise ConfigError(f"{where}: key {quote(odd[0])} is not a name; {cls.__name__} has {sorted(fields)}")
     unknown = sorted(set(data) - set(fields))
     if unknown:
         raise ConfigError(f"{where}: unknown key(s) {unknown}; {cls.__name__} has {sorted(fields)}")
@@ -83,13 +88,17 @@ def from_dict(cls: type[T], data: dict[str, Any] | None, where: str = "config") 
     for k, v in data.items():
         sub = hints.get(k)
         nested = dataclasses.is_dataclass(sub) and isinstance(v, dict)
+        if dataclasses.is_dataclass(sub) and not nested and not isinstance(v, sub):
+            raise ConfigError(f"{where}.{k} must be a mapping of {sub.__name__} fields (key: value lines), "
+                              f"got {quote(v)}")
         if not nested:
             _check_type(v, sub, f"{where}.{k}")
         kwargs[k] = from_dict(sub, v, f"{where}.{k}") if nested else v  # type: ignore[arg-type]
     try:
         return cls(**kwargs)
-    except (TypeError, ValueError) as exc:  # the dataclass's own checks; the message gets the file (or key) in front
+    except (TypeError, ValueError, OverflowError) as exc:  # the dataclass's own checks: the file (or key) in front
         text = " ".join(str(exc).split())
+        text = text if len(text) <= 600 else text[:597] + "..."
         raise ConfigError(text if text.startswith(where) else f"{where}: {text}") from None
 
 
@@ -103,7 +112,7 @@ def read_yaml(path: str | os.PathLike, what: str = "configuration file") -> Any:
     """
     path = Path(path)
     try:
-        return yaml.safe_load(path.read_text(encoding="utf-8"))
+        return load_yaml(path.read_text(encoding="utf-8"))
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read the {what}: {exc.strerror}") from None
     except UnicodeDecodeError as exc:

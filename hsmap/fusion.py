@@ -44,6 +44,8 @@ __all__ = [
     "OVERLAY_COLORS",
     "align_maps",
     "common_grids",
+    "global_align",
+    "GlobalSearch",
     "occupied_points",
     "overlap_scores",
     "overlay_classes",
@@ -586,6 +588,124 @@ def align_maps(
     sc = overlap_scores(floor_c.occupied, slice_c.occupied, cfg.resolution, cfg.tolerance)
     return MapAlignment(T, res.pose.copy(), floor_c, slice_c, sc["overlap"], sc["a_matched"], sc["b_matched"],
                         float(cfg.tolerance), res)
+
+
+@dataclass(frozen=True)
+class GlobalSearch:
+    """The exhaustive search of :func:`global_align` (lengths in metres).
+
+    Attributes
+    ----------
+    resolution : float
+        Translation step of the fine correlative search (its coarse grid is 4 times coarser).
+    angle_step_deg : float
+        Rotation step, degrees; every rotation of the full turn is scored.
+    cell : float
+        The points of each map are thinned to one per cell of this size before the search.
+    refine_translation, refine_yaw_deg : float
+        Half sides of the Harmony-ICP box around each candidate of the search.
+    """
+
+    resolution: float = 0.1
+    angle_step_deg: float = 1.0
+    cell: float = 0.1
+    refine_translation: float = 0.5
+    refine_yaw_deg: float = 3.0
+
+    def __post_init__(self) -> None:
+        for name in ("resolution", "angle_step_deg", "cell", "refine_translation", "refine_yaw_deg"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise ConfigError(f"GlobalSearch.{name} must be > 0, got {v}")
+
+
+def _thinned(points: NDArray[np.float64], cell: float) -> NDArray[np.float64]:
+    """One point (the first) per ``cell``-sized square: (M, 2)."""
+    keys = np.floor(points / cell).astype(np.int64)
+    _, first = np.unique(keys, axis=0, return_index=True)
+    return points[np.sort(first)]
+
+
+def _correlative_candidate(src: NDArray[np.float64], dst: NDArray[np.float64], search: GlobalSearch
+                           ) -> tuple[NDArray[np.float64], float, float]:
+    """The pose (x, y, yaw) of ``src`` in ``dst``'s frame best explaining ``src`` by ``dst`` over every rotation
+    and every translation that makes the two overlap; with its score and ambiguity
+    (:func:`hsmap.loopclosure.correlative_match_2d`)."""
+    from .loopclosure import correlative_match_2d
+
+    centre = src.mean(axis=0)
+    s = src - centre
+    lo, hi = dst.min(axis=0), dst.max(axis=0)
+    half = float(np.max((hi - lo) / 2.0) + np.linalg.norm(s, axis=1).max())
+    pose, score, ambiguity = correlative_match_2d(
+        s, dst, np.r_[(lo + hi) / 2.0, 0.0], half, np.pi, resolution=search.resolution,
+        angle_step=float(np.deg2rad(search.angle_step_deg)), separation=2.0)
+    c, si = np.cos(pose[2]), np.sin(pose[2])
+    t = pose[:2] - np.array([[c, -si], [si, c]]) @ centre
+    return np.array([t[0], t[1], pose[2]]), float(score), float(ambiguity)
+
+
+def global_align(
+    floor: OccupancyGrid,
+    slice_: OccupancyGrid,
+    *,
+    floor_points: ArrayLike | None = None,
+    slice_points: ArrayLike | None = None,
+    config: FusionConfig | None = None,
+    search: GlobalSearch | None = None,
+    rng: int | np.random.Generator | None = None,
+) -> tuple[MapAlignment, list[dict]]:
+    """Register two 2D maps of one building with no initial guess: an exhaustive correlative search over every
+    rotation and every overlapping translation, then Harmony-ICP around its candidates.
+
+    The search runs both ways (the floor map's structure explained by the slice's, and the converse, so that
+    neither map needs to cover the other); each way's best pose is a candidate, and :func:`align_maps` refines
+    them together in a box of ``search.refine_translation`` / ``search.refine_yaw_deg`` around each.
+
+    Parameters
+    ----------
+    floor, slice_ : OccupancyGrid
+        The map to move and the map it is registered to (see :func:`align_maps`).
+    floor_points, slice_points : ndarray of shape (N, 2), optional
+        Points to register instead of the occupied cell centres.
+    config : FusionConfig, optional
+    search : GlobalSearch, optional
+    rng : int or Generator, optional
+        Seeds the Harmony-ICP refinement (the search is deterministic).
+
+    Returns
+    -------
+    (MapAlignment, candidates)
+        The alignment (floor -> slice) and per search direction a dict with the candidate pose (x, y, yaw_deg in
+        the floor -> slice direction), its correlative score and ambiguity.
+    """
+    import dataclasses
+
+    cfg = config or FusionConfig()
+    sch = search or GlobalSearch()
+    src = _as_points2(floor_points, "floor_points")
+    dst = _as_points2(slice_points, "slice_points")
+    src = occupied_points(floor) if src is None else src
+    dst = occupied_points(slice_) if dst is None else dst
+    if len(src) < 3 or len(dst) < 3:
+        raise EmptyInputError(f"registration needs at least 3 occupied points in each map, got {len(src)} and "
+                              f"{len(dst)}")
+    a, b = _thinned(src, sch.cell), _thinned(dst, sch.cell)
+    candidates = []
+    forward, score_f, amb_f = _correlative_candidate(a, b, sch)
+    candidates.append({"direction": "floor onto slice", "x": forward[0], "y": forward[1],
+                       "yaw_deg": float(np.rad2deg(forward[2])), "score": score_f, "ambiguity": amb_f})
+    back, score_b, amb_b = _correlative_candidate(b, a, sch)
+    inv = matrix_to_pose(np.linalg.inv(pose_to_matrix(back)))
+    candidates.append({"direction": "slice onto floor", "x": inv[0], "y": inv[1],
+                       "yaw_deg": float(np.rad2deg(inv[2])), "score": score_b, "ambiguity": amb_b})
+    reg = dataclasses.replace(cfg.registration, translation_range=sch.refine_translation,
+                              yaw_range=float(np.deg2rad(sch.refine_yaw_deg)))
+    guesses = np.array([forward, inv])
+    al = align_maps(floor, slice_, floor_points=src, slice_points=dst,
+                    config=dataclasses.replace(cfg, registration=reg), initial_guess=guesses, rng=rng)
+    return al, [{k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in c.items()}
+                for c in candidates]
 
 
 def common_grids(floor: OccupancyGrid, slice_: OccupancyGrid, transform: ArrayLike | None = None,

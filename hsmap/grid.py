@@ -23,6 +23,7 @@ from numpy.typing import ArrayLike, NDArray
 from .errors import DataFormatError, DatasetError, EmptyInputError, HsmapWarning, InputError, ShapeError
 from .geometry import compose, pose_to_matrix, transform_points
 from .io import atomic_path, write_text
+from .limits import load_yaml, quote
 
 __all__ = [
     "GridGeometry",
@@ -214,6 +215,7 @@ def read_image_gray(path: str | os.PathLike) -> NDArray[np.uint8]:
         raise DatasetError(f"{path}: no such map image")
     try:
         with Image.open(path) as im:
+            _check_image_size(path, im.size)
             if im.format in _LOSSY_FORMATS:
                 warnings.warn(f"{path}: {im.format} is a lossy format: its compression blurs walls and speckles free "
                               "space, which changes what is free and occupied (and the rooms found); use PNG or PGM",
@@ -222,8 +224,21 @@ def read_image_gray(path: str | os.PathLike) -> NDArray[np.uint8]:
                 arr = np.asarray(im, dtype=np.int64)
                 return np.clip(arr // 256 if arr.max(initial=0) > 255 else arr, 0, 255).astype(np.uint8)
             return np.asarray(im.convert("L"), dtype=np.uint8)
-    except (UnidentifiedImageError, OSError, SyntaxError) as exc:
-        raise DataFormatError(f"{path}: not a readable image ({exc})") from None
+    except (UnidentifiedImageError, OSError, SyntaxError, Image.DecompressionBombError) as exc:
+        raise DataFormatError(f"{path}: not a readable image ({' '.join(str(exc).split())[:300]})") from None
+
+
+#: Memory a map's processing (distance transforms, skeleton, labels of ``hsmap segment``) takes per pixel, bytes.
+MAP_BYTES_PER_PIXEL = 256
+
+
+def _check_image_size(path: Path, size: tuple[int, int]) -> None:
+    """InputError naming ``path`` when an image of ``size`` (width, height) pixels is more than the memory
+    available can process, checked from the header before the pixels are decoded."""
+    from .limits import check_allocation
+
+    w, h = size
+    check_allocation(float(w) * float(h) * MAP_BYTES_PER_PIXEL, f"{path}: a {w} x {h} pixel map", InputError)
 
 
 def read_label_image(path: str | os.PathLike) -> NDArray[np.int32]:
@@ -235,13 +250,14 @@ def read_label_image(path: str | os.PathLike) -> NDArray[np.int32]:
         raise DatasetError(f"{path}: no such label image")
     try:
         with Image.open(path) as im:
+            _check_image_size(path, im.size)
             if im.mode in ("I;16", "I;16B", "I;16L", "I", "L", "P"):
                 return np.asarray(im, dtype=np.int64).astype(np.int32)
             if im.mode in ("LA", "RGB", "RGBA"):
                 return np.asarray(im.convert("L"), dtype=np.int32)
             raise DataFormatError(f"{path}: label images must be gray (L or I;16), got mode {im.mode}")
-    except (UnidentifiedImageError, OSError, SyntaxError) as exc:
-        raise DataFormatError(f"{path}: not a readable image ({exc})") from None
+    except (UnidentifiedImageError, OSError, SyntaxError, Image.DecompressionBombError) as exc:
+        raise DataFormatError(f"{path}: not a readable image ({' '.join(str(exc).split())[:300]})") from None
 
 
 def write_label_image(path: str | os.PathLike, labels: ArrayLike) -> None:
@@ -311,9 +327,9 @@ def _read_map_yaml(path: Path, resolution: float | None) -> OccupancyGrid:
     import yaml
 
     try:
-        meta = yaml.safe_load(path.read_text(encoding="utf-8"))
+        meta = load_yaml(path.read_text(encoding="utf-8"))
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise DataFormatError(f"{path}: not valid YAML ({' '.join(str(exc).split())})") from None
+        raise DataFormatError(f"{path}: not valid YAML ({' '.join(str(exc).split())[:400]})") from None
     except OSError as exc:
         raise DatasetError(f"{path}: cannot read it ({exc.strerror})") from None
     if not isinstance(meta, dict):
@@ -325,20 +341,20 @@ def _read_map_yaml(path: Path, resolution: float | None) -> OccupancyGrid:
     def as_number(v: object, key: str) -> float:
         # YAML 1.1 reads 1e-3 (no dot) as a string; map_server's parser reads it as a number, and so do we
         if isinstance(v, bool) or not isinstance(v, (int, float, str)):
-            raise DataFormatError(f"{path}: '{key}' must be a number, got {v!r}")
+            raise DataFormatError(f"{path}: '{key}' must be a number, got {quote(v)}")
         try:
             x = float(v)
         except ValueError:
-            raise DataFormatError(f"{path}: '{key}' must be a number, got {v!r}") from None
+            raise DataFormatError(f"{path}: '{key}' must be a number, got {quote(v)}") from None
         if not np.isfinite(x):
-            raise DataFormatError(f"{path}: '{key}' must be finite, got {v!r}")
+            raise DataFormatError(f"{path}: '{key}' must be finite, got {quote(v)}")
         return x
 
     def number(key: str, default: float | None = None) -> float:
         return as_number(meta.get(key, default), key)
 
     if not isinstance(meta["image"], str) or not meta["image"].strip():
-        raise DataFormatError(f"{path}: 'image' must be the file name of the map image, got {meta['image']!r}")
+        raise DataFormatError(f"{path}: 'image' must be the file name of the map image, got {quote(meta['image'])}")
     image_path = Path(meta["image"])
     if not image_path.is_absolute():
         image_path = path.parent / image_path
@@ -349,13 +365,13 @@ def _read_map_yaml(path: Path, resolution: float | None) -> OccupancyGrid:
         raise DataFormatError(f"{path}: 'resolution' must be > 0 metres per pixel, got {res}")
     origin = meta["origin"]
     if not isinstance(origin, (list, tuple)) or len(origin) not in (2, 3):
-        raise DataFormatError(f"{path}: 'origin' must be [x, y, yaw], got {origin!r}")
+        raise DataFormatError(f"{path}: 'origin' must be [x, y, yaw], got {quote(origin)}")
     origin = [as_number(v, "origin") for v in origin]
     if len(origin) > 2 and abs(origin[2]) > 1e-9:
         raise DataFormatError(f"{path}: rotated map origins (yaw = {origin[2]}) are not supported")
     negate = meta.get("negate", 0)
     if negate not in (0, 1) or isinstance(negate, float):
-        raise DataFormatError(f"{path}: 'negate' must be 0 or 1, got {negate!r}")
+        raise DataFormatError(f"{path}: 'negate' must be 0 or 1, got {quote(negate)}")
     occ_t = number("occupied_thresh", 0.65)
     free_t = number("free_thresh", 0.196)
     for key, v in (("occupied_thresh", occ_t), ("free_thresh", free_t)):
@@ -365,7 +381,7 @@ def _read_map_yaml(path: Path, resolution: float | None) -> OccupancyGrid:
         raise DataFormatError(f"{path}: 'free_thresh' ({free_t}) must be below 'occupied_thresh' ({occ_t})")
     mode = meta.get("mode", "trinary")
     if mode not in ("trinary", "scale", "raw"):
-        raise DataFormatError(f"{path}: 'mode' must be trinary, scale or raw, got {mode!r}")
+        raise DataFormatError(f"{path}: 'mode' must be trinary, scale or raw, got {quote(mode)}")
     img = read_image_gray(image_path).astype(float)
     occ = img / 255.0 if negate else (255.0 - img) / 255.0
     data = np.full(img.shape, UNKNOWN, dtype=np.int8)
@@ -595,6 +611,10 @@ def grids_from_scan_prefixes(
                 resolution *= 1.01
                 geometry = GridGeometry.covering(lo, hi, resolution, margin)
     H, W = geometry.shape
+    from .limits import check_allocation
+
+    check_allocation(float(H) * float(W) * (16 + len(counts)),
+                     f"a {W} x {H} cell occupancy grid at {resolution:g} m per cell (the resolution)")
     logodds = np.zeros((H, W))
     touched = np.zeros((H, W), dtype=bool)
     grids: list[OccupancyGrid] = []

@@ -36,6 +36,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .errors import ConfigError, InputError, ShapeError
+from .limits import quote
+
+#: Most rows of a harmony memory (``memory_size``) or of one batch of new harmonies (``batch_size``).
+MAX_HARMONIES = 100_000
 
 __all__ = ["Variant", "StopReason", "HarmonyConfig", "HarmonyResult", "harmony_search", "as_rng"]
 
@@ -131,7 +135,11 @@ class HarmonyConfig:
         for name in ("memory_size", "max_iterations", "batch_size"):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or v < 1:
-                raise ConfigError(f"harmony.{name} must be an integer >= 1, got {v!r}")
+                raise ConfigError(f"harmony.{name} must be an integer >= 1, got {quote(v)}")
+        for name in ("memory_size", "batch_size"):  # rows of arrays allocated up front
+            if getattr(self, name) > MAX_HARMONIES:
+                raise ConfigError(f"harmony.{name} must be at most {MAX_HARMONIES} (rows of the harmony memory), "
+                                  f"got {getattr(self, name)}")
         for name in ("hmcr", "par", "par_min", "par_max"):
             v = getattr(self, name)
             if not 0.0 <= float(v) <= 1.0:

@@ -486,7 +486,8 @@ def folder_lock(folder: str | os.PathLike) -> Iterator[Path]:
 
 
 @contextlib.contextmanager
-def staged_outputs(out: str | os.PathLike, *, last: str | None = None, folders: bool = False) -> Iterator[Path]:
+def staged_outputs(out: str | os.PathLike, *, last: str | None = None, folders: bool = False,
+                   replaces: Iterable[str] = ()) -> Iterator[Path]:
     """Yield a locked staging folder inside ``out``; on success move every file written there into ``out``.
 
     A run writes its outputs into the staging folder; they appear in ``out`` only when the ``with`` block ends
@@ -494,7 +495,9 @@ def staged_outputs(out: str | os.PathLike, *, last: str | None = None, folders: 
     Publishing removes ``out/last`` first and moves it in last: while files are being moved, the folder reads
     as incomplete (``last`` is the marker of a complete folder, e.g. ``metrics.json``). With ``folders``, a
     folder staged (``figures/``) replaces the one of that name in ``out`` as a whole (the old one is moved
-    aside into the staging folder, then deleted with it).
+    aside into the staging folder, then deleted with it). A file named in ``replaces`` (every output the command
+    may write) that this run did not write is removed from ``out`` with the others' publication: a rerun with
+    other options leaves no output of an earlier run beside its own.
 
     Raises
     ------
@@ -521,6 +524,11 @@ def staged_outputs(out: str | os.PathLike, *, last: str | None = None, folders: 
         try:
             if last is not None:
                 (out / last).unlink(missing_ok=True)
+            for f in replaces:
+                if f not in files and (out / f).is_file():
+                    (out / f).unlink()
+                elif f not in files and folders and (out / f).is_dir() and not (out / f).is_symlink():
+                    os.replace(out / f, stage / f".replaced-{f}")  # deleted with the staging folder
             for f in order:
                 if f in dirs:
                     old = out / f
@@ -536,6 +544,20 @@ def staged_outputs(out: str | os.PathLike, *, last: str | None = None, folders: 
         shutil.rmtree(stage, ignore_errors=True)
     finally:
         os.close(fd)
+
+
+def refuse_overwriting_input(out: str | os.PathLike, inputs: Iterable[str | os.PathLike | None],
+                             outputs: Iterable[str], flag: str = "--out") -> None:
+    """OutputError naming ``flag`` when writing ``outputs`` (file names) into folder ``out`` would replace or
+    mix with an input: ``out`` is an input folder, or an input file is one of the outputs' paths."""
+    target = Path(out).resolve()
+    names = set(outputs)
+    for given in inputs:
+        if given is None:
+            continue
+        p = Path(given).resolve()
+        if p == target or (p.parent == target and p.name in names):
+            raise OutputError(f"{flag} {out}: would write over the input {given}; choose another output folder")
 
 
 def to_plain(value: Any) -> Any:

@@ -129,8 +129,10 @@ class Trajectory:
         A stamp within 1 ms of a pose's stamp takes that pose (as :meth:`at`); any other stamp takes the
         geodesic interpolation (:func:`hsmap.geometry.interpolate_poses`: SE(2) for (x, y, yaw), SE(3) for
         6-DOF poses) of the poses just before and just after it, when both lie within ``max_dt`` seconds of
-        it. Stamps outside the trajectory's time span, or in a gap longer than that, have no pose. This is how
-        the 3D clouds of a recording, stamped between the 2D scans, get the 2D run's poses.
+        it, or when the gap between them is no longer than 1.5 times the trajectory's median spacing (two
+        consecutive poses of its regular cadence, however slow: a 2 Hz 2D LiDAR's). Stamps outside the
+        trajectory's time span, or in a longer gap (a pose missing there), have no pose. This is how the 3D
+        clouds of a recording, stamped between the 2D scans, get the 2D run's poses.
 
         Parameters
         ----------
@@ -160,7 +162,11 @@ class Trajectory:
         ts, ps = self.stamps[order], self.poses[order]
         hi = np.clip(np.searchsorted(ts, q, side="right"), 1, max(len(ts) - 1, 1))
         lo = hi - 1
-        inside = (len(ts) > 1) & (ts[lo] <= q) & (q <= ts[hi]) & (q - ts[lo] <= max_dt) & (ts[hi] - q <= max_dt)
+        steps = np.diff(ts)
+        steps = steps[steps > 0]
+        cadence = 1.5 * float(np.median(steps)) if len(steps) else 0.0
+        inside = (len(ts) > 1) & (ts[lo] <= q) & (q <= ts[hi]) & (
+            ((q - ts[lo] <= max_dt) & (ts[hi] - q <= max_dt)) | (ts[hi] - ts[lo] <= cadence))
         found = (exact >= 0) | inside
         out = np.empty((len(q), self.dof))
         out[exact >= 0] = self.poses[exact[exact >= 0]]

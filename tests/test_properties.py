@@ -627,3 +627,97 @@ def test_harmony_icp_answers_or_names_the_argument(d, data):
     assert np.all(np.isfinite(got.pose)) and got.pose.shape == (dof,)
     assert got.transformation.shape == (d + 1, d + 1) and np.all(np.isfinite(got.transformation))
     assert 0.0 <= got.inlier_ratio <= 1.0 and np.isfinite(got.fitness)
+
+
+# --- hostile configuration files and map YAMLs (issue 47) ---------------------------------------------------------
+
+_SCALARS = st.one_of(
+    st.none(), st.booleans(), st.integers(-10, 10), st.integers(-(10 ** 30), 10 ** 30), st.floats(),
+    st.sampled_from(["1e-1", "1E5", "-2e3", "0x1F", "abc", "", ".inf", "1e999", "~", "yes", "!!str"]),
+    st.text(max_size=20), st.text(min_size=2000, max_size=3000))
+
+
+def _keys(names):
+    real = [st.sampled_from(sorted(names))] if names else []
+    return st.one_of(*real, st.text(max_size=8), st.integers(-3, 3), st.floats(), st.booleans(), st.none())
+
+
+@st.composite
+def _aliased(draw, value):
+    """``value`` nested ``levels`` times in lists that repeat one object ``width`` times: YAML writes the repeats
+    as aliases (&id / *id), a few hundred bytes that expand to width**levels values."""
+    if draw(st.integers(0, 3)):
+        return value
+    for _ in range(draw(st.integers(1, 9))):
+        value = [value] * draw(st.integers(2, 9))
+    return value
+
+
+@st.composite
+def _hostile_document(draw, names: dict):
+    """A mapping of real and random keys (``names``: the real keys, each with its own real sub-keys or None) to
+    values of every YAML type, nested mappings of real sub-keys, and alias-expanded lists."""
+    def values(sub):
+        base = st.recursive(_SCALARS, lambda c: st.one_of(st.lists(c, max_size=4),
+                                                           st.dictionaries(_keys(sub or {}), c, max_size=3)),
+                            max_leaves=8)
+        return base if not sub else st.one_of(base, _hostile_document(sub))
+
+    doc = {}
+    for key in draw(st.lists(_keys(names), max_size=4)):
+        sub = names.get(key) if isinstance(key, str) else None
+        doc[key] = draw(_aliased(draw(values(sub))))
+    return doc
+
+
+def _field_names(cls) -> dict:
+    import dataclasses
+    import typing
+
+    hints = typing.get_type_hints(cls)
+    return {f.name: (_field_names(hints[f.name]) if dataclasses.is_dataclass(hints.get(f.name)) else None)
+            for f in dataclasses.fields(cls)}
+
+
+def _short_one_line(exc: HsmapError) -> None:
+    msg = str(exc)
+    assert "\n" not in msg and len(msg) <= 1000, f"{type(exc).__name__} of {len(msg)} characters: {msg[:300]}"
+
+
+@settings(max_examples=100, **PROFILE)
+@given(which=st.sampled_from(["slam", "segmentation"]), data=st.data())
+def test_hostile_config_files_load_or_give_one_short_line(which, data):
+    """Random keys (names, text, numbers, null), types, nesting, aliases and sizes: a configuration or an
+    HsmapError naming the file in at most 1000 characters, never another exception."""
+    from hsmap.config import load_config
+    from hsmap.segmentation import SegmentationConfig
+    from hsmap.slam import SlamConfig
+
+    cls = {"slam": SlamConfig, "segmentation": SegmentationConfig}[which]
+    doc = data.draw(_hostile_document(_field_names(cls)))
+    path = tmpdir() / "config.yaml"
+    path.write_text(yaml.safe_dump(doc, allow_unicode=True))
+    got = outcome(lambda: load_config(cls, path), path)
+    if isinstance(got, HsmapError):
+        _short_one_line(got)
+
+
+@settings(max_examples=80, **PROFILE)
+@given(data=st.data())
+def test_hostile_map_yamls_read_or_give_one_short_line(data):
+    """As above for map_server YAMLs: the good keys replaced, nested or aliased at random, random keys added."""
+    from PIL import Image
+
+    from hsmap.grid import read_map
+
+    folder = tmpdir()
+    Image.fromarray(np.full((8, 8), 255, np.uint8)).save(folder / "map.png")
+    names = {k: None for k in ("image", "resolution", "origin", "negate", "occupied_thresh", "free_thresh",
+                               "mode")}
+    meta = {"image": "map.png", "resolution": 0.05, "origin": [0.0, 0.0, 0.0]}
+    meta.update(data.draw(_hostile_document(names)))
+    path = folder / "map.yaml"
+    path.write_text(yaml.safe_dump(meta, allow_unicode=True))
+    got = outcome(lambda: read_map(path), path)
+    if isinstance(got, HsmapError):
+        _short_one_line(got)

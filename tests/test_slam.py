@@ -310,7 +310,11 @@ def test_prior_seeds_6dof():
     wide.poses.append(np.zeros(6))
     seeds, _ = wide.seeds(Frame(stamp=0.5, cloud3d=np.zeros((10, 3))))
     np.testing.assert_allclose(seeds[0][[0, 1, 5]], prior.interpolate([0.5], 0.5)[0][0])
-    assert slam._prior_pose(0.5) is None  # 0.5 s from both, more than the default tolerance
+    assert slam._prior_pose(0.5) is not None  # 0.5 s from both: two poses of the prior's cadence
+    gap = Trajectory([0.0, 0.1, 0.2, 1.2, 1.3], np.zeros((5, 3)))  # poses every 0.1 s, none in 0.2 .. 1.2 s
+    slam = HsSlam(SlamConfig(dof=6), prior=gap)
+    slam.poses.append(np.zeros(6))
+    assert slam._prior_pose(0.7) is None and slam._prior_pose(0.15) is not None
 
 
 class _Stamped:

@@ -30,3 +30,25 @@ def test_notebook_01_quick(tmp_path, monkeypatch):
     # the quick run simulated only the frames it needs, and cached its SLAM run
     assert (tmp_path / "generated" / "slam-office-seed1-first120" / "dataset.yaml").is_file()
     assert len(list((tmp_path / "generated" / "slam").glob("slam-office-3dof-*/metrics.json"))) == 1
+
+
+@pytest.mark.slow
+def test_notebook_10_quick(tmp_path, monkeypatch):
+    from hsmap.study.public_data import missing_data_reason
+
+    reason = missing_data_reason(["octomap", "freiburg"])
+    if reason:
+        pytest.skip(reason)
+    monkeypatch.setenv("HSMAP_GENERATED", str(tmp_path / "generated"))
+    result = run_notebooks(REPO / "notebooks", tmp_path / "reports", only=["10"], quick=True, log=None)
+    out = tmp_path / "reports" / "10-real-building-3d"
+    run = json.loads((tmp_path / "reports" / "10-real-building-3d" / "run.json").read_text())
+    assert result.ok, run.get("error")
+    for name in ("bands_segmentation.png", "route.png", "errors.png", "run_slices.png", "fr079_overlay.png"):
+        assert (out / name).is_file(), name
+    doc = json.loads((out / "metrics.json").read_text())
+    m = doc["metrics"]
+    assert "skipped" not in doc and m["runs_within_table1"] == m["runs"] == 1
+    assert m["run_slice_rooms"][0] >= 1 and m["slice_rooms"] > 5 and m["floor_rooms"] > 0 and m["slice_doors"] > 0
+    assert 0.3 < m["fr079_overlap"] <= 1.0
+    assert (tmp_path / "generated" / "world-geb079" / "seed1-first30" / "dataset" / "dataset.yaml").is_file()

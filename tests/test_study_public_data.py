@@ -70,10 +70,12 @@ def _mirror_copy(src: Path, dst: Path, names=("bormann",)) -> Path:
 
 def test_registry_lists_both_datasets_with_pinned_sources():
     reg = registry()
-    assert list(reg) == ["freiburg", "bormann"]
+    assert list(reg) == ["freiburg", "bormann", "octomap"]
     assert len(reg["bormann"].files) == 45 and reg["bormann"].folder == "ipa_room_segmentation"
     assert {f.path for f in reg["freiburg"].files} >= {"intel/intel.orig.bag", "intel/intel.relations",
                                                          "fr079/fr079.orig.bag", "fr-clinic/fr-clinic.relations"}
+    assert {f.path for f in reg["octomap"].files} == {"geb079.bt", "LICENSE.txt"}
+    assert reg["octomap"].folder == "octomap"
     for ds in reg.values():
         assert ds.citation and ds.licence and ds.sources
         for f in ds.files:
@@ -112,6 +114,7 @@ def test_fetch_fills_an_empty_cache_and_verifies_every_file(datasets_dir, cache,
     # nothing is downloaded twice; no temporary file is left behind
     (again,) = fetch(["bormann"], mirror=url)
     assert again.downloaded == () and len(again.present) == 45
+    assert dataset_folder("octomap") == cache / "datasets" / "octomap"
     assert not [p for p in (cache / "datasets").rglob("*") if p.is_file() and p.name.startswith("tmp")]
 
 
@@ -151,7 +154,7 @@ def test_a_missing_file_and_bad_arguments_fail_with_one_line(datasets_dir, cache
     with pytest.raises(DatasetError, match=r"^ipa_room_segmentation/office_b.png: download from http://127\.0\.0"
                                            r"\.1:\d+/ipa_room_segmentation/office_b.png failed: .*404"):
         fetch(["bormann"], mirror=url)
-    with pytest.raises(InputError, match="unknown dataset 'kitti'; the public datasets are: freiburg, bormann"):
+    with pytest.raises(InputError, match="unknown dataset 'kitti'; the public datasets are: freiburg, bormann, octomap"):
         fetch(["kitti"])
     for args, words in ((["kitti"], "unknown dataset 'kitti'"), (["--mirror", "127.0.0.1:1"], "mirror must be")):
         assert main(["data", "fetch", *args]) == 2
@@ -193,3 +196,26 @@ def test_notebook_08_is_skipped_without_the_data_and_runs_once_fetched(datasets_
     assert m["datasets_available"] is True and "skipped" not in run.metrics
     assert m["intel_hsslam_trans_m"] < 0.1  # HS-SLAM on the first 300 scans of the fetched intel log
     assert (out / "08-real-benchmarks" / "segmentation_pr.png").is_file()
+
+
+@pytest.fixture
+def octomap_source() -> Path:
+    """The datasets folder holding OctoMap's geb079 (found before ``cache`` hides $HSMAP_DATASETS)."""
+    from hsmap.study.paths import datasets_dir as find
+
+    src = find()
+    if dataset_folder("octomap", src) is None:
+        pytest.skip(missing_data_reason(["octomap"], src))
+    return src
+
+
+def test_fetch_octomap_from_a_local_mirror(octomap_source, cache, serve, tmp_path, capsys):
+    src = octomap_source
+    url = serve(_mirror_copy(src, tmp_path / "served", names=("octomap",)))
+    assert missing_data_reason(["octomap"], fetch_dir()).startswith("no data (run hsmap data fetch): octomap")
+    assert main(["data", "fetch", "octomap", "--mirror", url]) == 0
+    assert "octomap: 2 files" in capsys.readouterr().out
+    folder = dataset_folder("octomap", fetch_dir())
+    assert folder == cache / "datasets" / "octomap"
+    assert _sha(folder / "geb079.bt") == "7663c2466e2fe335a27d1d592f91766c8154511e63a9615aeecdad1defb04d3b"
+    assert missing_data_reason(["octomap"], fetch_dir()) == ""

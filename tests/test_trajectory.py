@@ -97,9 +97,12 @@ def test_interpolate_between_poses_within_the_tolerance():
                          for s in q[found]])
     expected[-1] = poses[5]  # within 1 ms of a pose: that pose
     np.testing.assert_allclose(got, expected, atol=1e-12)
-    # a pose farther than the tolerance on either side: no pose
-    assert not traj.interpolate([0.34], max_dt=0.05)[1][0]
-    assert not traj.interpolate([0.36], max_dt=0.05)[1][0]
+    # between two poses of the regular cadence: a pose, whatever the tolerance
+    assert traj.interpolate([0.34], max_dt=0.05)[1][0]
+    # in a gap where poses are missing (0.3 and 0.4), farther than the tolerance from either side: no pose
+    gap = Trajectory(np.delete(t, [3, 4]), np.delete(poses, [3, 4], axis=0))
+    assert not gap.interpolate([0.34], max_dt=0.05)[1][0]
+    assert not gap.interpolate([0.36], max_dt=0.05)[1][0]
     # unordered stamps are sorted first; 6-DOF poses interpolate too
     shuffled = Trajectory(t[::-1], poses[::-1])
     np.testing.assert_allclose(shuffled.interpolate([0.33], 0.06)[0], traj.interpolate([0.33], 0.06)[0])

@@ -4,4 +4,4 @@ Each module defines ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(args
 their heavy dependencies inside ``run`` so that ``hsmap --help`` stays fast.
 """
 
-COMMANDS = ["simulate", "slam", "map", "segment", "evaluate", "reproduce", "data", "benchmark", "config"]
+COMMANDS = ["simulate", "slam", "map", "segment", "align", "evaluate", "reproduce", "data", "benchmark", "config"]

@@ -1,9 +1,10 @@
 """The public benchmark data of the study: the Freiburg SLAM benchmark logs (Kümmerle et al. 2009) and the room
-segmentation maps of Bormann et al. 2016. 'hsmap data fetch' downloads them from their original public
+segmentation maps of Bormann et al. 2016, and OctoMap's 3D map of Freiburg building 079 (Hornung et al. 2013).
+'hsmap data fetch' downloads them from their original public
 repositories (pinned commits), checks each file's SHA-256 and stores them in hsmap's user cache, where notebook
 08, the tests and the benchmark scripts find them; $HSMAP_DATASETS, when set, is used instead. A file whose hash
 differs is refused and not stored. $HSMAP_DATA_MIRROR (or --mirror) replaces the original URLs with one base URL
-serving the same layout (slam2d/..., ipa_room_segmentation/...)."""
+serving the same layout (slam2d/..., ipa_room_segmentation/..., octomap/...)."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ HELP = "download the public benchmark data (hash-checked) into the user cache, o
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
     p = sub.add_parser("fetch", help="download the public datasets (default: all) and check their SHA-256")
-    p.add_argument("names", nargs="*", metavar="NAME", help="freiburg and/or bormann (default: both)")
+    p.add_argument("names", nargs="*", metavar="NAME", help="freiburg, bormann and/or octomap (default: all)")
     p.add_argument("--mirror", metavar="URL",
                    help="base URL serving the datasets layout, instead of the original URLs "
                         "(default $HSMAP_DATA_MIRROR)")

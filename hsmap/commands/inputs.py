@@ -36,7 +36,8 @@ def add_input_arguments(parser: argparse.ArgumentParser) -> None:
                    help="pose of the 3D LiDAR in the robot base frame (metres, radians), overriding the input's")
     g.add_argument("--sync-tolerance", type=float, metavar="S",
                    help="seconds: the largest gap between a frame and the other sensor's message attached to it, "
-                        "and between a cloud and the 2D poses interpolated for it (default 0.1)")
+                        "and between a cloud and the 2D poses interpolated for it, unless those are two consecutive poses of "
+                        "the 2D run's regular cadence (default 0.1)")
     g.add_argument("--cloud-rate", type=float, metavar="HZ",
                    help="cloud folders: the clouds' rate (file k at k / HZ s) instead of a times.txt")
     g.add_argument("--scans", metavar="DIR", help="cloud folders: a folder of 2D scans (points in the 2D "
@@ -61,6 +62,27 @@ def parse_vector(text: str, n: int, flag: str):
     return np.asarray(values)
 
 
+#: Largest sensor offset from the robot's base (metres) and largest angle (radians: a full turn) an extrinsic
+#: flag takes.
+MAX_OFFSET, MAX_ANGLE = 100.0, 6.2832
+
+
+def _extrinsic(text: str, n: int, flag: str):
+    """An extrinsic flag's pose (metres, radians): each offset within :data:`MAX_OFFSET` of the robot's base,
+    its angles within :data:`MAX_ANGLE`; an :class:`hsmap.errors.InputError` naming ``flag`` otherwise."""
+    import numpy as np
+
+    from ..errors import InputError
+
+    v = parse_vector(text, n, flag)
+    t, a = (v[:2], v[2:]) if n == 3 else (v[:3], v[3:])
+    if np.abs(t).max() > MAX_OFFSET or np.abs(a).max() > MAX_ANGLE:
+        raise InputError(f"{flag}: a sensor offset of up to {np.abs(t).max():.3g} m, angles up to "
+                         f"{np.abs(a).max():.3g} rad; expected at most {MAX_OFFSET:g} m and {MAX_ANGLE:g} rad (a "
+                         f"full turn), got {text!r}")
+    return v
+
+
 def sync_tolerance(args: argparse.Namespace) -> float | None:
     """``--sync-tolerance``, checked."""
     import math
@@ -77,8 +99,8 @@ def open_input(args: argparse.Namespace, drive: str | None = None, progress: boo
     """The input opened with the flags of :func:`add_input_arguments` (``drive``: which sensor makes the frames)."""
     from ..datasets.open import open_dataset
 
-    ext2 = None if args.extrinsic2d is None else parse_vector(args.extrinsic2d, 3, "--extrinsic2d")
-    ext3 = None if args.extrinsic3d is None else parse_vector(args.extrinsic3d, 6, "--extrinsic3d")
+    ext2 = None if args.extrinsic2d is None else _extrinsic(args.extrinsic2d, 3, "--extrinsic2d")
+    ext3 = None if args.extrinsic3d is None else _extrinsic(args.extrinsic3d, 6, "--extrinsic3d")
     return open_dataset(args.input, scan_topic=args.scan_topic, cloud_topic=args.cloud_topic,
                         odom_topic=args.odom_topic, base_frame=args.base_frame, extrinsic2d=ext2, extrinsic3d=ext3,
                         sync_tolerance=sync_tolerance(args), drive=drive, cloud_rate=args.cloud_rate,

@@ -45,12 +45,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress bars or summary")
 
 
+MAP_OUTPUTS = ("summary.html", "metrics.json", "slice.yaml", "slice.pgm", "floor.yaml", "floor.pgm", "rooms.png",
+               "doors.json", "topology.json", "map2d.ply", "map3d.ply", "map.rrd")
+
+
 def run(args: argparse.Namespace) -> int:
     import dataclasses
 
     from ..datasets.carmen import CarmenDataset
     from ..errors import DatasetError, InputError
-    from ..io import prepare_output_dir
+    from ..io import prepare_output_dir, refuse_overwriting_input
     from ..pipeline import load_chain_config, map_recording
     from .inputs import open_input, parse_vector, slam_overrides
 
@@ -69,6 +73,7 @@ def run(args: argparse.Namespace) -> int:
         grids = dataclasses.replace(grids, resolution=float(args.resolution))
     seg = cfg.segmentation if args.method is None else dataclasses.replace(cfg.segmentation, method=args.method)
     # before the long work: a file, a folder that cannot be created or written is reported now
+    refuse_overwriting_input(args.out, [args.input, args.scans], MAP_OUTPUTS)
     out = prepare_output_dir(args.out, "--out", create=False)
     slam2d, slam3d = slam_overrides(cfg.slam2d, args), slam_overrides(cfg.slam3d, args)
     progress = False if args.quiet else None

@@ -2,7 +2,13 @@
 HTML report, figures, metrics.json, rerun recordings) and reports/index.html listing them all with their
 headline numbers beside the paper's. A failing notebook does not stop the others; the command exits 1 when
 any notebook failed. A notebook's previous report is replaced only by a complete new one (an interrupted run
-leaves it as it was), and two batches into the same folder keep each other's entries in the index."""
+leaves it as it was), and two batches into the same folder keep each other's entries in the index.
+
+First the public data the notebooks read (the Freiburg logs, Bormann's maps, the OctoMap map: ``hsmap data
+list``) that is missing is downloaded (``hsmap data fetch``, hash-checked, into the user cache); with no network
+the run goes on and the notebooks lacking data skip, saying why. With $HSMAP_DATASETS set nothing is downloaded
+(that folder is the only one looked at). The step runs for the study's own notebooks, not for another folder
+given with --notebooks; --no-fetch skips it."""
 
 from __future__ import annotations
 
@@ -35,6 +41,56 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="do not check the recordings with 'rerun rrd verify'")
     parser.add_argument("--list", action="store_true",
                         help="list the notebooks and their parameters, run nothing")
+    parser.add_argument("--no-fetch", action="store_true",
+                        help="do not download missing public data first (hsmap data fetch)")
+
+
+def fetch_missing(log, fetch=None) -> dict[str, str]:
+    """Download the public datasets missing from :func:`hsmap.study.paths.datasets_dir` (see the module
+    docstring); a failed download is logged and the run goes on.
+
+    Parameters
+    ----------
+    log : callable
+        Receives one line per dataset fetched, failed or left missing.
+    fetch : callable, optional
+        ``fetch(names, dest=..., log=...)`` as :func:`hsmap.study.public_data.fetch` (the default).
+
+    Returns
+    -------
+    dict of str to str
+        Dataset name -> "present", "fetched", "failed: REASON" or "missing: REASON".
+    """
+    import os
+
+    from ..errors import HsmapError
+    from ..study.paths import DATASETS_ENV, datasets_dir
+    from ..study.public_data import dataset_folder, fetch_dir, registry
+
+    if fetch is None:
+        from ..study.public_data import fetch
+    root = datasets_dir()
+    status = {name: "present" for name in registry() if dataset_folder(name, root) is not None}
+    missing = [name for name in registry() if name not in status]
+    if not missing:
+        return status
+    if os.environ.get(DATASETS_ENV):
+        for name in missing:
+            status[name] = f"missing: not in ${DATASETS_ENV}={root} (nothing is downloaded while it is set)"
+            log(f"data: {name} {status[name]}")
+        return status
+    dest = fetch_dir()
+    # the download folder becomes the datasets folder once it holds anything: it gets the whole set
+    wanted = [name for name in registry() if dataset_folder(name, dest) is None]
+    for name in wanted:
+        try:
+            fetch([name], dest=dest, log=log)
+            status[name] = "fetched"
+            log(f"data: {name} fetched into {dest}")
+        except (HsmapError, OSError) as exc:
+            status[name] = f"failed: {' '.join(str(exc).split())}"
+            log(f"data: {name} could not be fetched ({status[name][8:]}); the notebooks needing it skip")
+    return status
 
 
 def _notebooks_dir(arg: str | None):
@@ -81,14 +137,17 @@ def run(args: argparse.Namespace) -> int:
     if args.list:
         return _list(notebooks_dir, args.only)
     prepare_output_dir(args.out, "--out", create=False)
+
+    def log(line: str) -> None:
+        print(line, flush=True)
+
+    if not args.no_fetch and args.notebooks is None:
+        fetch_missing(log)
     common, per = ({}, {})
     if args.parameters_file:
         common, per = load_parameters_file(args.parameters_file)
     for key, value in args.parameter:
         common[key] = parse_value(value)
-
-    def log(line: str) -> None:
-        print(line, flush=True)
 
     result = run_notebooks(
         notebooks_dir, args.out, only=args.only, quick=args.quick, jobs=args.jobs, parameters=common,

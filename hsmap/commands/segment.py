@@ -1,10 +1,18 @@
 """Segment a 2D map into rooms: doors (skeleton x distance transform), room labels and the room/door graph.
 
 MAP is a PNG/PGM image (pixels >= 250 are free, the benchmark's rule; 0.05 m per pixel unless --resolution)
-or a ROS map_server YAML (its image, resolution, origin and thresholds). Writes into --out: rooms.png
-(16-bit room labels, 0 = no room, same size as the map), doors.json, topology.json, topology.graphml,
-topology.txt (readable listing), segmentation.png (coloured overlay) and segmentation_config.yaml (the
-effective configuration); --steps adds steps.png, a panel per step of the algorithm.
+or a ROS map_server YAML (its image, resolution, origin and thresholds), or a 3D map (OctoMap .bt/.ot, or a
+.ply/.pcd point map) with --band LO,HI: the band's occupancy grid in heights above the floor (the floor found as
+the lowest large horizontal layer of occupied voxels, or --floor Z) is written as grid.yaml + grid.pgm
+(map_server trinary: occupied, observed free, unknown) and band.json (floor, band, cell counts), and segmented as
+an image would be. The free space segmented is the band's observed free cells and its unknown cells whose column
+the sensor saw through (observed free at another height, nothing occupied within 0.3 m of the band: no wall there;
+``hsmap.maps3d.seen_through``), so that a room seen through its door from a corridor is one space and not a fan
+of rays, less passages narrower than the narrowest door (2 x min_door_half_width: cracks in walls the sensor
+partly missed); its occupied cells stay walls. Writes into --out: rooms.png (16-bit room labels, 0 = no room, same
+size as the map), doors.json, topology.json, topology.graphml, topology.txt (readable listing), segmentation.png
+(coloured overlay) and segmentation_config.yaml (the effective configuration); --steps adds steps.png, a panel
+per step of the algorithm.
 """
 
 from __future__ import annotations
@@ -16,7 +24,8 @@ HELP = "detect doors and segment a 2D map into rooms, with the room/door graph"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("map", help="map image (PNG/PGM; >= 250 free) or map_server YAML")
+    parser.add_argument("map", help="map image (PNG/PGM; >= 250 free), map_server YAML, or a 3D map (.bt, .ot, "
+                                    ".ply, .pcd) with --band")
     parser.add_argument("--out", required=True, help="output folder")
     parser.add_argument("--resolution", type=float, default=None,
                         help="metres per pixel (default: the YAML's, or 0.05 for images)")
@@ -26,11 +35,67 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--furniture", action="store_true",
                         help="give occupied pixels enclosed by a room (furniture) that room's label")
     parser.add_argument("--steps", action="store_true", help="also write steps.png (a panel per step)")
+    parser.add_argument("--band", metavar="LO,HI", default=None,
+                        help="3D maps: the height band in metres above the floor (e.g. 1.7,1.8)")
+    parser.add_argument("--floor", type=float, default=None, metavar="Z",
+                        help="3D maps: the floor's height in the map's frame (default: found in the map)")
 
 
 #: The files ``hsmap segment`` writes into --out.
 OUTPUTS = ("rooms.png", "doors.json", "topology.json", "topology.graphml", "topology.txt", "segmentation.png",
-           "segmentation_config.yaml", "steps.png")
+           "segmentation_config.yaml", "steps.png", "grid.yaml", "grid.pgm", "band.json")
+
+#: Endings of the 3D maps ``hsmap segment`` reads with --band.
+MAP3D_SUFFIXES = (".bt", ".ot", ".ply", ".pcd")
+
+
+def _band_grid(args: argparse.Namespace, min_passage: float):
+    """A 3D map's band: its occupancy grid, the grid segmented (seen-through cells free), band.json's facts."""
+    import math
+
+    import numpy as np
+
+    from ..errors import InputError
+    from ..grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
+    from ..maps3d import band_grid, band_layers, floor_height, read_map3d, seen_through, segmentation_free
+    from .inputs import parse_vector
+
+    if args.band is None:
+        raise InputError(f"{args.map}: a 3D map needs --band LO,HI (metres above the floor, e.g. 1.7,1.8)")
+    lo, hi = parse_vector(args.band, 2, "--band")
+    if not lo < hi:
+        raise InputError(f"--band must be LO,HI with LO < HI, got {args.band!r}")
+    if args.floor is not None and not math.isfinite(args.floor):
+        raise InputError(f"--floor must be a finite height in metres, got {args.floor}")
+    kw = {} if args.resolution is None else {"resolution": float(args.resolution)}
+    if kw and not args.map.lower().endswith((".ply", ".pcd")):
+        raise InputError(f"--resolution applies to point maps (.ply/.pcd); {args.map} has its own resolution")
+    m = read_map3d(args.map, **kw)
+    found = floor_height(m)
+    floor = found if args.floor is None else float(args.floor)
+    layers = band_layers(m, lo, hi, floor=floor)
+    grid = band_grid(m, lo, hi, floor=floor)
+    seen = seen_through(m, lo, hi, floor=floor)
+    z = m.origin[2] + np.arange(layers.start, layers.stop + 1) * m.resolution
+    info = {
+        "map": str(args.map),
+        "resolution": m.resolution,
+        "voxels": list(m.shape),
+        "origin": m.origin.tolist(),
+        "floor": floor,
+        "floor_found": found,
+        "floor_source": "found (lowest large horizontal layer of occupied voxels)" if args.floor is None
+        else "--floor",
+        "band": [float(lo), float(hi)],
+        "band_heights": [float(z[0]), float(z[-1])],
+        "cells": {"occupied": int(grid.occupied.sum()), "free": int(grid.free.sum()),
+                  "unknown": int((~grid.occupied & ~grid.free).sum()),
+                  "unknown_seen_through": int(seen.sum())},
+    }
+    free = segmentation_free(m, lo, hi, floor=floor, min_passage=min_passage)
+    info["cells"]["segmented_free"] = int(free.sum())
+    data = np.where(free, FREE, np.where(grid.occupied, OCCUPIED, UNKNOWN)).astype(np.int8)
+    return grid, OccupancyGrid(data, grid.geometry), info
 
 
 def run(args: argparse.Namespace) -> int:
@@ -42,8 +107,15 @@ def run(args: argparse.Namespace) -> int:
 
     from ..config import dump_config, load_config
     from ..errors import EmptyInputError, HsmapWarning, InputError
-    from ..grid import read_map, write_label_image
-    from ..io import atomic_path, prepare_output_dir, staged_outputs, sweep_stale_temporaries, write_json
+    from ..grid import read_map, write_label_image, write_map
+    from ..io import (
+        atomic_path,
+        prepare_output_dir,
+        refuse_overwriting_input,
+        staged_outputs,
+        sweep_stale_temporaries,
+        write_json,
+    )
     from ..segmentation import SegmentationConfig, check_scale, segment_rooms
     from ..topology import room_graph, topology_listing, write_topology
     from ..viz.colors import label_overlay
@@ -55,8 +127,20 @@ def run(args: argparse.Namespace) -> int:
         cfg = dataclasses.replace(cfg, method=args.method)
     if args.furniture:
         cfg = dataclasses.replace(cfg, assign_furniture=True)
+    refuse_overwriting_input(args.out, [args.map, args.config], OUTPUTS)
     out = prepare_output_dir(args.out, "--out", create=False)
-    grid = read_map(args.map, args.resolution)
+    band = None
+    if Path(args.map).suffix.lower() in MAP3D_SUFFIXES:
+        band_map, grid, band = _band_grid(args, 2.0 * cfg.min_door_half_width)
+        print(f"floor at z = {band['floor']:.3f} m ({band['floor_source']}); band {band['band'][0]:g}-"
+              f"{band['band'][1]:g} m above it: voxel layers z = {band['band_heights'][0]:.3f}-"
+              f"{band['band_heights'][1]:.3f} m; {band['cells']['occupied']} occupied, {band['cells']['free']} free, "
+              f"{band['cells']['unknown']} unknown ({band['cells']['unknown_seen_through']} seen through); "
+              f"{band['cells']['segmented_free']} cells segmented as free space")
+    elif args.band is not None or args.floor is not None:
+        raise InputError(f"--band and --floor apply to 3D maps ({', '.join(MAP3D_SUFFIXES)}), not {args.map}")
+    else:
+        grid = read_map(args.map, args.resolution)
     try:
         check_scale(grid.free, grid.geometry.resolution, cfg)
     except EmptyInputError as exc:
@@ -73,7 +157,7 @@ def run(args: argparse.Namespace) -> int:
                       stacklevel=2)
     g = room_graph(seg)
     sweep_stale_temporaries(out, OUTPUTS)
-    with staged_outputs(out) as stage:
+    with staged_outputs(out, replaces=OUTPUTS) as stage:
         write_label_image(stage / "rooms.png", seg.labels)
         write_json(stage / "doors.json", {
             "map": str(args.map),
@@ -86,6 +170,9 @@ def run(args: argparse.Namespace) -> int:
         with atomic_path(stage / "segmentation.png") as tmp:
             Image.fromarray(label_overlay(seg.labels, grid.free, doors=seg.doors)).save(tmp, format="PNG")
         dump_config(cfg, stage / "segmentation_config.yaml")
+        if band is not None:
+            write_map(stage / "grid.yaml", band_map)
+            write_json(stage / "band.json", {**band, "rooms": seg.n_rooms, "doors": len(seg.doors)})
         if args.steps:
             from ..viz.map_figures import voronoi_steps_figure
 
@@ -93,5 +180,6 @@ def run(args: argparse.Namespace) -> int:
             with atomic_path(stage / "steps.png") as tmp:
                 fig.savefig(tmp, dpi=110)
     print(topology_listing(g), end="")
-    print(f"wrote {out}/rooms.png, doors.json, topology.json, topology.graphml, segmentation.png")
+    extra = ", grid.yaml, grid.pgm, band.json" if band is not None else ""
+    print(f"wrote {out}/rooms.png, doors.json, topology.json, topology.graphml, segmentation.png{extra}")
     return 0

@@ -3,6 +3,9 @@ drifting wheel odometry, and write a documented dataset folder (2D scans, 3D ran
 odometry.tum, sensor description, ground-truth room labels and doors; see the folder's README.md).
 
 SCENARIO is a shipped scenario name (default slam-office; --list shows them) or a path to a scenario YAML.
+With --world MAP3D the world is a real 3D map instead (an OctoMap .bt/.ot or a PLY/PCD point map): the robot
+drives a route through the map's known free space, both LiDARs are cast into its occupied voxels (a ray into
+unknown space returns nothing), and the same dataset folder is written (see hsmap.sim.voxelrun).
 """
 
 from __future__ import annotations
@@ -16,6 +19,8 @@ HELP = "simulate a scenario into a dataset folder (2D scans, 3D clouds, ground t
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("scenario", nargs="?", default="slam-office", metavar="SCENARIO",
                         help="shipped scenario name or YAML file (default: slam-office)")
+    parser.add_argument("--world", metavar="MAP3D", default=None,
+                        help="simulate in a real 3D map (OctoMap .bt/.ot, PLY/PCD) instead of a scenario")
     parser.add_argument("--out", metavar="DIR", default=None,
                         help="output folder (default: data/generated/SCENARIO)")
     parser.add_argument("--seed", type=int, default=None, metavar="N",
@@ -47,6 +52,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--max-frames must be >= 1, got {args.max_frames}")
     if args.label_resolution is not None and not args.label_resolution > 0:
         raise InputError(f"--label-resolution must be > 0 metres, got {args.label_resolution}")
+    if args.world is not None:
+        return _run_world(args)
     scn = load_scenario(resolve_scenario(args.scenario))
     if args.check:
         m = motion_for(scn, args.seed, args.max_frames)
@@ -69,4 +76,27 @@ def run(args: argparse.Namespace) -> int:
 
         preview_dataset(args.out)
     print(json.dumps(summary.as_dict(), indent=2))
+    return 0
+
+
+def _run_world(args: argparse.Namespace) -> int:
+    import json
+    from pathlib import Path
+
+    from ..errors import InputError
+    from ..io import prepare_output_dir
+    from ..sim.voxelrun import simulate_world
+
+    for flag, value in (("--check", args.check), ("--figures", args.figures),
+                        ("--label-resolution", args.label_resolution is not None)):
+        if value:
+            raise InputError(f"{flag} is for scenarios, not for --world")
+    if args.out is None:
+        from ..study.paths import generated_dir
+
+        args.out = generated_dir() / f"world-{Path(args.world).stem}"
+    prepare_output_dir(args.out, "--out", create=False)
+    run = simulate_world(args.world, args.out, seed=0 if args.seed is None else args.seed,
+                         max_frames=args.max_frames)
+    print(json.dumps(run.as_dict(), indent=2))
     return 0

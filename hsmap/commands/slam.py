@@ -61,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..config import load_config
     from ..errors import InputError
-    from ..io import prepare_output_dir, staged_outputs, sweep_stale_temporaries
+    from ..io import prepare_output_dir, refuse_overwriting_input, staged_outputs, sweep_stale_temporaries
     from ..slam import SlamConfig, run_slam, write_slam_outputs
     from ..trajectory import read_tum
     from ..viz.replay import SlamRecorder
@@ -77,11 +77,12 @@ def run(args: argparse.Namespace) -> int:
     prior = read_tum(args.prior) if args.prior else None
     if prior is not None and cfg.dof != 6:
         raise InputError("--prior seeds 6-DOF runs only (--dof 6)")
+    refuse_overwriting_input(args.out, [args.input, args.scans, args.prior, args.config], OUTPUTS)
     out = prepare_output_dir(args.out, "--out", create=False)  # before the long work: a bad folder is reported now
     dataset = open_input(args, drive="cloud" if cfg.dof == 6 else "scan", progress=False if args.quiet else None)
     sweep_stale_temporaries(out, OUTPUTS)  # left by a killed run
 
-    with staged_outputs(out, last="metrics.json") as stage:
+    with staged_outputs(out, last="metrics.json", replaces=OUTPUTS) as stage:
         recorder = None if args.no_recording else SlamRecorder(stage / "slam.rrd", cfg)
         try:
             result = run_slam(dataset, cfg, rng=args.seed, prior=prior, max_frames=args.max_frames,

@@ -85,9 +85,13 @@ def read_points(path: str | os.PathLike) -> NDArray[np.float64]:
         if not ok:
             raise DataFormatError(f"{p}: not a {suffix[1:].upper()} point cloud (expected a "
                                   f"{'ply' if suffix == '.ply' else 'PCD VERSION/FIELDS'} header)")
+        declared = _declared_points(p, suffix)
         import open3d as o3d
 
         pts = np.asarray(o3d.io.read_point_cloud(str(p)).points, dtype=float)
+        if declared is not None and len(pts) != declared:
+            raise DataFormatError(f"{p}: damaged: its header declares {declared} points, {len(pts)} could be read "
+                                  "(the file is cut short or its data do not match the header)")
     else:
         rows = []
         with open(p, encoding="utf-8", errors="replace") as fh:
@@ -104,6 +108,100 @@ def read_points(path: str | os.PathLike) -> NDArray[np.float64]:
                 rows.append(values + [0.0] * (3 - len(values)))
         pts = np.asarray(rows, dtype=float).reshape(-1, 3)
     return pts[np.isfinite(pts).all(axis=1) & (pts != 0.0).any(axis=1)]
+
+
+_PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
+              "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}
+
+
+def _declared_points(p: Path, suffix: str) -> int | None:
+    """The number of points the header of PLY/PCD file ``p`` declares, after checking that the file is long
+    enough to hold them (binary data: their bytes; text: two characters a value) and that they fit in the
+    memory; None where the header cannot tell (a PLY whose vertices have list properties, compressed PCD).
+
+    Raises
+    ------
+    DataFormatError
+        The file is shorter than its header says, or its points would not fit in the memory available.
+    """
+    from ..limits import check_allocation
+
+    size = p.stat().st_size
+    with open(p, "rb") as fh:
+        head = fh.read(65536)
+    end = head.find(b"end_header\n") if suffix == ".ply" else -1
+    lines = (head[:end] if suffix == ".ply" else head).decode("latin-1").splitlines()
+    count, width, binary, variable, values = None, 0, False, False, 0
+    if suffix == ".ply":
+        if end < 0:
+            raise DataFormatError(f"{p}: damaged PLY header (no end_header line in its first 64 KiB)")
+        data_start, element = end + len(b"end_header\n"), None
+        for line in lines:
+            w = line.split()
+            if w[:1] == ["format"] and len(w) > 1:
+                binary = w[1].startswith("binary")
+            elif w[:1] == ["element"] and len(w) == 3:
+                element = w[1]
+                if element == "vertex":
+                    try:
+                        count = int(w[2])
+                    except ValueError:
+                        raise DataFormatError(f"{p}: damaged PLY header: 'element vertex {w[2]}'") from None
+            elif w[:1] == ["property"] and element == "vertex":
+                if len(w) > 1 and w[1] == "list":
+                    variable = True
+                width += _PLY_SIZES.get(w[1], 0) if binary and len(w) > 1 else 2
+                values += 1
+    else:
+        data_start, fields = None, 0
+        offset = 0
+        for raw in head.split(b"\n"):
+            offset += len(raw) + 1
+            w = raw.decode("latin-1").split()
+            if w[:1] == ["POINTS"] and len(w) == 2:
+                try:
+                    count = int(w[1])
+                except ValueError:
+                    raise DataFormatError(f"{p}: damaged PCD header: 'POINTS {w[1]}'") from None
+            elif w[:1] == ["SIZE"]:
+                sizes = [int(x) for x in w[1:] if x.isdigit()]
+            elif w[:1] == ["COUNT"]:
+                counts = [int(x) for x in w[1:] if x.isdigit()]
+            elif w[:1] == ["FIELDS"]:
+                fields = len(w) - 1
+            elif w[:1] == ["DATA"]:
+                binary = len(w) > 1 and w[1] == "binary"
+                variable = len(w) > 1 and w[1] not in ("ascii", "binary")
+                data_start = offset
+                break
+        if data_start is None:
+            raise DataFormatError(f"{p}: damaged PCD header (no DATA line in its first 64 KiB)")
+        if binary:
+            sz = locals().get("sizes") or [4] * fields
+            ct = locals().get("counts") or [1] * len(sz)
+            width = sum(a * b for a, b in zip(sz, ct, strict=False))
+        else:
+            values = sum(locals().get("counts") or [1] * fields)
+            width = 2 * max(values, 1)
+    if count is None or variable:
+        return None
+    if count < 0:
+        raise DataFormatError(f"{p}: damaged header: {count} points")
+    check_allocation(float(count) * 64, f"{p}: {count} points declared in its header",
+                     DataFormatError)
+    need = float(count) * width
+    if size - data_start < need:
+        raise DataFormatError(f"{p}: damaged: its header declares {count} points ({need:.0f} bytes of "
+                              f"{'binary' if binary else 'text'} data at least), the file holds "
+                              f"{size - data_start} bytes after its header (cut short?)")
+    if not binary and values:
+        with open(p, "rb") as fh:
+            fh.seek(data_start)
+            found = len(fh.read().split())
+        if found < count * values:
+            raise DataFormatError(f"{p}: damaged: its header declares {count} points of {values} values, the file "
+                                  f"holds {found} values after its header (cut short?)")
+    return count
 
 
 def _scan_from_points(pts: NDArray[np.float64]) -> LaserScan2D:

@@ -81,6 +81,9 @@ def open_dataset(
     p = Path(path)
     if not p.exists():
         raise DatasetError(f"{p}: no such file or folder")
+    if not (p.is_dir() or p.is_file()):  # a device, pipe or socket (a link to /dev/zero): never ends
+        raise DatasetError(f"{p}: not a regular file or a folder{f' (a link to {p.resolve()})' if p.is_symlink() else ''}"
+                           "; expected a recording file or folder")
     given = {"scan_topic": scan_topic, "cloud_topic": cloud_topic, "odom_topic": odom_topic, "base_frame": base_frame,
              "cloud_rate": cloud_rate, "scans": scans, "scan_rate": scan_rate}
     given = [k for k, v in given.items() if v is not None]

@@ -717,6 +717,13 @@ class RosbagDataset(Dataset):
         distinct = have_seq and len(np.unique(seq)) == len(seq)
         if order is FrameOrder.AUTO:
             order = FrameOrder.SEQ if distinct and len(seq) > 1 else FrameOrder.STAMP
+            if order is FrameOrder.SEQ:
+                step = np.diff(np.asarray(stamps, dtype=float)[np.argsort(seq, kind="stable")])
+                if np.count_nonzero(step < 0) > np.count_nonzero(step > 0):  # seq contradicts the clock
+                    self._warn(f"{self.path}: the ROS1 Header.seq of its messages runs against their stamps "
+                               f"({np.count_nonzero(step < 0)} of {len(step)} steps go back in time); the frames "
+                               "are ordered by stamp")
+                    order = FrameOrder.STAMP
         if order is FrameOrder.SEQ:
             if not distinct:
                 raise DatasetError(f"{self.path}: order='seq' needs distinct ROS1 Header.seq values, which this bag lacks")
@@ -724,6 +731,20 @@ class RosbagDataset(Dataset):
         if order is FrameOrder.STAMP:
             return np.argsort(stamps, kind="stable"), order
         return np.arange(len(stamps)), order
+
+    def _drop_repeated_stamps(self, stamps: NDArray[np.float64], idx: NDArray[np.intp], topic: str) -> NDArray[np.intp]:
+        """``idx`` without the messages whose stamp an earlier one (in ``idx`` order) already has, with a warning:
+        a trajectory has one pose per stamp."""
+        _, first = np.unique(stamps[idx], return_index=True)
+        if len(first) == len(idx):
+            return idx
+        keep = np.zeros(len(idx), dtype=bool)
+        keep[first] = True
+        dup = stamps[idx][~keep]
+        self._warn(f"{self.path}: {len(dup)} of the {len(idx)} messages of {topic} repeat an earlier message's "
+                   f"stamp (first: {dup[0]:.6f} s{'; zero stamps: the recording was not stamped' if np.any(dup == 0) else ''})"
+                   "; they are dropped, one frame per stamp")
+        return idx[keep]
 
     def _build_frames(self, driver: str) -> None:
         topic = self.scan_topic if driver == "scan" else self.cloud_topic
@@ -736,6 +757,7 @@ class RosbagDataset(Dataset):
         primary = self._scans if driver == "scan" else self._clouds
         stamps = np.asarray(primary["stamp"], dtype=float)
         idx, self.order = self._order_of(stamps, primary["seq"])
+        idx = self._drop_repeated_stamps(stamps, idx, topic)
         self.stamps = stamps[idx]
         other = self._clouds if driver == "scan" else self._scans
         other_topic = self.cloud_topic if driver == "scan" else self.scan_topic

@@ -19,6 +19,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import DataFormatError, DatasetError, InputError
 from ..grid import GridGeometry
+from ..limits import load_yaml, quote
 from ..trajectory import Trajectory, read_tum
 from .frames import Dataset, Frame, LaserScan2D
 
@@ -93,7 +94,7 @@ class SimulatedDataset(Dataset):
             raise DatasetError(f"{root}: incomplete simulated dataset (no dataset.yaml; it is written last, so "
                                "the simulation did not finish); run `hsmap simulate` again")
         try:
-            meta = yaml.safe_load(meta_path.read_text(encoding="utf-8"))
+            meta = load_yaml(meta_path.read_text(encoding="utf-8"))
         except (yaml.YAMLError, UnicodeDecodeError) as exc:
             raise DataFormatError(f"{meta_path}: not valid YAML: {' '.join(str(exc).split())}") from None
         except OSError as exc:
@@ -107,6 +108,10 @@ class SimulatedDataset(Dataset):
         self.meta = meta
         self.name = str(meta.get("scenario", root.name))
         self.sensors = meta.get("sensors")
+        if not isinstance(self.sensors, dict) or not all(isinstance(self.sensors.get(k), dict)
+                                                         for k in ("lidar2d", "lidar3d")):
+            raise DataFormatError(f"{meta_path}: 'sensors' must be a mapping with the 'lidar2d' and 'lidar3d' "
+                                  f"descriptions, got {quote(self.sensors)}")
         try:
             self.extrinsic2d = np.asarray(self.sensors["lidar2d"]["extrinsic"], dtype=float).reshape(3)
             self.extrinsic3d = np.asarray(self.sensors["lidar3d"]["extrinsic"], dtype=float).reshape(6)
@@ -116,8 +121,10 @@ class SimulatedDataset(Dataset):
             for key in ("range_min", "range_max"):
                 float(s2[key])
             self.extrinsic_sources.update({"2d": "dataset.yaml", "3d": "dataset.yaml"})
-        except (KeyError, TypeError, ValueError) as exc:
-            raise DataFormatError(f"{meta_path}: bad sensor description: {exc}") from None
+        except KeyError as exc:
+            raise DataFormatError(f"{meta_path}: bad sensor description: missing key {quote(exc.args[0])}") from None
+        except (TypeError, ValueError) as exc:
+            raise DataFormatError(f"{meta_path}: bad sensor description: {' '.join(str(exc).split())[:300]}") from None
         scans = root / "scans2d.npz"
         z = _load_npz(scans, ("stamps", "ranges", "angles"))
         try:

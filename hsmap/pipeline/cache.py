@@ -97,7 +97,7 @@ def code_digest(root: str | os.PathLike | None = None, exclude: Sequence[str] = 
     for e in exclude:
         if not (root / e).exists():
             raise CacheError(f"{root / e}: the code digest excludes it but it does not exist (renamed? update "
-                             "hsmap.study.cache.EXCLUDED)")
+                             "hsmap.pipeline.cache.EXCLUDED)")
     files = []
     for p in root.rglob("*.py"):
         rel = p.relative_to(root).as_posix()

@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from ..errors import ConfigError
 from ..grid import GridGeometry
 from .model import Door, Furniture, Scenario
 from .shapes import box_corners, box_sdf, make_box, points_in_polygon
@@ -189,6 +190,10 @@ def rasterize_rooms(scn: Scenario, resolution: float | None = None, margin: floa
     res = float(resolution if resolution is not None else scn.label_resolution)
     grid = label_grid(scn, res, margin)
     H, W = grid.shape
+    from ..limits import check_allocation
+
+    check_allocation(float(H) * W * 64, f"{scn.path}: label_resolution {res} m: a {H} x {W} room raster",
+                     ConfigError)
     rc = np.stack(np.meshgrid(np.arange(H), np.arange(W), indexing="ij"), -1).reshape(-1, 2)
     xy = grid.pixel_to_world(rc)
     free = np.ones(len(xy), dtype=bool)

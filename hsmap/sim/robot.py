@@ -342,6 +342,10 @@ def simulate_motion(start: ArrayLike, steps: list[RouteStep], robot: RobotConfig
     per_frame = max(1, int(np.ceil(robot.internal_rate / frame_rate - 1e-9)))
     n_frames = int(np.ceil((end - start_time) * frame_rate - 1e-9)) + 1  # the last frame sees the route's end
     n_samples = (n_frames - 1) * per_frame + 1
+    from ..limits import check_allocation
+
+    check_allocation(float(n_samples) * 8 * 12, f"frame_rate {frame_rate} Hz: {n_samples} motion samples",
+                     ConfigError)
     times = start_time + np.arange(n_samples) / (frame_rate * per_frame)
     gt = sample_legs(legs, times)
     odo = integrate_odometry(gt, odometry, robot.wheel_base, rng)

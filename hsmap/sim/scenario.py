@@ -28,6 +28,7 @@ from numpy.typing import NDArray
 
 from ..config import from_dict
 from ..errors import ConfigError, ScenarioError
+from ..limits import load_yaml, quote
 from . import layout
 from .model import FURNITURE_TYPES, Door, Furniture, Room, Scenario, Wall
 from .robot import OdometryConfig, RobotConfig, RouteStep, plan_legs
@@ -67,7 +68,7 @@ class _Parser:
 
     def number(self, value: Any, key: str, *, positive: bool = False, nonneg: bool = False) -> float:
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
-            raise self.error(key, f"expected a finite number, got {value!r}")
+            raise self.error(key, f"expected a finite number, got {quote(value)}")
         if positive and value <= 0:
             raise self.error(key, f"must be > 0, got {value}")
         if nonneg and value < 0:
@@ -76,12 +77,12 @@ class _Parser:
 
     def point(self, value: Any, key: str, n: int = 2) -> NDArray[np.float64]:
         if not isinstance(value, (list, tuple)) or len(value) != n:
-            raise self.error(key, f"expected a list of {n} numbers, got {value!r}")
+            raise self.error(key, f"expected a list of {n} numbers, got {quote(value)}")
         return np.array([self.number(v, f"{key}[{i}]") for i, v in enumerate(value)])
 
     def string(self, value: Any, key: str) -> str:
         if not isinstance(value, str):
-            raise self.error(key, f"expected a string, got {value!r}")
+            raise self.error(key, f"expected a string, got {quote(value)}")
         return value
 
     def sequence(self, value: Any, key: str) -> list:
@@ -97,6 +98,17 @@ class _Parser:
         except ConfigError as exc:
             msg = str(exc)
             raise ScenarioError(f"{self.file}: {msg if msg.startswith(key) else f'{key}: {msg}'}") from None
+
+
+#: Highest scenario frame rate, Hz (a LiDAR's scan rate).
+MAX_FRAME_RATE = 1000.0
+
+
+def _frame_rate(P: _Parser, value: Any) -> float:
+    rate = P.number(value, "frame_rate", positive=True)
+    if rate > MAX_FRAME_RATE:
+        raise P.error("frame_rate", f"must be at most {MAX_FRAME_RATE:g} Hz (a LiDAR's scan rate), got {rate:g}")
+    return rate
 
 
 def parse_scenario(data: Any, file: str = "<scenario>", check: bool = True) -> Scenario:
@@ -116,14 +128,14 @@ def parse_scenario(data: Any, file: str = "<scenario>", check: bool = True) -> S
         ceiling = P.number(ceiling, "ceiling_height", positive=True)
     seed = data.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise P.error("seed", f"expected a non-negative integer, got {seed!r}")
+        raise P.error("seed", f"expected a non-negative integer, got {quote(seed)}")
 
     scn = Scenario(
         name=name,
         description=str(data.get("description", "") or "").strip(),
         path=file,
         seed=seed,
-        frame_rate=P.number(data.get("frame_rate", 2.0), "frame_rate", positive=True),
+        frame_rate=_frame_rate(P, data.get("frame_rate", 2.0)),
         start_time=P.number(data.get("start_time", 0.0), "start_time", nonneg=True),
         wall_height=wall_h,
         ceiling_height=ceiling,
@@ -162,7 +174,7 @@ def parse_scenario(data: Any, file: str = "<scenario>", check: bool = True) -> S
         height = P.number(d.get("height", door_h), f"{key}.height", positive=True)
         is_open = d.get("open", True)
         if not isinstance(is_open, bool):
-            raise P.error(f"{key}.open", f"expected true or false, got {is_open!r}")
+            raise P.error(f"{key}.open", f"expected true or false, got {quote(is_open)}")
         wall_idx, at = _door_position(P, scn, d, key, names)
         scn.doors.append(Door(i, P.string(d.get("name", ""), f"{key}.name"), wall_idx, at, width, height, is_open))
 
@@ -173,7 +185,7 @@ def parse_scenario(data: Any, file: str = "<scenario>", check: bool = True) -> S
         r = P.mapping(r, key, {"name", "rect", "polygon"}, {"name"})
         rname = P.string(r["name"], f"{key}.name")
         if rname in room_names:
-            raise P.error(f"{key}.name", f"duplicate room name {rname!r}")
+            raise P.error(f"{key}.name", f"duplicate room name {quote(rname)}")
         room_names.add(rname)
         if ("rect" in r) == ("polygon" in r):
             raise P.error(key, "give exactly one of 'rect: [xmin, ymin, xmax, ymax]' or 'polygon: [[x, y], ...]'")
@@ -197,7 +209,7 @@ def parse_scenario(data: Any, file: str = "<scenario>", check: bool = True) -> S
         f = P.mapping(f, key, {"type", "name", "center", "size", "yaw", "height"}, {"type", "center"})
         ftype = P.string(f["type"], f"{key}.type")
         if ftype not in FURNITURE_TYPES:
-            raise P.error(f"{key}.type", f"unknown furniture type {ftype!r}; known: {sorted(FURNITURE_TYPES)}")
+            raise P.error(f"{key}.type", f"unknown furniture type {quote(ftype)}; known: {sorted(FURNITURE_TYPES)}")
         dsize, dheight = FURNITURE_TYPES[ftype]
         if dheight is None and ftype == "column":
             dheight = ceiling if ceiling is not None else wall_h
@@ -219,7 +231,7 @@ def parse_scenario(data: Any, file: str = "<scenario>", check: bool = True) -> S
     route = P.mapping(data["route"], "route", {"start", "steps"}, {"start", "steps"})
     start = route["start"]
     if not isinstance(start, (list, tuple)) or len(start) not in (2, 3):
-        raise P.error("route.start", f"expected [x, y] or [x, y, yaw_deg], got {start!r}")
+        raise P.error("route.start", f"expected [x, y] or [x, y, yaw_deg], got {quote(start)}")
     s = P.point(list(start) + [0.0] * (3 - len(start)), "route.start", 3)
     scn.start = np.array([s[0], s[1], np.deg2rad(s[2])])
     scn.steps = _parse_steps(P, route["steps"], "route.steps")
@@ -247,14 +259,14 @@ def _door_position(P: _Parser, scn: Scenario, d: dict, key: str, names: dict[str
         ref = d["wall"]
         if isinstance(ref, str):
             if ref not in names:
-                raise P.error(f"{key}.wall", f"no wall named {ref!r}; named walls: {sorted(names)}")
+                raise P.error(f"{key}.wall", f"no wall named {quote(ref)}; named walls: {sorted(names)}")
             idx = names[ref]
         elif isinstance(ref, int) and not isinstance(ref, bool):
             if not 0 <= ref < len(scn.walls):
                 raise P.error(f"{key}.wall", f"wall index {ref} out of range (0..{len(scn.walls) - 1})")
             idx = ref
         else:
-            raise P.error(f"{key}.wall", f"expected a wall name or index, got {ref!r}")
+            raise P.error(f"{key}.wall", f"expected a wall name or index, got {quote(ref)}")
     else:
         idx = None
     wall = scn.walls[idx] if idx is not None else None
@@ -289,7 +301,7 @@ def _parse_steps(P: _Parser, steps: Any, key: str, depth: int = 0) -> list[Route
             out.append(RouteStep("goto", tuple(P.point(st, k)), where=k))
             continue
         if not isinstance(st, dict):
-            raise P.error(k, f"expected [x, y] or a mapping (goto/turn/face/wait/repeat), got {st!r}")
+            raise P.error(k, f"expected [x, y] or a mapping (goto/turn/face/wait/repeat), got {quote(st)}")
         kinds = [x for x in ("goto", "turn", "face", "wait", "repeat") if x in st]
         if len(kinds) != 1:
             raise P.error(k, f"a step needs exactly one of goto, turn, face, wait, repeat; got keys {sorted(st)}")
@@ -298,7 +310,7 @@ def _parse_steps(P: _Parser, steps: Any, key: str, depth: int = 0) -> list[Route
             st = P.mapping(st, k, {"goto", "reverse", "speed"})
             rev = st.get("reverse", False)
             if not isinstance(rev, bool):
-                raise P.error(f"{k}.reverse", f"expected true or false, got {rev!r}")
+                raise P.error(f"{k}.reverse", f"expected true or false, got {quote(rev)}")
             speed = P.number(st["speed"], f"{k}.speed", positive=True) if "speed" in st else None
             out.append(RouteStep("goto", tuple(P.point(st["goto"], f"{k}.goto")), reverse=rev, speed=speed, where=k))
         elif kind in ("turn", "face"):
@@ -311,7 +323,7 @@ def _parse_steps(P: _Parser, steps: Any, key: str, depth: int = 0) -> list[Route
             st = P.mapping(st, k, {"repeat", "steps"}, {"steps"})
             n = st["repeat"]
             if isinstance(n, bool) or not isinstance(n, int) or n < 1 or depth > 3:
-                raise P.error(f"{k}.repeat", f"expected a positive integer (nesting at most 4 deep), got {n!r}")
+                raise P.error(f"{k}.repeat", f"expected a positive integer (nesting at most 4 deep), got {quote(n)}")
             inner = _parse_steps(P, st["steps"], f"{k}.steps", depth + 1)
             out.extend(dataclasses.replace(s) for _ in range(n) for s in inner)
     return out
@@ -410,7 +422,7 @@ def load_scenario(path: str | os.PathLike, check: bool = True) -> Scenario:
     except OSError as exc:
         raise ScenarioError(f"{path}: cannot read: {exc}") from None
     try:
-        data = yaml.safe_load(text.decode("utf-8"))
+        data = load_yaml(text.decode("utf-8"))
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
         from ..config import yaml_error_text
 

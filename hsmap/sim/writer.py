@@ -16,6 +16,7 @@ Every file is written atomically; identical scenario and seed give byte-identica
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import os
 import shutil
@@ -32,7 +33,7 @@ from .. import __version__
 from ..config import to_dict
 from ..datasets.simulated import FORMAT, FORMAT_VERSION, encode_range_image
 from ..errors import DatasetError, ScenarioError
-from ..io import atomic_path, sweep_stale_temporaries, write_json, write_text
+from ..io import atomic_path, staged_outputs, sweep_stale_temporaries, write_json, write_text
 from ..trajectory import Trajectory, write_tum
 from . import layout
 from .catalog import resolve_scenario
@@ -134,7 +135,8 @@ def simulate(scenario: Scenario | str | os.PathLike, out: str | os.PathLike, see
     scenario : Scenario, str or path
         A parsed scenario, a shipped scenario name (``slam-office``, ``two-rooms``) or a YAML file.
     out : path
-        Output folder. Existing files of a previous dataset are replaced (its ``dataset.yaml`` is removed first, so the folder reads as incomplete meanwhile).
+        Output folder. The dataset is written into a staging folder inside it and replaces the files of a previous
+        dataset there when complete; a failed or interrupted run leaves them as they were.
     seed : int, optional
         Seed of all random choices (odometry slip, range noise); default the scenario's ``seed``.
     max_frames : int, optional
@@ -156,9 +158,25 @@ def simulate(scenario: Scenario | str | os.PathLike, out: str | os.PathLike, see
     seed = scn.seed if seed is None else int(seed)
     if seed < 0:
         raise ScenarioError(f"seed must be >= 0, got {seed}")
+    final = Path(out)
+    if final.exists() and not final.is_dir():
+        raise DatasetError(f"{final}: exists and is not a folder")
+    final.mkdir(parents=True, exist_ok=True)
+    sweep_stale_temporaries(final, [*FILE_DESCRIPTIONS, "figures"])  # left by a killed run
+    # written into a staging folder inside ``final``, moved into place when complete (dataset.yaml last): an
+    # interrupted run leaves the previous dataset as it was
+    names = [name.rstrip("/") for name in FILE_DESCRIPTIONS] + ["figures"]
+    with staged_outputs(final, last="dataset.yaml", folders=True, replaces=names) as stage:
+        summary = _write_dataset(scn, stage, seed, max_frames=max_frames, label_resolution=label_resolution,
+                                 batch_frames=batch_frames, compresslevel=compresslevel, t_start=t_start)
+    return dataclasses.replace(summary, path=final)
+
+
+def _write_dataset(scn: Scenario, out: Path, seed: int, *, max_frames: int | None, label_resolution: float | None,
+                   batch_frames: int, compresslevel: int, t_start: float) -> SimulationSummary:
+    """Write the dataset folder of :func:`simulate` into the empty folder ``out``."""
+
     out = open_dataset_folder(out)
-    sweep_stale_temporaries(out, [*FILE_DESCRIPTIONS, "figures"])  # left by a killed run
-    sweep_stale_temporaries(out / "clouds3d")
     timings: dict[str, float] = {}
 
     t = time.perf_counter()

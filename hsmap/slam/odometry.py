@@ -3,12 +3,14 @@ scale learned from the registrations, and the motion accumulated between keyfram
 
 from __future__ import annotations
 
+import warnings
 from collections import deque
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ..datasets.frames import Frame
+from ..errors import HsmapWarning
 from ..geometry import body_covariance_2d, compose, compose_with_covariance_2d, relative, wrap_angle
 from ..registration import RegistrationResult, constrained_axes
 from .config import SlamConfig
@@ -35,6 +37,8 @@ class OdometryModel:
         Learn the bias and the scale of the sigma model from the registrations.
     wheel_edges : bool
         Accumulate the motion (and its covariance) since the newest keyframe for the graph's wheel edges.
+    prior : bool
+        The run is seeded by a prior trajectory (no odometry step is then set aside, :meth:`set_aside`).
 
     Attributes
     ----------
@@ -42,14 +46,18 @@ class OdometryModel:
         The learned scale of the sigma model (translation, rotation).
     bias : ndarray of shape (3,)
         The learned systematic error (x, y, yaw) in sigmas of the configured model.
+    outliers : list of int
+        Frames whose odometry step was set aside (:meth:`set_aside`).
     """
 
-    def __init__(self, config: SlamConfig, *, learn: bool, wheel_edges: bool) -> None:
+    def __init__(self, config: SlamConfig, *, learn: bool, wheel_edges: bool, prior: bool = False) -> None:
         self.config = config
         self.dim = config.dim
         self.learn = learn
         self.wheel_edges = wheel_edges
+        self.prior = prior
         self.previous: NDArray[np.float64] | None = None  # the last frame's odometry reading
+        self.outliers: list[int] = []
         self.scale = np.ones(2)
         self.bias = np.zeros(3)
         # the one-frame disagreements with the registrations (bias) and the lagged ones (scale), in model sigmas
@@ -70,15 +78,54 @@ class OdometryModel:
         odom = None if frame.odometry is None else np.asarray(frame.odometry, dtype=float)
         if not (self.config.use_odometry and odom is not None and self.previous is not None):
             return None
+        if self.outliers and self.outliers[-1] == frame.index:
+            return None
         delta = relative(self.previous, odom)  # (x, y, yaw) increment in the robot frame
         if self.config.dof == 3:
             return delta
         return np.array([delta[0], delta[1], 0.0, 0.0, 0.0, delta[2]])
 
-    def advance(self, frame: Frame) -> None:
-        """The frame is done: the next increment starts at its odometry (where it has one)."""
-        if frame.odometry is not None:
+    def advance(self, frame: Frame, motion: NDArray[np.float64] | None = None) -> None:
+        """The frame is done: the next increment starts at its odometry (where it has one), or, where its step was
+        set aside, at the odometry as it would read had it moved by ``motion`` (the tracked motion, (dof,))."""
+        if frame.odometry is None:
+            return
+        if self.outliers[-1:] == [frame.index] and motion is not None:
+            self.previous = compose(self.previous, motion if self.config.dof == 3 else motion[[0, 1, 5]])
+        else:
             self.previous = np.asarray(frame.odometry, dtype=float)
+
+    def set_aside(self, frame: Frame, res: RegistrationResult, poses: list[NDArray[np.float64]]) -> bool:
+        """Whether the frame's odometry step is an outlier to be set aside (with a warning): the registration
+        ``res`` lies outside the odometry's gate (the caller checked), while it and the previous motion repeated
+        (from the tracked ``poses``) agree with each other and both disagree with the odometry, by more than
+        ``verify_sigmas`` of ``motion_sigma`` at the previous motion's length. The frame is then tracked without
+        its odometry."""
+        cfg = self.config
+        if self.prior or len(poses) < 2 or frame.index is None:
+            return False
+        odo = self.step(frame)
+        if odo is None:
+            return False
+        prev = poses[-1]
+        motion = relative(poses[-2], prev)
+        st, sr = self.model_sigmas(motion, cfg.motion_sigma)
+
+        def apart(a: NDArray[np.float64], b: NDArray[np.float64]) -> bool:
+            d = relative(a, b)
+            return bool(np.linalg.norm(d[:2]) > cfg.verify_sigmas * st or
+                        abs(wrap_angle(d[-1])) > cfg.verify_sigmas * sr)
+
+        by_motion, by_odometry = compose(prev, motion), compose(prev, self.corrected(odo))
+        if not apart(by_motion, by_odometry) or apart(by_motion, res.pose):
+            return False
+        self.outliers.append(int(frame.index))
+        d = relative(by_odometry, res.pose)
+        warnings.warn(f"frame {frame.index} (stamp {frame.stamp:.6f}): its odometry puts it "
+                      f"{float(np.linalg.norm(d[:2])):.2f} m and {float(np.rad2deg(abs(wrap_angle(d[-1])))):.1f} deg "
+                      "from where the scan match and the previous motion agree it is; that odometry step is not "
+                      "used", HsmapWarning, stacklevel=3)
+        return True
 
     def sigma(self, gate: bool = False) -> tuple[float, ...]:
         """The sigma model (``SlamConfig.odometry_sigma``) scaled by what was learned (``gate``: never below the

@@ -131,7 +131,8 @@ def prior_coverage(prior: Trajectory, stamps, tolerance: float, *, name: str = "
         raise InputError(
             f"{name}: none of the input's {n} frames ({t.min():.3f}..{t.max():.3f} s) lies between two of its "
             f"{len(prior)} poses ({prior.stamps.min():.3f}..{prior.stamps.max():.3f} s) within the sync tolerance "
-            f"of {tolerance:g} s; expected the trajectory.tum of a 2D run of the same input (or a larger tolerance)")
+            f"of {tolerance:g} s or in a gap of its regular cadence; expected the trajectory.tum of a 2D run of the "
+            f"same input (or a larger --sync-tolerance)")
     if k < n:
         warnings.warn(f"{name} gives a pose to {k} of the {n} frames ({100.0 * k / n:.1f} %) within the sync "
                       f"tolerance of {tolerance:g} s; the others are seeded without it", HsmapWarning, stacklevel=3)

@@ -100,7 +100,8 @@ class HsSlam:
                 raise InputError("a prior trajectory seeds 6-DOF runs only (dof=6)")
             self._prior = prior.as_3dof()
         self.odometry = OdometryModel(cfg, learn=cfg.learn_odometry and prior is None,
-                                      wheel_edges=cfg.dof == 3 and prior is None and cfg.graph.odometry_edges)
+                                      wheel_edges=cfg.dof == 3 and prior is None and cfg.graph.odometry_edges,
+                                      prior=prior is not None)
         self.verifier = Verifier(cfg)
         self.keyframe_graph = KeyframeGraph(cfg, self.odometry, loop_rng)
         # per frame, for the smoothing: the odometry's motion from the previous frame (bias out), its sigmas
@@ -200,7 +201,8 @@ class HsSlam:
                 ) -> tuple[RegistrationResult, bool, bool]:
         """:meth:`Verifier.verify` of a registration of ``frame`` against the current target."""
         return self.verifier.verify(scan, self.keyframe_graph.target, res,
-                                    lambda gate: self.prediction(frame, gate), self._ranges(prior=False), self.rng)
+                                    lambda gate: self.prediction(frame, gate), self._ranges(prior=False), self.rng,
+                                    lambda r: self.odometry.set_aside(frame, r, self.poses))
 
     def process(self, frame: Frame) -> FrameResult:
         """Register one frame and update the map (and the pose graph); returns what was done."""
@@ -241,7 +243,7 @@ class HsSlam:
         if keyframe and kg.add_keyframe(frame, len(self.results), scan, pose, None if first else information,
                                         registration_information):
             self._reanchor_recent()
-        self.odometry.advance(frame)
+        self.odometry.advance(frame, relative(self.poses[-2], pose) if len(self.poses) >= 2 else None)
         if keyframe:
             # the next frame's target, built in the keyframe's step: the next frame only tracks
             kg.ensure_target(self.poses[-1])

@@ -112,7 +112,8 @@ class Verifier:
         self.dim = config.dim
 
     def verify(self, scan: NDArray[np.float64], target: RegistrationTarget, res: RegistrationResult,
-               predict: Callable[[bool], Prediction], half: NDArray[np.float64], rng: np.random.Generator
+               predict: Callable[[bool], Prediction], half: NDArray[np.float64], rng: np.random.Generator,
+               set_aside: Callable[[RegistrationResult], bool] | None = None
                ) -> tuple[RegistrationResult, bool, bool]:
         """Check a registration ``res`` of ``scan`` (N, dim) against the prediction; retry around the prediction
         when they disagree.
@@ -121,6 +122,8 @@ class Verifier:
         gate's sigmas (``predict(True)``), or, for a registration that matches less than ``STRICT_MIN_MATCHED``
         of its scan, of the learned ones (``predict(False)``). The retry searches the box of the prediction's
         uncertainty (within ``half``, the tracking's box) and the pose that aligns the scan clearly better wins.
+        A registration beyond the gate stands as it is where ``set_aside(res)`` sets the odometry step aside
+        (:meth:`hsmap.slam.odometry.OdometryModel.set_aside`).
 
         Returns the registration to keep, whether it was retried, and whether its pose is confirmed.
         """
@@ -146,6 +149,8 @@ class Verifier:
             if matched_share(r_first) >= STRICT_MIN_MATCHED:
                 return res, False, True
             sig = tight[1]
+        elif set_aside is not None and set_aside(res):
+            return res, False, True
         # retry in a box of the prediction's uncertainty, from the prediction, with a longer search
         hs = reg.harmony
         retry_cfg = replace(reg, refine_seeds=1,

@@ -68,6 +68,7 @@ from .execute import (
 from .interrupts import busy, marking_interrupts, stop_workers, worker_signals
 from .notebook_html import notebook_to_html
 from .notebook_run import NotebookRun, now_text
+from .parameters import check_parameters, declared_parameters
 from .report import render_index
 from .tooling import require_study_tooling
 
@@ -272,6 +273,8 @@ def run_notebooks(
             if h.name in per_nb:
                 per_nb[h.name].update(params)
 
+    if common or any(per_nb.values()):  # each against the names and types the notebooks declare
+        check_parameters({s.name: declared_parameters(s) for s in chosen}, common, per_nb)
     common = _absolute_paths(common)
     per_nb = {k: _absolute_paths(v) for k, v in per_nb.items()}
 

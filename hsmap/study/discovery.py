@@ -13,6 +13,7 @@ from typing import Any
 
 from ..config import read_yaml
 from ..errors import ConfigError, InputError
+from ..limits import load_yaml
 from .tooling import lighten_jupyter_imports, require_study_tooling
 
 __all__ = ["NOTEBOOK_RE", "STANDARD_PARAMETERS", "PATH_PARAMETERS", "NotebookSpec", "discover", "select", "inspect_parameters", "parse_value", "load_parameters_file"]
@@ -113,7 +114,7 @@ def parse_value(text: str) -> Any:
     import yaml
 
     try:
-        return yaml.safe_load(text)
+        return load_yaml(text)
     except yaml.YAMLError:
         return text
 

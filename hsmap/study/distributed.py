@@ -70,13 +70,16 @@ def _client(workers: int | None, scheduler: str | None):
     if scheduler:
         try:
             return Client(scheduler, timeout="20s"), None
-        except OSError as exc:
-            raise ConfigError(f"--scheduler {scheduler}: cannot reach a Dask scheduler there ({exc})") from None
+        except (OSError, ValueError, TypeError) as exc:  # unreachable, or not an address (ValueError)
+            raise ConfigError(f"--scheduler {scheduler}: cannot reach a Dask scheduler there "
+                              f"({' '.join(str(exc).split())[:300]}); expected an address like tcp://HOST:8786") \
+                from None
     n = int(workers or 2)
     if n < 1:
         raise ConfigError(f"--workers must be >= 1, got {workers}")
-    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
-                           silence_logs=40)
+    # the scheduler, its workers and its dashboard (which has no authentication) listen on loopback only
+    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
+                           dashboard_address="127.0.0.1:0", silence_logs=40)
     return Client(cluster), cluster
 
 

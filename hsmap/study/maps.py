@@ -15,7 +15,7 @@ simulated run shared by notebooks 04-07 (computed once, then cached).
    its 2D HS-SLAM pose, :func:`hsmap.grid.grid_from_scans`) and the grid of the 3D map's slice at 1.7-1.8 m
    (every 3D cloud at its 6-DOF HS-SLAM pose, :func:`hsmap.fusion.slice_scans`), with the points behind both.
 
-The maps are a folder of :class:`hsmap.study.cache.FolderCache` under ``data/generated/maps/`` (``maps.npz``),
+The maps are a folder of :class:`hsmap.pipeline.cache.FolderCache` under ``data/generated/maps/`` (``maps.npz``),
 keyed on the dataset, the SLAM runs' keys, the grid parameters and the code; the SLAM runs are the cached runs
 every other notebook shares.
 

@@ -23,6 +23,8 @@ import os
 from importlib import resources
 from pathlib import Path
 
+from .registry import complete_folder, registry
+
 __all__ = [
     "repository_root",
     "generated_dir",
@@ -96,7 +98,8 @@ def datasets_dir() -> Path:
     """The third-party datasets folder (``slam2d/``, ``ipa_room_segmentation/``).
 
     ``$HSMAP_DATASETS`` when it is set (the only place looked at then); else the folder ``hsmap data fetch``
-    downloads into (:func:`fetch_dir`) when it holds anything; else
+    downloads into (:func:`hsmap.study.paths.fetch_dir`) when it holds a complete dataset (every file of
+    it; what a failed download left does not count); else
     ``../shared/datasets`` beside a checkout when that exists; else the download folder (empty: notebook 08 and
     the benchmark tests then say to run ``hsmap data fetch``).
     """
@@ -104,7 +107,7 @@ def datasets_dir() -> Path:
     if env:
         return Path(env)
     fetched = fetch_dir()
-    if fetched.is_dir() and any(fetched.iterdir()):
+    if fetched.is_dir() and any(complete_folder(ds, fetched) is not None for ds in registry().values()):
         return fetched
     root = repository_root()
     if root is not None:

@@ -22,11 +22,11 @@ import os
 import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from importlib import resources
 from pathlib import Path
 
-from ..errors import ConfigError, DatasetError, InputError
+from ..errors import DatasetError, InputError
 from .paths import datasets_dir, fetch_dir
+from .registry import PublicDataset, PublicFile, complete_folder, registry
 
 __all__ = [
     "PublicFile",
@@ -48,44 +48,6 @@ NO_DATA = "no data (run hsmap data fetch)"
 
 
 @dataclass(frozen=True)
-class PublicFile:
-    """One file of a public dataset.
-
-    Attributes
-    ----------
-    path : str
-        Relative to the dataset's folder (``intel/intel.orig.bag``).
-    url : str
-        The original file at a pinned commit.
-    sha256 : str
-    size : int
-        Bytes.
-    """
-
-    path: str
-    url: str
-    sha256: str
-    size: int
-
-
-@dataclass(frozen=True)
-class PublicDataset:
-    """A public dataset of the registry (``hsmap/study/public_data.yaml``)."""
-
-    name: str
-    title: str
-    folder: str
-    citation: str
-    licence: str
-    sources: tuple[str, ...]
-    files: tuple[PublicFile, ...]
-
-    @property
-    def size(self) -> int:
-        return sum(f.size for f in self.files)
-
-
-@dataclass(frozen=True)
 class FetchResult:
     """What :func:`fetch` did for one dataset: files downloaded now, files already there (hash checked), files
     that were there with a wrong hash and were replaced, and the dataset's folder."""
@@ -95,27 +57,6 @@ class FetchResult:
     downloaded: tuple[str, ...]
     present: tuple[str, ...]
     replaced: tuple[str, ...]
-
-
-def registry() -> dict[str, PublicDataset]:
-    """The public datasets by name (``freiburg``, ``bormann``), read from the package's ``public_data.yaml``."""
-    import yaml
-
-    where = "hsmap/study/public_data.yaml"
-    text = resources.files(__package__).joinpath("public_data.yaml").read_text(encoding="utf-8")
-    doc = yaml.safe_load(text)
-    if not isinstance(doc, dict) or not isinstance(doc.get("datasets"), dict):
-        raise ConfigError(f"{where}: expected a mapping 'datasets'")
-    out = {}
-    for name, d in doc["datasets"].items():
-        try:
-            files = tuple(PublicFile(str(p), str(f["url"]), str(f["sha256"]).lower(), int(f["size"]))
-                          for p, f in d["files"].items())
-            out[str(name)] = PublicDataset(str(name), str(d["title"]), str(d["folder"]), str(d["citation"]),
-                                           str(d["licence"]), tuple(map(str, d.get("sources") or ())), files)
-        except (KeyError, TypeError, ValueError, AttributeError) as exc:
-            raise ConfigError(f"{where}: dataset {name!r}: malformed entry ({exc})") from None
-    return out
 
 
 def _choose(names: Sequence[str] | None) -> list[PublicDataset]:
@@ -132,11 +73,7 @@ def _choose(names: Sequence[str] | None) -> list[PublicDataset]:
 def dataset_folder(name: str, root: str | os.PathLike | None = None) -> Path | None:
     """The folder of public dataset ``name`` under ``root`` (default :func:`hsmap.study.paths.datasets_dir`)
     when every file of it is there (not hash-checked: :func:`fetch` checked them), else None."""
-    ds = _choose([name])[0]
-    folder = Path(root if root is not None else datasets_dir()) / ds.folder
-    if all((folder / f.path).is_file() for f in ds.files):
-        return folder
-    return None
+    return complete_folder(_choose([name])[0], Path(root if root is not None else datasets_dir()))
 
 
 def missing_data_reason(names: Sequence[str], root: str | os.PathLike | None = None) -> str:
@@ -177,7 +114,7 @@ def fetch(
     Parameters
     ----------
     names : sequence of str, optional
-        ``freiburg`` and/or ``bormann``.
+        ``freiburg``, ``bormann`` and/or ``octomap``.
     dest : path, optional
         Default :func:`hsmap.study.paths.fetch_dir`.
     mirror : str, optional

@@ -1,0 +1,165 @@
+"""A simulated run through a real 3D map: the robot, both LiDARs and drifting odometry in a voxel world.
+
+:func:`simulate_world` is :func:`hsmap.sim.simulate_building` for a 3D occupancy map (an OctoMap ``.bt``/``.ot``
+or a point map, read by :func:`hsmap.maps3d.read_map3d`): the world is the map's voxels
+(:class:`hsmap.sim.voxelworld.VoxelWorld`, the floor's surface at z = 0), the route goes through the known free
+space into every room of the map's slice the robot fits in (:func:`hsmap.sim.route3d.plan_route3d`), and the
+robot, its odometry, both LiDARs and the writer are the floor-plan buildings' (:class:`BuildingRunConfig`'s
+robot, odometry and 2D LiDAR; the paper's 128 x 1024 mast LiDAR). The folder is the simulator's
+(:class:`hsmap.datasets.simulated.SimulatedDataset` reads it): ``scans2d.npz``, ``clouds3d/``,
+``groundtruth.tum``, ``odometry.tum``, ``rooms.png``/``rooms.yaml`` (the rooms of the map's own slice, the
+route's goals: no hand-drawn ground truth), ``doors.json`` (empty), ``world.json`` (the voxel world and the
+route) and ``dataset.yaml`` last.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import yaml
+
+from .. import __version__
+from ..config import to_dict
+from ..datasets.simulated import FORMAT, FORMAT_VERSION
+from ..errors import ScenarioError
+from ..io import sweep_stale_temporaries, write_json, write_text
+from ..trajectory import Trajectory, write_tum
+from .building import BuildingRunConfig, building_motion
+from .robot import Motion, OdometryConfig, RobotConfig
+from .route3d import Route3D, Route3DConfig, plan_route3d
+from .sensors import Lidar2DConfig, Lidar3DConfig
+from .voxelworld import VoxelWorld
+
+__all__ = ["WorldRunConfig", "WorldRun", "simulate_world", "load_voxel_world"]
+
+
+@dataclass
+class WorldRunConfig:
+    """The robot, its sensors and the route rules of a run through a 3D map (one configuration for every map):
+    the floor-plan buildings' robot, odometry, 2D LiDAR and frame rate, and the paper's 128 x 1024 mast LiDAR."""
+
+    frame_rate: float = 1.0
+    route: Route3DConfig = field(default_factory=Route3DConfig)
+    robot: RobotConfig = field(default_factory=RobotConfig)
+    odometry: OdometryConfig = field(default_factory=OdometryConfig)
+    lidar2d: Lidar2DConfig = field(default_factory=Lidar2DConfig)
+    lidar3d: Lidar3DConfig = field(default_factory=Lidar3DConfig)
+
+
+@dataclass
+class WorldRun:
+    """What :func:`simulate_world` made."""
+
+    path: Path
+    world: VoxelWorld
+    route: Route3D
+    motion: Motion
+    timings: dict
+
+    @property
+    def frames(self) -> int:
+        return len(self.motion)
+
+    def as_dict(self) -> dict:
+        r = self.route
+        return {"path": str(self.path), "frames": self.frames, "route_m": round(self.motion.path_length(), 3),
+                "duration_s": round(float(self.motion.stamps[-1] - self.motion.stamps[0]), 3),
+                "rooms": int(r.rooms.max(initial=0)), "rooms_visited": [int(k) for k in r.route.order],
+                "rooms_entered": r.rooms_entered(), "unreachable_rooms": len(r.route.unreachable),
+                "route": r.route.as_dict(), "world": self.world.describe(),
+                "timings_s": {k: round(v, 3) for k, v in self.timings.items()}}
+
+
+def load_voxel_world(path: str | os.PathLike, floor: float | None = None) -> VoxelWorld:
+    """Read a 3D map (:func:`hsmap.maps3d.read_map3d`) as a voxel world, its floor's surface at z = 0."""
+    from ..maps3d import read_map3d
+
+    return VoxelWorld.from_map(read_map3d(path), floor)
+
+
+def simulate_world(world: VoxelWorld | str | os.PathLike, out: str | os.PathLike, *, seed: int = 0,
+                   config: WorldRunConfig | None = None, max_frames: int | None = None) -> WorldRun:
+    """Simulate the exploring run through a 3D map and write its dataset folder.
+
+    Parameters
+    ----------
+    world : VoxelWorld or path
+        The world, or a 3D map file (:func:`load_voxel_world`).
+    out : path
+        The dataset folder (created; a previous dataset in it is replaced, ``dataset.yaml`` removed first).
+    seed : int
+        Seeds the odometry's slip and the range noise.
+    config : WorldRunConfig, optional
+    max_frames : int, optional
+        Stop after this many frames (quick runs).
+
+    Returns
+    -------
+    WorldRun
+    """
+    from ..grid import write_label_image
+    from .writer import open_dataset_folder, write_sensor_frames
+
+    cfg = config or WorldRunConfig()
+    seed = int(seed)
+    if seed < 0:
+        raise ScenarioError(f"seed must be >= 0, got {seed}")
+    if max_frames is not None and max_frames < 1:
+        raise ScenarioError(f"max_frames must be >= 1, got {max_frames}")
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    if not isinstance(world, VoxelWorld):
+        world = load_voxel_world(world)
+    timings["world"] = time.perf_counter() - t0
+    out = open_dataset_folder(out)
+    sweep_stale_temporaries(out)
+    sweep_stale_temporaries(out / "clouds3d")
+
+    t = time.perf_counter()
+    route = plan_route3d(world, cfg.route, lidar3d=cfg.lidar3d)
+    timings["route"] = time.perf_counter() - t
+    t = time.perf_counter()
+    bcfg = BuildingRunConfig(frame_rate=cfg.frame_rate, robot=cfg.robot, odometry=cfg.odometry)
+    motion = building_motion(route.route, bcfg, seed, max_frames)
+    timings["motion"] = time.perf_counter() - t
+
+    write_sensor_frames(out, world, motion, cfg.lidar2d, cfg.lidar3d, seed, timings)
+    write_tum(out / "groundtruth.tum", Trajectory(motion.stamps, motion.groundtruth))
+    write_tum(out / "odometry.tum", Trajectory(motion.stamps, motion.odometry))
+    g = route.geometry
+    write_label_image(out / "rooms.png", route.rooms)
+    write_text(out / "rooms.yaml", yaml.safe_dump({
+        "image": "rooms.png", "resolution": g.resolution, "origin": [g.origin[0], g.origin[1], 0.0],
+        "labels": {int(k): f"room {k}" for k in range(1, int(route.rooms.max(initial=0)) + 1)},
+        "convention": "map_server: origin is the world (x, y, yaw) of the lower-left pixel's lower-left corner; "
+                      "row 0 of the image is the top; 0 = no room; the rooms hsmap.segmentation finds in the "
+                      f"source map's {cfg.route.rooms_band[0]:g}-{cfg.route.rooms_band[1]:g} m band (the route's "
+                      "goals), not a hand-drawn ground truth",
+    }, sort_keys=False))
+    write_json(out / "doors.json", {"format_version": FORMAT_VERSION, "frame": "world", "doors": []})
+    run = WorldRun(out, world, route, motion, timings)
+    timings["total"] = time.perf_counter() - t0
+    write_json(out / "world.json", {k: v for k, v in run.as_dict().items() if k != "path"})
+    meta = {
+        "format": FORMAT, "format_version": FORMAT_VERSION, "hsmap_version": __version__,
+        "scenario": Path(world.source).stem,
+        "description": f"voxel world of the 3D map {world.source} (floor surface at z = 0, "
+                       f"{world.floor:+.3f} m in the map's frame; the map's x, y)",
+        "seed": seed, "frames": len(motion), "frame_rate": float(cfg.frame_rate),
+        "start_time": float(motion.stamps[0]),
+        "duration": round(float(motion.stamps[-1] - motion.stamps[0]), 6),
+        "path_length": round(motion.path_length(), 6),
+        "sensors": {"lidar2d": cfg.lidar2d.describe(), "lidar3d": cfg.lidar3d.describe()},
+        "robot": to_dict(cfg.robot), "odometry_model": to_dict(cfg.odometry),
+        "files": {"dataset.yaml": "this description; written last", "scans2d.npz": "2D LiDAR scans",
+                  "clouds3d/": "3D LiDAR range images", "groundtruth.tum": "true base poses",
+                  "odometry.tum": "wheel odometry",
+                  "rooms.png": "the rooms of the source map's slice (16-bit labels; not a hand-drawn ground truth)",
+                  "rooms.yaml": "its geometry", "doors.json": "no doors (the map draws none)",
+                  "world.json": "the voxel world, the route (goals, rooms entered, unreachable rooms), timings"},
+    }
+    write_text(out / "dataset.yaml", yaml.safe_dump(meta, sort_keys=False, width=110))
+    return run

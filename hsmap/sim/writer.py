@@ -36,11 +36,11 @@ from ..io import atomic_path, sweep_stale_temporaries, write_json, write_text
 from ..trajectory import Trajectory, write_tum
 from . import layout
 from .catalog import resolve_scenario
-from .robot import Motion, simulate_motion
+from .robot import Motion, mast_sway, sample_legs, simulate_motion
 from .scenario import Scenario, load_scenario
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "SimulationSummary", "simulate", "save_npz", "motion_for", "noise_rngs",
-           "write_sensor_frames"]
+           "write_sensor_frames", "rolling_scan3d"]
 
 
 FILE_DESCRIPTIONS = {
@@ -49,7 +49,8 @@ FILE_DESCRIPTIONS = {
                    "angles (M,) float64 rad in the 2D sensor frame",
     "clouds3d/": "3D LiDAR, one NNNNNN.npz per frame: range_mm (channels, columns) uint16 millimetres "
                  "(0 = no return), stamp float64 s; row i looks at vertical_angles_deg[i], column j at "
-                 "azimuth_min + j * azimuth_increment",
+                 "azimuth_min + j * azimuth_increment; with a rolling sweep also column_time (columns,) float64 "
+                 "s after stamp at which each column was measured",
     "groundtruth.tum": "ground-truth robot base poses in the world frame at the scan stamps (TUM: t x y z qx qy qz qw)",
     "odometry.tum": "wheel-odometry robot base poses in the odometry frame (starting at the first ground-truth "
                     "pose) at the scan stamps (TUM)",
@@ -268,9 +269,17 @@ def write_sensor_frames(out: Path, world, motion: Motion, lidar2d, lidar3d, seed
     dirs = lidar3d.directions()
     t_cast = 0.0
 
+    col_t = None if lidar3d.static else lidar3d.column_times()
+    sway = None
+    if lidar3d.sway_frequency > 0:
+        times = (motion.stamps[:, None] + col_t[None, :]).reshape(-1)
+        sway = mast_sway(motion.legs, times, lidar3d.position[:2], lidar3d.position[2], lidar3d.sway_frequency,
+                         lidar3d.sway_damping).reshape(n, lidar3d.columns, 2)
+
     def write_frame(k: int, img: np.ndarray) -> None:
+        extra = {} if col_t is None or lidar3d.sweep_time == 0 else {"column_time": col_t}
         save_npz(cdir / f"{k:06d}.npz", compresslevel, range_mm=encode_range_image(img),
-                 stamp=np.float64(motion.stamps[k]))
+                 stamp=np.float64(motion.stamps[k]), **extra)
 
     # ray-cast batch i+1 while a writer thread compresses batch i (zlib releases the GIL)
     with ThreadPoolExecutor(max_workers=1) as pool:
@@ -278,7 +287,11 @@ def write_sensor_frames(out: Path, world, motion: Motion, lidar2d, lidar3d, seed
         for a in range(0, n, batch_frames):
             b = min(n, a + batch_frames)
             tc = time.perf_counter()
-            imgs = world.scan3d(motion.groundtruth[a:b], lidar3d, noise_rngs(seed, 3, range(a, b)), dirs)
+            if col_t is None:
+                imgs = world.scan3d(motion.groundtruth[a:b], lidar3d, noise_rngs(seed, 3, range(a, b)), dirs)
+            else:
+                imgs = rolling_scan3d(world, motion.legs, motion.stamps[a:b], lidar3d,
+                                      noise_rngs(seed, 3, range(a, b)), dirs, None if sway is None else sway[a:b])
             t_cast += time.perf_counter() - tc
             for f in pending:
                 f.result()
@@ -292,6 +305,39 @@ def write_sensor_frames(out: Path, world, motion: Motion, lidar2d, lidar3d, seed
     timings["scan3d_raycast"] = t_cast
 
     return ranges2d
+
+
+def rolling_scan3d(world, legs, stamps, lidar3d, rngs=None, directions=None, sway=None) -> np.ndarray:
+    """Range images (N, channels, columns) in metres (NaN = no return) of sweeps starting at ``stamps`` (N,):
+    column j cast at ``stamps + lidar3d.column_times()[j]`` from the robot's pose along ``legs`` then, the mast
+    tilted by ``sway`` (N, columns, 2) roll and pitch about its foot (:func:`hsmap.sim.robot.mast_sway`).
+    ``rngs``: None or one Generator per sweep (noise and dropout as :meth:`hsmap.sim.world.World.scan3d`)."""
+    from ..geometry import pose_to_matrix
+    from .world import _finish
+
+    dirs_s = lidar3d.directions() if directions is None else np.asarray(directions)
+    C, W = dirs_s.shape[:2]
+    stamps = np.asarray(stamps, dtype=float).reshape(-1)
+    col_t = lidar3d.column_times()
+    E = pose_to_matrix(lidar3d.extrinsic())
+    foot = np.array([lidar3d.position[0], lidar3d.position[1], 0.0])
+    rays = np.empty((len(stamps), C, W, 6), dtype=np.float32)
+    for k, t0 in enumerate(stamps):
+        base = sample_legs(legs, t0 + col_t)
+        b6 = np.zeros((W, 6))
+        b6[:, :2], b6[:, 5] = base[:, :2], base[:, 2]
+        B = pose_to_matrix(b6)
+        if sway is not None:
+            tilt = np.zeros((W, 6))
+            tilt[:, 3:5] = sway[k]
+            S = pose_to_matrix(tilt)
+            S[:, :3, 3] = foot - S[:, :3, :3] @ foot  # about the mast's foot
+            B = B @ S
+        T = B @ E
+        rays[k, :, :, :3] = T[None, :, :3, 3]
+        rays[k, :, :, 3:] = np.einsum("wij,cwj->cwi", T[:, :3, :3], dirs_s)
+    r = world.cast_rays(rays.reshape(-1, 6)).reshape(len(stamps), C, W)
+    return _finish(r, lidar3d.range_min, lidar3d.range_max, lidar3d.noise_sigma, lidar3d.dropout, rngs)
 
 
 def _write_png16(path: Path, labels: np.ndarray) -> None:

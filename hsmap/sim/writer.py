@@ -347,6 +347,18 @@ def _write_png16(path: Path, labels: np.ndarray) -> None:
         Image.fromarray(np.ascontiguousarray(labels.astype(np.uint16))).save(tmp, format="PNG")
 
 
+def _timing(l3) -> str:
+    """The README's sentence on when the LiDARs measure."""
+    if l3.static:
+        return ("Both LiDARs take each frame's scan\ninstantaneously at the frame's ground-truth pose (no motion "
+                "distortion); the robot moves on a flat floor.")
+    sway = (f", its {l3.position[2]:g} m mast swaying at {l3.sway_frequency:g} Hz (damping {l3.sway_damping:g}) "
+            "with the base's acceleration" if l3.sway_frequency > 0 else "")
+    return (f"The 2D LiDAR takes each scan at the frame's stamp; the 3D LiDAR sweeps over {l3.sweep_time:g} s from "
+            f"the stamp,\ncolumn j at `column_time[j]` after it, from the pose the robot has then{sway}; the robot "
+            "moves on a flat floor.")
+
+
 def _readme(scn: Scenario, s: SimulationSummary, grid) -> str:
     l2, l3 = scn.lidar2d, scn.lidar3d
     return f"""# Simulated dataset: {scn.name}
@@ -361,8 +373,7 @@ Read it with `hsmap.datasets.simulated.SimulatedDataset(folder)`.
 ## Frames and units
 Metres, seconds, radians (degrees only where a key says `_deg`). The world frame has z up and the floor at
 z = 0. The robot base frame lies on the floor (x forward, y left). Poses are (x, y, yaw); 3D poses
-(x, y, z, roll, pitch, yaw) with R = Rz(yaw) Ry(pitch) Rx(roll). Both LiDARs take each frame's scan
-instantaneously at the frame's ground-truth pose (no motion distortion); the robot moves on a flat floor.
+(x, y, z, roll, pitch, yaw) with R = Rz(yaw) Ry(pitch) Rx(roll). {_timing(l3)}
 
 ## Files
 - `dataset.yaml`: format `{FORMAT}` version {FORMAT_VERSION}, scenario, seed, frame count and rate, the

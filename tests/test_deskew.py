@@ -216,3 +216,29 @@ def test_rolling_bag_mapped_with_and_without_deskew(tmp_path):
         err[deskew] = (max(e["x_m"], e["y_m"]), e["yaw_deg"])
     assert err[True][0] < 0.02 and err[True][1] < 0.5, err
     assert err[False][1] > 2 * err[True][1], err
+
+
+def test_cloud_folder_time_fields(tmp_path):
+    from hsmap.datasets.clouds import CloudFolderDataset, read_points_timed
+
+    pts = np.array([[1.0, 2.0, 0.5], [0.0, 0.0, 0.0], [3.0, -1.0, 0.2]])
+    rec = np.zeros(3, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("t", "<u4")])
+    rec["x"], rec["y"], rec["z"], rec["t"] = pts[:, 0], pts[:, 1], pts[:, 2], [0, 50_000_000, 90_000_000]
+    head = ("# .PCD v0.7\nVERSION 0.7\nFIELDS x y z t\nSIZE 4 4 4 4\nTYPE F F F U\nCOUNT 1 1 1 1\nWIDTH 3\n"
+            "HEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 3\nDATA binary\n")
+    folder = tmp_path / "c"
+    folder.mkdir()
+    for k in range(2):
+        (folder / f"{k:03d}.pcd").write_bytes(head.encode() + rec.tobytes())
+    got, t, field = read_points_timed(folder / "000.pcd")
+    assert field == "t" and len(got) == 2  # the zero point dropped with its time
+    np.testing.assert_allclose(t, [0.0, 0.09])
+    ply = tmp_path / "v.ply"
+    ply.write_text("ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\n"
+                   "property float time\nend_header\n1 2 3 -0.1\n4 5 6 0\n")
+    got, t, field = read_points_timed(ply)
+    assert field == "time" and stamp_in_sweep(t) == "end"
+    np.testing.assert_allclose(got, [[1, 2, 3], [4, 5, 6]])
+    ds = CloudFolderDataset(folder, cloud_rate=10.0, extrinsic3d=np.zeros(6))
+    f = next(iter(ds.frames()))
+    assert f.point_times is not None and ds.describe()["point_time"]["field"] == "t"

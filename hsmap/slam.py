@@ -936,12 +936,12 @@ class HsSlam:
         return result
 
     def deskewed(self, frame: Frame) -> Frame:
-        """The frame with its cloud moved to its stamp (6-DOF with ``deskew``; :func:`hsmap.deskew.deskew_frame`)."""
+        """The frame with its cloud moved to its stamp (6-DOF with ``deskew``: :func:`hsmap.deskew.deskew_frame`)."""
         if not self.config.deskew or self.config.dof != 6 or frame.point_times is None:
             return frame
         odom = self._prev_odom if self.config.use_odometry else None
-        return deskew_frame(frame, prior=self._prior, previous_stamps=self.stamps[-2:], previous_poses=self.poses[-2:],
-                            previous_odometry=odom)[0]
+        return deskew_frame(frame, prior=self._prior, previous_stamps=self.stamps[-2:],
+                            previous_poses=self.poses[-2:], previous_odometry=odom)[0]
 
     def _record_motions(self, frame: Frame, scan: NDArray[np.float64], pose: NDArray[np.float64]) -> None:
         """The frame's motion from the previous frame as the odometry has it (with its sigmas) and as its scan

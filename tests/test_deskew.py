@@ -242,3 +242,17 @@ def test_cloud_folder_time_fields(tmp_path):
     ds = CloudFolderDataset(folder, cloud_rate=10.0, extrinsic3d=np.zeros(6))
     f = next(iter(ds.frames()))
     assert f.point_times is not None and ds.describe()["point_time"]["field"] == "t"
+
+
+def test_bag_clock_offset_between_the_lidars(tmp_path):
+    pytest.importorskip("open3d")
+    pytest.importorskip("rosbags")
+    from hsmap.datasets.rosbag import RosbagDataset
+    from hsmap.sim import Lidar3DConfig
+    from hsmap.sim.bag import write_simulated_bag
+
+    bag = write_simulated_bag("two-rooms", tmp_path / "b.mcap", duration=2.0, clock_offset=0.03,
+                              lidar3d=Lidar3DConfig(channels=4, columns=16))
+    ds = RosbagDataset(bag.path).driven_by("cloud")
+    np.testing.assert_allclose(ds.stamps, bag.clouds.stamps + 0.03, atol=1e-6)
+    assert all(f.point_times is None for f in ds.frames())  # a static sweep: no times

@@ -113,6 +113,7 @@ def write_simulated_bag(
     tf: bool = True,
     start_time: float = 1_700_000_000.0,
     duration: float | None = None,
+    clock_offset: float = 0.0,
 ) -> SimulatedBag:
     """Drive a scenario's route and write a ROS2 bag of it (see the module docstring).
 
@@ -141,6 +142,9 @@ def write_simulated_bag(
         Unix time of the first scan.
     duration : float, optional
         Seconds of the route to record (default all of it).
+    clock_offset : float
+        Seconds the 3D LiDAR's clock runs ahead of the 2D LiDAR's and the odometry's: its clouds are stamped
+        that much late (the returned ``clouds`` keep the true times).
 
     Returns
     -------
@@ -156,6 +160,8 @@ def write_simulated_bag(
     if lidar3d is not None:
         scn = scn.replace(lidar3d=lidar3d)
     seed = scn.seed if seed is None else int(seed)
+    if not np.isfinite(clock_offset) or abs(clock_offset) > 1.0:
+        raise ConfigError(f"clock_offset must be within 1 s, got {clock_offset}")
     if int(cloud_every) < 1 or not 0.0 <= cloud_offset < 1.0 or not scan_rate > 0 or not odom_rate > 0:
         raise ConfigError(f"cloud_every must be >= 1, cloud_offset in [0, 1), rates > 0; got {cloud_every}, "
                           f"{cloud_offset}, {scan_rate}, {odom_rate}")
@@ -279,7 +285,7 @@ def write_simulated_bag(
                 data = ouster_cloud_bytes(np.nan_to_num(img)[..., None] * dirs_L, img,
                                           l3.column_times() if l3.sweep_time > 0 else None)
                 msg = T["sensor_msgs/msg/PointCloud2"](
-                    header=header(t, "os_lidar"), height=C, width=W, fields=fields, is_bigendian=False,
+                    header=header(t + float(clock_offset), "os_lidar"), height=C, width=W, fields=fields, is_bigendian=False,
                     point_step=OUSTER_POINT.itemsize, row_step=OUSTER_POINT.itemsize * W, data=data, is_dense=False)
                 put("/ouster/points", t, msg, "sensor_msgs/msg/PointCloud2")
     if lone:

@@ -184,7 +184,9 @@ class Dataset:
         """What was read and how, JSON-ready (``input_info`` of a SLAM run's metrics.json).
 
         ``reader``, ``path``, ``frames``, ``driven_by``, ``extrinsics`` (per sensor its ``value`` and
-        ``source``, see :attr:`extrinsic_sources`), ``warnings``, and what the reader adds (a bag's topics with
+        ``source``, see :attr:`extrinsic_sources`), ``warnings``, ``point_time`` (the clouds' per-point time
+        field and its convention, :attr:`point_time`, once a cloud with one was read; else a line saying there
+        was none), and what the reader adds (a bag's topics with
         their message counts, rates and frames, its base frame, the transforms used, the sync tolerance).
         """
         ext = {}

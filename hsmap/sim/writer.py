@@ -49,8 +49,7 @@ FILE_DESCRIPTIONS = {
                    "angles (M,) float64 rad in the 2D sensor frame",
     "clouds3d/": "3D LiDAR, one NNNNNN.npz per frame: range_mm (channels, columns) uint16 millimetres "
                  "(0 = no return), stamp float64 s; row i looks at vertical_angles_deg[i], column j at "
-                 "azimuth_min + j * azimuth_increment; with a rolling sweep also column_time (columns,) float64 "
-                 "s after stamp at which each column was measured",
+                 "azimuth_min + j * azimuth_increment",
     "groundtruth.tum": "ground-truth robot base poses in the world frame at the scan stamps (TUM: t x y z qx qy qz qw)",
     "odometry.tum": "wheel-odometry robot base poses in the odometry frame (starting at the first ground-truth "
                     "pose) at the scan stamps (TUM)",
@@ -206,6 +205,8 @@ def simulate(scenario: Scenario | str | os.PathLike, out: str | os.PathLike, see
     summary = SimulationSummary(out, scn.name, seed, n, float(motion.stamps[-1] - motion.stamps[0]),
                                 gt.path_length(), end_err, yaw_err, timings)
     files = dict(FILE_DESCRIPTIONS)
+    if scn.lidar3d.sweep_time > 0:
+        files["clouds3d/"] += "; column_time (columns,) float64 s after stamp at which each column was measured"
     if figures:
         t = time.perf_counter()
         from .plot import write_previews

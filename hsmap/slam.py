@@ -61,6 +61,7 @@ from ._blas import blas_limited
 from ._threads import threads_limited
 from .config import dump_config, to_dict
 from .datasets.frames import Dataset, Frame
+from .deskew import deskew_frame
 from .errors import ConfigError, EmptyInputError, HsmapWarning, InputError, UnusableFrameError
 from .fitness import DistanceField
 from .geometry import (
@@ -199,6 +200,8 @@ class SlamConfig:
         neighbours and the odometry say, a step where the wheels slipped (the odometry against both the trajectory
         and the scan match) is left out. The map stays the graph's; ``metrics.json``'s ``smoothing`` says what was
         measured and moved.
+    deskew : bool
+        6-DOF: clouds with per-point times are moved to their stamps before use (:mod:`hsmap.deskew`).
     """
 
     dof: int = 3
@@ -228,6 +231,7 @@ class SlamConfig:
     degenerate_ratio: float = 0.05
     loop_closure: LoopClosureConfig = field(default_factory=LoopClosureConfig)
     smoothing: bool = True
+    deskew: bool = True
 
     def __post_init__(self) -> None:
         if self.dof not in (3, 6):
@@ -882,6 +886,7 @@ class HsSlam:
         """Register one frame and update the map (and the pose graph); returns what was done."""
         t0 = time.perf_counter()
         cfg = self.config
+        frame = self.deskewed(frame)
         scan = frame_points(frame, cfg.dof, cfg.min_range, cfg.max_range, voxel=cfg.effective_scan_voxel())
         if len(scan) < 3 * cfg.dim or not spans_its_space(scan):
             raise UnusableFrameError(_unusable(frame, cfg, scan), frame.index, frame.stamp)
@@ -936,6 +941,14 @@ class HsSlam:
                              retried, verified, float(cost))
         self.results.append(result)
         return result
+
+    def deskewed(self, frame: Frame) -> Frame:
+        """The frame with its cloud moved to its stamp (6-DOF with ``deskew``: :func:`hsmap.deskew.deskew_frame`)."""
+        if not self.config.deskew or self.config.dof != 6 or frame.point_times is None:
+            return frame
+        odom = self._prev_odom if self.config.use_odometry else None
+        return deskew_frame(frame, prior=self._prior, previous_stamps=self.stamps[-2:],
+                            previous_poses=self.poses[-2:], previous_odometry=odom)[0]
 
     def _record_motions(self, frame: Frame, scan: NDArray[np.float64], pose: NDArray[np.float64]) -> None:
         """The frame's motion from the previous frame as the odometry has it (with its sigmas) and as its scan
@@ -1589,6 +1602,7 @@ def run_slam(
                 break
             n_read += 1
             try:
+                frame = slam.deskewed(frame)
                 res = slam.process(frame)
             except UnusableFrameError as exc:
                 if strict:

@@ -35,6 +35,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="door detection: critical points + narrowing test (default) or the paper's band")
     parser.add_argument("--no-odometry", action="store_true", help="ignore the input's odometry")
     parser.add_argument("--no-loop-closure", action="store_true", help="HS-SLAM without pose graph and loop closure")
+    parser.add_argument("--no-deskew", action="store_true",
+                        help="use the 3D clouds as they are (for drivers that deskew them): no motion compensation "
+                             "by their per-point times")
     add_input_arguments(parser)
     parser.add_argument("--no-recording", action="store_true", help="do not write map.rrd")
     parser.add_argument("--quiet", action="store_true", help="no progress bars or summary")
@@ -71,6 +74,8 @@ def run(args: argparse.Namespace) -> int:
     if args.no_loop_closure:
         slam2d, slam3d = (dataclasses.replace(c, loop_closure=dataclasses.replace(c.loop_closure, enabled=False))
                           for c in (slam2d, slam3d))
+    if args.no_deskew:
+        slam3d = dataclasses.replace(slam3d, deskew=False)
     tol = sync_tolerance(args)
     if tol is not None:
         slam2d, slam3d = (dataclasses.replace(c, sync_tolerance=tol) for c in (slam2d, slam3d))

@@ -43,6 +43,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_input_arguments(parser)
     parser.add_argument("--no-loop-closure", action="store_true",
                         help="track only: no pose graph, no loop closure (one global tracking map)")
+    parser.add_argument("--no-deskew", action="store_true",
+                        help="6-DOF: use the clouds as they are (for drivers that deskew them): no motion "
+                             "compensation by their per-point times")
     parser.add_argument("--no-recording", action="store_true", help="do not write slam.rrd")
     parser.add_argument("--strict", action="store_true",
                         help="stop at the first frame whose scan or cloud is missing or has too few usable points "
@@ -79,6 +82,8 @@ def run(args: argparse.Namespace) -> int:
         cfg = dataclasses.replace(cfg, use_odometry=False)
     if args.no_loop_closure:
         cfg = dataclasses.replace(cfg, loop_closure=dataclasses.replace(cfg.loop_closure, enabled=False))
+    if args.no_deskew:
+        cfg = dataclasses.replace(cfg, deskew=False)
     from .inputs import open_input, sync_tolerance
 
     if sync_tolerance(args) is not None:

@@ -107,9 +107,10 @@ def open_input(args: argparse.Namespace, drive: str | None = None, progress: boo
                         scans=args.scans, scan_rate=args.scan_rate, option_names=FLAGS, progress=progress)
 
 
-def slam_overrides(cfg, args: argparse.Namespace):
+def slam_overrides(cfg, args: argparse.Namespace, *, deskew: bool = False):
     """``cfg`` (a :class:`~hsmap.slam.SlamConfig`) with the command line's SLAM flags applied: ``--dof`` (where the
-    command has it), ``--no-odometry``, ``--no-loop-closure``, ``--sync-tolerance``."""
+    command has it), ``--no-odometry``, ``--no-loop-closure``, ``--sync-tolerance`` and, with ``deskew`` (the
+    configurations of 3D clouds), ``--no-deskew``."""
     import dataclasses
 
     if getattr(args, "dof", None) is not None:
@@ -118,6 +119,8 @@ def slam_overrides(cfg, args: argparse.Namespace):
         cfg = dataclasses.replace(cfg, use_odometry=False)
     if args.no_loop_closure:
         cfg = dataclasses.replace(cfg, loop_closure=dataclasses.replace(cfg.loop_closure, enabled=False))
+    if deskew and getattr(args, "no_deskew", False):
+        cfg = dataclasses.replace(cfg, deskew=False)
     tol = sync_tolerance(args)
     if tol is not None:
         cfg = dataclasses.replace(cfg, sync_tolerance=tol)

@@ -43,6 +43,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_input_arguments(parser)
     parser.add_argument("--no-loop-closure", action="store_true",
                         help="track only: no pose graph, no loop closure (one global tracking map)")
+    parser.add_argument("--no-deskew", action="store_true",
+                        help="6-DOF: use the clouds as they are (for drivers that deskew them): no motion "
+                             "compensation by their per-point times")
     parser.add_argument("--no-recording", action="store_true", help="do not write slam.rrd")
     parser.add_argument("--strict", action="store_true",
                         help="stop at the first frame whose scan or cloud is missing or has too few usable points "
@@ -69,7 +72,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.seed < 0:
         raise InputError(f"--seed must be >= 0, got {args.seed}")
-    cfg = slam_overrides(load_config(SlamConfig, args.config) if args.config else SlamConfig(), args)
+    cfg = slam_overrides(load_config(SlamConfig, args.config) if args.config else SlamConfig(), args,
+                         deskew=True)
     if args.threads is not None and args.threads < 1:
         raise InputError(f"--threads must be >= 1, got {args.threads}")
     if args.max_frames is not None and args.max_frames < 1:

@@ -38,9 +38,9 @@ from numpy.typing import NDArray
 from ..errors import DataFormatError, DatasetError, InputError
 from ..io import read_number_rows
 from ..trajectory import nearest_index
-from .frames import SOURCE_DEFAULT, Dataset, Frame, LaserScan2D
+from .frames import SOURCE_DEFAULT, Dataset, Frame, LaserScan2D, stamp_in_sweep
 
-__all__ = ["CloudFolderDataset", "CLOUD_SUFFIXES", "is_cloud_folder", "read_points"]
+__all__ = ["CloudFolderDataset", "CLOUD_SUFFIXES", "is_cloud_folder", "read_points", "read_points_timed"]
 
 #: File endings read as point clouds (``.txt`` as ``.csv``).
 CLOUD_SUFFIXES = (".pcd", ".ply", ".bin", ".csv", ".txt")
@@ -204,6 +204,112 @@ def _declared_points(p: Path, suffix: str) -> int | None:
     return count
 
 
+_PCD_TYPES = {("F", 4): "f4", ("F", 8): "f8", ("U", 1): "u1", ("U", 2): "u2", ("U", 4): "u4", ("U", 8): "u8",
+              ("I", 1): "i1", ("I", 2): "i2", ("I", 4): "i4", ("I", 8): "i8"}
+_PLY_TYPES = {"char": "i1", "uchar": "u1", "short": "i2", "ushort": "u2", "int": "i4", "uint": "u4", "float": "f4",
+              "double": "f8", "int8": "i1", "uint8": "u1", "int16": "i2", "uint16": "u2", "int32": "i4",
+              "uint32": "u4", "float32": "f4", "float64": "f8"}
+
+
+def _header(path: Path, end: bytes) -> tuple[list[str], int]:
+    """The header lines of a .pcd/.ply file up to the line starting with ``end``, and the data's byte offset."""
+    lines, pos = [], 0
+    with open(path, "rb") as fh:
+        for raw in iter(fh.readline, b""):
+            pos += len(raw)
+            lines.append(raw.decode("ascii", errors="replace").strip())
+            if raw.startswith(end) or len(lines) > 200:
+                break
+    return lines, pos
+
+
+def _records(path: Path) -> tuple[np.ndarray, str] | None:
+    """The vertex records of a .pcd (ascii or binary) or .ply (ascii or binary, vertices first) file with a
+    per-point time field (:data:`hsmap.datasets.rosbag.POINT_TIME_FIELDS`) and that field's name; None for
+    any other file."""
+    from .rosbag import POINT_TIME_FIELDS
+
+    if path.suffix.lower() == ".pcd":
+        lines, pos = _header(path, b"DATA")
+        head = {ln.split()[0].upper(): ln.split()[1:] for ln in lines if ln and not ln.startswith("#")}
+        names = head.get("FIELDS", [])
+        tname = next((n for n in POINT_TIME_FIELDS if n in names), None)
+        mode = (head.get("DATA") or [""])[0].lower()
+        if tname is None or mode not in ("ascii", "binary") or any(c != "1" for c in head.get("COUNT", [])):
+            return None
+        try:
+            codes = [_PCD_TYPES[(t.upper(), int(z))] for t, z in zip(head["TYPE"], head["SIZE"], strict=True)]
+            n = int(head["POINTS"][0])
+        except (KeyError, ValueError, IndexError):
+            raise DataFormatError(f"{path}: a PCD header without valid TYPE/SIZE/POINTS for its FIELDS") from None
+        ascii_ = mode == "ascii"
+        endian = "<"
+    else:
+        lines, pos = _header(path, b"end_header")
+        fmt = next((ln.split()[1] for ln in lines if ln.startswith("format ")), "")
+        names, codes, n, in_vertex = [], [], 0, False
+        for ln in lines:
+            w = ln.split()
+            if w[:1] == ["element"]:
+                if names:  # vertices must come first
+                    break
+                in_vertex = w[1:2] == ["vertex"]
+                n = int(w[2]) if in_vertex and len(w) > 2 and w[2].isdigit() else 0
+                if not in_vertex:
+                    return None
+            elif w[:1] == ["property"] and in_vertex:
+                if w[1] == "list" or w[1] not in _PLY_TYPES:
+                    return None
+                codes.append(_PLY_TYPES[w[1]])
+                names.append(w[2])
+        tname = next((nm for nm in POINT_TIME_FIELDS if nm in names), None)
+        if tname is None or fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
+            return None
+        ascii_ = fmt == "ascii"
+        endian = ">" if fmt == "binary_big_endian" else "<"
+    if not {"x", "y", "z"} <= set(names) or len(set(names)) != len(names):
+        return None
+    dtype = np.dtype({"names": names, "formats": [endian + c for c in codes]})
+    if ascii_:
+        with open(path, "rb") as fh:
+            fh.seek(pos)
+            try:
+                rows = np.loadtxt(fh, dtype=float, ndmin=2, max_rows=n)
+            except ValueError as exc:
+                raise DataFormatError(f"{path}: unreadable ascii points ({exc})") from None
+        if rows.shape != (n, len(names)):
+            raise DataFormatError(f"{path}: expected {n} points of {len(names)} values, got {rows.shape}")
+        rec = np.zeros(n, dtype=[(nm, "f8") for nm in names])
+        for k, nm in enumerate(names):
+            rec[nm] = rows[:, k]
+        return rec, tname
+    size = path.stat().st_size
+    if size - pos < n * dtype.itemsize:
+        raise DataFormatError(f"{path}: {size - pos} bytes of points, expected {n} of {dtype.itemsize} bytes")
+    return np.fromfile(path, dtype=dtype, count=n, offset=pos), tname
+
+
+def read_points_timed(path: str | os.PathLike, stamp: float = 0.0
+                      ) -> tuple[NDArray[np.float64], NDArray[np.float64] | None, str | None]:
+    """The points (N, 3) of one cloud file (as :func:`read_points`) and, for a .pcd/.ply with a per-point time
+    field (the names and units of :data:`hsmap.datasets.rosbag.POINT_TIME_FIELDS`), each point's seconds
+    relative to ``stamp`` (the file's stamp), and the field's name; (points, None, None) otherwise."""
+    from .rosbag import POINT_TIME_FIELDS
+
+    p = Path(path)
+    got = _records(p) if p.suffix.lower() in (".pcd", ".ply") else None
+    if got is None:
+        return read_points(p), None, None
+    rec, tname = got
+    pts = np.column_stack([rec["x"], rec["y"], rec["z"]]).astype(float)
+    ok = np.isfinite(pts).all(axis=1) & (pts != 0.0).any(axis=1)
+    _, scale, absolute = POINT_TIME_FIELDS[tname]
+    t = rec[tname][ok].astype(float) * scale - (float(stamp) if absolute else 0.0)
+    if not np.all(np.isfinite(t)):
+        raise DataFormatError(f"{p}: field {tname!r} holds non-finite times")
+    return pts[ok], t, tname
+
+
 def _scan_from_points(pts: NDArray[np.float64]) -> LaserScan2D:
     xy = pts[:, :2]
     r = np.hypot(xy[:, 0], xy[:, 1])
@@ -345,10 +451,24 @@ class CloudFolderDataset(Dataset):
         for i, t in enumerate(self.stamps):
             k = -1 if self._scan_index is None else int(self._scan_index[i])
             c = int(self._cloud_index[i])
+            cloud = times = None
+            if clouds and c >= 0:
+                cstamp = float(self._clouds.stamps[c])
+                cloud, times, field = read_points_timed(self._clouds.files[c], cstamp)
+                if times is not None:
+                    if self.point_time is None:
+                        from .rosbag import POINT_TIME_FIELDS
+
+                        self.point_time = {"field": field, "convention": POINT_TIME_FIELDS[field][0]}
+                    times = times + (cstamp - float(t))  # relative to the frame's stamp
+                    if not np.any(times):
+                        times = None
             yield Frame(
                 stamp=float(t),
                 scan2d=_scan_from_points(read_points(self._scans.files[k])) if k >= 0 else None,
-                cloud3d=read_points(self._clouds.files[c]) if clouds and c >= 0 else None,
+                cloud3d=cloud,
+                point_times=times,
+                stamp_in_sweep=None if times is None else stamp_in_sweep(times),
                 index=i,
                 extrinsic2d=np.zeros(3) if self.extrinsic2d is None else self.extrinsic2d.copy(),
                 extrinsic3d=self.extrinsic3d.copy(),

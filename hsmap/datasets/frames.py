@@ -9,7 +9,7 @@ from numpy.typing import NDArray
 
 from ..errors import HsmapWarning, ShapeError
 
-__all__ = ["LaserScan2D", "Frame", "Dataset", "SOURCE_INPUT", "SOURCE_DEFAULT"]
+__all__ = ["LaserScan2D", "Frame", "Dataset", "SOURCE_INPUT", "SOURCE_DEFAULT", "stamp_in_sweep"]
 
 
 @dataclass
@@ -58,6 +58,11 @@ class Frame:
         Pose (x, y, yaw) of the 2D sensor in the robot base frame.
     extrinsic3d : ndarray of shape (6,)
         Pose (x, y, z, roll, pitch, yaw) of the 3D sensor in the robot base frame.
+    point_times : ndarray of shape (N,) or None
+        Seconds of each point of ``cloud3d`` relative to ``stamp`` (the cloud's reference time, where its
+        trajectory pose is); None for a cloud taken at one instant (or deskewed already).
+    stamp_in_sweep : str or None
+        Where ``stamp`` lies in the sweep: ``"start"``, ``"end"`` or ``"within"``; None without point times.
     """
 
     stamp: float
@@ -67,6 +72,17 @@ class Frame:
     index: int = 0
     extrinsic2d: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
     extrinsic3d: NDArray[np.float64] = field(default_factory=lambda: np.zeros(6))
+    point_times: NDArray[np.float64] | None = None
+    stamp_in_sweep: str | None = None
+
+
+def stamp_in_sweep(times: NDArray[np.float64]) -> str:
+    """Where the stamp lies in a sweep whose points have ``times`` (N,) seconds relative to it: ``"start"``
+    (none before it), ``"end"`` (none after it) or ``"within"``."""
+    t = np.asarray(times, dtype=float)
+    if len(t) == 0 or t.min() >= 0.0:
+        return "start"
+    return "end" if t.max() <= 0.0 else "within"
 
 
 #: Where a sensor offset came from when the reader says nothing else (a simulated folder's dataset.yaml, ...).
@@ -104,6 +120,8 @@ class Dataset:
     odometry = None
     groundtruth = None
     driver: str | None = None
+    #: The per-point time field the 3D clouds were read with (``{"field", "convention"}``), or None for none.
+    point_time: dict | None = None
 
     def __len__(self) -> int:
         raise NotImplementedError
@@ -167,7 +185,9 @@ class Dataset:
         """What was read and how, JSON-ready (``input_info`` of a SLAM run's metrics.json).
 
         ``reader``, ``path``, ``frames``, ``driven_by``, ``extrinsics`` (per sensor its ``value`` and
-        ``source``, see :attr:`extrinsic_sources`), ``warnings``, and what the reader adds (a bag's topics with
+        ``source``, see :attr:`extrinsic_sources`), ``warnings``, ``point_time`` (the clouds' per-point time
+        field and its convention, :attr:`point_time`, once a cloud with one was read; else a line saying there
+        was none), and what the reader adds (a bag's topics with
         their message counts, rates and frames, its base frame, the transforms used, the sync tolerance).
         """
         ext = {}
@@ -177,7 +197,8 @@ class Dataset:
                 ext[key] = {"value": [float(v) for v in np.asarray(value, dtype=float).reshape(-1)],
                             "source": self.extrinsic_sources.get(key, SOURCE_INPUT)}
         out = {"reader": type(self).__name__, "path": str(self.path), "frames": len(self),
-               "driven_by": self.driver, "extrinsics": ext, "warnings": list(self.warnings)}
+               "driven_by": self.driver, "extrinsics": ext, "warnings": list(self.warnings),
+               "point_time": self.point_time or "none: every cloud taken at its stamp"}
         out.update(self._describe())
         return out
 

@@ -91,7 +91,7 @@ from numpy.typing import NDArray
 from ..errors import DataFormatError, DatasetError, HsmapWarning, InputError
 from ..geometry import invert_matrix, matrix_to_pose, quaternion_to_matrix, wrap_angle
 from ..trajectory import Trajectory, nearest_index
-from .frames import SOURCE_DEFAULT, Dataset, Frame, LaserScan2D
+from .frames import SOURCE_DEFAULT, Dataset, Frame, LaserScan2D, stamp_in_sweep
 
 __all__ = [
     "FrameOrder",
@@ -103,6 +103,8 @@ __all__ = [
     "NO_RETURN_MARGIN",
     "DEFAULT_NO_RETURN",
     "pointcloud2_xyz",
+    "pointcloud2_points",
+    "POINT_TIME_FIELDS",
     "no_return_threshold",
     "adopt_odometry",
     "ROS2_STORAGE_SUFFIXES",
@@ -159,23 +161,63 @@ def pointcloud2_xyz(msg, *, source: str = "PointCloud2") -> NDArray[np.float64]:
         Points with any non-finite coordinate dropped, and points at exactly (0, 0, 0): organised clouds
         (Ouster's, 48 bytes a point) write zeros where a beam had no return.
     """
+    return pointcloud2_points(msg, source=source)[0]
+
+
+#: The per-point time fields read, in this order: name -> (what the driver writes, the unit, absolute or not).
+POINT_TIME_FIELDS = {
+    "t": ("ouster-ros: uint32 ns after the header stamp (the sweep's start)", 1e-9, False),
+    "time": ("velodyne_pointcloud: float32 s relative to the header stamp (>= 0 where the stamp is the sweep's "
+             "start, <= 0 where it is its end, as the driver version has it)", 1.0, False),
+    "offset_time": ("livox_ros_driver2: uint32 ns after the header stamp", 1e-9, False),
+    "timestamp": ("Hesai/RoboSense: float64 absolute s", 1.0, True),
+}
+#: Seconds: the largest distance of a point's time from its cloud's header stamp.
+MAX_POINT_TIME_OFFSET = 1.0
+
+
+def pointcloud2_points(msg, *, source: str = "PointCloud2"
+                       ) -> tuple[NDArray[np.float64], NDArray[np.float64] | None, str | None]:
+    """The finite points of a ``sensor_msgs/PointCloud2`` and, when it has a per-point time field
+    (:data:`POINT_TIME_FIELDS`), each point's seconds relative to its header stamp.
+
+    Any standard layout: the fields' offsets and datatypes, ``point_step``, ``row_step`` (padded rows),
+    ``is_bigendian``, organised (``height`` > 1) or not. Points with a non-finite coordinate or at exactly
+    (0, 0, 0) (an organised cloud's no return) are dropped with their times.
+
+    Returns
+    -------
+    points : ndarray of shape (N, 3)
+    times : ndarray of shape (N,) or None
+        Seconds relative to ``msg.header.stamp``; None without a time field.
+    field : str or None
+        The time field read.
+
+    Raises
+    ------
+    DataFormatError
+        A missing x/y/z field, an unknown datatype, a too short ``point_step`` or data, or point times more than
+        :data:`MAX_POINT_TIME_OFFSET` from the stamp (naming the field).
+    """
     fields = {f.name: f for f in msg.fields}
     missing = [n for n in ("x", "y", "z") if n not in fields]
     if missing:
         raise DataFormatError(f"{source}: PointCloud2 has no field(s) {missing}; fields are {sorted(fields)}")
+    tname = next((n for n in POINT_TIME_FIELDS if n in fields), None)
+    names = ["x", "y", "z"] + ([tname] if tname else [])
     endian = ">" if msg.is_bigendian else "<"
     formats = []
-    for n in ("x", "y", "z"):
+    for n in names:
         code = _POINTFIELD_DTYPES.get(int(fields[n].datatype))
         if code is None:
             raise DataFormatError(f"{source}: PointCloud2 field {n!r} has unknown datatype {fields[n].datatype}")
         formats.append(endian + code)
     step = int(msg.point_step)
     width, height = int(msg.width), int(msg.height)
-    offsets = [int(fields[n].offset) for n in ("x", "y", "z")]
+    offsets = [int(fields[n].offset) for n in names]
     if step <= 0 or max(o + np.dtype(f).itemsize for o, f in zip(offsets, formats, strict=True)) > step:
         raise DataFormatError(f"{source}: PointCloud2 point_step {step} is too small for fields at {offsets}")
-    dtype = np.dtype({"names": ["x", "y", "z"], "formats": formats, "offsets": offsets, "itemsize": step})
+    dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": step})
     data = np.frombuffer(memoryview(msg.data).cast("B"), dtype=np.uint8)
     row_step = int(msg.row_step) if int(msg.row_step) > 0 else width * step
     if data.size < row_step * (height - 1) + width * step:
@@ -183,14 +225,25 @@ def pointcloud2_xyz(msg, *, source: str = "PointCloud2") -> NDArray[np.float64]:
             f"{source}: PointCloud2 data has {data.size} bytes, expected {height} rows of {row_step} bytes"
         )
     if height == 0 or width == 0:
-        return np.zeros((0, 3))
+        return np.zeros((0, 3)), (np.zeros(0) if tname else None), tname
     if row_step == width * step:
         rec = data[: height * row_step].view(dtype)
     else:
         rows = np.lib.stride_tricks.as_strided(data, shape=(height, width * step), strides=(row_step, 1))
         rec = np.ascontiguousarray(rows).reshape(-1).view(dtype)
     xyz = np.column_stack([rec["x"], rec["y"], rec["z"]]).astype(float)
-    return xyz[np.isfinite(xyz).all(axis=1) & (xyz != 0.0).any(axis=1)]
+    ok = np.isfinite(xyz).all(axis=1) & (xyz != 0.0).any(axis=1)
+    if tname is None:
+        return xyz[ok], None, None
+    _, scale, absolute = POINT_TIME_FIELDS[tname]
+    t = rec[tname][ok].astype(float) * scale
+    if absolute:
+        t = t - _stamp(msg.header)
+    if len(t) and not (np.all(np.isfinite(t)) and np.abs(t).max() <= MAX_POINT_TIME_OFFSET):
+        far = float(np.nanmax(np.abs(t))) if np.isfinite(t).any() else float("nan")
+        raise DataFormatError(f"{source}: PointCloud2 field {tname!r} ({POINT_TIME_FIELDS[tname][0]}) puts points "
+                              f"{far:.6g} s from the header stamp; expected at most {MAX_POINT_TIME_OFFSET} s")
+    return xyz[ok], t, tname
 
 
 # ROS1 md5sums of the standard definitions, for which the raw layout below is fixed
@@ -834,8 +887,9 @@ class RosbagDataset(Dataset):
         r[~((r >= geom[2]) & (r < thr))] = np.nan  # NaN, inf, below range_min, no return
         return LaserScan2D(ranges=r, angles=angles.copy(), range_min=geom[2], range_max=thr)
 
-    def _clouds_in_order(self, wanted: NDArray[np.intp]) -> Iterator[NDArray[np.float64] | None]:
-        """Yield the cloud of each entry of ``wanted`` (bag index, -1 = none), streaming the bag once."""
+    def _clouds_in_order(self, wanted: NDArray[np.intp]) -> Iterator[tuple | None]:
+        """Yield the cloud of each entry of ``wanted`` (bag index, -1 = none), streaming the bag once, as
+        :func:`pointcloud2_points` returns it."""
         need: dict[int, int] = {}
         for k in wanted:
             if k >= 0:
@@ -843,7 +897,7 @@ class RosbagDataset(Dataset):
         if not need:
             yield from (None for _ in wanted)
             return
-        pending: dict[int, NDArray[np.float64]] = {}
+        pending: dict[int, tuple] = {}
         with self._open() as reader:
             stream = self._messages(reader, self._conns(reader, self.cloud_topic))
             pos = -1
@@ -857,7 +911,7 @@ class RosbagDataset(Dataset):
                     pos += 1
                     if pos in need:
                         msg = self._deserialize(reader, raw, c)
-                        pending[pos] = pointcloud2_xyz(msg, source=f"{self.path} {self.cloud_topic} message {pos}")
+                        pending[pos] = pointcloud2_points(msg, source=f"{self.path} {self.cloud_topic} message {pos}")
                 cloud = pending[k]
                 need[k] -= 1
                 if need[k] == 0:
@@ -869,13 +923,24 @@ class RosbagDataset(Dataset):
         n = len(self.stamps)
         want = clouds and self._cloud_index is not None
         clouds = self._clouds_in_order(self._cloud_index) if want else (None for _ in range(n))
-        for i, cloud in zip(range(n), clouds, strict=True):
+        for i, got in zip(range(n), clouds, strict=True):
             odo = self._odometry[i]
             k = -1 if self._scan_index is None else int(self._scan_index[i])
+            cloud, times = (None, None) if got is None else got[:2]
+            if times is not None:
+                if self.point_time is None:
+                    self.point_time = {"field": got[2], "convention": POINT_TIME_FIELDS[got[2]][0]}
+                # relative to the frame's stamp (a scan's, where scans make the frames)
+                shift = float(self._clouds["stamp"][int(self._cloud_index[i])]) - float(self.stamps[i])
+                times = times + shift if shift else times
+                if not np.any(times):
+                    times = None  # the whole cloud at the frame's stamp
             yield Frame(
                 stamp=float(self.stamps[i]),
                 scan2d=self._scan(k) if k >= 0 else None,
                 cloud3d=cloud,
+                point_times=times,
+                stamp_in_sweep=None if times is None else stamp_in_sweep(times),
                 odometry=None if np.isnan(odo[0]) else odo.copy(),
                 index=i,
                 extrinsic2d=self.extrinsic2d.copy(),

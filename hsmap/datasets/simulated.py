@@ -33,9 +33,9 @@ SUPPORTED_VERSIONS = (1,)
 RANGE_UNIT = 0.001  # metres per count in stored 3D range images
 
 
-def _load_npz(path: Path, names: tuple[str, ...]) -> dict[str, np.ndarray]:
-    """The arrays ``names`` of an ``.npz`` file; a damaged (truncated, corrupted) file raises
-    :class:`DataFormatError` naming it, a missing one :class:`DatasetError`."""
+def _load_npz(path: Path, names: tuple[str, ...], optional: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
+    """The arrays ``names`` (and those of ``optional`` it has) of an ``.npz`` file; a damaged (truncated,
+    corrupted) file raises :class:`DataFormatError` naming it, a missing one :class:`DatasetError`."""
     if not path.is_file():
         raise DatasetError(f"{path}: missing (the dataset folder is damaged)")
     try:
@@ -43,7 +43,7 @@ def _load_npz(path: Path, names: tuple[str, ...]) -> dict[str, np.ndarray]:
             missing = [n for n in names if n not in z.files]
             if missing:
                 raise DataFormatError(f"{path}: missing array(s) {missing} (the file is damaged)")
-            return {n: np.asarray(z[n]) for n in names}
+            return {n: np.asarray(z[n]) for n in (*names, *(o for o in optional if o in z.files))}
     except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError) as exc:
         if isinstance(exc, DataFormatError):
             raise
@@ -143,6 +143,9 @@ class SimulatedDataset(Dataset):
             if len(tr) != n or not np.allclose(tr.stamps, self.stamps, atol=1e-6):
                 raise DataFormatError(f"{root / name}: its {len(tr)} stamps do not match the {n} scan stamps")
         self._dirs: NDArray[np.float64] | None = None
+        if float(self.sensors["lidar3d"].get("sweep_time", 0.0)) > 0:
+            self.point_time = {"field": "column_time", "convention": "float64 s after the stamp (the sweep's start), "
+                               "one per range-image column"}
 
     def __len__(self) -> int:
         return len(self.stamps)
@@ -175,15 +178,36 @@ class SimulatedDataset(Dataset):
         """The stored 3D range image (channels, columns) of frame ``index``: uint16 mm, 0 = no return."""
         if not 0 <= index < len(self):
             raise IndexError(f"frame {index} out of range 0..{len(self) - 1}")
+        return self._cloud_file(index)[0]
+
+    def _cloud_file(self, index: int) -> tuple[NDArray[np.uint16], NDArray[np.float64] | None]:
+        """Frame ``index``'s range image and its ``column_time`` (columns,) (None for a sweep taken at once)."""
         p = self.root / "clouds3d" / f"{index:06d}.npz"
-        img = _load_npz(p, ("range_mm",))["range_mm"]
+        z = _load_npz(p, ("range_mm",), ("column_time",))
+        img = z["range_mm"]
         if img.shape != self._shape3d or img.dtype != np.uint16:
             raise DataFormatError(f"{p}: expected a {self._shape3d} uint16 range image, got {img.shape} {img.dtype}")
-        return img
+        col_t = z.get("column_time")
+        if col_t is not None:
+            col_t = np.asarray(col_t, dtype=float).reshape(-1)
+            if col_t.shape != (self._shape3d[1],) or not np.all(np.isfinite(col_t)):
+                raise DataFormatError(f"{p}: column_time must be {self._shape3d[1]} finite seconds, got shape "
+                                      f"{col_t.shape}")
+        return img, col_t
 
     def cloud3d(self, index: int) -> NDArray[np.float64]:
         """The 3D cloud (K, 3) of frame ``index`` in the 3D sensor frame (no-return pixels dropped)."""
         return range_image_to_points(self.range_image(index), self.beam_directions())
+
+    def cloud3d_timed(self, index: int) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
+        """The 3D cloud (K, 3) of frame ``index`` and each point's seconds after the stamp (K,) (None where the
+        folder's clouds have no ``column_time``: taken at their stamps)."""
+        img, col_t = self._cloud_file(index)
+        pts = range_image_to_points(img, self.beam_directions())
+        if col_t is None:
+            return pts, None
+        ok = img > 0
+        return pts, np.broadcast_to(col_t[None, :], img.shape)[ok].astype(float)
 
     # ------------------------------------------------------------------ frames
     def frame(self, index: int, clouds: bool = True) -> Frame:
@@ -192,10 +216,13 @@ class SimulatedDataset(Dataset):
             index += len(self)
         if not 0 <= index < len(self):
             raise IndexError(f"frame {index} out of range 0..{len(self) - 1}")
+        cloud, times = self.cloud3d_timed(index) if clouds else (None, None)
         return Frame(
             stamp=float(self.stamps[index]),
             scan2d=self.scan2d(index),
-            cloud3d=self.cloud3d(index) if clouds else None,
+            cloud3d=cloud,
+            point_times=times,
+            stamp_in_sweep=None if times is None else "start",
             odometry=self.odometry.poses[index].copy(),
             index=index,
             extrinsic2d=self.extrinsic2d.copy(),

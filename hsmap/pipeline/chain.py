@@ -44,6 +44,7 @@ import numpy as np
 
 from ..config import to_dict
 from ..datasets.frames import Dataset, Frame
+from ..deskew import deskew_frame
 from ..errors import InputError
 from ..fusion import align_maps, slice_scans
 from ..grid import GridGeometry, OccupancyGrid, grid_from_scans, scans_to_points, write_label_image, write_map
@@ -134,7 +135,7 @@ def _thin(points: np.ndarray, voxel: float) -> np.ndarray:
 # --- the stages ---------------------------------------------------------------------------------------------
 
 def _grids_stage(ds2: Dataset, ds3: Dataset, traj2: Trajectory, traj3: Trajectory, z_range, resolution: float,
-                 bins: int, stages: _Stages) -> tuple[Callable, Callable]:
+                 bins: int, stages: _Stages, deskew: bool = True) -> tuple[Callable, Callable]:
     def compute(folder: Path) -> None:
 
         bar = stages.bar("grids", len(ds2) + len(ds3), "frame")
@@ -152,7 +153,8 @@ def _grids_stage(ds2: Dataset, ds3: Dataset, traj2: Trajectory, traj3: Trajector
         floor = grid_from_scans(scans, poses_a, resolution, extrinsic=ext_a)
         floor_pts = _thin(scans_to_points(scans, poses_a, ext_a), 0.02)
         p3, found = traj3.as_6dof().at(np.asarray(ds3.stamps, dtype=float), max_dt=1e-3)
-        wanted = (f for f, ok in zip(_counted(ds3.frames(), bar), found, strict=True) if ok and f.cloud3d is not None)
+        wanted = (deskew_frame(f, prior=traj3)[0] if deskew else f
+                  for f, ok in zip(_counted(ds3.frames(), bar), found, strict=True) if ok and f.cloud3d is not None)
         sscans, spos = slice_scans(wanted, p3, z_min=z_range[0], z_max=z_range[1], bins=bins)
         bar.close()
         if not sscans:
@@ -306,7 +308,7 @@ def map_recording(
     params = {"z_range": list(z), "resolution": float(resolution), "slice_bins": int(slice_bins), "seed": int(seed)}
     t = time.perf_counter()
     compute, load = _grids_stage(ds2, ds3, run2.trajectory, run3.trajectory, z, float(resolution), int(slice_bins),
-                                 stages)
+                                 stages, slam3d.deskew)
     got = cache.get("grids", {"slam": [run2.key, run3.key], "params": params}, compute, load)
     grids, keys = got.value, {"grids": got.key}
     stages.done("grids", got.cached, time.perf_counter() - t, stages.bar("grids", 1) if got.cached else None)

@@ -33,11 +33,11 @@ from ..errors import ConfigError, DatasetError
 from ..geometry import invert_matrix, matrix_to_pose, matrix_to_quaternion, pose_to_matrix
 from ..trajectory import Trajectory
 from . import layout
-from .robot import sample_legs, simulate_motion
+from .robot import mast_sway, sample_legs, simulate_motion
 from .scenario import Scenario
 from .sensors import Lidar3DConfig
 from .world import World
-from .writer import _as_scenario, noise_rngs
+from .writer import _as_scenario, noise_rngs, rolling_scan3d
 
 __all__ = ["OUSTER_POINT", "SimulatedBag", "write_simulated_bag", "ouster_cloud_bytes"]
 
@@ -84,9 +84,11 @@ class SimulatedBag:
     messages: dict = field(default_factory=dict)
 
 
-def ouster_cloud_bytes(points: NDArray[np.float64], ranges: NDArray[np.float64]) -> NDArray[np.uint8]:
+def ouster_cloud_bytes(points: NDArray[np.float64], ranges: NDArray[np.float64],
+                       column_times: NDArray[np.float64] | None = None) -> NDArray[np.uint8]:
     """An organised cloud's data: ``points`` (C, W, 3) in the sensor frame, ``ranges`` (C, W) in metres (NaN = no
-    return, written as zeros), as Ouster points (:data:`OUSTER_POINT`), row-major."""
+    return, written as zeros), as Ouster points (:data:`OUSTER_POINT`), row-major; ``t`` is each column's
+    ``column_times`` (W,) seconds after the stamp in ns (default 0: the cloud taken at its stamp)."""
     C, W = ranges.shape
     rec = np.zeros((C, W), dtype=OUSTER_POINT)
     ok = np.isfinite(ranges)
@@ -95,7 +97,8 @@ def ouster_cloud_bytes(points: NDArray[np.float64], ranges: NDArray[np.float64])
     rec["range"] = np.where(ok, np.round(np.nan_to_num(ranges) * 1000.0), 0).astype(np.uint32)
     rec["intensity"] = np.where(ok, 100.0, 0.0)
     rec["ring"] = np.arange(C, dtype=np.uint16)[:, None]
-    rec["t"] = (np.arange(W, dtype=np.uint32) * 48828)[None, :]  # ns since the sweep started (10 Hz, 2048 cols)
+    if column_times is not None:
+        rec["t"] = np.rint(np.asarray(column_times, dtype=float) * 1e9).astype(np.uint32)[None, :]
     return np.frombuffer(rec.tobytes(), dtype=np.uint8)
 
 
@@ -112,6 +115,7 @@ def write_simulated_bag(
     tf: bool = True,
     start_time: float = 1_700_000_000.0,
     duration: float | None = None,
+    clock_offset: float = 0.0,
 ) -> SimulatedBag:
     """Drive a scenario's route and write a ROS2 bag of it (see the module docstring).
 
@@ -140,6 +144,9 @@ def write_simulated_bag(
         Unix time of the first scan.
     duration : float, optional
         Seconds of the route to record (default all of it).
+    clock_offset : float
+        Seconds the 3D LiDAR's clock runs ahead of the 2D LiDAR's and the odometry's: its clouds are stamped
+        that much late (the returned ``clouds`` keep the true times).
 
     Returns
     -------
@@ -153,6 +160,8 @@ def write_simulated_bag(
     if lidar3d is not None:
         scn = scn.replace(lidar3d=lidar3d)
     seed = scn.seed if seed is None else int(seed)
+    if not np.isfinite(clock_offset) or abs(clock_offset) > 1.0:
+        raise ConfigError(f"clock_offset must be within 1 s, got {clock_offset}")
     if int(cloud_every) < 1 or not 0.0 <= cloud_offset < 1.0 or not scan_rate > 0 or not odom_rate > 0:
         raise ConfigError(f"cloud_every must be >= 1, cloud_offset in [0, 1), rates > 0; got {cloud_every}, "
                           f"{cloud_offset}, {scan_rate}, {odom_rate}")
@@ -222,6 +231,10 @@ def write_simulated_bag(
     counts = {"/scan": 0, "/ouster/points": 0, "/odom": 0, "/tf": 0, "/tf_static": 0}
     scan_rngs = noise_rngs(seed, 2, range(len(scan_t)))
     cloud_rngs = noise_rngs(seed, 3, range(len(cloud_t)))
+    sway = None
+    if l3.sway_frequency > 0:
+        sway = mast_sway(motion.legs, (cloud_t[:, None] + l3.column_times()[None, :]).reshape(-1), l3.position[:2],
+                         l3.position[2], l3.sway_frequency, l3.sway_damping).reshape(len(cloud_t), l3.columns, 2)
     plugin = StoragePlugin.SQLITE3 if out.suffix == ".db3" else StoragePlugin.MCAP
     with Writer(folder, version=9, storage_plugin=plugin) as w:
         conn = {topic: w.add_connection(topic, msgtype, typestore=ts) for topic, msgtype in (
@@ -264,10 +277,15 @@ def write_simulated_bag(
                     intensities=np.zeros(0, dtype=np.float32))
                 put("/scan", t, msg, "sensor_msgs/msg/LaserScan")
             else:
-                img = world.scan3d(cloud_gt[k : k + 1], l3, [cloud_rngs[k]])[0].astype(float)
-                data = ouster_cloud_bytes(np.nan_to_num(img)[..., None] * dirs_L, img)
+                if l3.static:
+                    img = world.scan3d(cloud_gt[k : k + 1], l3, [cloud_rngs[k]])[0].astype(float)
+                else:
+                    img = rolling_scan3d(world, motion.legs, [t], l3, [cloud_rngs[k]], None,
+                                         None if sway is None else sway[k : k + 1])[0].astype(float)
+                data = ouster_cloud_bytes(np.nan_to_num(img)[..., None] * dirs_L, img,
+                                          l3.column_times() if l3.sweep_time > 0 else None)
                 msg = T["sensor_msgs/msg/PointCloud2"](
-                    header=header(t, "os_lidar"), height=C, width=W, fields=fields, is_bigendian=False,
+                    header=header(t + float(clock_offset), "os_lidar"), height=C, width=W, fields=fields, is_bigendian=False,
                     point_step=OUSTER_POINT.itemsize, row_step=OUSTER_POINT.itemsize * W, data=data, is_dense=False)
                 put("/ouster/points", t, msg, "sensor_msgs/msg/PointCloud2")
     if lone:

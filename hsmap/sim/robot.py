@@ -26,7 +26,7 @@ from ..errors import ConfigError
 from ..geometry import wrap_angle
 
 __all__ = ["RobotConfig", "OdometryConfig", "RouteStep", "Leg", "Motion", "plan_legs", "simulate_motion",
-           "integrate_odometry"]
+           "integrate_odometry", "mast_sway"]
 
 
 def _positive(name: str, value: float, allow_zero: bool = False) -> None:
@@ -351,3 +351,36 @@ def simulate_motion(start: ArrayLike, steps: list[RouteStep], robot: RobotConfig
     odo = integrate_odometry(gt, odometry, robot.wheel_base, rng)
     sel = np.arange(0, n_samples, per_frame)
     return Motion(times[sel], gt[sel], odo[sel], legs, times, gt, odo)
+
+
+def mast_sway(legs: list[Leg], times: ArrayLike, foot: ArrayLike, height: float, frequency: float,
+              damping: float, rate: float = 200.0) -> NDArray[np.float64]:
+    """Roll and pitch (T, 2) of a mast at ``times`` (T,), swaying as a damped oscillator driven by the base.
+
+    The mast stands at ``foot`` (x, y) in the base frame and is ``height`` metres tall; the base's acceleration
+    ``a`` at the foot (in the base frame, from ``legs``) drives its tilt from rest at the first leg's start:
+    ``pitch'' + 2 z w pitch' + w^2 pitch = -a_x / height`` and ``roll'' + 2 z w roll' + w^2 roll = a_y / height``
+    (``w = 2 pi frequency``, ``z = damping``: the top lags behind the base), integrated exactly for an
+    acceleration held over each ``1 / rate`` step.
+    """
+    from scipy.signal import cont2discrete, lfilter
+
+    t = np.asarray(times, dtype=float).reshape(-1)
+    if frequency <= 0 or len(t) == 0 or not legs:
+        return np.zeros((len(t), 2))
+    t0 = legs[0].t0
+    t1 = max(float(t.max()), t0)
+    n = min(int(np.ceil((t1 - t0) * rate)) + 3, 50_000_000)
+    grid = t0 + np.arange(n) / rate
+    pose = sample_legs(legs, grid)
+    c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
+    fx, fy = float(foot[0]), float(foot[1])
+    world = np.column_stack([pose[:, 0] + c * fx - s * fy, pose[:, 1] + s * fx + c * fy])
+    acc = np.gradient(np.gradient(world, 1.0 / rate, axis=0), 1.0 / rate, axis=0)
+    a_x, a_y = c * acc[:, 0] + s * acc[:, 1], -s * acc[:, 0] + c * acc[:, 1]
+    w = 2.0 * np.pi * frequency
+    num, den, _ = cont2discrete(([1.0 / height], [1.0, 2.0 * damping * w, w * w]), 1.0 / rate, method="zoh")
+    num = np.asarray(num).reshape(-1)
+    pitch = lfilter(num, den, -a_x)
+    roll = lfilter(num, den, a_y)
+    return np.column_stack([np.interp(t, grid, roll), np.interp(t, grid, pitch)])

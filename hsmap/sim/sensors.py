@@ -164,6 +164,14 @@ class Lidar3DConfig:
         (x, y, z) of the sensor in the robot base frame (z = 0 is the floor), metres.
     rpy_deg : list of 3 float
         (roll, pitch, yaw) of the sensor in the robot base frame, degrees.
+    sweep_time : float
+        Seconds one sweep takes: column j is measured ``j / columns * sweep_time`` after the cloud's stamp (the
+        sweep's start), from the pose the robot has then; 0 takes the whole cloud at the stamp.
+    sway_frequency : float
+        Hz of the mast's own pitch and roll oscillation, driven by the base's acceleration at the mast's foot
+        (:func:`hsmap.sim.robot.mast_sway`); 0 is a rigid mast.
+    sway_damping : float
+        Damping ratio of that oscillation (0 < ratio).
     """
 
     channels: int = 128
@@ -176,8 +184,21 @@ class Lidar3DConfig:
     dropout: float = 0.0
     position: list[float] = field(default_factory=lambda: [-0.10, 0.0, 1.6])
     rpy_deg: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    sweep_time: float = 0.0
+    sway_frequency: float = 0.0
+    sway_damping: float = 0.2
 
     def __post_init__(self) -> None:
+        for name in ("sweep_time", "sway_frequency", "sway_damping"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise ConfigError(f"lidar3d.{name} must be a number, got {v!r}")
+        if not (np.isfinite(self.sweep_time) and 0.0 <= self.sweep_time <= 1.0):
+            raise ConfigError(f"lidar3d.sweep_time must be in [0, 1] s, got {self.sweep_time}")
+        if not (np.isfinite(self.sway_frequency) and 0.0 <= self.sway_frequency <= 100.0):
+            raise ConfigError(f"lidar3d.sway_frequency must be in [0, 100] Hz, got {self.sway_frequency}")
+        if not (np.isfinite(self.sway_damping) and 0.0 < self.sway_damping <= 10.0):
+            raise ConfigError(f"lidar3d.sway_damping must be in (0, 10], got {self.sway_damping}")
         if not (isinstance(self.channels, int) and self.channels >= 1):
             raise ConfigError(f"lidar3d.channels must be a positive integer, got {self.channels!r}")
         if not (isinstance(self.columns, int) and self.columns >= 1):
@@ -217,6 +238,15 @@ class Lidar3DConfig:
         """Unit beam directions (channels, columns, 3) in the sensor frame."""
         return beam_directions(self.vertical_angles(), self.azimuths())
 
+    @property
+    def static(self) -> bool:
+        """Whether every cloud is taken at one instant from the rigid mount (no rolling sweep, no sway)."""
+        return self.sweep_time == 0.0 and self.sway_frequency == 0.0
+
+    def column_times(self) -> NDArray[np.float64]:
+        """Seconds (columns,) from the cloud's stamp (the sweep's start) at which each column is measured."""
+        return float(self.sweep_time) * np.arange(self.columns) / self.columns
+
     def extrinsic(self) -> NDArray[np.float64]:
         """Pose (x, y, z, roll, pitch, yaw) of the sensor in the robot base frame."""
         return np.array([*self.position, *np.deg2rad(self.rpy_deg)])
@@ -242,4 +272,9 @@ class Lidar3DConfig:
             "extrinsic": [float(v) for v in self.extrinsic()],
             "extrinsic_convention": "x y z roll pitch yaw (m, rad; R = Rz(yaw) Ry(pitch) Rx(roll)) of the sensor "
             "in the robot base frame (z = 0 is the floor)",
+            **({} if self.static else {
+                "sweep_time": float(self.sweep_time),
+                "sweep_convention": "column j is measured column_time[j] = j / columns * sweep_time s after the "
+                "cloud's stamp (the sweep's start) from the pose the robot has then",
+                "sway_frequency": float(self.sway_frequency), "sway_damping": float(self.sway_damping)}),
         }

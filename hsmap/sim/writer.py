@@ -37,12 +37,12 @@ from ..io import atomic_path, staged_outputs, sweep_stale_temporaries, write_jso
 from ..trajectory import Trajectory, write_tum
 from . import layout
 from .catalog import resolve_scenario
-from .robot import Motion, simulate_motion
+from .robot import Motion, mast_sway, sample_legs, simulate_motion
 from .scenario import Scenario, load_scenario
 from .world import World
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "SimulationSummary", "simulate", "save_npz", "motion_for", "noise_rngs",
-           "write_sensor_frames"]
+           "write_sensor_frames", "rolling_scan3d"]
 
 
 FILE_DESCRIPTIONS = {
@@ -220,6 +220,8 @@ def _write_dataset(scn: Scenario, out: Path, seed: int, *, max_frames: int | Non
     summary = SimulationSummary(out, scn.name, seed, n, float(motion.stamps[-1] - motion.stamps[0]),
                                 gt.path_length(), end_err, yaw_err, timings)
     files = dict(FILE_DESCRIPTIONS)
+    if scn.lidar3d.sweep_time > 0:
+        files["clouds3d/"] += "; column_time (columns,) float64 s after stamp at which each column was measured"
     write_text(out / "README.md", _readme(scn, summary, grid))
     meta = {
         "format": FORMAT,
@@ -272,9 +274,17 @@ def write_sensor_frames(out: Path, world, motion: Motion, lidar2d, lidar3d, seed
     dirs = lidar3d.directions()
     t_cast = 0.0
 
+    col_t = None if lidar3d.static else lidar3d.column_times()
+    sway = None
+    if lidar3d.sway_frequency > 0:
+        times = (motion.stamps[:, None] + col_t[None, :]).reshape(-1)
+        sway = mast_sway(motion.legs, times, lidar3d.position[:2], lidar3d.position[2], lidar3d.sway_frequency,
+                         lidar3d.sway_damping).reshape(n, lidar3d.columns, 2)
+
     def write_frame(k: int, img: np.ndarray) -> None:
+        extra = {} if col_t is None or lidar3d.sweep_time == 0 else {"column_time": col_t}
         save_npz(cdir / f"{k:06d}.npz", compresslevel, range_mm=encode_range_image(img),
-                 stamp=np.float64(motion.stamps[k]))
+                 stamp=np.float64(motion.stamps[k]), **extra)
 
     # ray-cast batch i+1 while a writer thread compresses batch i (zlib releases the GIL)
     with ThreadPoolExecutor(max_workers=1) as pool:
@@ -282,7 +292,11 @@ def write_sensor_frames(out: Path, world, motion: Motion, lidar2d, lidar3d, seed
         for a in range(0, n, batch_frames):
             b = min(n, a + batch_frames)
             tc = time.perf_counter()
-            imgs = world.scan3d(motion.groundtruth[a:b], lidar3d, noise_rngs(seed, 3, range(a, b)), dirs)
+            if col_t is None:
+                imgs = world.scan3d(motion.groundtruth[a:b], lidar3d, noise_rngs(seed, 3, range(a, b)), dirs)
+            else:
+                imgs = rolling_scan3d(world, motion.legs, motion.stamps[a:b], lidar3d,
+                                      noise_rngs(seed, 3, range(a, b)), dirs, None if sway is None else sway[a:b])
             t_cast += time.perf_counter() - tc
             for f in pending:
                 f.result()
@@ -298,11 +312,56 @@ def write_sensor_frames(out: Path, world, motion: Motion, lidar2d, lidar3d, seed
     return ranges2d
 
 
+def rolling_scan3d(world, legs, stamps, lidar3d, rngs=None, directions=None, sway=None) -> np.ndarray:
+    """Range images (N, channels, columns) in metres (NaN = no return) of sweeps starting at ``stamps`` (N,):
+    column j cast at ``stamps + lidar3d.column_times()[j]`` from the robot's pose along ``legs`` then, the mast
+    tilted by ``sway`` (N, columns, 2) roll and pitch about its foot (:func:`hsmap.sim.robot.mast_sway`).
+    ``rngs``: None or one Generator per sweep (noise and dropout as :meth:`hsmap.sim.world.World.scan3d`)."""
+    from ..geometry import pose_to_matrix
+    from .world import _finish
+
+    dirs_s = lidar3d.directions() if directions is None else np.asarray(directions)
+    C, W = dirs_s.shape[:2]
+    stamps = np.asarray(stamps, dtype=float).reshape(-1)
+    col_t = lidar3d.column_times()
+    E = pose_to_matrix(lidar3d.extrinsic())
+    foot = np.array([lidar3d.position[0], lidar3d.position[1], 0.0])
+    rays = np.empty((len(stamps), C, W, 6), dtype=np.float32)
+    for k, t0 in enumerate(stamps):
+        base = sample_legs(legs, t0 + col_t)
+        b6 = np.zeros((W, 6))
+        b6[:, :2], b6[:, 5] = base[:, :2], base[:, 2]
+        B = pose_to_matrix(b6)
+        if sway is not None:
+            tilt = np.zeros((W, 6))
+            tilt[:, 3:5] = sway[k]
+            S = pose_to_matrix(tilt)
+            S[:, :3, 3] = foot - S[:, :3, :3] @ foot  # about the mast's foot
+            B = B @ S
+        T = B @ E
+        rays[k, :, :, :3] = T[None, :, :3, 3]
+        rays[k, :, :, 3:] = np.einsum("wij,cwj->cwi", T[:, :3, :3], dirs_s)
+    r = world.cast_rays(rays.reshape(-1, 6)).reshape(len(stamps), C, W)
+    return _finish(r, lidar3d.range_min, lidar3d.range_max, lidar3d.noise_sigma, lidar3d.dropout, rngs)
+
+
 def _write_png16(path: Path, labels: np.ndarray) -> None:
     from PIL import Image
 
     with atomic_path(path) as tmp:
         Image.fromarray(np.ascontiguousarray(labels.astype(np.uint16))).save(tmp, format="PNG")
+
+
+def _timing(l3) -> str:
+    """The README's sentence on when the LiDARs measure."""
+    if l3.static:
+        return ("Both LiDARs take each frame's scan\ninstantaneously at the frame's ground-truth pose (no motion "
+                "distortion); the robot moves on a flat floor.")
+    sway = (f", its {l3.position[2]:g} m mast swaying at {l3.sway_frequency:g} Hz (damping {l3.sway_damping:g}) "
+            "with the base's acceleration" if l3.sway_frequency > 0 else "")
+    return (f"The 2D LiDAR takes each scan at the frame's stamp; the 3D LiDAR sweeps over {l3.sweep_time:g} s from "
+            f"the stamp,\ncolumn j at `column_time[j]` after it, from the pose the robot has then{sway}; the robot "
+            "moves on a flat floor.")
 
 
 def _readme(scn: Scenario, s: SimulationSummary, grid) -> str:
@@ -319,8 +378,7 @@ Read it with `hsmap.datasets.simulated.SimulatedDataset(folder)`.
 ## Frames and units
 Metres, seconds, radians (degrees only where a key says `_deg`). The world frame has z up and the floor at
 z = 0. The robot base frame lies on the floor (x forward, y left). Poses are (x, y, yaw); 3D poses
-(x, y, z, roll, pitch, yaw) with R = Rz(yaw) Ry(pitch) Rx(roll). Both LiDARs take each frame's scan
-instantaneously at the frame's ground-truth pose (no motion distortion); the robot moves on a flat floor.
+(x, y, z, roll, pitch, yaw) with R = Rz(yaw) Ry(pitch) Rx(roll). {_timing(l3)}
 
 ## Files
 - `dataset.yaml`: format `{FORMAT}` version {FORMAT_VERSION}, scenario, seed, frame count and rate, the

@@ -147,6 +147,8 @@ class SlamConfig:
     smoothing : bool
         2D runs with wheel odometry: the final trajectory is smoothed with the odometry
         (:func:`hsmap.smoothing.smooth_with_odometry`); the map stays the graph's.
+    deskew : bool
+        6-DOF: clouds with per-point times are moved to their stamps before use (:mod:`hsmap.deskew`).
     """
 
     dof: int = 3
@@ -177,6 +179,7 @@ class SlamConfig:
     loop_closure: LoopClosureConfig = field(default_factory=LoopClosureConfig)
     graph: KeyframeGraphConfig = field(default_factory=KeyframeGraphConfig)
     smoothing: bool = True
+    deskew: bool = True
 
     def __post_init__(self) -> None:
         if self.dof not in (3, 6):

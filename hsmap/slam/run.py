@@ -217,6 +217,7 @@ def run_slam(
                 break
             n_read += 1
             try:
+                frame = slam.deskewed(frame)
                 res = slam.process(frame)
             except UnusableFrameError as exc:
                 if strict:

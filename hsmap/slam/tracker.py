@@ -11,6 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..datasets.frames import Frame
+from ..deskew import deskew_frame
 from ..errors import InputError, UnusableFrameError
 from ..geometry import compose, relative, wrap_angle
 from ..harmony import as_rng
@@ -209,6 +210,7 @@ class HsSlam:
         t0 = time.perf_counter()
         cfg = self.config
         kg = self.keyframe_graph
+        frame = self.deskewed(frame)
         scan = frame_points(frame, cfg.dof, cfg.min_range, cfg.max_range, voxel=cfg.effective_scan_voxel())
         if len(scan) < 3 * cfg.dim or not spans_its_space(scan):
             raise UnusableFrameError(unusable_reason(frame, cfg.dof, cfg.min_range, cfg.max_range, scan),
@@ -252,6 +254,14 @@ class HsSlam:
                              retried, verified, float(cost))
         self.results.append(result)
         return result
+
+    def deskewed(self, frame: Frame) -> Frame:
+        """The frame with its cloud moved to its stamp (6-DOF with ``deskew``: :func:`hsmap.deskew.deskew_frame`)."""
+        if not self.config.deskew or self.config.dof != 6 or frame.point_times is None:
+            return frame
+        odom = self.odometry.previous if self.config.use_odometry else None
+        return deskew_frame(frame, prior=self._prior, previous_stamps=self.stamps[-2:],
+                            previous_poses=self.poses[-2:], previous_odometry=odom)[0]
 
     def _record_motions(self, frame: Frame, scan: NDArray[np.float64], pose: NDArray[np.float64]) -> None:
         """The frame's motion from the previous frame as the odometry has it (with its sigmas) and as its scan

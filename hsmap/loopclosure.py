@@ -29,13 +29,13 @@ from numpy.typing import ArrayLike, NDArray
 from .errors import ConfigError
 from .geometry import compose, pose_to_matrix, relative, transform_points, wrap_angle
 from .harmony import HarmonyConfig
+from .information import safe_inverse
 from .mapping import VoxelMap
 from .posegraph import PoseGraph, information_with_floor
 from .registration import (
     RegistrationConfig,
     RegistrationResult,
     RegistrationTarget,
-    _safe_inverse,
     drop_degenerate,
     harmony_icp,
 )
@@ -555,7 +555,7 @@ class LoopCloser:
             self._reject(prefix + "inliers")
             return None
         information = drop_degenerate(res.information, cfg.degenerate_ratio)
-        cov = _safe_inverse(information)
+        cov = safe_inverse(information)
         st = float(np.sqrt(max(np.linalg.eigvalsh(cov[: self.dim, : self.dim]).max(), 0.0)))
         sr = float(np.sqrt(max(np.linalg.eigvalsh(cov[self.dim:, self.dim:]).max(), 0.0)))
         if not (st <= cfg.max_sigma_translation and sr <= cfg.max_sigma_rotation):

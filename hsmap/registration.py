@@ -29,8 +29,10 @@ from .errors import ConfigError, DegenerateInputError, EmptyInputError, InputErr
 from .fitness import DistanceField, FieldObjective, KDTreeLookup, score
 from .geometry import dof_of_dim, matrix_to_pose, pose_to_matrix, relative, transform_points, wrap_angle
 from .harmony import HarmonyConfig, HarmonyResult, as_rng, harmony_search
+from .information import adjoint, constrained_axes, drop_degenerate, safe_inverse
 from .mapping import voxel_downsample
 from .neighbours import NeighbourGrid, grid_fits, tree_query
+from .normals import estimate_normals, orient_normals
 
 __all__ = [
     "Backend",
@@ -45,6 +47,7 @@ __all__ = [
     "alignment_cost",
     "alignment_information",
     "adjoint",
+    "constrained_axes",
     "drop_degenerate",
     "spans_its_space",
 ]
@@ -241,70 +244,7 @@ class RegistrationResult:
     @property
     def covariance(self) -> NDArray[np.float64]:
         """Covariance of the body-frame perturbation (see ``information``); inf where unconstrained."""
-        return _safe_inverse(self.information)
-
-
-def _safe_inverse(info: NDArray[np.float64] | None) -> NDArray[np.float64]:
-    if info is None:
-        raise InputError("no information matrix was computed for this registration")
-    w, V = np.linalg.eigh(0.5 * (info + info.T))
-    inv = np.where(w > 1e-12 * max(w.max(), 1e-300), 1.0 / np.maximum(w, 1e-300), np.inf)
-    finite = np.isfinite(inv)
-    cov = (V[:, finite] * inv[finite]) @ V[:, finite].T
-    if not finite.all():
-        cov = cov + (V[:, ~finite] * 1e18) @ V[:, ~finite].T
-    return cov
-
-
-def adjoint(T: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Adjoint of a rigid transform (3x3 in 2D, also a stack (..., 3, 3); 4x4 in 3D) acting on twists ordered
-    (translation, rotation).
-
-    ``exp(adjoint(T) @ xi) @ T == T @ exp(xi)`` to first order: it maps a motion in T's own (body) frame to the
-    same motion applied in the outer frame.
-    """
-    T = np.asarray(T, dtype=float)
-    if T.shape[-2:] == (3, 3):  # 2D, one transform or a stack of them (..., 3, 3)
-        A = np.zeros(T.shape)
-        A[..., :2, :2] = T[..., :2, :2]
-        A[..., 0, 2], A[..., 1, 2], A[..., 2, 2] = T[..., 1, 2], -T[..., 0, 2], 1.0
-        return A
-    R, t = T[:3, :3], T[:3, 3]
-    tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
-    A = np.zeros((6, 6))
-    A[:3, :3] = R
-    A[:3, 3:] = tx @ R
-    A[3:, 3:] = R
-    return A
-
-
-def constrained_axes(translation_information: NDArray[np.float64], ratio: float = 0.05) -> NDArray[np.float64]:
-    """The translation directions a registration's scene constrains: the unit eigenvectors (columns) of the
-    information's translation block whose eigenvalue is at least ``ratio`` times the largest; none where the block
-    holds no information. See :func:`drop_degenerate` for why directions below the ratio are not told from noise."""
-    w, V = np.linalg.eigh(np.asarray(translation_information, dtype=float))
-    if not w.max() > 0:
-        return V[:, :0]
-    return V[:, w >= ratio * w.max()]
-
-
-def drop_degenerate(information: NDArray[np.float64], ratio: float = 0.05) -> NDArray[np.float64]:
-    """Information with the translation directions the scene does not constrain removed.
-
-    A translation direction whose eigenvalue (of the translation block) is below ``ratio`` times the largest one
-    is treated as unconstrained (a featureless corridor's axis): normals estimated from a few noisy neighbours
-    are tilted by several degrees, which alone gives every direction a few per cent of the largest eigenvalue
-    (a tilt of 13 degrees gives 0.05), so information below that level cannot be told from noise. Its rows and
-    columns (cross terms with the rotation included) are projected out.
-    """
-    info = np.asarray(information, dtype=float)
-    dim = 2 if info.shape[0] == 3 else 3
-    strong = constrained_axes(info[:dim, :dim], ratio)
-    if not strong.shape[1]:
-        return np.zeros_like(info)
-    M = np.eye(info.shape[0])
-    M[:dim, :dim] = strong @ strong.T
-    return M @ info @ M
+        return safe_inverse(self.information)
 
 
 def _clean_cloud(points: ArrayLike, name: str, dim: int | None = None) -> tuple[NDArray[np.float64], int]:
@@ -449,48 +389,6 @@ class RegistrationTarget:
         if self._normals is None:
             self._normals = estimate_normals(self.points, tree=self.tree)
         return self._normals
-
-
-def orient_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
-                   viewpoint: ArrayLike | None = None) -> NDArray[np.float64]:
-    """``normals`` turned to face ``viewpoint`` (default: the origin), the sensor that saw ``points``.
-
-    A surface is seen from one side: a sensor-facing normal says which, so that a match can tell a wall's face
-    from the face behind it, seen from the next room (:func:`hsmap.loopclosure.same_side_share`). Only the signs
-    change, which no point-to-plane residual or information sees.
-    """
-    pts = np.asarray(points, dtype=float)
-    vp = np.zeros(pts.shape[1]) if viewpoint is None else np.asarray(viewpoint, dtype=float)
-    out = np.array(normals, dtype=float, copy=True)
-    out[np.einsum("ij,ij->i", out, vp - pts) < 0] *= -1.0
-    return out
-
-
-@blas_limited
-def estimate_normals(points: NDArray[np.float64], k: int | None = None,
-                     tree: cKDTree | None = None) -> NDArray[np.float64]:
-    """Unit normals of points (N, 2) or (N, 3) from the principal axes of their k nearest neighbours.
-
-    2D: the normal is across the principal axis of the 2x2 covariance (closed form); 3D: Open3D's estimator
-    (the eigenvector of the smallest eigenvalue), oriented arbitrarily.
-    """
-    dim = points.shape[1]
-    if dim == 3:
-        import open3d as o3d
-
-        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
-        pc.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(k or 12))
-        return np.asarray(pc.normals).copy()
-    k = min(k or 8, len(points))
-    tree = tree if tree is not None else cKDTree(points)
-    _, idx = tree.query(points, k=k)
-    nb = points[idx.reshape(len(points), -1)]
-    nb = nb - nb.mean(axis=1, keepdims=True)
-    cxx = (nb[..., 0] ** 2).sum(1)
-    cyy = (nb[..., 1] ** 2).sum(1)
-    cxy = (nb[..., 0] * nb[..., 1]).sum(1)
-    a = 0.5 * np.arctan2(2 * cxy, cxx - cyy) + np.pi / 2  # principal axis at 0.5*atan2(2cxy, cxx-cyy)
-    return np.column_stack([np.cos(a), np.sin(a)])
 
 
 def _default_bounds(centres: NDArray[np.float64], cfg: RegistrationConfig) -> NDArray[np.float64]:

@@ -39,7 +39,7 @@ from scipy.stats import chi2
 
 from .errors import ShapeError
 from .geometry import compose, invert, pose_to_matrix, relative, wrap_angle
-from .registration import adjoint
+from .information import adjoint
 
 __all__ = ["SmoothingResult", "three_cornered_hat", "identify_noise", "vote", "smooth_with_odometry"]
 

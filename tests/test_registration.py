@@ -316,7 +316,7 @@ def test_constrained_axes_and_drop_degenerate_keep_what_the_scene_constrains():
     """A corridor along a 30 deg axis: its axis holds 1 % of the information across it, below the 5 % ratio, so
     only the across direction is constrained and drop_degenerate removes the axis (cross terms with the yaw too);
     a room keeps both directions; an information without any keeps none."""
-    from hsmap.registration import constrained_axes, drop_degenerate
+    from hsmap.information import constrained_axes, drop_degenerate
 
     a = np.deg2rad(30.0)
     along, across = np.array([np.cos(a), np.sin(a)]), np.array([-np.sin(a), np.cos(a)])
@@ -338,7 +338,7 @@ def test_constrained_axes_and_drop_degenerate_keep_what_the_scene_constrains():
 
 
 def test_orient_normals_face_the_viewpoint():
-    from hsmap.registration import orient_normals
+    from hsmap.normals import orient_normals
 
     rng = np.random.default_rng(0)
     pts = rng.uniform(-5, 5, (50, 2))

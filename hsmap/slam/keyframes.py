@@ -14,17 +14,16 @@ from ..datasets.frames import Frame
 from ..errors import HsmapWarning
 from ..fitness import DistanceField
 from ..geometry import compose, pose_to_matrix, relative, transform_points, wrap_angle
+from ..information import drop_degenerate
 from ..loopclosure import Keyframe, LoopCloser, keyframe_voxel_map
 from ..mapping import VoxelMap, voxel_downsample
+from ..normals import estimate_normals, orient_normals
 from ..posegraph import EdgeKind, PoseGraph, information_with_floor
 from ..registration import (
     Refinement,
     RegistrationConfig,
     RegistrationTarget,
     alignment_information,
-    drop_degenerate,
-    estimate_normals,
-    orient_normals,
     refine_icp,
 )
 from ..trajectory import Trajectory

@@ -12,7 +12,8 @@ from numpy.typing import NDArray
 from ..datasets.frames import Frame
 from ..errors import HsmapWarning
 from ..geometry import body_covariance_2d, compose, compose_with_covariance_2d, relative, wrap_angle
-from ..registration import RegistrationResult, constrained_axes
+from ..information import constrained_axes
+from ..registration import RegistrationResult
 from .config import SlamConfig
 from .verify import slip_weight
 

@@ -10,8 +10,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..geometry import compose, pose_to_matrix, relative, transform_points, wrap_angle
+from ..information import drop_degenerate
 from ..posegraph import information_with_floor
-from ..registration import RegistrationResult, RegistrationTarget, drop_degenerate, harmony_icp
+from ..registration import RegistrationResult, RegistrationTarget, harmony_icp
 from .config import SlamConfig
 
 __all__ = ["Verifier", "residuals", "within_box", "truncated_residual", "matched_share", "at_least_as_good",

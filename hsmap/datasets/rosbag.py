@@ -77,32 +77,25 @@ default ``no_return=80.0`` m catches both. Pass ``no_return=None`` to trust ``ra
 
 from __future__ import annotations
 
-import contextlib
 import enum
-import functools
 import math
-import struct
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import DataFormatError, DatasetError, HsmapWarning, InputError
+from ..errors import DatasetError, InputError
 from ..geometry import matrix_to_pose, wrap_angle
 from ..trajectory import Trajectory, nearest_index
+from .bag_reader import ROS2_STORAGE_SUFFIXES, TF_TYPE, BagReader
 from .frames import SOURCE_DEFAULT, Dataset, Frame, LaserScan2D, stamp_in_sweep
 from .ros_messages import (
     POINT_TIME_FIELDS,
     TfTree,
-    check_scan_geometry,
     frame_name,
     pointcloud2_points,
     pointcloud2_xyz,
-    ros1_odom,
-    ros1_scan,
-    stamp_seconds,
-    transform_matrix,
 )
 
 __all__ = [
@@ -126,14 +119,11 @@ __all__ = [
 SCAN_TYPE = "sensor_msgs/msg/LaserScan"
 CLOUD_TYPE = "sensor_msgs/msg/PointCloud2"
 ODOM_TYPE = "nav_msgs/msg/Odometry"
-TF_TYPE = "tf2_msgs/msg/TFMessage"
 
 #: Readings within this many metres of ``range_max`` count as "no return".
 NO_RETURN_MARGIN = 0.05
 #: Readings at or above this many metres count as "no return" (SICK error codes 81.83 / 81.91 m in CARMEN logs).
 DEFAULT_NO_RETURN = 80.0
-#: ROS2 storage files that open alone, without their bag folder.
-ROS2_STORAGE_SUFFIXES = (".mcap", ".db3")
 #: Seconds: the largest stamp difference between a frame and the other sensor's message attached to it.
 DEFAULT_SYNC_TOLERANCE = 0.1
 
@@ -160,21 +150,10 @@ _ROS1_SCAN_MD5 = "90c7ef2dc6895d81024acba2ac42f369"
 _ROS1_ODOM_MD5 = "cd5e73d190d741a2f92e81eda573aca7"
 
 
-@functools.cache
-def _ros2_typestore():
-    from rosbags.typesys import Stores, get_typestore
-
-    return get_typestore(Stores.LATEST)
-
-
 #: The Python names of the options, used in messages unless the caller names them its own way.
 OPTION_NAMES = {"scan_topic": "scan_topic", "cloud_topic": "cloud_topic", "odom_topic": "odom_topic",
                 "base_frame": "base_frame", "extrinsic2d": "extrinsic2d", "extrinsic3d": "extrinsic3d",
                 "sync_tolerance": "sync_tolerance", "drive": "drive"}
-
-
-def _topics_listing(reader) -> str:
-    return ", ".join(f"{c.topic} ({c.msgtype})" for c in sorted(reader.connections, key=lambda c: c.topic)) or "none"
 
 
 class RosbagDataset(Dataset):
@@ -265,11 +244,13 @@ class RosbagDataset(Dataset):
             raise InputError(f"{self._names['drive']} must be 'scan' or 'cloud', got {drive!r}")
         self._progress = progress
 
-        with self._open() as reader:
-            self._resolve_topics(reader, scan_topic, cloud_topic, odom_topic)
-            tf = self._read_static_tf(reader)
-            self._read(reader)
-            self._resolve_extrinsics(reader, tf, base_frame)
+        with BagReader.open(self.path) as bag:
+            self._resolve_topics(bag, scan_topic, cloud_topic, odom_topic)
+            tf = bag.static_tf()
+            self._scans, self._clouds, odom, self._odom_child = bag.read_sensors(
+                self.scan_topic, self.cloud_topic, self.odom_topic, self._progress, (_ROS1_SCAN_MD5, _ROS1_ODOM_MD5))
+            self._odom = _production_times(odom)
+            self._resolve_extrinsics(bag, tf, base_frame)
         if extrinsic2d is not None:
             self.override_extrinsics(extrinsic2d=extrinsic2d, source=self._names["extrinsic2d"])
         if extrinsic3d is not None:
@@ -278,36 +259,16 @@ class RosbagDataset(Dataset):
         self._build_frames(drive or ("scan" if self.scan_topic else "cloud"))
 
     # -- opening and topics -------------------------------------------------------------------------
-    @contextlib.contextmanager
-    def _open(self):
-        from rosbags.highlevel import AnyReader
-
-        p = Path(self.path)
-        if not p.exists():
-            raise DatasetError(f"{p}: no such bag file or folder")
-        if p.is_file() and p.suffix in ROS2_STORAGE_SUFFIXES and (p.parent / "metadata.yaml").is_file():
-            p = p.parent
-        try:
-            # ROS1 bags carry their message definitions; older ROS2 bags need the standard ones
-            reader = AnyReader([p], default_typestore=_ros2_typestore() if p.suffix != ".bag" else None)
-            reader.open()
-        except Exception as exc:  # rosbags raises its own error types (and plain OSError) for bad files
-            raise DatasetError(f"{p}: cannot read as a ROS1/ROS2 bag: {exc}") from None
-        try:
-            yield reader
-        finally:
-            reader.close()
-
-    def _pick(self, reader, topic: str | None, msgtype: str, what: str, option: str) -> str | None:
+    def _pick(self, bag: BagReader, topic: str | None, msgtype: str, what: str, option: str) -> str | None:
         flag = self._names[option]
-        conns = [c for c in reader.connections if c.msgtype == msgtype]
+        conns = [c for c in bag.connections if c.msgtype == msgtype]
         if topic is not None:
             if topic == "":
                 return None
-            named = [c for c in reader.connections if c.topic == topic]
+            named = [c for c in bag.connections if c.topic == topic]
             if not named:
                 raise DatasetError(
-                    f"{self.path}: {flag} {topic}: no such topic ({what}); the bag has: {_topics_listing(reader)}"
+                    f"{self.path}: {flag} {topic}: no such topic ({what}); the bag has: {bag.topics_listing()}"
                 )
             if named[0].msgtype != msgtype:
                 raise DatasetError(
@@ -321,132 +282,22 @@ class RosbagDataset(Dataset):
             )
         return topics[0] if topics else None
 
-    def _resolve_topics(self, reader, scan_topic, cloud_topic, odom_topic) -> None:
-        self.scan_topic = self._pick(reader, scan_topic, SCAN_TYPE, "2D scans", "scan_topic")
-        self.cloud_topic = self._pick(reader, cloud_topic, CLOUD_TYPE, "3D clouds", "cloud_topic")
+    def _resolve_topics(self, bag: BagReader, scan_topic, cloud_topic, odom_topic) -> None:
+        self.scan_topic = self._pick(bag, scan_topic, SCAN_TYPE, "2D scans", "scan_topic")
+        self.cloud_topic = self._pick(bag, cloud_topic, CLOUD_TYPE, "3D clouds", "cloud_topic")
         if self.scan_topic is None and self.cloud_topic is None:
             raise DatasetError(
-                f"{self.path}: no {SCAN_TYPE} or {CLOUD_TYPE} topic to read; the bag has: {_topics_listing(reader)}"
+                f"{self.path}: no {SCAN_TYPE} or {CLOUD_TYPE} topic to read; the bag has: {bag.topics_listing()}"
             )
-        self.odom_topic = self._pick(reader, odom_topic, ODOM_TYPE, "odometry", "odom_topic")
+        self.odom_topic = self._pick(bag, odom_topic, ODOM_TYPE, "odometry", "odom_topic")
         self._counts = {}
         for key, topic in (("scan", self.scan_topic), ("cloud", self.cloud_topic), ("odom", self.odom_topic)):
             if topic:
-                c = next(c for c in reader.connections if c.topic == topic)
+                c = next(c for c in bag.connections if c.topic == topic)
                 self._counts[key] = {"topic": topic, "type": c.msgtype,
-                                     "messages": int(sum(x.msgcount for x in reader.connections if x.topic == topic))}
-
-    def _messages(self, reader, conns) -> Iterator:
-        """``reader.messages`` with rosbags' errors on damaged data turned into DataFormatError."""
-        it = reader.messages(connections=conns)
-        while True:
-            try:
-                item = next(it)
-            except StopIteration:
-                return
-            except Exception as exc:  # ReaderError, struct.error, OSError, ... from a damaged bag
-                raise DataFormatError(f"{self.path}: damaged bag data ({type(exc).__name__}: {exc})") from None
-            yield item
-
-    def _deserialize(self, reader, raw, c):
-        try:
-            return reader.deserialize(raw, c.msgtype)
-        except Exception as exc:  # rosbags' SerdeError and friends
-            raise DataFormatError(f"{self.path}: cannot decode a {c.msgtype} message on {c.topic}: {exc}") from None
-
-    def _conns(self, reader, topic: str | None):
-        return [c for c in reader.connections if c.topic == topic] if topic else []
+                                     "messages": int(sum(x.msgcount for x in bag.connections if x.topic == topic))}
 
     # -- reading ------------------------------------------------------------------------------------
-    def _read_static_tf(self, reader) -> TfTree:
-        tf = TfTree()
-        conns = [c for c in reader.connections if c.msgtype == TF_TYPE and c.topic.endswith("tf_static")]
-        if conns:
-            for c, _, raw in self._messages(reader, conns):
-                for t in self._deserialize(reader, raw, c).transforms:
-                    where = f"{self.path}: {c.topic} transform {t.header.frame_id} -> {t.child_frame_id}"
-                    tf.add(t.header.frame_id, t.child_frame_id, transform_matrix(t.transform, where))
-        return tf
-
-    def _read(self, reader) -> None:
-        scan_c = self._conns(reader, self.scan_topic)
-        cloud_c = self._conns(reader, self.cloud_topic)
-        odom_c = self._conns(reader, self.odom_topic)
-        scan_ids = {id(c) for c in scan_c}
-        cloud_ids = {id(c) for c in cloud_c}
-        scans: dict[str, list] = {"stamp": [], "seq": [], "ranges": [], "geometry": [], "frame": []}
-        clouds: dict[str, list] = {"stamp": [], "seq": [], "frame": []}
-        odom: list[tuple[float, float, float, float]] = []
-        self._odom_child = None
-        fast = {id(c) for c in scan_c + odom_c if c.digest in (_ROS1_SCAN_MD5, _ROS1_ODOM_MD5)}
-        checked: set = set()  # scan geometries found sound
-        bad_odom = 0
-        from tqdm.auto import tqdm
-
-        total = sum(int(c.msgcount) for c in scan_c + cloud_c + odom_c)
-        bar = tqdm(total=total, unit="msg", desc=f"reading {Path(self.path).name}", leave=False,
-                   disable=None if self._progress is None else not self._progress, mininterval=0.5)
-        for c, _, raw in self._messages(reader, scan_c + cloud_c + odom_c):
-            bar.update(1)
-            is_scan = id(c) in scan_ids
-            if id(c) in fast:
-                try:
-                    if is_scan:
-                        seq, stamp, frame, geom, ranges = ros1_scan(raw)
-                    else:
-                        seq, stamp, frame, pose = ros1_odom(raw)
-                except (struct.error, UnicodeDecodeError, ValueError) as exc:
-                    raise DataFormatError(
-                        f"{self.path}: cannot decode a {c.msgtype} message on {c.topic}: {exc}"
-                    ) from None
-            else:
-                msg = self._deserialize(reader, raw, c)
-                h = msg.header
-                seq, stamp = getattr(h, "seq", None), stamp_seconds(h)
-                frame = h.frame_id
-                if is_scan:
-                    geom = (float(msg.angle_min), float(msg.angle_increment), float(msg.range_min), float(msg.range_max))
-                    ranges = np.asarray(msg.ranges, dtype=np.float32)
-                elif id(c) not in cloud_ids:
-                    p, q = msg.pose.pose.position, msg.pose.pose.orientation
-                    yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
-                    pose = (p.x, p.y, yaw)
-                    frame = msg.child_frame_id
-            if is_scan:
-                if (geom, len(ranges)) not in checked:
-                    check_scan_geometry(geom, len(ranges), f"{self.path}: {c.topic} message {len(scans['stamp'])} "
-                                                            f"(stamp {stamp:.6f})")
-                    checked.add((geom, len(ranges)))
-                scans["stamp"].append(stamp)
-                scans["seq"].append(seq)
-                scans["frame"].append(frame)
-                scans["ranges"].append(ranges)
-                scans["geometry"].append(geom)
-            elif id(c) in cloud_ids:
-                clouds["stamp"].append(stamp)
-                clouds["seq"].append(seq)
-                clouds["frame"].append(frame)
-            else:
-                if not all(math.isfinite(v) for v in (stamp, *pose)):
-                    bad_odom += 1
-                    continue
-                odom.append((stamp, *pose, -1 if seq is None else seq))
-                if self._odom_child is None:
-                    self._odom_child = frame
-        bar.close()
-        if bad_odom:
-            import warnings
-
-            warnings.warn(f"{self.path}: {bad_odom} {self.odom_topic} message(s) have a non-finite pose or stamp and "
-                          "are ignored", HsmapWarning, stacklevel=3)
-        if self.scan_topic and not scans["stamp"]:
-            raise DatasetError(f"{self.path}: topic {self.scan_topic!r} has no messages")
-        if self.cloud_topic and not clouds["stamp"]:
-            raise DatasetError(f"{self.path}: topic {self.cloud_topic!r} has no messages")
-        self._scans = scans
-        self._clouds = clouds
-        self._odom = _production_times(np.asarray(odom, dtype=float).reshape(-1, 5))
-
     # -- extrinsics ---------------------------------------------------------------------------------
     def _sensor_frames(self) -> dict[str, str]:
         sensors = {}
@@ -456,7 +307,7 @@ class RosbagDataset(Dataset):
             sensors["3d"] = frame_name(self._clouds["frame"][0])
         return sensors
 
-    def _resolve_extrinsics(self, reader, tf: TfTree, base_frame: str | None) -> None:
+    def _resolve_extrinsics(self, bag: BagReader, tf: TfTree, base_frame: str | None) -> None:
         sensors = self._sensor_frames()
         named = base_frame is not None
         if base_frame is None:
@@ -467,7 +318,7 @@ class RosbagDataset(Dataset):
         base = frame_name(base_frame) if base_frame else None
         found = {k: base is None or f == base or tf.lookup(base, f) is not None for k, f in sensors.items()}
         if base is not None and not all(found.values()):
-            self._read_dynamic_tf(reader, tf, base, list(sensors.values()))
+            bag.dynamic_tf(tf, base, list(sensors.values()))
             found = {k: f == base or tf.lookup(base, f) is not None for k, f in sensors.items()}
         if named and base not in tf and base not in sensors.values() and base != frame_name(self._odom_child or ""):
             known = sorted(tf.frames() | set(sensors.values()) | ({frame_name(self._odom_child)} if self._odom_child else set()))
@@ -513,23 +364,6 @@ class RosbagDataset(Dataset):
                        f"with {self._names['extrinsic' + key]} {what[key][1]}"
                        + ("" if self.base_frame else f" or name the base frame with {self._names['base_frame']}"),
                        stacklevel=4)
-
-    def _read_dynamic_tf(self, reader, tf: TfTree, base: str, sensors: list[str]) -> None:
-        """Add the first /tf transform of every edge that does not move the base (odom -> base is skipped),
-        until every sensor frame is connected to the base."""
-        conns = [c for c in reader.connections if c.msgtype == TF_TYPE and not c.topic.endswith("tf_static")]
-        if not conns:
-            return
-        for c, _, raw in self._messages(reader, conns):
-            added = False
-            for t in self._deserialize(reader, raw, c).transforms:
-                child = frame_name(t.child_frame_id)
-                if child != base and child not in tf.parent:
-                    where = f"{self.path}: {c.topic} transform {t.header.frame_id} -> {t.child_frame_id}"
-                    tf.add(t.header.frame_id, child, transform_matrix(t.transform, where))
-                    added = True
-            if added and all(f == base or tf.lookup(base, f) is not None for f in sensors):
-                return
 
     # -- frames -------------------------------------------------------------------------------------
     def _order_of(self, stamps: NDArray[np.float64], seqs: Sequence) -> tuple[NDArray[np.intp], FrameOrder]:
@@ -667,8 +501,8 @@ class RosbagDataset(Dataset):
             yield from (None for _ in wanted)
             return
         pending: dict[int, tuple] = {}
-        with self._open() as reader:
-            stream = self._messages(reader, self._conns(reader, self.cloud_topic))
+        with BagReader.open(self.path) as bag:
+            stream = bag.messages(bag.conns(self.cloud_topic))
             pos = -1
             for k in wanted:
                 k = int(k)
@@ -679,7 +513,7 @@ class RosbagDataset(Dataset):
                     c, _, raw = next(stream)
                     pos += 1
                     if pos in need:
-                        msg = self._deserialize(reader, raw, c)
+                        msg = bag.deserialize(raw, c)
                         pending[pos] = pointcloud2_points(msg, source=f"{self.path} {self.cloud_topic} message {pos}")
                 cloud = pending[k]
                 need[k] -= 1

@@ -1,0 +1,219 @@
+"""An open ROS1/ROS2 bag for the reader (:class:`BagReader`): its connections, its messages (damaged data a
+:class:`~hsmap.errors.DataFormatError`), decoding, the TF transforms, and one pass over the sensor topics."""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import math
+import struct
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import DataFormatError, DatasetError, HsmapWarning
+from .ros_messages import (
+    TfTree,
+    check_scan_geometry,
+    frame_name,
+    ros1_odom,
+    ros1_scan,
+    stamp_seconds,
+    transform_matrix,
+)
+
+__all__ = ["BagReader", "ROS2_STORAGE_SUFFIXES", "TF_TYPE"]
+
+TF_TYPE = "tf2_msgs/msg/TFMessage"
+#: ROS2 storage files that open alone, without their bag folder.
+ROS2_STORAGE_SUFFIXES = (".mcap", ".db3")
+
+
+@functools.cache
+def _ros2_typestore():
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.LATEST)
+
+
+def _topics_listing(reader) -> str:
+    return ", ".join(f"{c.topic} ({c.msgtype})" for c in sorted(reader.connections, key=lambda c: c.topic)) or "none"
+
+
+class BagReader:
+    """An open bag (made by :meth:`open`).
+
+    Parameters
+    ----------
+    path : str
+        The bag as the caller named it, for messages.
+    reader : rosbags.highlevel.AnyReader
+    """
+
+    def __init__(self, path: str, reader) -> None:
+        self.path = path
+        self.reader = reader
+
+    @classmethod
+    @contextlib.contextmanager
+    def open(cls, path: str | Path) -> Iterator[BagReader]:
+        """The bag at ``path`` opened for reading (closed after the ``with`` block)."""
+        from rosbags.highlevel import AnyReader
+
+        p = Path(path)
+        if not p.exists():
+            raise DatasetError(f"{p}: no such bag file or folder")
+        if p.is_file() and p.suffix in ROS2_STORAGE_SUFFIXES and (p.parent / "metadata.yaml").is_file():
+            p = p.parent
+        try:
+            # ROS1 bags carry their message definitions; older ROS2 bags need the standard ones
+            reader = AnyReader([p], default_typestore=_ros2_typestore() if p.suffix != ".bag" else None)
+            reader.open()
+        except Exception as exc:  # rosbags raises its own error types (and plain OSError) for bad files
+            raise DatasetError(f"{p}: cannot read as a ROS1/ROS2 bag: {exc}") from None
+        try:
+            yield cls(str(path), reader)
+        finally:
+            reader.close()
+
+    @property
+    def connections(self) -> list:
+        return self.reader.connections
+
+    def topics_listing(self) -> str:
+        """Every topic with its message type, for messages."""
+        return _topics_listing(self.reader)
+
+    def messages(self, conns) -> Iterator:
+        """``reader.messages`` with rosbags' errors on damaged data turned into DataFormatError."""
+        it = self.reader.messages(connections=conns)
+        while True:
+            try:
+                item = next(it)
+            except StopIteration:
+                return
+            except Exception as exc:  # ReaderError, struct.error, OSError, ... from a damaged bag
+                raise DataFormatError(f"{self.path}: damaged bag data ({type(exc).__name__}: {exc})") from None
+            yield item
+
+    def deserialize(self, raw, c):
+        try:
+            return self.reader.deserialize(raw, c.msgtype)
+        except Exception as exc:  # rosbags' SerdeError and friends
+            raise DataFormatError(f"{self.path}: cannot decode a {c.msgtype} message on {c.topic}: {exc}") from None
+
+    def conns(self, topic: str | None):
+        return [c for c in self.reader.connections if c.topic == topic] if topic else []
+
+    def static_tf(self) -> TfTree:
+        """The transforms of the bag's /tf_static."""
+        tf = TfTree()
+        conns = [c for c in self.reader.connections if c.msgtype == TF_TYPE and c.topic.endswith("tf_static")]
+        if conns:
+            for c, _, raw in self.messages(conns):
+                for t in self.deserialize(raw, c).transforms:
+                    where = f"{self.path}: {c.topic} transform {t.header.frame_id} -> {t.child_frame_id}"
+                    tf.add(t.header.frame_id, t.child_frame_id, transform_matrix(t.transform, where))
+        return tf
+
+    def read_sensors(self, scan_topic: str | None, cloud_topic: str | None, odom_topic: str | None,
+                     progress: bool | None, fast: tuple[str, ...] = ()
+                     ) -> tuple[dict, dict, NDArray[np.float64], str | None]:
+        """The scans (stamp, seq, ranges, geometry, frame), the clouds' headers (stamp, seq, frame), the odometry
+        (N, 5: stamp, x, y, yaw, seq) and the odometry's child frame, read in one pass over the topics. ROS1
+        LaserScan and Odometry connections whose definition digest is in ``fast`` are decoded from their raw
+        bytes (:func:`hsmap.datasets.ros_messages.ros1_scan`)."""
+        scan_c = self.conns(scan_topic)
+        cloud_c = self.conns(cloud_topic)
+        odom_c = self.conns(odom_topic)
+        scan_ids = {id(c) for c in scan_c}
+        cloud_ids = {id(c) for c in cloud_c}
+        scans: dict[str, list] = {"stamp": [], "seq": [], "ranges": [], "geometry": [], "frame": []}
+        clouds: dict[str, list] = {"stamp": [], "seq": [], "frame": []}
+        odom: list[tuple[float, float, float, float]] = []
+        odom_child = None
+        fast = {id(c) for c in scan_c + odom_c if c.digest in fast}
+        checked: set = set()  # scan geometries found sound
+        bad_odom = 0
+        from tqdm.auto import tqdm
+
+        total = sum(int(c.msgcount) for c in scan_c + cloud_c + odom_c)
+        bar = tqdm(total=total, unit="msg", desc=f"reading {Path(self.path).name}", leave=False,
+                   disable=None if progress is None else not progress, mininterval=0.5)
+        for c, _, raw in self.messages(scan_c + cloud_c + odom_c):
+            bar.update(1)
+            is_scan = id(c) in scan_ids
+            if id(c) in fast:
+                try:
+                    if is_scan:
+                        seq, stamp, frame, geom, ranges = ros1_scan(raw)
+                    else:
+                        seq, stamp, frame, pose = ros1_odom(raw)
+                except (struct.error, UnicodeDecodeError, ValueError) as exc:
+                    raise DataFormatError(
+                        f"{self.path}: cannot decode a {c.msgtype} message on {c.topic}: {exc}"
+                    ) from None
+            else:
+                msg = self.deserialize(raw, c)
+                h = msg.header
+                seq, stamp = getattr(h, "seq", None), stamp_seconds(h)
+                frame = h.frame_id
+                if is_scan:
+                    geom = (float(msg.angle_min), float(msg.angle_increment), float(msg.range_min), float(msg.range_max))
+                    ranges = np.asarray(msg.ranges, dtype=np.float32)
+                elif id(c) not in cloud_ids:
+                    p, q = msg.pose.pose.position, msg.pose.pose.orientation
+                    yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+                    pose = (p.x, p.y, yaw)
+                    frame = msg.child_frame_id
+            if is_scan:
+                if (geom, len(ranges)) not in checked:
+                    check_scan_geometry(geom, len(ranges), f"{self.path}: {c.topic} message {len(scans['stamp'])} "
+                                                            f"(stamp {stamp:.6f})")
+                    checked.add((geom, len(ranges)))
+                scans["stamp"].append(stamp)
+                scans["seq"].append(seq)
+                scans["frame"].append(frame)
+                scans["ranges"].append(ranges)
+                scans["geometry"].append(geom)
+            elif id(c) in cloud_ids:
+                clouds["stamp"].append(stamp)
+                clouds["seq"].append(seq)
+                clouds["frame"].append(frame)
+            else:
+                if not all(math.isfinite(v) for v in (stamp, *pose)):
+                    bad_odom += 1
+                    continue
+                odom.append((stamp, *pose, -1 if seq is None else seq))
+                if odom_child is None:
+                    odom_child = frame
+        bar.close()
+        if bad_odom:
+            import warnings
+
+            warnings.warn(f"{self.path}: {bad_odom} {odom_topic} message(s) have a non-finite pose or stamp and "
+                          "are ignored", HsmapWarning, stacklevel=3)
+        if scan_topic and not scans["stamp"]:
+            raise DatasetError(f"{self.path}: topic {scan_topic!r} has no messages")
+        if cloud_topic and not clouds["stamp"]:
+            raise DatasetError(f"{self.path}: topic {cloud_topic!r} has no messages")
+        return scans, clouds, np.asarray(odom, dtype=float).reshape(-1, 5), odom_child
+
+    def dynamic_tf(self, tf: TfTree, base: str, sensors: list[str]) -> None:
+        """Add the first /tf transform of every edge that does not move the base (odom -> base is skipped),
+        until every sensor frame is connected to the base."""
+        conns = [c for c in self.reader.connections if c.msgtype == TF_TYPE and not c.topic.endswith("tf_static")]
+        if not conns:
+            return
+        for c, _, raw in self.messages(conns):
+            added = False
+            for t in self.deserialize(raw, c).transforms:
+                child = frame_name(t.child_frame_id)
+                if child != base and child not in tf.parent:
+                    where = f"{self.path}: {c.topic} transform {t.header.frame_id} -> {t.child_frame_id}"
+                    tf.add(t.header.frame_id, child, transform_matrix(t.transform, where))
+                    added = True
+            if added and all(f == base or tf.lookup(base, f) is not None for f in sensors):
+                return

@@ -3,14 +3,14 @@
 1. ``intel``, ``fr079``, ``fr-clinic`` (the ``.orig.bag`` files of $HSMAP_DATASETS/slam2d, read by hsmap's
    reader; fr079 with the CARMEN log's laser offset, as ``benchmarks/slam.py``): hsmap's HS-SLAM 2D (the command
    line's default configuration, loop closure on, ``--seed``), then
-   - ``yag-slam`` (PyPI; OpenKarto's scan matcher and a sparse pose graph), in this process, its default matcher
-     configurations, a scan processed when the odometry moved 0.2 m or 10 deg since the last one (OpenKarto's
-     default minimum travel); the other scans take the pose of the last processed scan moved by the odometry;
-   - MRPT ``icp-slam`` (stock ``icp-slam_demo_classic.ini``) and ``rbpf-slam`` (stock ``gridmapping_intel.ini``;
-     Debian ``mrpt-apps``), each as a subprocess on a rawlog written by ``benchmarks/rawlog.py`` (every
-     observation with its own stamp); only the settings that name files and turn off windows, images and 3D
-     scenes are changed. icp-slam's trajectory is its ``log_estimated_path.txt`` at the scans, rbpf-slam's the
-     filter's estimate at each step (the same file, with stamps).
+   - ``yag-slam`` (PyPI; OpenKarto's scan matcher and a sparse pose graph), in this process: its ``GraphSlam``
+     with its default matcher configurations, every scan given to it (it has no minimum travel of its own);
+   - MRPT ``icp-slam`` (stock ``icp-slam_demo_classic.ini``) and ``rbpf-slam`` with both of its stock
+     configurations for the intel log (``gridmapping_intel.ini``: grid maps, optimal sampling;
+     ``gridmapping_RBPF_ICPbased_intel.ini``: point maps, ICP-based proposal) (Debian ``mrpt-apps``), each as a
+     subprocess on a rawlog written by ``benchmarks/rawlog.py`` (every observation with its own stamp); only the
+     settings that name files and turn off windows, images and 3D scenes are changed. The trajectory of each is
+     its ``log_estimated_path.txt``: icp-slam's pose after each scan, rbpf-slam's estimate after each step.
    Each: the Freiburg relations error (all, dt <= 10 s, dt > 60 s), wall and CPU time (the subprocess's CPU for
    the MRPT apps; writing the rawlog is not counted), real-time factor, and the time ratio to HS-SLAM.
 2. ``3d`` (the simulated slam-office route, seed 1): HS-SLAM 6-DOF and KISS-ICP (``benchmarks/slam.py``'s
@@ -21,7 +21,7 @@ A peer that is not installed or fails is reported with ``status`` and ``reason``
 reading the input. Writes reports/benchmarks/peers.json (atomically).
 
     .venv/bin/python benchmarks/peers.py [--only intel fr079 fr-clinic 3d] [--peers hs_slam yag_slam icp_slam
-        rbpf_slam] [--max-frames N] [--timeout S] [--seed 1]
+        rbpf_slam_grid rbpf_slam_icp] [--max-frames N] [--timeout S] [--seed 1]
 """
 
 from __future__ import annotations
@@ -48,20 +48,23 @@ from _report import finish, load_average, machine  # noqa: E402
 import hsmap  # noqa: E402
 from hsmap.io import write_json  # noqa: E402
 
-PEERS_2D = ("hs_slam", "yag_slam", "icp_slam", "rbpf_slam")
+PEERS_2D = ("hs_slam", "yag_slam", "icp_slam", "rbpf_slam_grid", "rbpf_slam_icp")
 MRPT_CONFIGS = Path("/usr/share/mrpt/config_files")
+_RBPF_SET = {"SHOW_PROGRESS_IN_WINDOW": "0", "SAVE_3D_SCENE": "0", "SAVE_MAP_IMAGES": "0", "SAVE_POSE_LOG": "0",
+             "LOG_FREQUENCY": "0"}
 #: The MRPT apps: executable, stock configuration, rawlog form, settings changed (files, windows, images only).
 MRPT = {
     "icp_slam": {"exe": "icp-slam", "config": MRPT_CONFIGS / "icp-slam" / "icp-slam_demo_classic.ini",
                  "actions": False,
                  "set": {"SHOW_PROGRESS_3D_REAL_TIME": "0", "SAVE_3D_SCENE": "0", "SAVE_POSE_LOG": "0"}},
-    "rbpf_slam": {"exe": "rbpf-slam", "config": MRPT_CONFIGS / "rbpf-slam" / "gridmapping_intel.ini",
-                  "actions": True,
-                  "set": {"SHOW_PROGRESS_IN_WINDOW": "0", "SAVE_3D_SCENE": "0", "SAVE_MAP_IMAGES": "0",
-                          "SAVE_POSE_LOG": "0", "LOG_FREQUENCY": "0"}},
+    "rbpf_slam_grid": {"exe": "rbpf-slam", "config": MRPT_CONFIGS / "rbpf-slam" / "gridmapping_intel.ini",
+                       "actions": True, "set": _RBPF_SET},
+    "rbpf_slam_icp": {"exe": "rbpf-slam",
+                      "config": MRPT_CONFIGS / "rbpf-slam" / "gridmapping_RBPF_ICPbased_intel.ini",
+                      "actions": True, "set": _RBPF_SET},
 }
-#: OpenKarto's default minimum travel between processed scans (m, rad).
-KARTO_MIN_TRAVEL = (0.2, np.radians(10.0))
+#: yag-slam's scan matcher's range threshold (m): its default_config's.
+YAG_RANGE_THRESHOLD = 20.0
 
 
 def not_available(reason: str, status: str = "not installed") -> dict:
@@ -103,51 +106,37 @@ def run_hs_slam(frames, seed: int) -> tuple[object, float, float]:
 
 
 def run_yag_slam(frames) -> tuple[object, float, float, dict]:
-    """yag-slam on the frames; the base trajectory at every frame, wall and CPU seconds, details."""
-    import yag_slam
+    """yag-slam on every scan (its ``GraphSlam`` with its default matchers); the base trajectory, wall and CPU
+    seconds, details."""
+    import yag_slam  # noqa: F401  (a missing package: "not installed")
     from yag_slam.graph_slam import GraphSlam
     from yag_slam.models import LocalizedRangeScan
     from yag_slam.scan_matching import Scan2DMatcherCpp
 
-    from hsmap.geometry import compose, invert, relative
+    from hsmap.geometry import compose, invert
     from hsmap.trajectory import Trajectory
 
     t0, c0 = time.perf_counter(), time.process_time()
     slam = GraphSlam(Scan2DMatcherCpp({}), Scan2DMatcherCpp({}, loop=True))
-    key_of = np.zeros(len(frames), dtype=int)
-    keys: list[tuple[int, object]] = []  # (frame index, scan)
-    last = None
+    scans = []
     closed = 0
-    for i, f in enumerate(frames):
+    for f in frames:
         odo = f.odometry if f.odometry is not None else np.zeros(3)
-        if last is not None:
-            d = relative(frames[last].odometry if frames[last].odometry is not None else np.zeros(3), odo)
-            if np.hypot(d[0], d[1]) < KARTO_MIN_TRAVEL[0] and abs(d[2]) < KARTO_MIN_TRAVEL[1]:
-                key_of[i] = len(keys) - 1
-                continue
         s = f.scan2d
         a = s.angles
         r = np.where(np.isfinite(s.ranges), s.ranges, s.range_max)
-        laser = compose(odo, f.extrinsic2d)
+        laser = compose(odo, f.extrinsic2d)  # yag-slam's scans are at the laser
         scan = LocalizedRangeScan(r.astype(np.float64), float(a[0]), float(a[-1]), float((a[-1] - a[0]) / (len(a) - 1)),
-                                  float(s.range_min), float(min(s.range_max, 80.0)), 20.0, *laser)
+                                  float(s.range_min), float(min(s.range_max, 80.0)), YAG_RANGE_THRESHOLD, *laser)
         _, c = slam.process_scan(scan)
         closed += bool(c)
-        keys.append((i, scan))
-        key_of[i] = len(keys) - 1
-        last = i
+        scans.append(scan)
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-    poses = []
-    for i, f in enumerate(frames):
-        k, scan = keys[key_of[i]]
-        p = scan.corrected_pose
-        base_k = compose(np.array([p.x, p.y, p.euler[-1]]), invert(f.extrinsic2d))
-        odo_k = frames[k].odometry if frames[k].odometry is not None else np.zeros(3)
-        odo_i = f.odometry if f.odometry is not None else np.zeros(3)
-        poses.append(compose(base_k, relative(odo_k, odo_i)))
-    info = {"version": getattr(yag_slam, "__version__", _dist_version("yag-slam")), "scans_processed": len(keys),
-            "loops_closed": closed, "min_travel_m_rad": list(KARTO_MIN_TRAVEL)}
-    return Trajectory(np.array([f.stamp for f in frames]), np.asarray(poses)), wall, cpu, info
+    poses = np.array([compose(np.array([sc.corrected_pose.x, sc.corrected_pose.y, sc.corrected_pose.euler[-1]]),
+                              invert(f.extrinsic2d)) for f, sc in zip(frames, scans, strict=True)])
+    info = {"version": _dist_version("yag-slam"), "scans_processed": len(scans), "loops_closed": closed,
+            "range_threshold_m": YAG_RANGE_THRESHOLD}
+    return Trajectory(np.array([f.stamp for f in frames]), poses), wall, cpu, info
 
 
 def _dist_version(name: str) -> str | None:
@@ -210,7 +199,7 @@ def run_mrpt(name: str, frames, timeout: float, workdir: Path) -> tuple[object, 
         tail = (proc.stderr or proc.stdout).strip().splitlines()[-1:] or [""]
         raise RuntimeError(f"{spec['exe']} exited {proc.returncode}: {tail[0][:200]}")
     est = np.loadtxt(path, ndmin=2)
-    if spec["actions"]:  # step, x, y, z, yaw, pitch, roll, stamp
+    if spec["actions"]:  # step, x, y, z, yaw, pitch, roll, stamp: the filter's estimate after each step
         stamps, poses = est[:, 7], est[:, [1, 2, 4]]
     else:  # step, x, y, yaw: one row per rawlog entry
         steps = est[:, 0].astype(int)

@@ -162,6 +162,21 @@ def test_simulated_rolling_sweep_times_and_sway(tmp_path):
     m = motion_for(scn, 1)
     sway = np.rad2deg(mast_sway(m.legs, m.sample_times, [-0.1, 0.0], 1.6, 2.0, 0.2))
     assert sway[0].tolist() == [0.0, 0.0] and 0.05 < np.abs(sway).max() < 1.0
+    # the mast's truth: the base's pose tilted by the sway about the mast's foot, as the clouds were cast
+    from hsmap.sim.robot import mast_poses, sample_legs
+    from hsmap.trajectory import read_tum
+
+    truth = read_tum(tmp_path / "d" / "groundtruth3d.tum", dof=6)
+    stamps = ds.groundtruth.stamps
+    want = mast_poses(m.legs, stamps, [-0.1, 0.0], 1.6, 2.0, 0.2)
+    np.testing.assert_allclose(truth.poses, want, atol=1e-6)
+    base = sample_legs(m.legs, stamps)
+    np.testing.assert_allclose(want[:, [0, 1, 5]], base, atol=2e-3)        # the foot stays put, the top moves
+    np.testing.assert_allclose(np.rad2deg(want[:, 3:5]),
+                               np.rad2deg(mast_sway(m.legs, stamps, [-0.1, 0.0], 1.6, 2.0, 0.2)), atol=1e-9)
+    rigid = mast_poses(m.legs, stamps, [-0.1, 0.0], 1.6, 0.0, 0.2)
+    np.testing.assert_allclose(rigid[:, [0, 1, 5]], base, atol=1e-12)
+    assert not rigid[:, 2:5].any()
 
 
 def test_static_scenarios_write_no_times(tmp_path):

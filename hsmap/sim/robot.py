@@ -23,10 +23,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import ConfigError
-from ..geometry import wrap_angle
+from ..geometry import matrix_to_pose, pose_to_matrix, wrap_angle
 
 __all__ = ["RobotConfig", "OdometryConfig", "RouteStep", "Leg", "Motion", "plan_legs", "simulate_motion",
-           "integrate_odometry", "mast_sway"]
+           "integrate_odometry", "mast_sway", "mast_poses", "mast_matrices"]
 
 
 def _positive(name: str, value: float, allow_zero: bool = False) -> None:
@@ -384,3 +384,30 @@ def mast_sway(legs: list[Leg], times: ArrayLike, foot: ArrayLike, height: float,
     pitch = lfilter(num, den, -a_x)
     roll = lfilter(num, den, a_y)
     return np.column_stack([np.interp(t, grid, roll), np.interp(t, grid, pitch)])
+
+
+def mast_poses(legs: list[Leg], times: ArrayLike, foot: ArrayLike, height: float, frequency: float,
+               damping: float) -> NDArray[np.float64]:
+    """The mast's true 6-DOF poses (T, 6) at ``times`` (T,): the base's pose along ``legs`` tilted by the mast's
+    sway (:func:`mast_sway`) about its foot at ``foot`` (x, y) in the base frame. A sensor on the mast at
+    extrinsic E has the pose ``mast_pose @ E``; a rigid mast (``frequency`` 0) gives the base's poses."""
+    t = np.asarray(times, dtype=float).reshape(-1)
+    return matrix_to_pose(mast_matrices(legs, t, foot, mast_sway(legs, t, foot, height, frequency, damping)))
+
+
+def mast_matrices(legs: list[Leg], times: ArrayLike, foot: ArrayLike, sway: ArrayLike | None) -> NDArray[np.float64]:
+    """(T, 4, 4) poses of the base along ``legs`` at ``times`` (T,), tilted by ``sway`` (T, 2) roll and pitch
+    about the mast's foot at ``foot`` (x, y) in the base frame (None: not tilted)."""
+    t = np.asarray(times, dtype=float).reshape(-1)
+    base = sample_legs(legs, t)
+    b6 = np.zeros((len(t), 6))
+    b6[:, :2], b6[:, 5] = base[:, :2], base[:, 2]
+    B = pose_to_matrix(b6)
+    if sway is None:
+        return B
+    tilt = np.zeros((len(t), 6))
+    tilt[:, 3:5] = np.asarray(sway, dtype=float).reshape(len(t), 2)
+    S = pose_to_matrix(tilt)
+    f = np.array([float(foot[0]), float(foot[1]), 0.0])
+    S[:, :3, 3] = f - S[:, :3, :3] @ f
+    return B @ S

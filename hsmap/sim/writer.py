@@ -37,7 +37,7 @@ from ..io import atomic_path, staged_outputs, sweep_stale_temporaries, write_jso
 from ..trajectory import Trajectory, write_tum
 from . import layout
 from .catalog import resolve_scenario
-from .robot import Motion, mast_sway, sample_legs, simulate_motion
+from .robot import Motion, mast_matrices, mast_poses, mast_sway, simulate_motion
 from .scenario import Scenario, load_scenario
 from .world import World
 
@@ -196,6 +196,10 @@ def _write_dataset(scn: Scenario, out: Path, seed: int, *, max_frames: int | Non
     odo = Trajectory(motion.stamps, motion.odometry)
     write_tum(out / "groundtruth.tum", gt)
     write_tum(out / "odometry.tum", odo)
+    l3 = scn.lidar3d
+    if l3.sway_frequency > 0:
+        write_tum(out / "groundtruth3d.tum", Trajectory(motion.stamps, mast_poses(
+            motion.legs, motion.stamps, l3.position[:2], l3.position[2], l3.sway_frequency, l3.sway_damping)))
     labels, grid, names, _ = layout.rasterize_rooms(scn, label_resolution)
     _write_png16(out / "rooms.png", labels)
     write_text(out / "rooms.yaml", yaml.safe_dump({
@@ -220,6 +224,9 @@ def _write_dataset(scn: Scenario, out: Path, seed: int, *, max_frames: int | Non
     summary = SimulationSummary(out, scn.name, seed, n, float(motion.stamps[-1] - motion.stamps[0]),
                                 gt.path_length(), end_err, yaw_err, timings)
     files = dict(FILE_DESCRIPTIONS)
+    if l3.sway_frequency > 0:
+        files["groundtruth3d.tum"] = ("the swaying mast's true poses at the scan stamps (the base's pose tilted "
+                                      "about the mast's foot; the 3D LiDAR is at this pose times its extrinsic), TUM")
     if scn.lidar3d.sweep_time > 0:
         files["clouds3d/"] += "; column_time (columns,) float64 s after stamp at which each column was measured"
     write_text(out / "README.md", _readme(scn, summary, grid))
@@ -325,20 +332,10 @@ def rolling_scan3d(world, legs, stamps, lidar3d, rngs=None, directions=None, swa
     stamps = np.asarray(stamps, dtype=float).reshape(-1)
     col_t = lidar3d.column_times()
     E = pose_to_matrix(lidar3d.extrinsic())
-    foot = np.array([lidar3d.position[0], lidar3d.position[1], 0.0])
+    foot = lidar3d.position[:2]
     rays = np.empty((len(stamps), C, W, 6), dtype=np.float32)
     for k, t0 in enumerate(stamps):
-        base = sample_legs(legs, t0 + col_t)
-        b6 = np.zeros((W, 6))
-        b6[:, :2], b6[:, 5] = base[:, :2], base[:, 2]
-        B = pose_to_matrix(b6)
-        if sway is not None:
-            tilt = np.zeros((W, 6))
-            tilt[:, 3:5] = sway[k]
-            S = pose_to_matrix(tilt)
-            S[:, :3, 3] = foot - S[:, :3, :3] @ foot  # about the mast's foot
-            B = B @ S
-        T = B @ E
+        T = mast_matrices(legs, t0 + col_t, foot, None if sway is None else sway[k]) @ E
         rays[k, :, :, :3] = T[None, :, :3, 3]
         rays[k, :, :, 3:] = np.einsum("wij,cwj->cwi", T[:, :3, :3], dirs_s)
     r = world.cast_rays(rays.reshape(-1, 6)).reshape(len(stamps), C, W)

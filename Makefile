@@ -69,7 +69,7 @@ lint: setup
 # Re-resolve the pinned versions (needs the registry); commit requirements.lock afterwards.
 lock:
 	@test -x $(BIN)/uv || (test -x $(BIN)/python || $(PYTHON) -m venv $(VENV); $(BIN)/python -m pip install --quiet uv==$(UV_VERSION))
-	$(BIN)/uv pip compile pyproject.toml --extra study --extra dev --python-version 3.11 --universal -o requirements.lock
+	$(BIN)/uv pip compile pyproject.toml --extra study --extra dev --extra peers --python-version 3.11 --universal -o requirements.lock
 
 clean:
 	rm -rf $(VENV) reports/* .pytest_cache

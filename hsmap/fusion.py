@@ -36,6 +36,7 @@ from .errors import ConfigError, EmptyInputError, InputError, ShapeError
 from .geometry import matrix_to_pose, pose_to_matrix
 from .grid import UNKNOWN, GridGeometry, OccupancyGrid, grid_from_scans
 from .harmony import HarmonyConfig
+from .loopclosure import correlative_match_2d
 from .registration import RegistrationConfig, RegistrationResult, harmony_icp
 
 __all__ = [
@@ -631,7 +632,6 @@ def _correlative_candidate(src: NDArray[np.float64], dst: NDArray[np.float64], s
     """The pose (x, y, yaw) of ``src`` in ``dst``'s frame best explaining ``src`` by ``dst`` over every rotation
     and every translation that makes the two overlap; with its score and ambiguity
     (:func:`hsmap.loopclosure.correlative_match_2d`)."""
-    from .loopclosure import correlative_match_2d
 
     centre = src.mean(axis=0)
     s = src - centre

@@ -23,7 +23,7 @@ from numpy.typing import ArrayLike, NDArray
 from .errors import DataFormatError, DatasetError, EmptyInputError, HsmapWarning, InputError, ShapeError
 from .geometry import compose, pose_to_matrix, transform_points
 from .io import atomic_path, write_text
-from .limits import load_yaml, quote
+from .limits import check_allocation, load_yaml, quote
 
 __all__ = [
     "GridGeometry",
@@ -235,7 +235,6 @@ MAP_BYTES_PER_PIXEL = 256
 def _check_image_size(path: Path, size: tuple[int, int]) -> None:
     """InputError naming ``path`` when an image of ``size`` (width, height) pixels is more than the memory
     available can process, checked from the header before the pixels are decoded."""
-    from .limits import check_allocation
 
     w, h = size
     check_allocation(float(w) * float(h) * MAP_BYTES_PER_PIXEL, f"{path}: a {w} x {h} pixel map", InputError)
@@ -611,7 +610,6 @@ def grids_from_scan_prefixes(
                 resolution *= 1.01
                 geometry = GridGeometry.covering(lo, hi, resolution, margin)
     H, W = geometry.shape
-    from .limits import check_allocation
 
     check_allocation(float(H) * float(W) * (16 + len(counts)),
                      f"a {W} x {H} cell occupancy grid at {resolution:g} m per cell (the resolution)")

@@ -14,7 +14,6 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from . import _kernels
 from .errors import InputError, ShapeError
 
 __all__ = ["VoxelMap", "voxel_keys", "first_per_voxel", "voxel_downsample"]
@@ -54,6 +53,7 @@ def voxel_downsample(points: NDArray[np.floating], voxel: float, min_range: floa
     Points that are not finite, or whose distance from the origin is outside [min_range, max_range], are dropped
     first. Coordinates must lie within +/- 2^20 voxels of the origin (about +/- 100 km at 0.1 m).
     """
+    from . import _kernels  # numba: compiled on first use
     pts = np.asarray(points, dtype=float)
     if voxel <= 0 or len(pts) == 0:
         return pts
@@ -112,6 +112,7 @@ class VoxelMap:
 
         Returns the points of the voxels that were new, (K, dim) (and their normals, with ``return_normals``).
         """
+        from . import _kernels  # numba: compiled on first use
         pts = np.asarray(points, dtype=float)
         if pts.ndim != 2 or pts.shape[1] != self.dim:
             raise ShapeError(f"points must have shape (N, {self.dim}), got {pts.shape}")

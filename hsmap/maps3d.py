@@ -20,7 +20,12 @@ import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .datasets.clouds import read_points
 from .errors import DataFormatError, DatasetError, EmptyInputError, InputError, ShapeError
+from .grid import FREE as G_FREE
+from .grid import OCCUPIED as G_OCCUPIED
+from .grid import UNKNOWN as G_UNKNOWN
+from .grid import GridGeometry, OccupancyGrid
 
 __all__ = [
     "UNKNOWN",
@@ -351,7 +356,6 @@ def _carve(state, origin, res, starts, ends, step):  # pragma: no cover - JIT
 
 def _point_map(path: Path, poses: ArrayLike | None, resolution: float, max_cells: int) -> Map3D:
     """A point map's occupied voxels; free voxels along the rays from each point's nearest sensor origin."""
-    from .datasets.clouds import read_points
 
     if not (np.isfinite(resolution) and resolution > 0):
         raise InputError(f"resolution must be a positive number of metres, got {resolution}")
@@ -487,10 +491,6 @@ def band_grid(m: Map3D, lo: float, hi: float, *, floor: float | None = None):
     hsmap.grid.OccupancyGrid
         Shape (ny, nx) with row 0 at the largest y; origin the map's (x, y) min corner.
     """
-    from .grid import FREE as G_FREE
-    from .grid import OCCUPIED as G_OCCUPIED
-    from .grid import UNKNOWN as G_UNKNOWN
-    from .grid import GridGeometry, OccupancyGrid
 
     band = m.state[:, :, band_layers(m, lo, hi, floor=floor)]
     occ = (band == OCCUPIED).any(axis=2)

@@ -22,7 +22,6 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
-from . import _kernels
 from ._blas import blas_limited
 from ._threads import threads_limited
 from .errors import ConfigError, DegenerateInputError, EmptyInputError, InputError, ShapeError
@@ -458,6 +457,7 @@ def refine_icp(
     on the target normals, weighted by a Geman-McClure kernel of scale ``robust_kernel`` (metres; 0: none);
     point-to-point takes the closed-form SVD (Kabsch) step.
     """
+    from . import _kernels  # numba: compiled on first use
 
     dim = source.shape[1]
     schedule = _trim_schedule(start_distance or max_distance, max_distance)
@@ -564,6 +564,7 @@ def alignment_information(source: NDArray[np.float64], target: RegistrationTarge
 def _information_and_cost(source, target, pose, threshold, robust_kernel=0.0, min_sigma=1e-3, match=None):
     """:func:`alignment_information` and :func:`alignment_cost` (point-to-plane) from one correspondence search
     (``match``: :func:`_match`'s at ``pose``, when already made)."""
+    from . import _kernels  # numba: compiled on first use
 
     dim = source.shape[1]
     dof = dof_of_dim(dim)

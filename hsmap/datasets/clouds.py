@@ -37,6 +37,7 @@ from numpy.typing import NDArray
 
 from ..errors import DataFormatError, DatasetError, InputError
 from ..io import read_number_rows
+from ..limits import check_allocation
 from ..trajectory import nearest_index
 from .frames import SOURCE_DEFAULT, Dataset, Frame, LaserScan2D, stamp_in_sweep
 
@@ -124,7 +125,6 @@ def _declared_points(p: Path, suffix: str) -> int | None:
     DataFormatError
         The file is shorter than its header says, or its points would not fit in the memory available.
     """
-    from ..limits import check_allocation
 
     size = p.stat().st_size
     with open(p, "rb") as fh:

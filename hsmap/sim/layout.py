@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 
 from ..errors import ConfigError
 from ..grid import GridGeometry
+from ..limits import check_allocation
 from .model import Door, Furniture, Scenario
 from .shapes import box_corners, box_sdf, make_box, points_in_polygon
 
@@ -190,7 +191,6 @@ def rasterize_rooms(scn: Scenario, resolution: float | None = None, margin: floa
     res = float(resolution if resolution is not None else scn.label_resolution)
     grid = label_grid(scn, res, margin)
     H, W = grid.shape
-    from ..limits import check_allocation
 
     check_allocation(float(H) * W * 64, f"{scn.path}: label_resolution {res} m: a {H} x {W} room raster",
                      ConfigError)

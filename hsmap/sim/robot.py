@@ -24,6 +24,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import ConfigError
 from ..geometry import matrix_to_pose, pose_to_matrix, wrap_angle
+from ..limits import check_allocation
 
 __all__ = ["RobotConfig", "OdometryConfig", "RouteStep", "Leg", "Motion", "plan_legs", "simulate_motion",
            "integrate_odometry", "mast_sway", "mast_poses", "mast_matrices"]
@@ -342,7 +343,6 @@ def simulate_motion(start: ArrayLike, steps: list[RouteStep], robot: RobotConfig
     per_frame = max(1, int(np.ceil(robot.internal_rate / frame_rate - 1e-9)))
     n_frames = int(np.ceil((end - start_time) * frame_rate - 1e-9)) + 1  # the last frame sees the route's end
     n_samples = (n_frames - 1) * per_frame + 1
-    from ..limits import check_allocation
 
     check_allocation(float(n_samples) * 8 * 12, f"frame_rate {frame_rate} Hz: {n_samples} motion samples",
                      ConfigError)

@@ -34,7 +34,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import ConfigError, EmptyInputError
-from ..grid import FREE, GridGeometry, OccupancyGrid
+from ..grid import FREE, OCCUPIED, UNKNOWN, GridGeometry, OccupancyGrid
+from ..maps3d import Map3D, band_grid, segmentation_free
+from ..segmentation import SegmentationConfig, segment_rooms
 from .explore import Exploration, ExploreConfig, plan_exploration
 from .sensors import Lidar3DConfig
 from .voxelworld import FREE as VFREE
@@ -166,9 +168,6 @@ def _image(columns: NDArray) -> NDArray:
 def band_image(world: VoxelWorld, lo: float, hi: float) -> tuple[OccupancyGrid, OccupancyGrid]:
     """A height band (metres above the floor) as :func:`hsmap.maps3d.band_grid` makes it, and the grid
     ``hsmap segment MAP3D --band`` segments (:func:`hsmap.maps3d.segmentation_free`'s free space)."""
-    from ..grid import OCCUPIED, UNKNOWN
-    from ..maps3d import Map3D, band_grid, segmentation_free
-    from ..segmentation import SegmentationConfig
 
     m = Map3D(world.state, world.origin, world.resolution, world.source)
     grid = band_grid(m, lo, hi, floor=0.0)
@@ -245,7 +244,6 @@ def plan_route3d(world: VoxelWorld, config: Route3DConfig | None = None,
     EmptyInputError
         No room of the map has free space the robot fits in.
     """
-    from ..segmentation import segment_rooms
 
     cfg = config or Route3DConfig()
     geo = voxel_geometry(world)

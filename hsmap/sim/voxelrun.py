@@ -25,13 +25,16 @@ from .. import __version__
 from ..config import to_dict
 from ..datasets.simulated import FORMAT, FORMAT_VERSION
 from ..errors import ScenarioError
+from ..grid import write_label_image
 from ..io import sweep_stale_temporaries, write_json, write_text
+from ..maps3d import read_map3d
 from ..trajectory import Trajectory, write_tum
 from .building import BuildingRunConfig, building_motion
 from .robot import Motion, OdometryConfig, RobotConfig
 from .route3d import Route3D, Route3DConfig, plan_route3d
 from .sensors import Lidar2DConfig, Lidar3DConfig
 from .voxelworld import VoxelWorld
+from .writer import open_dataset_folder, write_sensor_frames
 
 __all__ = ["WorldRunConfig", "WorldRun", "simulate_world", "load_voxel_world"]
 
@@ -75,7 +78,6 @@ class WorldRun:
 
 def load_voxel_world(path: str | os.PathLike, floor: float | None = None) -> VoxelWorld:
     """Read a 3D map (:func:`hsmap.maps3d.read_map3d`) as a voxel world, its floor's surface at z = 0."""
-    from ..maps3d import read_map3d
 
     return VoxelWorld.from_map(read_map3d(path), floor)
 
@@ -100,8 +102,6 @@ def simulate_world(world: VoxelWorld | str | os.PathLike, out: str | os.PathLike
     -------
     WorldRun
     """
-    from ..grid import write_label_image
-    from .writer import open_dataset_folder, write_sensor_frames
 
     cfg = config or WorldRunConfig()
     seed = int(seed)

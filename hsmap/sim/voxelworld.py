@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InputError, ShapeError
+from ..maps3d import floor_height
 from .world import World
 
 __all__ = ["VoxelWorld", "cast_voxels", "ground_surface", "UNKNOWN", "FREE", "OCCUPIED"]
@@ -173,7 +174,6 @@ class VoxelWorld(World):
     def from_map(cls, m, floor: float | None = None) -> VoxelWorld:
         """The world of a :class:`hsmap.maps3d.Map3D`, its floor at z = 0 (``floor`` in the map's frame;
         default :func:`hsmap.maps3d.floor_height`)."""
-        from ..maps3d import floor_height
 
         f = floor_height(m) if floor is None else float(floor)
         return cls(m.state, m.origin, m.resolution, ground_surface(m.state, m.origin, m.resolution, f),

@@ -33,13 +33,14 @@ from .. import __version__
 from ..config import to_dict
 from ..datasets.simulated import FORMAT, FORMAT_VERSION, encode_range_image
 from ..errors import DatasetError, ScenarioError
+from ..geometry import pose_to_matrix
 from ..io import atomic_path, staged_outputs, sweep_stale_temporaries, write_json, write_text
 from ..trajectory import Trajectory, write_tum
 from . import layout
 from .catalog import resolve_scenario
 from .robot import Motion, mast_matrices, mast_poses, mast_sway, simulate_motion
 from .scenario import Scenario, load_scenario
-from .world import World
+from .world import World, _finish
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "SimulationSummary", "simulate", "save_npz", "motion_for", "noise_rngs",
            "write_sensor_frames", "rolling_scan3d"]
@@ -324,8 +325,6 @@ def rolling_scan3d(world, legs, stamps, lidar3d, rngs=None, directions=None, swa
     column j cast at ``stamps + lidar3d.column_times()[j]`` from the robot's pose along ``legs`` then, the mast
     tilted by ``sway`` (N, columns, 2) roll and pitch about its foot (:func:`hsmap.sim.robot.mast_sway`).
     ``rngs``: None or one Generator per sweep (noise and dropout as :meth:`hsmap.sim.world.World.scan3d`)."""
-    from ..geometry import pose_to_matrix
-    from .world import _finish
 
     dirs_s = lidar3d.directions() if directions is None else np.asarray(directions)
     C, W = dirs_s.shape[:2]

@@ -20,6 +20,20 @@ from pathlib import Path
 
 import numpy as np
 
+from ..datasets.open import open_dataset
+from ..errors import EmptyInputError
+from ..evaluation.trajectory import pose_errors
+from ..fusion import global_align, occupied_points
+from ..grid import FREE, OCCUPIED, UNKNOWN, GridGeometry, OccupancyGrid
+from ..io import write_json
+from ..maps3d import band_grid, segmentation_free
+from ..pipeline.chain import map_recording
+from ..segmentation import SegmentationConfig, segment_rooms
+from ..sim.voxelrun import load_voxel_world, simulate_world
+from ..topology import room_graph
+from ..trajectory import read_tum
+from .paths import datasets_dir, generated_dir
+
 __all__ = ["TABLE1_BOUNDS", "MAP_FILE", "map_path", "BandRooms", "band_rooms", "WorldRun", "world_runs",
            "table1_summary", "write_summary", "points_grid", "overlay_2d_map"]
 
@@ -31,7 +45,6 @@ MAP_FILE = "octomap/geb079.bt"
 
 def map_path(root: str | Path | None = None) -> Path | None:
     """geb079.bt under ``root`` (default :func:`hsmap.study.paths.datasets_dir`), or None when it is missing."""
-    from .paths import datasets_dir
 
     p = Path(root if root is not None else datasets_dir()) / MAP_FILE
     return p if p.is_file() else None
@@ -82,10 +95,6 @@ def band_rooms(m, band: tuple[float, float], *, floor: float | None = None, conf
         The floor's height in the map's frame (default :func:`hsmap.maps3d.floor_height`).
     config : SegmentationConfig, optional
     """
-    from ..grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
-    from ..maps3d import band_grid, segmentation_free
-    from ..segmentation import SegmentationConfig, segment_rooms
-    from ..topology import room_graph
 
     t = time.perf_counter()
     cfg = config or SegmentationConfig()
@@ -131,12 +140,6 @@ def world_runs(map_file: str | Path, seeds, *, max_frames: int | None = None, ro
     log : callable
         Receives one line per run.
     """
-    from ..datasets.open import open_dataset
-    from ..evaluation.trajectory import pose_errors
-    from ..pipeline.chain import map_recording
-    from ..sim.voxelrun import load_voxel_world, simulate_world
-    from ..trajectory import read_tum
-    from .paths import generated_dir
 
     stem = Path(map_file).stem
     root = Path(root) if root is not None else generated_dir() / f"world-{stem}"
@@ -174,7 +177,6 @@ def table1_summary(runs: list[WorldRun]) -> dict:
 
 def write_summary(runs: list[WorldRun], path: str | Path) -> None:
     """The runs' numbers as JSON (seeds, frames, route, Table 1 errors, timings, slice rooms)."""
-    from ..io import write_json
 
     write_json(path, {"runs": [{"seed": r.seed, "frames": r.world["frames"], "route_m": r.world["route_m"],
                                 "errors": r.errors, "seconds": r.seconds,
@@ -186,8 +188,6 @@ def write_summary(runs: list[WorldRun], path: str | Path) -> None:
 def points_grid(points, resolution: float = 0.05):
     """A 2D point map (N, 2+) as an occupancy grid: the points' cells occupied, the rest unknown (as ``hsmap
     align`` reads a point map)."""
-    from ..errors import EmptyInputError
-    from ..grid import OCCUPIED, UNKNOWN, GridGeometry, OccupancyGrid
 
     pts = np.asarray(points, dtype=float)[:, :2]
     if len(pts) < 3:
@@ -210,8 +210,6 @@ def overlay_2d_map(points2d, m, band: tuple[float, float] = (1.7, 1.8), *, seed:
         ``transform`` (x, y, yaw_deg), ``overlap``, ``covered`` (the part of the 2D map's occupied cells inside
         the 3D map's box, and that part's extent in the 2D map's frame) and ``seconds``.
     """
-    from ..fusion import global_align, occupied_points
-    from ..maps3d import band_grid
 
     t = time.perf_counter()
     pts = np.asarray(points2d, dtype=float)[:, :2]

@@ -7,13 +7,20 @@ from typing import Any
 
 import numpy as np
 
-from ..viz.replay import record_slam_run
 from .runs import SlamRun
 
 __all__ = [
     "record_slam_run", "slam_blueprint", "record_overlap", "overlap_blueprint", "record_topology",
     "topology_blueprint",
 ]
+
+
+def record_slam_run(rec: Any, dataset: Any, run: SlamRun, **kwargs: Any) -> dict:
+    """A cached run replayed into a recording: :func:`hsmap.viz.replay.record_slam_run` (rerun is imported when a
+    recording is made)."""
+    from ..viz.replay import record_slam_run as replay
+
+    return replay(rec, dataset, run, **kwargs)
 
 
 def slam_blueprint(run: SlamRun, *, grid: Any = None, names: dict[str, str] | None = None) -> Any:

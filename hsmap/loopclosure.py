@@ -432,6 +432,8 @@ class LoopCloser:
         self.rejections: dict[str, int] = {}
         self.far_attempts = 0
         self.far_accepted = 0
+        self.registrations = 0  # Harmony-ICP registrations, and the candidate poses they scored
+        self.evaluations = 0
         self._far_pending: list[LoopClosure] = []
 
     # ------------------------------------------------------------------------------------------ candidates
@@ -541,6 +543,7 @@ class LoopCloser:
                     guesses.append(g)
         res = harmony_icp(source, target, bounds=bounds, initial_guesses=np.asarray(guesses),
                           config=cfg.registration, rng=rng)
+        self.registrations, self.evaluations = self.registrations + 1, self.evaluations + res.evaluations
         return self._checked(res, anchor, newest, predicted, predicted, half,
                              sides=(source, origins, target) if sides else None)
 
@@ -649,6 +652,7 @@ class LoopCloser:
         half = np.array([3 * cfg.far_resolution, 3 * cfg.far_resolution, 3 * cfg.far_angle_step])  # a cell or two off
         res = harmony_icp(source, target, bounds=np.column_stack([centre - half, centre + half]),
                           initial_guesses=centre[None], config=cfg.registration, rng=rng)
+        self.registrations, self.evaluations = self.registrations + 1, self.evaluations + res.evaluations
         return self._checked(res, anchor, newest, relative(P[anchor], P[newest]), centre, half, prefix="far_")
 
     def corroborate(self, closure: LoopClosure, graph: PoseGraph) -> list[LoopClosure]:

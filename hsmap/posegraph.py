@@ -79,6 +79,8 @@ class OptimizationResult:
     error_after: float = float("nan")
     rejected: list[int] = field(default_factory=list)  # indices of loop edges switched off
     message: str = ""
+    rounds: int = 0  # Levenberg-Marquardt runs, one per pruning round
+    iterations_total: int = 0  # their iterations
 
 
 def information_with_floor(information: ArrayLike, sigma_translation: float, sigma_rotation: float
@@ -241,6 +243,7 @@ class PoseGraph:
 
         rejected: list[int] = []
         result = OptimizationResult("ok")
+        rounds = iterations = 0
         for _ in range(max(1, prune_rounds)):
             try:
                 graph, values = self._build(gtsam, fixed)
@@ -256,10 +259,14 @@ class PoseGraph:
                 after = graph.error(out)
                 poses = self._from_gtsam(gtsam, out)
             except RuntimeError as exc:  # gtsam raises RuntimeError (IndeterminantLinearSystem, ...)
-                return OptimizationResult("failed", message=f"{type(exc).__name__}: {exc}".splitlines()[0])
+                return OptimizationResult("failed", message=f"{type(exc).__name__}: {exc}".splitlines()[0],
+                                          rounds=rounds + 1, iterations_total=iterations)
+            rounds, iterations = rounds + 1, iterations + opt.iterations()
             if not (np.isfinite(after) and np.all(np.isfinite(poses))):
-                return OptimizationResult("failed", message="the optimisation gave non-finite poses")
-            result = OptimizationResult("ok", opt.iterations(), float(before), float(after), rejected)
+                return OptimizationResult("failed", message="the optimisation gave non-finite poses",
+                                          rounds=rounds, iterations_total=iterations)
+            result = OptimizationResult("ok", opt.iterations(), float(before), float(after), rejected,
+                                        rounds=rounds, iterations_total=iterations)
             poses[fixed] = self._P[fixed]  # the gauge exactly: its prior lets the solver move it by rounding noise
             self._P[: self._n] = poses
             off = self._update_chi2()

@@ -11,6 +11,7 @@ optimised with GTSAM, and the tracking map is built from the keyframes near the 
 """
 
 from .config import KeyframeGraphConfig, SlamConfig
+from .costs import Costs
 from .frames import frame_points, grazing_where_sparse, sampled_as_its_normal_says
 from .keyframes import KeyframeGraph
 from .odometry import OdometryModel
@@ -18,6 +19,6 @@ from .run import SlamResult, prior_coverage, run_slam, write_slam_outputs
 from .tracker import FrameResult, HsSlam
 from .verify import Verifier
 
-__all__ = ["SlamConfig", "KeyframeGraphConfig", "FrameResult", "SlamResult", "HsSlam", "run_slam",
+__all__ = ["SlamConfig", "Costs", "KeyframeGraphConfig", "FrameResult", "SlamResult", "HsSlam", "run_slam",
            "write_slam_outputs", "frame_points", "prior_coverage", "grazing_where_sparse",
            "sampled_as_its_normal_says", "OdometryModel", "Verifier", "KeyframeGraph"]

@@ -28,6 +28,7 @@ from ..registration import (
 )
 from ..trajectory import Trajectory
 from .config import SlamConfig
+from .costs import Costs
 from .frames import frame_points, grazing_where_sparse
 from .odometry import OdometryModel
 
@@ -59,6 +60,8 @@ class KeyframeGraph:
         Gives the wheel edges.
     loop_rng : numpy.random.Generator
         The loop closer's random stream.
+    costs : Costs, optional
+        Counts the work: loop searches, pair edges, optimisations, points put in the tracking map.
 
     Attributes
     ----------
@@ -71,8 +74,10 @@ class KeyframeGraph:
         The next registration's target (None: to be rebuilt, :meth:`ensure_target`).
     """
 
-    def __init__(self, config: SlamConfig, odometry: OdometryModel, loop_rng: np.random.Generator) -> None:
+    def __init__(self, config: SlamConfig, odometry: OdometryModel, loop_rng: np.random.Generator, *,
+                 costs: Costs | None = None) -> None:
         self.config = config
+        self.costs = costs if costs is not None else Costs()
         cfg, lc = config, config.loop_closure
         self.dim = cfg.dim
         self.odometry = odometry
@@ -163,6 +168,7 @@ class KeyframeGraph:
         T = pose_to_matrix(pose)
         world = transform_points(T, dense)
         added, added_normals = self.map.add(world, normals @ T[: self.dim, : self.dim].T, return_normals=True)
+        self.costs.add(points_inserted=len(world))
         if self._field is not None and len(added):
             self._field.add(added, added_normals if self._field.keeps_nearest else None)
         self.last_key = pose
@@ -191,6 +197,7 @@ class KeyframeGraph:
         for i in near[np.argsort(dist[near], kind="stable")][: gc.pair_edges]:
             match = pair_match(source, self.keyframe_target(int(i)), relative(P[i], P[k]),
                                self.config.registration, gc.pair_iterations, lc.min_inlier_ratio)
+            self.costs.add(refinements=1)
             if match is None:
                 continue  # too little overlap
             z, info = match
@@ -213,6 +220,8 @@ class KeyframeGraph:
         gc = self.config.graph
         closer = self.closer
         urgent = False
+        searches, far, registrations, evaluations = (closer.attempts, closer.far_attempts, closer.registrations,
+                                                     closer.evaluations)
         search = k % gc.search_every == 0
         for cand in closer.candidates(self.graph, k, self._path)[: gc.attempts_per_keyframe if search else 0]:
             closure = closer.attempt(self.graph, self.keyframes, k, cand, self._loop_rng)
@@ -230,6 +239,9 @@ class KeyframeGraph:
                 self.graph.add_edge(c.i, c.j, c.measurement, c.information, EdgeKind.LOOP, robust=False)
                 self._pending += 1
                 urgent = True
+        self.costs.add(loop_searches=closer.attempts - closer.far_attempts - (searches - far),
+                       far_searches=closer.far_attempts - far, registrations=closer.registrations - registrations,
+                       harmony_evaluations=closer.evaluations - evaluations)
         self._since_optimized += 1
         if self._pending and (urgent or self._since_optimized >= gc.optimize_every):
             return self.optimize()
@@ -242,6 +254,7 @@ class KeyframeGraph:
         before = self.graph.poses.copy()
         out = self.graph.optimize()
         self._optimizations += 1
+        self.costs.add(optimizations=1, optimization_rounds=out.rounds, optimization_iterations=out.iterations_total)
         self._pending = 0
         self._since_optimized = 0
         if out.status != "ok":
@@ -322,8 +335,10 @@ class KeyframeGraph:
         if self.closer is not None:
             voxel = self.config.effective_map_voxel()
             within = (centre, 1.5 * self.config.local_map_radius + 2 * voxel * np.sqrt(self.dim))
-        self.map = self._keyframe_map(self._tracking_keyframes(), within=within)
+        which = self._tracking_keyframes()
+        self.map = self._keyframe_map(which, within=within)
         self._map_stale = False
+        self.costs.add(map_rebuilds=1, points_inserted=sum(len(self.keyframes[k].points) for k in which))
 
     def _keyframe_map(self, which, within: tuple[NDArray[np.float64], float] | None = None) -> VoxelMap:
         """A voxel map of the given keyframes at their current poses (the first point or the mean per voxel)."""

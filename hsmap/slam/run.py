@@ -47,6 +47,7 @@ class SlamResult:
     odometry: dict = field(default_factory=dict)
     smoothing: dict = field(default_factory=dict)
     unsmoothed: Trajectory | None = None  # the graph's trajectory, before the smoothing
+    costs: dict = field(default_factory=dict)  # :meth:`hsmap.slam.costs.Costs.as_dict`
 
     def metrics(self) -> dict:
         """Per-frame and total metrics, JSON-ready."""
@@ -78,6 +79,7 @@ class SlamResult:
             "loop_closure_detail": self.loop_closure,
             "prior": self.prior or None,
             "input_info": self.input_info or None,
+            "costs": self.costs or None,
             "per_frame": {
                 "index": [f.index for f in self.frames],
                 "stamp": [f.stamp for f in self.frames],
@@ -247,7 +249,7 @@ def run_slam(
                       loop_closure=slam.loop_summary(), tracked=slam.tracked_trajectory, skipped=skipped,
                       prior=prior_info, input_info=dataset.describe() if isinstance(dataset, Dataset) else {},
                       odometry=slam.odometry_summary(), smoothing=slam.smoothing_summary(),
-                      unsmoothed=slam.graph_trajectory)
+                      unsmoothed=slam.graph_trajectory, costs=slam.costs.as_dict())
 
 
 def write_slam_outputs(result: SlamResult, out_dir: str | Path) -> dict[str, Path]:

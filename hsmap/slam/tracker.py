@@ -22,6 +22,7 @@ from ..registration import RegistrationResult, RegistrationTarget, harmony_icp, 
 from ..smoothing import SmoothingResult, smooth_with_odometry
 from ..trajectory import Trajectory
 from .config import SlamConfig
+from .costs import Costs
 from .frames import frame_points, unusable_reason
 from .keyframes import KeyframeGraph, pair_match
 from .odometry import OdometryModel, constrains_xy
@@ -103,8 +104,9 @@ class HsSlam:
         self.odometry = OdometryModel(cfg, learn=cfg.learn_odometry and prior is None,
                                       wheel_edges=cfg.dof == 3 and prior is None and cfg.graph.odometry_edges,
                                       prior=prior is not None)
-        self.verifier = Verifier(cfg)
-        self.keyframe_graph = KeyframeGraph(cfg, self.odometry, loop_rng)
+        self.costs = Costs()
+        self.verifier = Verifier(cfg, costs=self.costs)
+        self.keyframe_graph = KeyframeGraph(cfg, self.odometry, loop_rng, costs=self.costs)
         # per frame, for the smoothing: the odometry's motion from the previous frame (bias out), its sigmas
         # (x, y, yaw), and the scan matched against the previous frame's scan alone (NaN where none)
         self._smooth = cfg.smoothing and cfg.dof == 3 and prior is None
@@ -229,6 +231,7 @@ class HsSlam:
             bounds = np.column_stack([guesses.min(0) - half, guesses.max(0) + half])
             res = harmony_icp(scan, target, bounds=bounds, initial_guesses=guesses,
                               config=cfg.registration, rng=self.rng)
+            self.costs.registration(res.evaluations)
             self.odometry.learn_bias(frame, res, self.poses[-1])
             res, retried, verified = self._verify(frame, scan, res)
             self.odometry.learn_scale(frame, res)
@@ -281,6 +284,7 @@ class HsSlam:
             gc, lc = self.config.graph, self.config.loop_closure
             match = pair_match(scan, self._prev_scan, relative(self.poses[-1], pose), self.config.registration,
                                gc.pair_iterations, lc.min_inlier_ratio)
+            self.costs.add(refinements=1)
             ok = match is not None and constrains_xy(match[1], self.config.degenerate_ratio)
             self._scan_motion.append(match[0] if ok else none)
         # the next frame's reference (its normals are estimated when it is first matched)

@@ -14,6 +14,7 @@ from ..information import drop_degenerate
 from ..posegraph import information_with_floor
 from ..registration import RegistrationResult, RegistrationTarget, harmony_icp
 from .config import SlamConfig
+from .costs import Costs
 
 __all__ = ["Verifier", "residuals", "within_box", "truncated_residual", "matched_share", "at_least_as_good",
            "slip_weight", "STRICT_SIGMAS", "STRICT_MIN_POINTS", "STRICT_MIN_MATCHED"]
@@ -106,11 +107,14 @@ class Verifier:
     Parameters
     ----------
     config : SlamConfig
+    costs : Costs, optional
+        Counts the retries' registrations.
     """
 
-    def __init__(self, config: SlamConfig) -> None:
+    def __init__(self, config: SlamConfig, *, costs: Costs | None = None) -> None:
         self.config = config
         self.dim = config.dim
+        self.costs = costs if costs is not None else Costs()
 
     def verify(self, scan: NDArray[np.float64], target: RegistrationTarget, res: RegistrationResult,
                predict: Callable[[bool], Prediction], half: NDArray[np.float64], rng: np.random.Generator,
@@ -164,6 +168,8 @@ class Verifier:
         guesses = centre[None]
         bounds = np.column_stack([centre - half, centre + half])
         alt = harmony_icp(scan, target, bounds=bounds, initial_guesses=guesses, config=retry_cfg, rng=rng)
+        self.costs.registration(alt.evaluations)
+        self.costs.add(retries=1)
         boxed = within_box(alt, centre, half, self.dim)
         if r_first is None:
             r_first = residuals(scan, target, res.pose, reg.threshold)

@@ -1,0 +1,104 @@
+"""HS-SLAM's counted work (:class:`hsmap.slam.Costs`): the counters alone, and a budget on the first intel frames
+that a run doing twice the work exceeds."""
+
+import json
+import math
+
+import pytest
+
+from hsmap.slam import Costs, SlamConfig, run_slam, write_slam_outputs
+
+#: Frames of the Intel Research Lab log (seed 1, the default configuration, loop closure on).
+FRAMES = 3000
+#: The counts of such a run (:meth:`Costs.as_dict`).
+REFERENCE = {
+    "registrations": 3188,
+    "refinements": 4009,
+    "harmony_evaluations": 1723032,
+    "retries": 97,
+    "loop_searches": 89,
+    "far_searches": 6,
+    "optimizations": 16,
+    "optimization_rounds": 33,
+    "optimization_iterations": 243,
+    "map_rebuilds": 19,
+    "points_inserted": 331676,
+}
+#: How much a count may grow before the test fails: a change doubling the work fails it.
+MARGIN = 1.3
+#: A count this small may grow by this much however small it is (a search or an optimisation more).
+SLACK = 2
+BUDGET = {k: max(math.ceil(MARGIN * v), v + SLACK) for k, v in REFERENCE.items()}
+
+
+# ---------------------------------------------------------------------------------------------- the counters
+def test_costs_start_at_zero_and_add_up():
+    c = Costs()
+    assert c.as_dict() == dict.fromkeys(Costs.names(), 0)
+    c.registration(120)
+    c.registration(30)
+    c.add(refinements=2, points_inserted=500)
+    c.add(points_inserted=1)
+    d = c.as_dict()
+    assert d["registrations"] == 2 and d["harmony_evaluations"] == 150
+    assert d["refinements"] == 2 and d["points_inserted"] == 501
+    assert sum(d.values()) == 2 + 150 + 2 + 501
+    assert all(type(v) is int for v in d.values())
+    assert json.loads(json.dumps(d)) == d
+
+
+def test_costs_reject_unknown_counters_and_negative_counts():
+    c = Costs()
+    with pytest.raises(AttributeError, match="no counter 'registration'"):
+        c.add(registration=1)
+    with pytest.raises(ValueError, match="only grows"):
+        c.add(refinements=-1)
+    assert c.as_dict() == Costs().as_dict()
+
+
+def test_budget_names_every_counter():
+    assert list(REFERENCE) == Costs.names()
+    assert all(BUDGET[k] < 2 * v for k, v in REFERENCE.items() if v >= 10)
+
+
+# ------------------------------------------------------------------------------------------------- a run
+@pytest.fixture
+def intel_run(datasets_dir):
+    from hsmap.datasets.open import open_dataset
+
+    bag = datasets_dir / "slam2d" / "intel" / "intel.orig.bag"
+    if not bag.is_file():
+        pytest.skip(f"{bag} is absent (the Freiburg logs: hsmap data fetch)")
+    return run_slam(open_dataset(bag), SlamConfig(dof=3), rng=1, max_frames=FRAMES, progress=False, threads=1)
+
+
+@pytest.mark.slow
+def test_intel_run_stays_within_its_cost_budget(intel_run, tmp_path):
+    costs = intel_run.costs
+    assert len(intel_run.frames) == FRAMES
+    # every frame after the first is registered; every keyframe inserts its scan
+    assert costs["registrations"] >= FRAMES - 1
+    assert costs["harmony_evaluations"] >= costs["registrations"]
+    assert costs["points_inserted"] >= sum(f.points for f in intel_run.frames if f.keyframe)
+    over = {k: f"{costs[k]} > {BUDGET[k]} (reference {REFERENCE[k]} x {MARGIN})"
+            for k in BUDGET if costs[k] > BUDGET[k]}
+    assert not over, f"HS-SLAM's work on the first {FRAMES} intel frames grew beyond its budget: {over}"
+    paths = write_slam_outputs(intel_run, tmp_path)
+    assert json.loads(paths["metrics"].read_text())["costs"] == costs
+
+
+def test_graph_optimisation_reports_its_rounds_and_iterations():
+    import numpy as np
+
+    from hsmap.posegraph import EdgeKind, PoseGraph
+
+    g = PoseGraph(3)
+    for x in range(4):
+        g.add_node(np.array([x + 0.1 * x * x, 0.05 * x, 0.0]))
+    for i in range(3):
+        g.add_edge(i, i + 1, np.array([1.0, 0.0, 0.0]), np.eye(3) * 100.0, EdgeKind.ODOMETRY)
+    g.add_edge(0, 3, np.array([3.0, 0.0, 0.0]), np.eye(3) * 100.0, EdgeKind.LOOP)
+    out = g.optimize()
+    assert out.status == "ok"
+    assert 1 <= out.rounds <= 3
+    assert out.iterations_total >= out.iterations >= 1

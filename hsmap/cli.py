@@ -12,6 +12,7 @@ command line (argparse's message, on one line). A run that completes but has a f
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import os
 import re
@@ -119,6 +120,10 @@ def _main(argv: list[str] | None) -> int:
     except HsmapError as exc:
         print(f"hsmap: error: {_one_line(exc)}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # the reader of stdout went away (``hsmap config show | head``): not an error
+        with contextlib.suppress(OSError):
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except OSError as exc:  # an output (or input) the system refused: full disk, read-only folder, ...
         where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
         print(f"hsmap: error: {where}{_one_line(exc.strerror or exc)}", file=sys.stderr)

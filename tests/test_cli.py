@@ -36,3 +36,14 @@ def test_a_negative_vector_is_a_flags_value():
     # a flag that takes no value leaves the next argument alone
     r = run_cli("slam", "x.bag", "--out", "o", "--quiet", "-0.04,0,0")
     assert r.returncode == 2 and "unrecognized arguments: -0.04,0,0" in r.stderr
+
+
+def test_a_closed_stdout_is_not_an_error():
+    """``hsmap config show | head -1``: the reader going away ends the command quietly with status 0."""
+    import subprocess
+    import sys
+
+    cmd = f"{sys.executable} -m hsmap config show | head -1"
+    proc = subprocess.run(["bash", "-o", "pipefail", "-c", cmd], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.startswith("[slam]") and "error" not in proc.stderr

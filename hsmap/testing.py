@@ -7,6 +7,7 @@
 - :func:`room_scan_sequence` and :func:`write_scan_bag`: a robot driving through that room as a ROS1 or ROS2 bag
   of ``sensor_msgs/LaserScan`` (and optionally ``sensor_msgs/PointCloud2``) messages, for the readers' and the
   command line's tests.
+- :func:`two_rooms_octree`: two rooms joined by a door, scanned into an OctoMap ``.bt`` file (octomap-python).
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from numpy.typing import NDArray
 from .geometry import pose_to_matrix, transform_points
 from .harmony import as_rng
 
-__all__ = ["room_segments", "raycast_2d", "scan_points_2d", "room_boxes_3d", "room_cloud_3d", "room_scan_sequence",
+__all__ = ["two_rooms_octree", "room_segments", "raycast_2d", "scan_points_2d", "room_boxes_3d", "room_cloud_3d", "room_scan_sequence",
            "write_scan_bag"]
 
 
@@ -324,3 +325,32 @@ def write_scan_bag(
             if cconn is not None:
                 w.write(cconn, t_ns + 1, serialize(cloud_msg(float(stamps[k]), k, clouds[k]), cloud_type))
     return path
+
+
+def two_rooms_octree(path, resolution: float = 0.1) -> None:
+    """Write an OctoMap ``.bt`` of two 4 x 3 m rooms side by side (x 0-4 and 4-8 m, y 0-3 m), walls 2.5 m high,
+    a 0.9 m wide, 2 m high door between them, floor at z = 0 and a ceiling, each room scanned from (2 or 6, 1.5,
+    1.2) m: occupied, free and unknown voxels as a real map has them. Needs octomap-python."""
+    import octomap
+
+    tree = octomap.OcTree(resolution)
+    step = resolution / 2
+    xs, ys, zs = np.arange(0.0, 8.0 + 1e-9, step), np.arange(0.0, 3.0 + 1e-9, step), np.arange(0.05, 2.5, step)
+    walls = []
+    for y in (0.0, 3.0):
+        X, Z = np.meshgrid(xs, zs, indexing="ij")
+        walls.append(np.stack([X.ravel(), np.full(X.size, y), Z.ravel()], 1))
+    for x in (0.0, 4.0, 8.0):
+        Y, Z = np.meshgrid(ys, zs, indexing="ij")
+        keep = ~((x == 4.0) & (Y.ravel() > 1.05) & (Y.ravel() < 1.95) & (Z.ravel() < 2.0))
+        walls.append(np.stack([np.full(Y.size, x), Y.ravel(), Z.ravel()], 1)[keep])
+    X, Y = np.meshgrid(xs, ys, indexing="ij")
+    floor = np.stack([X.ravel(), Y.ravel(), np.full(X.size, -0.05)], 1)
+    ceiling = np.stack([X.ravel(), Y.ravel(), np.full(X.size, 2.55)], 1)
+    cloud = np.vstack([*walls, floor, ceiling])
+    for origin in ((2.0, 1.5, 1.2), (6.0, 1.5, 1.2)):
+        near = np.abs(cloud[:, 0] - origin[0]) <= 2.05  # each sensor sees its own room and through the door
+        tree.insertPointCloud(cloud[near], np.array(origin))
+    tree.updateInnerOccupancy()
+    if not tree.writeBinary(str(path).encode()):
+        raise OSError(f"{path}: octomap could not write the file")

@@ -11,6 +11,7 @@ import pytest
 from hsmap.cli import main
 from hsmap.grid import read_label_image, read_map
 from hsmap.maps3d import FREE, OCCUPIED, UNKNOWN, Map3D, read_map3d, seen_through
+from hsmap.testing import two_rooms_octree
 
 octomap = pytest.importorskip("octomap", reason="octomap-python is not installed")
 
@@ -135,32 +136,8 @@ def test_segmentation_free_closes_cracks_not_doors():
 def test_synthetic_octree_two_rooms(tmp_path):
     """Two 4 x 3 m rooms side by side with a 0.9 m door between them, walls 2.5 m high, scanned from one point
     in each room: the band at 1-1.2 m segments into two rooms joined by one door."""
-    res = 0.1
-    tree = octomap.OcTree(res)
-    step = res / 2
-    walls = []
-    xs = np.arange(0.0, 8.0 + 1e-9, step)
-    ys = np.arange(0.0, 3.0 + 1e-9, step)
-    zs = np.arange(0.05, 2.5, step)
-    for y in (0.0, 3.0):
-        X, Z = np.meshgrid(xs, zs, indexing="ij")
-        walls.append(np.stack([X.ravel(), np.full(X.size, y), Z.ravel()], 1))
-    for x in (0.0, 4.0, 8.0):
-        Y, Z = np.meshgrid(ys, zs, indexing="ij")
-        keep = ~((x == 4.0) & (Y.ravel() > 1.05) & (Y.ravel() < 1.95) & (Z.ravel() < 2.0))
-        walls.append(np.stack([np.full(Y.size, x), Y.ravel(), Z.ravel()], 1)[keep])
-    X, Y = np.meshgrid(xs, ys, indexing="ij")
-    floor = np.stack([X.ravel(), Y.ravel(), np.full(X.size, -0.05)], 1)
-    ceiling = np.stack([X.ravel(), Y.ravel(), np.full(X.size, 2.55)], 1)
-    cloud = np.vstack([*walls, floor, ceiling])
-    for origin in ((2.0, 1.5, 1.2), (6.0, 1.5, 1.2)):
-        o = np.array(origin)
-        # each sensor sees what lies in its own room (and through the door)
-        near = np.abs(cloud[:, 0] - o[0]) <= 2.05
-        tree.insertPointCloud(cloud[near], o)
-    tree.updateInnerOccupancy()
     path = tmp_path / "rooms.bt"
-    assert tree.writeBinary(str(path).encode())
+    two_rooms_octree(path)
     m = read_map3d(path)
     assert (m.state == UNKNOWN).any() and (m.state == FREE).any()
     out = tmp_path / "seg"

@@ -163,12 +163,18 @@ def test_a_missing_file_and_bad_arguments_fail_with_one_line(datasets_dir, cache
 
 
 def test_hsmap_datasets_overrides_the_cache(tmp_path, monkeypatch):
-    (tmp_path / "cache" / "datasets" / "slam2d").mkdir(parents=True)
+    from hsmap.study.registry import registry
+
+    cache = tmp_path / "cache" / "datasets"
+    octomap = registry()["octomap"]
+    for f in octomap.files:  # a complete download of one dataset (files present; not hash-checked here)
+        (cache / octomap.folder / f.path).parent.mkdir(parents=True, exist_ok=True)
+        (cache / octomap.folder / f.path).write_bytes(b"")
     monkeypatch.setenv("HSMAP_CACHE", str(tmp_path / "cache"))
     monkeypatch.setenv("HSMAP_DATASETS", str(tmp_path / "mine"))
     assert find_datasets() == tmp_path / "mine"
     monkeypatch.delenv("HSMAP_DATASETS")
-    assert find_datasets() == tmp_path / "cache" / "datasets"  # the cache holds something: it is used
+    assert find_datasets() == cache  # the cache holds a complete dataset: it is used
 
 
 @pytest.mark.slow

@@ -33,7 +33,8 @@ from .robot import Motion, OdometryConfig, RobotConfig, simulate_motion
 from .sensors import Lidar2DConfig, Lidar3DConfig
 from .writer import open_dataset_folder, write_sensor_frames
 
-__all__ = ["BuildingRunConfig", "BuildingRun", "simulate_building", "building_motion"]
+__all__ = ["BuildingRunConfig", "BuildingRun", "simulate_building", "building_motion", "write_route_files",
+           "write_dataset_yaml"]
 
 
 @dataclass
@@ -133,24 +134,45 @@ def simulate_building(plan: FloorPlan, out: str | os.PathLike, *, seed: int = 0,
     timings["motion"] = time.perf_counter() - t
 
     write_sensor_frames(out, world, motion, cfg.lidar2d, cfg.lidar3d, seed, timings)
-    write_tum(out / "groundtruth.tum", Trajectory(motion.stamps, motion.groundtruth))
-    write_tum(out / "odometry.tum", Trajectory(motion.stamps, motion.odometry))
-    g = plan.geometry
-    write_label_image(out / "rooms.png", plan.rooms)
-    write_text(out / "rooms.yaml", yaml.safe_dump({
-        "image": "rooms.png", "resolution": g.resolution, "origin": [g.origin[0], g.origin[1], 0.0],
-        "labels": {int(k): f"room {k}" for k in range(1, plan.n_rooms + 1)},
-        "convention": "map_server: origin is the world (x, y, yaw) of the lower-left pixel's lower-left corner; "
-                      "row 0 of the image is the top; 0 = no room; the ground truth's rooms, in its own pixel grid",
-    }, sort_keys=False))
-    write_json(out / "doors.json", {"format_version": FORMAT_VERSION, "frame": "world", "doors": []})
+    write_route_files(out, motion, plan.rooms, plan.geometry, plan.n_rooms,
+                      "the ground truth's rooms, in its own pixel grid")
     run = BuildingRun(out, fw, route, motion, timings)
     write_json(out / "building.json", {"world": fw.describe(), "route": route.as_dict(),
                                        "furniture": [p.as_dict() for p in fw.furniture]})
     timings["total"] = time.perf_counter() - t0
+    write_dataset_yaml(out, plan.name, f"floor-plan world of {plan.name} ({plan.files.get('plain', '')})", seed,
+                       motion, cfg, {"rooms.png": "ground-truth room labels (16-bit)",
+                                     "doors.json": "no doors (a floor plan draws none)",
+                                     "building.json": "the world (boxes, furniture) and the route (goals, "
+                                                      "unreachable rooms)"})
+    return run
+
+
+def write_route_files(out: Path, motion: Motion, rooms: np.ndarray, geometry, n_rooms: int, rooms_note: str) -> None:
+    """A route run's ``groundtruth.tum``, ``odometry.tum``, ``rooms.png`` (labels 1..``n_rooms`` on
+    ``geometry``'s pixels), ``rooms.yaml`` (its map_server geometry; ``rooms_note`` says what the rooms are)
+    and an empty ``doors.json``."""
+    write_tum(out / "groundtruth.tum", Trajectory(motion.stamps, motion.groundtruth))
+    write_tum(out / "odometry.tum", Trajectory(motion.stamps, motion.odometry))
+    g = geometry
+    write_label_image(out / "rooms.png", rooms)
+    write_text(out / "rooms.yaml", yaml.safe_dump({
+        "image": "rooms.png", "resolution": g.resolution, "origin": [g.origin[0], g.origin[1], 0.0],
+        "labels": {int(k): f"room {k}" for k in range(1, n_rooms + 1)},
+        "convention": "map_server: origin is the world (x, y, yaw) of the lower-left pixel's lower-left corner; "
+                      f"row 0 of the image is the top; 0 = no room; {rooms_note}",
+    }, sort_keys=False))
+    write_json(out / "doors.json", {"format_version": FORMAT_VERSION, "frame": "world", "doors": []})
+
+
+def write_dataset_yaml(out: Path, scenario: str, description: str, seed: int, motion: Motion, cfg,
+                       files: dict[str, str]) -> None:
+    """A route run's ``dataset.yaml`` (written last: it completes the folder). ``cfg`` has the run's
+    ``frame_rate``, ``lidar2d``, ``lidar3d``, ``robot`` and ``odometry``; ``files`` describes the files beyond the
+    sensors' and trajectories' (and may replace their descriptions)."""
     meta = {
         "format": FORMAT, "format_version": FORMAT_VERSION, "hsmap_version": __version__,
-        "scenario": plan.name, "description": f"floor-plan world of {plan.name} ({plan.files.get('plain', '')})",
+        "scenario": scenario, "description": description,
         "seed": seed, "frames": len(motion), "frame_rate": float(cfg.frame_rate),
         "start_time": float(motion.stamps[0]),
         "duration": round(float(motion.stamps[-1] - motion.stamps[0]), 6),
@@ -159,9 +181,6 @@ def simulate_building(plan: FloorPlan, out: str | os.PathLike, *, seed: int = 0,
         "robot": to_dict(cfg.robot), "odometry_model": to_dict(cfg.odometry),
         "files": {"dataset.yaml": "this description; written last", "scans2d.npz": "2D LiDAR scans",
                   "clouds3d/": "3D LiDAR range images", "groundtruth.tum": "true base poses",
-                  "odometry.tum": "wheel odometry", "rooms.png": "ground-truth room labels (16-bit)",
-                  "rooms.yaml": "its geometry", "doors.json": "no doors (a floor plan draws none)",
-                  "building.json": "the world (boxes, furniture) and the route (goals, unreachable rooms)"},
+                  "odometry.tum": "wheel odometry", "rooms.png": "", "rooms.yaml": "its geometry", **files},
     }
     write_text(out / "dataset.yaml", yaml.safe_dump(meta, sort_keys=False, width=110))
-    return run

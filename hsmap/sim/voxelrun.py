@@ -19,17 +19,10 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import yaml
-
-from .. import __version__
-from ..config import to_dict
-from ..datasets.simulated import FORMAT, FORMAT_VERSION
 from ..errors import ScenarioError
-from ..grid import write_label_image
-from ..io import sweep_stale_temporaries, write_json, write_text
+from ..io import sweep_stale_temporaries, write_json
 from ..maps3d import read_map3d
-from ..trajectory import Trajectory, write_tum
-from .building import BuildingRunConfig, building_motion
+from .building import BuildingRunConfig, building_motion, write_dataset_yaml, write_route_files
 from .robot import Motion, OdometryConfig, RobotConfig
 from .route3d import Route3D, Route3DConfig, plan_route3d
 from .sensors import Lidar2DConfig, Lidar3DConfig
@@ -127,39 +120,17 @@ def simulate_world(world: VoxelWorld | str | os.PathLike, out: str | os.PathLike
     timings["motion"] = time.perf_counter() - t
 
     write_sensor_frames(out, world, motion, cfg.lidar2d, cfg.lidar3d, seed, timings)
-    write_tum(out / "groundtruth.tum", Trajectory(motion.stamps, motion.groundtruth))
-    write_tum(out / "odometry.tum", Trajectory(motion.stamps, motion.odometry))
-    g = route.geometry
-    write_label_image(out / "rooms.png", route.rooms)
-    write_text(out / "rooms.yaml", yaml.safe_dump({
-        "image": "rooms.png", "resolution": g.resolution, "origin": [g.origin[0], g.origin[1], 0.0],
-        "labels": {int(k): f"room {k}" for k in range(1, int(route.rooms.max(initial=0)) + 1)},
-        "convention": "map_server: origin is the world (x, y, yaw) of the lower-left pixel's lower-left corner; "
-                      "row 0 of the image is the top; 0 = no room; the rooms hsmap.segmentation finds in the "
-                      f"source map's {cfg.route.rooms_band[0]:g}-{cfg.route.rooms_band[1]:g} m band (the route's "
-                      "goals), not a hand-drawn ground truth",
-    }, sort_keys=False))
-    write_json(out / "doors.json", {"format_version": FORMAT_VERSION, "frame": "world", "doors": []})
+    write_route_files(out, motion, route.rooms, route.geometry, int(route.rooms.max(initial=0)),
+                      f"the rooms hsmap.segmentation finds in the source map's {cfg.route.rooms_band[0]:g}-"
+                      f"{cfg.route.rooms_band[1]:g} m band (the route's goals), not a hand-drawn ground truth")
     run = WorldRun(out, world, route, motion, timings)
     timings["total"] = time.perf_counter() - t0
     write_json(out / "world.json", {k: v for k, v in run.as_dict().items() if k != "path"})
-    meta = {
-        "format": FORMAT, "format_version": FORMAT_VERSION, "hsmap_version": __version__,
-        "scenario": Path(world.source).stem,
-        "description": f"voxel world of the 3D map {world.source} (floor surface at z = 0, "
-                       f"{world.floor:+.3f} m in the map's frame; the map's x, y)",
-        "seed": seed, "frames": len(motion), "frame_rate": float(cfg.frame_rate),
-        "start_time": float(motion.stamps[0]),
-        "duration": round(float(motion.stamps[-1] - motion.stamps[0]), 6),
-        "path_length": round(motion.path_length(), 6),
-        "sensors": {"lidar2d": cfg.lidar2d.describe(), "lidar3d": cfg.lidar3d.describe()},
-        "robot": to_dict(cfg.robot), "odometry_model": to_dict(cfg.odometry),
-        "files": {"dataset.yaml": "this description; written last", "scans2d.npz": "2D LiDAR scans",
-                  "clouds3d/": "3D LiDAR range images", "groundtruth.tum": "true base poses",
-                  "odometry.tum": "wheel odometry",
-                  "rooms.png": "the rooms of the source map's slice (16-bit labels; not a hand-drawn ground truth)",
-                  "rooms.yaml": "its geometry", "doors.json": "no doors (the map draws none)",
-                  "world.json": "the voxel world, the route (goals, rooms entered, unreachable rooms), timings"},
-    }
-    write_text(out / "dataset.yaml", yaml.safe_dump(meta, sort_keys=False, width=110))
+    write_dataset_yaml(out, Path(world.source).stem,
+                       f"voxel world of the 3D map {world.source} (floor surface at z = 0, "
+                       f"{world.floor:+.3f} m in the map's frame; the map's x, y)", seed, motion, cfg,
+                       {"rooms.png": "the rooms of the source map's slice (16-bit labels; not a hand-drawn ground "
+                                     "truth)",
+                        "doors.json": "no doors (the map draws none)",
+                        "world.json": "the voxel world, the route (goals, rooms entered, unreachable rooms), timings"})
     return run

@@ -54,7 +54,7 @@ from .. import __version__
 from ..errors import CacheError, HsmapError, HsmapWarning
 from ..io import to_plain, write_json
 
-__all__ = ["EXCLUDED", "MARKER", "Cached", "FolderCache", "code_digest", "description_digest", "slug"]
+__all__ = ["EXCLUDED", "MARKER", "Cached", "FolderCache", "code_digest", "description_digest", "file_sha256", "slug"]
 
 #: Parts of the package (relative to ``hsmap/``) left out of :func:`code_digest`: they draw, orchestrate and
 #: parse command lines, and compute nothing a cached result is made of.
@@ -133,7 +133,7 @@ def _source_digest(fn: Callable[..., Any]) -> str:
         raise CacheError(f"{path}: cannot read it for the cache key ({exc.strerror})") from None
 
 
-def _file_sha256(path: Path) -> str:
+def file_sha256(path: Path) -> str:
     """SHA-256 of a file, remembered per (path, size, modification time) for this process."""
     st = path.stat()
     memo = (str(path), st.st_size, st.st_mtime_ns)
@@ -151,7 +151,7 @@ def _manifest(folder: Path) -> dict[str, list]:
     out = {}
     for p in sorted(folder.rglob("*")):
         if p.is_file() and not p.is_symlink() and p.relative_to(folder).as_posix() != MARKER:
-            out[p.relative_to(folder).as_posix()] = [p.stat().st_size, _file_sha256(p)]
+            out[p.relative_to(folder).as_posix()] = [p.stat().st_size, file_sha256(p)]
     return out
 
 
@@ -164,7 +164,7 @@ def _damage(folder: Path, files: Mapping[str, Any]) -> str | None:
         actual = p.stat().st_size
         if actual != size:
             return f"{p} has {actual} bytes, {size} were written (truncated or replaced)"
-        if _file_sha256(p) != sha:
+        if file_sha256(p) != sha:
             return f"{p} was altered since it was written (its SHA-256 differs)"
     return None
 

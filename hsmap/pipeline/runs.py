@@ -26,7 +26,7 @@ from ..errors import DatasetError, HsmapError, InputError
 from ..io import to_plain
 from ..slam import SlamConfig
 from ..trajectory import Trajectory, read_tum
-from .cache import MARKER, FolderCache, description_digest, slug
+from .cache import MARKER, FolderCache, description_digest, file_sha256, slug
 
 __all__ = ["SlamRun", "cached_slam", "slam_key", "dataset_fingerprint"]
 
@@ -37,32 +37,18 @@ _READER_OPTIONS = ("scan_topic", "cloud_topic", "odom_topic", "order", "base_fra
 #: Files of a SLAM run folder (besides the cache's own ``cache.json``).
 _RUN_FILES = ("trajectory.tum", "map.ply", "config.yaml", "metrics.json")
 
-_file_memo: dict[tuple[str, int, int], str] = {}
-
 
 # --- what identifies a dataset ---------------------------------------------------------------------------
-
-def _file_digest(path: Path) -> str:
-    st = path.stat()
-    memo = (str(path.resolve()), st.st_size, st.st_mtime_ns)
-    if memo not in _file_memo:
-        h = hashlib.sha256()
-        with open(path, "rb") as fh:
-            for block in iter(lambda: fh.read(1 << 20), b""):
-                h.update(block)
-        _file_memo[memo] = h.hexdigest()
-    return _file_memo[memo]
-
 
 def _path_digest(path: str | os.PathLike) -> str:
     """Digest of an input: a file's bytes; a simulated folder's cache key (the code, scenario, seed and frames
     that made it) and ``dataset.yaml`` (written last); any other folder's file names, sizes and times."""
     p = Path(path)
     if p.is_file():
-        return _file_digest(p)
+        return file_sha256(p)
     if p.is_dir():
         if (p / "dataset.yaml").is_file():
-            parts = [_file_digest(p / "dataset.yaml")]
+            parts = [file_sha256(p / "dataset.yaml")]
             if (p / MARKER).is_file():
                 parts.append(str(_read_marker_key(p)))
             return hashlib.sha256("\0".join(parts).encode()).hexdigest()

@@ -35,7 +35,11 @@ from scipy.stats import chi2
 from .errors import HsmapError, InputError, ShapeError
 from .geometry import euler_to_matrix, matrix_to_euler, relative, wrap_angle
 
-__all__ = ["EdgeKind", "Edge", "PoseGraph", "OptimizationResult", "OptimizationError", "information_with_floor"]
+__all__ = ["EdgeKind", "Edge", "PoseGraph", "OptimizationResult", "OptimizationError", "information_with_floor",
+           "SOLVERS"]
+
+#: The ways :meth:`PoseGraph.optimize` solves the graph.
+SOLVERS = ("batch", "incremental")
 
 
 class OptimizationError(HsmapError):
@@ -65,8 +69,15 @@ class Edge:
     information: NDArray[np.float64]
     kind: EdgeKind
     active: bool = True
-    chi2: float = float("nan")  # whitened squared residual after the last optimisation
     robust: bool = True  # loop edges: under the Cauchy kernel (off: a corroborated closure that must pull fully)
+    # the graph's array of every edge's flag and this edge's index in it, kept in step with ``active``
+    _flags: list | None = field(default=None, repr=False, compare=False)
+    _index: int = field(default=-1, repr=False, compare=False)
+
+    def __setattr__(self, name: str, value) -> None:
+        object.__setattr__(self, name, value)
+        if name == "active" and self._flags is not None:
+            self._flags[0][self._index] = bool(value)
 
 
 @dataclass
@@ -115,11 +126,23 @@ class PoseGraph:
     gate_probability : float
         A loop edge whose chi-square residual after optimisation exceeds this quantile (of the chi-square
         distribution with ``dof`` degrees of freedom) is switched off and the graph re-optimised.
+    solver : {"batch", "incremental"}
+        ``batch``: every :meth:`optimize` runs Levenberg-Marquardt on the whole graph. ``incremental``: GTSAM's
+        iSAM2 keeps the graph factorised between calls and updates only what the new edges and nodes touch
+        (Kaess et al. 2012); node poses must then change through :meth:`optimize` alone.
     """
 
-    def __init__(self, dof: int, *, loop_kernel: float = 3.0, gate_probability: float = 0.9999) -> None:
+    def __init__(self, dof: int, *, loop_kernel: float = 3.0, gate_probability: float = 0.9999,
+                 solver: str = "batch") -> None:
         if dof not in (3, 6):
             raise ShapeError(f"pose graph dof must be 3 or 6, got {dof!r}")
+        if solver not in SOLVERS:
+            raise InputError(f"pose graph solver must be one of {', '.join(SOLVERS)}, got {solver!r}")
+        self.solver = solver
+        self._isam = None  # incremental: gtsam.ISAM2, its nodes, its edges' factor slots, the gauge
+        self._isam_nodes = 0
+        self._isam_slot: list[int] = []  # per edge: its factor's slot in iSAM2, -1 where it is not in
+        self._isam_fixed = -1
         self.dof = dof
         self.dim = 2 if dof == 3 else 3
         self.loop_kernel = float(loop_kernel)
@@ -134,6 +157,8 @@ class PoseGraph:
         self._kind = np.zeros(64, "U8")
         self._Z = np.zeros((64, dof))
         self._info = np.zeros((64, dof, dof))
+        self._act = [np.zeros(64, bool)]  # every edge's ``active`` (a list: edges keep it across growth)
+        self._chi2 = np.zeros(64)
 
     # ------------------------------------------------------------------------------------------ building
     def __len__(self) -> int:
@@ -178,11 +203,14 @@ class PoseGraph:
                              f"({self.dof}, {self.dof}), got {z.shape} and {info.shape}")
         if not (np.all(np.isfinite(z)) and np.all(np.isfinite(info))):
             raise InputError(f"edge ({i}, {j}): measurement and information must be finite")
-        e = Edge(int(i), int(j), z, 0.5 * (info + info.T), kind, robust=bool(robust))
         k = len(self.edges)
         if k == len(self._ij):
-            self._ij, self._kind, self._Z, self._info = (np.concatenate([a, np.zeros_like(a)])
-                                                         for a in (self._ij, self._kind, self._Z, self._info))
+            self._ij, self._kind, self._Z, self._info, self._act[0], self._chi2 = (
+                np.concatenate([a, np.zeros_like(a)])
+                for a in (self._ij, self._kind, self._Z, self._info, self._act[0], self._chi2))
+        e = Edge(int(i), int(j), z, 0.5 * (info + info.T), kind, robust=bool(robust), _flags=self._act, _index=k)
+        self._act[0][k] = True
+        self._chi2[k] = np.nan
         self._ij[k] = e.i, e.j
         self._kind[k] = kind.value
         self._Z[k] = e.measurement
@@ -241,6 +269,8 @@ class PoseGraph:
             return OptimizationResult("ok")
         import gtsam
 
+        if self.solver == "incremental":
+            return self._optimize_incremental(gtsam, max_iterations, prune_rounds, fixed)
         rejected: list[int] = []
         result = OptimizationResult("ok")
         rounds = iterations = 0
@@ -278,8 +308,85 @@ class PoseGraph:
         result.rejected = rejected
         return result
 
+    def _optimize_incremental(self, gtsam, max_iterations: int, prune_rounds: int, fixed: int
+                              ) -> OptimizationResult:
+        """:meth:`optimize` by iSAM2: the nodes and edges added since the last call go in, switched-off edges out,
+        then iSAM2 steps (each relinearising what moved) until no pose moves by more than 1e-6 or
+        ``max_iterations`` steps; the gate's rounds as in the batch solver."""
+        if self._isam is not None and fixed != self._isam_fixed:
+            self._isam = None  # another gauge: start over
+        rejected: list[int] = []
+        rounds = iterations = 0
+        try:
+            if self._isam is None:
+                params = gtsam.ISAM2Params()
+                params.setRelinearizeThreshold(1e-3)
+                params.relinearizeSkip = 1
+                self._isam = gtsam.ISAM2(params)
+                self._isam_nodes, self._isam_slot, self._isam_fixed = 0, [], fixed
+            for _ in range(max(1, prune_rounds)):
+                graph, values, added = gtsam.NonlinearFactorGraph(), gtsam.Values(), []
+                if self._isam_nodes == 0:
+                    Prior = gtsam.PriorFactorPose2 if self.dof == 3 else gtsam.PriorFactorPose3
+                    graph.add(Prior(fixed, self._to_gtsam(gtsam, self._P[fixed]),
+                                    gtsam.noiseModel.Isotropic.Sigma(self.dof, 1e-6)))
+                    added.append(-1)
+                for k in range(self._isam_nodes, self._n):
+                    values.insert(k, self._to_gtsam(gtsam, self._P[k]))
+                m, seen = len(self.edges), len(self._isam_slot)
+                act = self._active()
+                for k in np.flatnonzero(act[seen:]) + seen:
+                    graph.add(self._factor(gtsam, int(k)))
+                    added.append(int(k))
+                self._isam_slot.extend([-1] * (m - seen))  # -1: not in iSAM2 (switched off before it went in)
+                slots = np.asarray(self._isam_slot[:seen], dtype=np.int64)
+                gone = np.flatnonzero((slots >= 0) & ~act[:seen])
+                remove = slots[gone].tolist()
+                for k in gone:
+                    self._isam_slot[k] = -1
+                out = self._isam.update(graph, values, remove)
+                for k, slot in zip(added, out.getNewFactorsIndices(), strict=True):
+                    if k >= 0:
+                        self._isam_slot[k] = int(slot)
+                self._isam_nodes = self._n
+                estimate = self._isam.calculateEstimate()
+                poses = self._from_gtsam(gtsam, estimate)
+                steps = 1
+                while steps < max_iterations:
+                    self._isam.update()
+                    estimate = self._isam.calculateEstimate()
+                    nxt = self._from_gtsam(gtsam, estimate)
+                    steps += 1
+                    moved = nxt - poses
+                    moved[:, self.dim:] = wrap_angle(moved[:, self.dim:])
+                    poses = nxt
+                    if np.abs(moved).max() < 1e-6:
+                        break
+                rounds, iterations = rounds + 1, iterations + steps
+                if not np.all(np.isfinite(poses)):
+                    return OptimizationResult("failed", message="the optimisation gave non-finite poses",
+                                              rounds=rounds, iterations_total=iterations)
+                poses[fixed] = self._P[fixed]
+                self._P[: self._n] = poses
+                off = self._update_chi2()
+                if off is None:
+                    break
+                rejected.extend(off)
+                for k in off:
+                    self.edges[k].active = False
+        except RuntimeError as exc:  # gtsam raises RuntimeError (IndeterminantLinearSystem, ...)
+            self._isam = None
+            return OptimizationResult("failed", message=f"{type(exc).__name__}: {exc}".splitlines()[0],
+                                      rounds=rounds + 1, iterations_total=iterations)
+        return OptimizationResult("ok", steps, rejected=rejected, rounds=rounds, iterations_total=iterations)
+
     def _active(self) -> NDArray[np.bool_]:
-        return np.fromiter((e.active for e in self.edges), bool, len(self.edges))
+        return self._act[0][: len(self.edges)]
+
+    @property
+    def chi2(self) -> NDArray[np.float64]:
+        """Every edge's whitened squared residual after the last optimisation (NaN before one), (m,)."""
+        return self._chi2[: len(self.edges)].copy()
 
     def _update_chi2(self) -> list[int] | None:
         """Whitened residuals of every edge at the current poses; the edges to switch off (None: none).
@@ -292,8 +399,7 @@ class PoseGraph:
         kind = self._kind[:m]
         r = self._residuals(self._ij[:m, 0], self._ij[:m, 1], self._Z[:m], kind == EdgeKind.PRIOR.value)
         c2 = np.einsum("ei,eij,ej->e", r, self._info[:m], r)
-        for e, c in zip(self.edges, c2.tolist(), strict=True):
-            e.chi2 = c
+        self._chi2[:m] = c2
         act = self._active()
         over = np.where((kind == EdgeKind.LOOP.value) & act & (c2 > self.gate), c2, -np.inf)
         worst = int(np.argmax(over))

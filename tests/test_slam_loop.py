@@ -151,7 +151,8 @@ def test_look_alike_place_is_rejected():
     assert out is None and closer.rejections.get("unconstrained", 0) == 1
 
 
-def test_graph_failure_falls_back(ring, monkeypatch):
+@pytest.mark.parametrize("solver", ["batch", "incremental"])
+def test_graph_failure_falls_back(ring, monkeypatch, solver):
     import gtsam
 
     route, frames = ring
@@ -159,9 +160,11 @@ def test_graph_failure_falls_back(ring, monkeypatch):
     def broken(*args, **kwargs):
         raise RuntimeError("Indeterminant linear system detected")
 
-    monkeypatch.setattr(gtsam, "LevenbergMarquardtOptimizer", broken)
+    monkeypatch.setattr(gtsam, "LevenbergMarquardtOptimizer" if solver == "batch" else "ISAM2", broken)
+    cfg = SlamConfig()
+    cfg.graph.solver = solver
     with pytest.warns(HsmapWarning, match="pose graph optimisation failed"):
-        res = run_slam(frames, SlamConfig(), rng=1, progress=False)
+        res = run_slam(frames, cfg, rng=1, progress=False)
     m = res.metrics()
     assert m["loop_closure"] == "failed"
     np.testing.assert_allclose(res.unsmoothed.poses, res.tracked.poses, atol=1e-9)  # before the smoothing

@@ -11,6 +11,7 @@ from ..config import from_dict
 from ..errors import ConfigError
 from ..harmony import HarmonyConfig
 from ..loopclosure import LoopClosureConfig
+from ..posegraph import SOLVERS
 from ..registration import RegistrationConfig
 
 __all__ = ["SlamConfig", "KeyframeGraphConfig"]
@@ -59,6 +60,9 @@ class KeyframeGraphConfig:
         A closure that corrects the graph's estimate by more than these optimises the graph at once.
     optimize_every : int
         Otherwise the graph is optimised at least this often (keyframes) while edges are pending, and at the end.
+    solver : str
+        How the graph is optimised: ``incremental`` (iSAM2, updating what the new edges touch) or ``batch``
+        (Levenberg-Marquardt on the whole graph each time); :class:`hsmap.posegraph.PoseGraph`.
     """
 
     pair_edges: int = 4
@@ -72,6 +76,7 @@ class KeyframeGraphConfig:
     optimize_threshold_translation: float = 0.02
     optimize_threshold_rotation: float = float(np.deg2rad(0.3))
     optimize_every: int = 25
+    solver: str = "incremental"
 
     def __post_init__(self) -> None:
         for name in ("pair_distance", "tracking_path_distance", "optimize_threshold_translation",
@@ -84,6 +89,8 @@ class KeyframeGraphConfig:
             v, low = getattr(self, name), 0 if name == "pair_edges" else 1
             if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < low:
                 raise ConfigError(f"slam.graph.{name} must be an integer >= {low}, got {v!r}")
+        if self.solver not in SOLVERS:
+            raise ConfigError(f"slam.graph.solver must be one of {', '.join(SOLVERS)}, got {self.solver!r}")
 
 
 @dataclass

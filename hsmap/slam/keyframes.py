@@ -82,7 +82,7 @@ class KeyframeGraph:
         self.dim = cfg.dim
         self.odometry = odometry
         self._loop_rng = loop_rng
-        self.graph = PoseGraph(cfg.dof)
+        self.graph = PoseGraph(cfg.dof, solver=cfg.graph.solver)
         self.keyframes: list[Keyframe] = []
         self.map = VoxelMap(self.dim, cfg.effective_map_voxel(), average=cfg.map_average)
         self.target: RegistrationTarget | None = None

@@ -27,6 +27,26 @@ def constrains_xy(info: NDArray[np.float64] | None, degenerate_ratio: float) -> 
             and constrained_axes(info[:2, :2], degenerate_ratio).shape[1] == 2)
 
 
+class _Window:
+    """The last ``size`` rows of three values, in a fixed array (their order is not kept: for medians)."""
+
+    def __init__(self, size: int) -> None:
+        self._rows = np.empty((size, 3))
+        self._n = self._next = 0
+
+    def __len__(self) -> int:
+        return self._n
+
+    def append(self, row: tuple[float, float, float]) -> None:
+        self._rows[self._next] = row
+        self._next = (self._next + 1) % len(self._rows)
+        self._n = min(self._n + 1, len(self._rows))
+
+    def values(self) -> NDArray[np.float64]:
+        """The rows held, (n, 3) (a view)."""
+        return self._rows[: self._n]
+
+
 class OdometryModel:
     """The odometry of one run: what it predicts and how far to trust it.
 
@@ -62,8 +82,8 @@ class OdometryModel:
         self.scale = np.ones(2)
         self.bias = np.zeros(3)
         # the one-frame disagreements with the registrations (bias) and the lagged ones (scale), in model sigmas
-        self._disagreement: deque[tuple[float, float, float]] = deque(maxlen=config.odometry_window)
-        self._lagged: deque[tuple[float, float, float]] = deque(maxlen=config.odometry_window)
+        self._disagreement = _Window(config.odometry_window)
+        self._lagged = _Window(config.odometry_window)
         # per frame, for the scale: the registration's pose, whether its translation was constrained, the raw
         # odometry, and the configured model's variances summed from the first frame (translation, rotation)
         self._history: deque[tuple] = deque(maxlen=config.odometry_lag + 1)
@@ -168,10 +188,11 @@ class OdometryModel:
         constrained = constrains_xy(res.information, cfg.degenerate_ratio)
         xy = (float(off[0]) / st0, float(off[1]) / st0) if constrained else (np.nan, np.nan)
         self._disagreement.append((*xy, float(wrap_angle(off[-1])) / sr0))
-        r = np.asarray(self._disagreement)
-        enough = np.isfinite(r).sum(axis=0) >= max(cfg.odometry_window // 10, 1)
+        r = self._disagreement.values()
+        finite = np.isfinite(r)
+        enough = finite.sum(axis=0) >= max(cfg.odometry_window // 10, 1)
         if enough.any():
-            self.bias = np.where(enough, np.nanmedian(np.where(enough, r, 0.0), axis=0), 0.0)
+            self.bias = np.array([np.median(r[finite[:, c], c]) if enough[c] else 0.0 for c in range(3)])
 
     def learn_scale(self, frame: Frame, res: RegistrationResult) -> None:
         """Learn the model's scale from how the registrations' and the odometry's motions disagree over
@@ -205,7 +226,7 @@ class OdometryModel:
         self._lagged.append(z)
         if len(self._lagged) < max(cfg.odometry_window // 10, 1):
             return
-        r = np.asarray(self._lagged)
+        r = self._lagged.values()
         spread = 1.4826 * np.median(np.abs(r - np.median(r, axis=0)), axis=0)  # MAD as a Gaussian's sigma
         lo, hi = cfg.odometry_scale_bounds
         self.scale = np.clip([max(spread[0], spread[1]), spread[2]], lo, hi)

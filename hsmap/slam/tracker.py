@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from .._threads import current_threads
 from ..datasets.frames import Frame
 from ..deskew import deskew_frame
 from ..errors import InputError, UnusableFrameError
@@ -18,14 +19,15 @@ from ..harmony import as_rng
 from ..loopclosure import Keyframe
 from ..mapping import VoxelMap
 from ..posegraph import PoseGraph
-from ..registration import RegistrationResult, RegistrationTarget, harmony_icp, spans_its_space
+from ..registration import RegistrationResult, harmony_icp, spans_its_space
 from ..smoothing import SmoothingResult, smooth_with_odometry
 from ..trajectory import Trajectory
 from .config import SlamConfig
 from .costs import Costs
 from .frames import frame_points, unusable_reason
-from .keyframes import KeyframeGraph, pair_match
-from .odometry import OdometryModel, constrains_xy
+from .keyframes import KeyframeGraph
+from .motions import FrameMotions
+from .odometry import OdometryModel
 from .verify import Prediction, Verifier
 
 __all__ = ["HsSlam", "FrameResult", "mean_pose"]
@@ -107,15 +109,11 @@ class HsSlam:
         self.costs = Costs()
         self.verifier = Verifier(cfg, costs=self.costs)
         self.keyframe_graph = KeyframeGraph(cfg, self.odometry, loop_rng, costs=self.costs)
-        # per frame, for the smoothing: the odometry's motion from the previous frame (bias out), its sigmas
-        # (x, y, yaw), and the scan matched against the previous frame's scan alone (NaN where none)
         self._smooth = cfg.smoothing and cfg.dof == 3 and prior is None
-        self._odometry_motion: list[NDArray[np.float64]] = []
-        self._odometry_motion_sigma: list[NDArray[np.float64]] = []
-        self._scan_motion: list[NDArray[np.float64]] = []
-        self._prev_scan: RegistrationTarget | None = None
+        # the smoothing's inputs; the scan matches on a worker thread when the run has a second compute thread
+        self.motions = (FrameMotions(cfg, self.odometry, self.costs, background=current_threads() > 1)
+                        if self._smooth else None)
         self._smoothing: SmoothingResult | None = None
-        self._smoothing_seconds = 0.0  # the scan matches against the previous scan, and the smoothing itself
 
     @property
     def graph(self) -> PoseGraph:
@@ -240,8 +238,8 @@ class HsSlam:
             fitness, inlier, rmse, evaluations, cost = (res.fitness, res.inlier_ratio, res.rmse, res.evaluations,
                                                         res.cost)
         keyframe = first or (verified and (len(self.poses) < cfg.warmup_frames or kg.is_keyframe(pose)))
-        if self._smooth:
-            self._record_motions(frame, scan, pose)
+        if self.motions is not None:
+            self.motions.record(frame, scan, self.poses[-1] if self.poses else pose, pose)
         self.poses.append(pose)
         self.stamps.append(float(frame.stamp))
         kg.attach(pose, keyframe)
@@ -266,31 +264,6 @@ class HsSlam:
         return deskew_frame(frame, prior=self._prior, previous_stamps=self.stamps[-2:],
                             previous_poses=self.poses[-2:], previous_odometry=odom)[0]
 
-    def _record_motions(self, frame: Frame, scan: NDArray[np.float64], pose: NDArray[np.float64]) -> None:
-        """The frame's motion from the previous frame as the odometry has it (with its sigmas) and as its scan
-        matched against the previous frame's scan has it, for the smoothing (NaN where there is none, or where the
-        match overlaps too little or its scene does not constrain x and y)."""
-        t0 = time.perf_counter()
-        none = np.full(3, np.nan)
-        step = self.odometry.step(frame) if self._prev_scan is not None else None
-        if step is None:
-            self._odometry_motion.append(none)
-            self._odometry_motion_sigma.append(none)
-            self._scan_motion.append(none)
-        else:
-            st, sr = self.odometry.model_sigmas(step, self.odometry.sigma())
-            self._odometry_motion.append(self.odometry.corrected(step))
-            self._odometry_motion_sigma.append(np.array([st, st, sr]))
-            gc, lc = self.config.graph, self.config.loop_closure
-            match = pair_match(scan, self._prev_scan, relative(self.poses[-1], pose), self.config.registration,
-                               gc.pair_iterations, lc.min_inlier_ratio)
-            self.costs.add(refinements=1)
-            ok = match is not None and constrains_xy(match[1], self.config.degenerate_ratio)
-            self._scan_motion.append(match[0] if ok else none)
-        # the next frame's reference (its normals are estimated when it is first matched)
-        self._prev_scan = RegistrationTarget(scan, self.config.registration) if frame.odometry is not None else None
-        self._smoothing_seconds += time.perf_counter() - t0
-
     def _reanchor_recent(self) -> None:
         """Move the recent tracked poses (the seeds' history) with their keyframes."""
         for i in range(max(0, len(self.poses) - self.config.recent_poses - 1), len(self.poses)):
@@ -301,12 +274,11 @@ class HsSlam:
         (``SlamConfig.smoothing``). Call after the last frame."""
         if self.keyframe_graph.finish():
             self._reanchor_recent()
-        if self._smooth and self.poses:
+        if self.motions is not None and self.poses:
+            odometry, sigma, scan = self.motions.arrays()
             t0 = time.perf_counter()
-            self._smoothing = smooth_with_odometry(self.graph_trajectory.poses, np.asarray(self._odometry_motion),
-                                                   np.asarray(self._odometry_motion_sigma),
-                                                   np.asarray(self._scan_motion))
-            self._smoothing_seconds += time.perf_counter() - t0
+            self._smoothing = smooth_with_odometry(self.graph_trajectory.poses, odometry, sigma, scan)
+            self.motions.seconds += time.perf_counter() - t0
 
     # ------------------------------------------------------------------------------------------ results
     def odometry_summary(self) -> dict:
@@ -320,7 +292,7 @@ class HsSlam:
     def smoothing_summary(self) -> dict:
         """What the smoothing measured and did (JSON-ready), or why it did nothing."""
         if self._smoothing is not None:
-            return self._smoothing.as_dict() | {"seconds": self._smoothing_seconds}
+            return self._smoothing.as_dict() | {"seconds": self.motions.seconds}
         cfg = self.config
         why = ("off (slam.smoothing: false)" if not cfg.smoothing else "not applicable: 6-DOF" if cfg.dof != 3
                else "not applicable: seeded by a prior trajectory" if self._prior is not None

@@ -12,6 +12,7 @@ from hsmap.deskew import constant_velocity_motion
 from hsmap.deskew2d import deskew_scan, deskew_scan_frame
 from hsmap.errors import ShapeError
 from hsmap.geometry import compose, invert_matrix, pose_to_matrix
+from hsmap.trajectory import Trajectory
 
 EXT = np.array([0.15, -0.05, 0.1])  # the 2D sensor in the base frame
 STEP, DT = np.array([0.5, 0.02, np.deg2rad(30.0)]), 0.5  # 1 m/s, 60 deg/s
@@ -61,6 +62,13 @@ def test_deskew_scan_frame_takes_the_motion_from_the_history():
     out, source = deskew_scan_frame(odo, previous_stamps=[9.5], previous_odometry=np.array([3.0, 1.0, 0.2]))
     assert source == "odometry"
     np.testing.assert_allclose(out.scan2d.points(), truth[np.isfinite(scan.ranges)], atol=1e-9)
+    # a trajectory through the beams' times (the odometry track, the 2D run's poses): interpolated at them
+    st = 10.0 + np.arange(-4, 5) * 0.05
+    track = Trajectory(st, compose(np.broadcast_to(np.array([3.0, 1.0, 0.2]), (9, 3)),
+                                   constant_velocity_motion(STEP, DT, st - 10.0)))
+    out, source = deskew_scan_frame(frame, prior=track, previous_stamps=[9.5], previous_poses=[np.zeros(3)])
+    assert source == "prior"
+    np.testing.assert_allclose(out.scan2d.points(), truth[np.isfinite(scan.ranges)], atol=2e-3)
     plain = Frame(stamp=1.0, scan2d=dataclasses.replace(scan, times=None))
     assert deskew_scan_frame(plain, previous_stamps=[0.5], previous_poses=prev)[0] is plain
     assert deskew_scan_frame(Frame(stamp=1.0))[1] == "static"

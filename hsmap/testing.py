@@ -229,6 +229,7 @@ def write_scan_bag(
     scan_topic: str = "/scan",
     cloud_topic: str = "/points",
     tf: bool = True,
+    time_increment: float = 0.0,
 ):
     """Write a bag of ``sensor_msgs/LaserScan`` messages (one per row of ``ranges``) with ``rosbags``.
 
@@ -252,6 +253,8 @@ def write_scan_bag(
         Write a ROS2 (sqlite3) bag instead of a ROS1 one.
     tf : bool
         Write the sensors' (identity) offsets on ``/tf_static``.
+    time_increment : float
+        The LaserScan ``time_increment`` of every message, seconds between beams.
 
     Returns
     -------
@@ -317,7 +320,7 @@ def write_scan_bag(
             msg = T[scan_type](
                 header=header(float(stamps[k]), "laser", k), angle_min=float(angle_min),
                 angle_max=float(angle_min + angle_increment * (ranges.shape[1] - 1)),
-                angle_increment=float(angle_increment), time_increment=0.0, scan_time=0.1,
+                angle_increment=float(angle_increment), time_increment=float(time_increment), scan_time=0.1,
                 range_min=float(range_min), range_max=float(range_max), ranges=ranges[k],
                 intensities=np.zeros(0, dtype=np.float32))
             t_ns = int(round(float(stamps[k]) * 1e9)) + 1

@@ -13,7 +13,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 import hsmap.datasets.rosbag as rosbag_mod
 from hsmap.datasets.open import open_dataset
 from hsmap.datasets.rosbag import FrameOrder, RosbagDataset, adopt_odometry, pointcloud2_xyz
-from hsmap.errors import DataFormatError, DatasetError, HsmapWarning, InputError, ShapeError
+from hsmap.errors import ConfigError, DataFormatError, DatasetError, HsmapWarning, InputError, ShapeError
 from hsmap.geometry import euler_to_matrix, matrix_to_quaternion, pose_to_matrix, transform_points
 
 # The synthetic recording: the robot moves with constant velocity, so linear interpolation of odometry is exact.
@@ -655,3 +655,82 @@ def test_two_tf_hops_and_ouster_zero_points(tmp_path):
     np.testing.assert_allclose(f.cloud3d, pts[[0, 2]])  # the zeros (no return) dropped
     np.testing.assert_allclose(ds.extrinsic3d, [-0.1, 0, 1.536, 0, 0, np.pi], atol=1e-9)
     assert ds.describe()["tf_chains"] == {"3d": "base_link -> os_sensor -> os_lidar"}
+
+
+@pytest.mark.parametrize("ros2", [False, True])
+def test_laserscan_time_increment_gives_beam_times(tmp_path, monkeypatch, ros2):
+    """A non-zero ``time_increment``: beam i at i * time_increment after the stamp, the same through the fast ROS1
+    decoder and rosbags' deserializer; a zero one: no beam times."""
+    from hsmap.testing import write_scan_bag
+
+    r = np.tile(np.linspace(1.0, 3.0, 9, dtype=np.float32), (3, 1))
+    stamps = 100.0 + 0.1 * np.arange(3)
+    path = write_scan_bag(tmp_path / ("t" if ros2 else "t.bag"), r, stamps, angle_min=-1.0, angle_increment=0.25,
+                          ros2=ros2, time_increment=0.001)
+    ds = RosbagDataset(path)
+    frames = list(ds.frames())
+    assert ds.describe()["beam_time"]["field"] == "time_increment"
+    for f in frames:
+        np.testing.assert_allclose(f.scan2d.times, 0.001 * np.arange(9), rtol=1e-6)
+    if not ros2:
+        monkeypatch.setattr(rosbag_mod, "_ROS1_SCAN_MD5", "disabled")
+        slow = list(RosbagDataset(path).frames())
+        for f, s in zip(frames, slow, strict=True):
+            np.testing.assert_array_equal(f.scan2d.times, s.scan2d.times)
+    plain = write_scan_bag(tmp_path / ("p" if ros2 else "p.bag"), r, stamps, angle_min=-1.0, angle_increment=0.25,
+                           ros2=ros2)
+    ds = RosbagDataset(plain)
+    assert all(f.scan2d.times is None for f in ds.frames()) and ds.describe()["beam_time"].startswith("none")
+
+
+@pytest.mark.parametrize("ti", [float("nan"), 0.2])
+def test_bad_laserscan_time_increment_names_the_field(tmp_path, ti):
+    from hsmap.testing import write_scan_bag
+
+    r = np.ones((2, 9), dtype=np.float32)
+    path = write_scan_bag(tmp_path / "b.bag", r, [100.0, 100.1], angle_min=-1.0, angle_increment=0.25,
+                          time_increment=ti)
+    with pytest.raises(DataFormatError, match=r"b\.bag: /scan message 0 .*LaserScan time_increment is"):
+        RosbagDataset(path)
+
+
+def test_simulated_bag_scans_turn_over_their_scan_time(tmp_path):
+    """The simulator's bag with a 2D scan time: LaserScan ``time_increment`` and ``scan_time`` as a driver writes
+    them, the scan stamped at its first beam, each beam from the pose the robot has at its time."""
+    pytest.importorskip("open3d")
+    from hsmap.sim import Lidar2DConfig, Lidar3DConfig
+    from hsmap.sim.bag import write_simulated_bag
+    from hsmap.sim.catalog import resolve_scenario
+    from hsmap.sim.robot import RobotConfig, sample_legs, simulate_motion
+    from hsmap.sim.scenario import load_scenario
+    from hsmap.sim.world import World
+
+    scn = load_scenario(resolve_scenario("two-rooms"))
+    scn = scn.replace(lidar2d=Lidar2DConfig(scan_time=0.1, noise_sigma=0.0),
+                      robot=RobotConfig(max_speed=1.0, max_turn_rate_deg=60.0))
+    bag = write_simulated_bag(scn, tmp_path / "s.mcap", seed=1, scan_rate=8.0, duration=4.0,
+                              lidar3d=Lidar3DConfig(channels=4, columns=16))
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([bag.path]) as reader:
+        conn = [c for c in reader.connections if c.topic == "/scan"]
+        msg = reader.deserialize(next(iter(reader.messages(connections=conn)))[2], conn[0].msgtype)
+    assert msg.time_increment == pytest.approx(0.1 * 0.25 / 360) and msg.scan_time == pytest.approx(0.1)
+    ds = RosbagDataset(bag.path)
+    assert ds.describe()["beam_time"]["field"] == "time_increment"
+    frames = list(ds.frames(clouds=False))
+    np.testing.assert_allclose(ds.stamps, bag.scans.stamps, atol=1e-6)
+    f = frames[20]
+    np.testing.assert_allclose(f.scan2d.times, np.arange(1081) * 0.1 * 0.25 / 360, rtol=1e-6)
+    motion = simulate_motion(scn.start, scn.steps, scn.robot, scn.odometry, 8.0, np.random.default_rng([1, 1]),
+                             1_700_000_000.0)
+    at = sample_legs(motion.legs, bag.scans.stamps[20] + f.scan2d.times)
+    world = World(scn)
+    beams = np.arange(0, 1081, 90)
+    want = np.array([world.scan2d(at[i : i + 1], scn.lidar2d)[0, i] for i in beams])
+    ok = np.isfinite(want) & np.isfinite(f.scan2d.ranges[beams])
+    assert ok.sum() >= 6
+    np.testing.assert_allclose(f.scan2d.ranges[beams][ok], want[ok], atol=1e-4)
+    with pytest.raises(ConfigError, match="scan_time"):
+        write_simulated_bag(scn, tmp_path / "x.mcap", scan_rate=20.0, duration=1.0,
+                            lidar3d=Lidar3DConfig(channels=4, columns=16))

@@ -60,7 +60,7 @@ def test_folder_contents(written):
     with np.load(out / "scans2d.npz") as z:
         assert z["stamps"].dtype == np.float64 and z["stamps"].shape == (N,)
         assert z["ranges"].dtype == np.float32 and z["ranges"].shape == (N, 1081)
-        assert z["angles"].shape == (1081,)
+        assert z["angles"].shape == (1081,) and "beam_time" not in z.files  # scans taken at their stamps
     with np.load(out / "clouds3d/000003.npz") as z:
         assert z["range_mm"].dtype == np.uint16 and z["range_mm"].shape == (32, 256)
     gt, odo = read_tum(out / "groundtruth.tum", 3), read_tum(out / "odometry.tum", 3)
@@ -108,6 +108,38 @@ def test_reader_yields_frames_consistent_with_the_world(written):
     # frames without clouds, slices, indexing
     assert [g.index for g in ds.frames(2, 8, 3, clouds=False)] == [2, 5]
     assert ds[-1].index == N - 1 and ds.frame(0, clouds=False).cloud3d is None
+    assert f.scan2d.times is None and ds.describe()["beam_time"].startswith("none")
+
+
+def test_scan_time_gives_each_beam_its_time(tmp_path):
+    """A 2D LiDAR turning once in 0.1 s: the folder stores each beam's time, the reader hands it on, and each
+    beam's range is what the world shows from the pose at that time, not from the stamp's pose."""
+    from hsmap.sim import Lidar2DConfig
+    from hsmap.sim.robot import RobotConfig, sample_legs
+    from hsmap.sim.world import World
+    from hsmap.sim.writer import motion_for
+
+    scn = small_two_rooms().replace(lidar2d=Lidar2DConfig(scan_time=0.1, noise_sigma=0.0),
+                                    robot=RobotConfig(max_speed=1.0, max_turn_rate_deg=60.0))
+    simulate(scn, tmp_path / "d", seed=3, max_frames=6)
+    meta = yaml.safe_load((tmp_path / "d" / "dataset.yaml").read_text())
+    l2 = meta["sensors"]["lidar2d"]
+    assert l2["scan_time"] == 0.1 and l2["time_increment"] == pytest.approx(0.1 * 0.25 / 360)
+    assert "beam_time" in meta["files"]["scans2d.npz"] and "`beam_time`" in (tmp_path / "d" / "README.md").read_text()
+    with np.load(tmp_path / "d" / "scans2d.npz") as z:
+        np.testing.assert_array_equal(z["beam_time"], scn.lidar2d.beam_times())
+    ds = SimulatedDataset(tmp_path / "d")
+    assert ds.describe()["beam_time"]["field"] == "beam_time"
+    f = ds.frame(4, clouds=False)
+    np.testing.assert_allclose(f.scan2d.times, np.arange(1081) * 0.1 * 0.25 / 360)
+    legs, world = motion_for(scn, 3).legs, World(scn)
+    at = sample_legs(legs, f.stamp + f.scan2d.times)
+    beams = np.arange(0, 1081, 60)
+    want = np.array([world.scan2d(at[i : i + 1], scn.lidar2d)[0, i] for i in beams])
+    ok = np.isfinite(want)
+    np.testing.assert_allclose(f.scan2d.ranges[beams][ok], want[ok], atol=1e-4)
+    stamp_only = world.scan2d(at[:1], scn.lidar2d)[0]
+    assert np.nanmax(np.abs(f.scan2d.ranges - stamp_only)) > 0.05  # the robot moved during the scan
 
 
 def test_reader_labels_and_doors(written):

@@ -88,6 +88,9 @@ def test_valid_tiny_scenario_parses(tmp_path):
         (lambda d: d.update(sensors={"lidar3d": {"channels": 0}}), "sensors.lidar3d", "channels"),
         (lambda d: d.update(sensors={"lidar3d": {"position": [0, 0, 3.0]}}), "sensors.lidar3d.position",
          "not below the ceiling"),
+        (lambda d: d.update(sensors={"lidar2d": {"scan_time": -0.1}}), "sensors.lidar2d", "scan_time must be in"),
+        (lambda d: d.update(frame_rate=20.0, sensors={"lidar2d": {"scan_time": 0.1}}), "sensors.lidar2d.scan_time",
+         "outlasts the frame period"),
     ],
 )
 def test_bad_scenarios_name_file_key_and_problem(tmp_path, mutate, key, problem):

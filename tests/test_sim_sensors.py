@@ -87,6 +87,35 @@ def test_2d_scan_without_noise_is_exact_and_masks_out_of_range(o3d_world):
     assert r[np.argmin(np.abs(a - np.pi / 2))] == pytest.approx(2.9, abs=1e-4)
 
 
+def test_rolling_2d_scan_measures_each_beam_from_the_pose_at_its_time(o3d_world):
+    """A scanner turning once in 0.1 s on a robot driving and turning: beam i is the beam an instantaneous scan
+    from the pose at the beam's time measures; with no scan time, the instantaneous scan."""
+    from hsmap.sim.robot import RobotConfig, sample_legs
+    from hsmap.sim.writer import motion_for, rolling_scan2d
+
+    cfg = Lidar2DConfig(noise_sigma=0.0, position=[0.15, -0.05], yaw_deg=10.0, scan_time=0.1)
+    assert cfg.time_increment == pytest.approx(0.1 * 0.25 / 360)
+    bt = cfg.beam_times()
+    assert bt[0] == 0.0 and bt[-1] == pytest.approx(0.075) and np.all(np.diff(bt) > 0)
+    assert cfg.describe()["time_increment"] == pytest.approx(cfg.time_increment)
+    assert "scan_time" not in Lidar2DConfig().describe() and not Lidar2DConfig().beam_times().any()
+    scn = box_room().replace(robot=RobotConfig(max_speed=1.0, max_turn_rate_deg=60.0))
+    world = o3d_world(scn)
+    m = motion_for(scn, 0)
+    stamps = m.stamps[:3] + 0.3  # turning on the spot, then driving
+    rolled = rolling_scan2d(world, m.legs, stamps, cfg)
+    assert rolled.shape == (3, cfg.beams) and rolled.dtype == np.float32
+    static = world.scan2d(sample_legs(m.legs, stamps), cfg)
+    for k, t0 in enumerate(stamps):
+        at = sample_legs(m.legs, t0 + bt)
+        assert np.ptp(np.unwrap(at[:, 2])) + np.ptp(at[:, 0]) > 0.01  # the robot moves during the scan
+        for i in (0, 300, 700, cfg.beams - 1):
+            np.testing.assert_allclose(rolled[k, i], world.scan2d(at[i : i + 1], cfg)[0, i], atol=2e-5)
+        assert np.nanmax(np.abs(rolled[k] - static[k])) > 0.02  # not the instantaneous scan
+    np.testing.assert_array_equal(rolling_scan2d(world, m.legs, stamps, Lidar2DConfig(noise_sigma=0.0)),
+                                  world.scan2d(sample_legs(m.legs, stamps), Lidar2DConfig(noise_sigma=0.0)))
+
+
 def test_3d_scan_in_a_box_matches_analytic_ranges(o3d_world):
     cfg = Lidar3DConfig(channels=16, columns=90, noise_sigma=0.01, position=[-0.1, 0.05, 1.6],
                         rpy_deg=[2.0, -3.0, 20.0])
@@ -180,6 +209,8 @@ def test_range_image_encoding_roundtrip_and_beam_geometry():
         (Lidar2DConfig, {"angle_increment_deg": 0}, "angle_increment_deg"),
         (Lidar2DConfig, {"range_min": 5, "range_max": 4}, "range_min"),
         (Lidar2DConfig, {"position": [1, 2, 3]}, "position"),
+        (Lidar2DConfig, {"scan_time": 1.5}, "scan_time"),
+        (Lidar2DConfig, {"scan_time": "fast"}, "scan_time"),
         (Lidar3DConfig, {"channels": 0}, "channels"),
         (Lidar3DConfig, {"range_max": 100}, "range_max"),
         (Lidar3DConfig, {"vertical_angles_deg": [1, 2]}, "vertical_angles_deg"),

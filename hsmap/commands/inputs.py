@@ -110,7 +110,7 @@ def open_input(args: argparse.Namespace, drive: str | None = None, progress: boo
 def slam_overrides(cfg, args: argparse.Namespace, *, deskew: bool = False):
     """``cfg`` (a :class:`~hsmap.slam.SlamConfig`) with the command line's SLAM flags applied: ``--dof`` (where the
     command has it), ``--no-odometry``, ``--no-loop-closure``, ``--sync-tolerance`` and, with ``deskew`` (the
-    configurations of 3D clouds), ``--no-deskew``."""
+    configurations of timed clouds and scans), ``--no-deskew``."""
     import dataclasses
 
     if getattr(args, "dof", None) is not None:

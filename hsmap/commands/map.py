@@ -41,8 +41,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-odometry", action="store_true", help="ignore the input's odometry")
     parser.add_argument("--no-loop-closure", action="store_true", help="HS-SLAM without pose graph and loop closure")
     parser.add_argument("--no-deskew", action="store_true",
-                        help="use the 3D clouds as they are (for drivers that deskew them): no motion compensation "
-                             "by their per-point times")
+                        help="use the 3D clouds and 2D scans as they are (for drivers that deskew them): no motion "
+                             "compensation by their per-point and per-beam times")
     add_input_arguments(parser)
     parser.add_argument("--no-recording", action="store_true", help="do not write map.rrd")
     parser.add_argument("--quiet", action="store_true", help="no progress bars or summary")
@@ -78,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
     # before the long work: a file, a folder that cannot be created or written is reported now
     refuse_overwriting_input(args.out, [args.input, args.scans], MAP_OUTPUTS)
     out = prepare_output_dir(args.out, "--out", create=False)
-    slam2d, slam3d = slam_overrides(cfg.slam2d, args), slam_overrides(cfg.slam3d, args, deskew=True)
+    slam2d, slam3d = slam_overrides(cfg.slam2d, args, deskew=True), slam_overrides(cfg.slam3d, args, deskew=True)
     progress = False if args.quiet else None
     dataset = open_input(args, progress=progress)
     if isinstance(dataset, CarmenDataset):

@@ -44,8 +44,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-loop-closure", action="store_true",
                         help="track only: no pose graph, no loop closure (one global tracking map)")
     parser.add_argument("--no-deskew", action="store_true",
-                        help="6-DOF: use the clouds as they are (for drivers that deskew them): no motion "
-                             "compensation by their per-point times")
+                        help="use the clouds (6-DOF) or 2D scans (3-DOF) as they are (for drivers that deskew "
+                             "them): no motion compensation by their per-point or per-beam times")
     parser.add_argument("--no-recording", action="store_true", help="do not write slam.rrd")
     parser.add_argument("--strict", action="store_true",
                         help="stop at the first frame whose scan or cloud is missing or has too few usable points "

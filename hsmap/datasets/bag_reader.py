@@ -20,6 +20,7 @@ from .ros_messages import (
     frame_name,
     ros1_odom,
     ros1_scan,
+    scan_beam_times,
     stamp_seconds,
     transform_matrix,
 )
@@ -121,7 +122,7 @@ class BagReader:
     def read_sensors(self, scan_topic: str | None, cloud_topic: str | None, odom_topic: str | None,
                      progress: bool | None, fast: tuple[str, ...] = ()
                      ) -> tuple[dict, dict, NDArray[np.float64], str | None]:
-        """The scans (stamp, seq, ranges, geometry, frame), the clouds' headers (stamp, seq, frame), the odometry
+        """The scans (stamp, seq, ranges, geometry, frame, time_increment), the clouds' headers (stamp, seq, frame), the odometry
         (N, 5: stamp, x, y, yaw, seq) and the odometry's child frame, read in one pass over the topics. ROS1
         LaserScan and Odometry connections whose definition digest is in ``fast`` are decoded from their raw
         bytes (:func:`hsmap.datasets.ros_messages.ros1_scan`)."""
@@ -130,7 +131,8 @@ class BagReader:
         odom_c = self.conns(odom_topic)
         scan_ids = {id(c) for c in scan_c}
         cloud_ids = {id(c) for c in cloud_c}
-        scans: dict[str, list] = {"stamp": [], "seq": [], "ranges": [], "geometry": [], "frame": []}
+        scans: dict[str, list] = {"stamp": [], "seq": [], "ranges": [], "geometry": [], "frame": [],
+                                  "time_increment": []}
         clouds: dict[str, list] = {"stamp": [], "seq": [], "frame": []}
         odom: list[tuple[float, float, float, float]] = []
         odom_child = None
@@ -148,7 +150,7 @@ class BagReader:
             if id(c) in fast:
                 try:
                     if is_scan:
-                        seq, stamp, frame, geom, ranges = ros1_scan(raw)
+                        seq, stamp, frame, geom, ranges, time_inc = ros1_scan(raw)
                     else:
                         seq, stamp, frame, pose = ros1_odom(raw)
                 except (struct.error, UnicodeDecodeError, ValueError) as exc:
@@ -163,21 +165,24 @@ class BagReader:
                 if is_scan:
                     geom = (float(msg.angle_min), float(msg.angle_increment), float(msg.range_min), float(msg.range_max))
                     ranges = np.asarray(msg.ranges, dtype=np.float32)
+                    time_inc = float(msg.time_increment)
                 elif id(c) not in cloud_ids:
                     p, q = msg.pose.pose.position, msg.pose.pose.orientation
                     yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
                     pose = (p.x, p.y, yaw)
                     frame = msg.child_frame_id
             if is_scan:
-                if (geom, len(ranges)) not in checked:
-                    check_scan_geometry(geom, len(ranges), f"{self.path}: {c.topic} message {len(scans['stamp'])} "
-                                                            f"(stamp {stamp:.6f})")
-                    checked.add((geom, len(ranges)))
+                if (geom, len(ranges), time_inc) not in checked:
+                    where = f"{self.path}: {c.topic} message {len(scans['stamp'])} (stamp {stamp:.6f})"
+                    check_scan_geometry(geom, len(ranges), where)
+                    scan_beam_times(time_inc, len(ranges), where)
+                    checked.add((geom, len(ranges), time_inc))
                 scans["stamp"].append(stamp)
                 scans["seq"].append(seq)
                 scans["frame"].append(frame)
                 scans["ranges"].append(ranges)
                 scans["geometry"].append(geom)
+                scans["time_increment"].append(time_inc)
             elif id(c) in cloud_ids:
                 clouds["stamp"].append(stamp)
                 clouds["seq"].append(seq)

@@ -24,12 +24,16 @@ class LaserScan2D:
         Beam angles in radians, counter-clockwise from the sensor's x axis.
     range_min, range_max : float
         Valid range interval of the sensor.
+    times : ndarray of shape (M,) or None
+        Seconds at which each beam was measured, relative to the frame's stamp (a scanner turning over its
+        scan time); None for a scan taken at one instant.
     """
 
     ranges: NDArray[np.float64]
     angles: NDArray[np.float64]
     range_min: float = 0.0
     range_max: float = np.inf
+    times: NDArray[np.float64] | None = None
 
     def points(self) -> NDArray[np.float64]:
         """Valid returns as (K, 2) points in the sensor frame."""
@@ -122,6 +126,8 @@ class Dataset:
     driver: str | None = None
     #: The per-point time field the 3D clouds were read with (``{"field", "convention"}``), or None for none.
     point_time: dict | None = None
+    #: The per-beam time the 2D scans were read with (``{"field", "convention"}``), or None for none.
+    beam_time: dict | None = None
 
     def __len__(self) -> int:
         raise NotImplementedError
@@ -187,7 +193,7 @@ class Dataset:
         ``reader``, ``path``, ``frames``, ``driven_by``, ``extrinsics`` (per sensor its ``value`` and
         ``source``, see :attr:`extrinsic_sources`), ``warnings``, ``point_time`` (the clouds' per-point time
         field and its convention, :attr:`point_time`, once a cloud with one was read; else a line saying there
-        was none), and what the reader adds (a bag's topics with
+        was none), ``beam_time`` (the same for the 2D scans' beam times, :attr:`beam_time`), and what the reader adds (a bag's topics with
         their message counts, rates and frames, its base frame, the transforms used, the sync tolerance).
         """
         ext = {}
@@ -198,7 +204,8 @@ class Dataset:
                             "source": self.extrinsic_sources.get(key, SOURCE_INPUT)}
         out = {"reader": type(self).__name__, "path": str(self.path), "frames": len(self),
                "driven_by": self.driver, "extrinsics": ext, "warnings": list(self.warnings),
-               "point_time": self.point_time or "none: every cloud taken at its stamp"}
+               "point_time": self.point_time or "none: every cloud taken at its stamp",
+               "beam_time": self.beam_time or "none: every 2D scan taken at its stamp"}
         out.update(self._describe())
         return out
 

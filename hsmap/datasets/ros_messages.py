@@ -12,7 +12,7 @@ from numpy.typing import NDArray
 from ..errors import DataFormatError, InputError
 from ..geometry import invert_matrix, quaternion_to_matrix
 
-__all__ = ["pointcloud2_xyz", "pointcloud2_points", "ros1_header", "ros1_scan", "ros1_odom", "check_scan_geometry", "stamp_seconds", "frame_name", "transform_matrix", "TfTree", "POINT_TIME_FIELDS", "MAX_POINT_TIME_OFFSET"]
+__all__ = ["pointcloud2_xyz", "pointcloud2_points", "ros1_header", "ros1_scan", "ros1_odom", "check_scan_geometry", "scan_beam_times", "stamp_seconds", "frame_name", "transform_matrix", "TfTree", "POINT_TIME_FIELDS", "MAX_POINT_TIME_OFFSET"]
 
 # sensor_msgs/PointField datatypes -> numpy
 _POINTFIELD_DTYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
@@ -133,10 +133,11 @@ def ros1_header(raw: memoryview | bytes) -> tuple[int, float, str, int]:
     return seq, sec + nsec * 1e-9, frame, 16 + n
 
 
-def ros1_scan(raw) -> tuple[int, float, str, tuple[float, float, float, float], NDArray[np.float32]]:
-    """(seq, stamp, frame_id, (angle_min, angle_increment, range_min, range_max), ranges) of a raw ROS1 LaserScan."""
+def ros1_scan(raw) -> tuple[int, float, str, tuple[float, float, float, float], NDArray[np.float32], float]:
+    """(seq, stamp, frame_id, (angle_min, angle_increment, range_min, range_max), ranges, time_increment) of a raw
+    ROS1 LaserScan."""
     seq, stamp, frame, o = ros1_header(raw)
-    amin, _amax, inc, _ti, _st, rmin, rmax = _SCAN_GEOM.unpack_from(raw, o)
+    amin, _amax, inc, ti, _st, rmin, rmax = _SCAN_GEOM.unpack_from(raw, o)
     o += 28
     (n,) = _U32.unpack_from(raw, o)
     ranges = np.frombuffer(raw, dtype="<f4", count=n, offset=o + 4)
@@ -144,7 +145,7 @@ def ros1_scan(raw) -> tuple[int, float, str, tuple[float, float, float, float], 
     (m,) = _U32.unpack_from(raw, o)
     if o + 4 + 4 * m != len(raw):
         raise struct.error("LaserScan size mismatch")
-    return seq, stamp, frame, (float(amin), float(inc), float(rmin), float(rmax)), ranges
+    return seq, stamp, frame, (float(amin), float(inc), float(rmin), float(rmax)), ranges, float(ti)
 
 
 def ros1_odom(raw) -> tuple[int, float, str, tuple[float, float, float]]:
@@ -185,6 +186,25 @@ def check_scan_geometry(geom: tuple[float, float, float, float], n: int, where: 
         raise bad("range_min", rmin, "a finite distance >= 0 (metres): ranges are never negative")
     if math.isnan(rmax) or rmax <= rmin:
         raise bad("range_max", rmax, f"a distance (metres) above range_min ({rmin!r})")
+
+
+def scan_beam_times(time_increment: float, n: int, where: str) -> NDArray[np.float64] | None:
+    """Seconds (n,) of each beam of a LaserScan after its header stamp (the first beam's, as ROS defines it):
+    ``i * time_increment``; None where ``time_increment`` is 0 (every beam at the stamp).
+
+    Raises
+    ------
+    DataFormatError
+        Naming ``where``, for a non-finite ``time_increment`` or one that puts the last beam more than
+        :data:`MAX_POINT_TIME_OFFSET` from the stamp.
+    """
+    ti = float(time_increment)
+    if ti == 0.0:
+        return None
+    if not math.isfinite(ti) or abs(ti) * max(n - 1, 0) > MAX_POINT_TIME_OFFSET:
+        raise DataFormatError(f"{where}: LaserScan time_increment is {ti!r}; expected a finite step (seconds) "
+                              f"that keeps its {n} beams within {MAX_POINT_TIME_OFFSET} s of the stamp")
+    return ti * np.arange(n, dtype=float)
 
 
 def stamp_seconds(header) -> float:

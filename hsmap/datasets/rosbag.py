@@ -2,7 +2,9 @@
 
 What is read
 ------------
-- ``sensor_msgs/LaserScan`` (2D scans) and/or ``sensor_msgs/PointCloud2`` (3D clouds, the x, y, z fields);
+- ``sensor_msgs/LaserScan`` (2D scans; a non-zero ``time_increment`` gives each beam its time,
+  :attr:`~hsmap.datasets.frames.LaserScan2D.times`) and/or ``sensor_msgs/PointCloud2`` (3D clouds, the x, y, z
+  fields and a per-point time);
 - ``nav_msgs/Odometry``: the planar pose (x, y, yaw) of the robot base, interpolated at each frame's stamp;
 - ``/tf_static`` (and, only when the static tree does not connect them, the first ``/tf`` transform of each
   edge that does not move the base): the sensor extrinsics, robot base -> sensor frame.
@@ -96,6 +98,7 @@ from .ros_messages import (
     frame_name,
     pointcloud2_points,
     pointcloud2_xyz,
+    scan_beam_times,
 )
 
 __all__ = [
@@ -251,6 +254,9 @@ class RosbagDataset(Dataset):
                 self.scan_topic, self.cloud_topic, self.odom_topic, self._progress, (_ROS1_SCAN_MD5, _ROS1_ODOM_MD5))
             self._odom = _production_times(odom)
             self._resolve_extrinsics(bag, tf, base_frame)
+        if any(self._scans["time_increment"]):
+            self.beam_time = {"field": "time_increment", "convention": "LaserScan: beam i measured i * "
+                              "time_increment s after the header stamp (the first beam's)"}
         if extrinsic2d is not None:
             self.override_extrinsics(extrinsic2d=extrinsic2d, source=self._names["extrinsic2d"])
         if extrinsic3d is not None:
@@ -478,7 +484,8 @@ class RosbagDataset(Dataset):
     def __len__(self) -> int:
         return len(self.stamps)
 
-    def _scan(self, k: int) -> LaserScan2D:
+    def _scan(self, k: int, stamp: float) -> LaserScan2D:
+        """Scan ``k`` of the bag, its beam times (if any) relative to ``stamp`` (the frame's)."""
         r = self._scans["ranges"][k].astype(float)
         geom = self._scans["geometry"][k]
         key = (geom, len(r))
@@ -488,7 +495,11 @@ class RosbagDataset(Dataset):
             self._angle_cache[key] = (-angles if self._flip_scan else angles, no_return_threshold(rmax, self.no_return))
         angles, thr = self._angle_cache[key]
         r[~((r >= geom[2]) & (r < thr))] = np.nan  # NaN, inf, below range_min, no return
-        return LaserScan2D(ranges=r, angles=angles.copy(), range_min=geom[2], range_max=thr)
+        times = scan_beam_times(self._scans["time_increment"][k], len(r), self.path)  # checked when read
+        if times is not None:
+            shift = float(self._scans["stamp"][k]) - float(stamp)
+            times = times + shift if shift else times
+        return LaserScan2D(ranges=r, angles=angles.copy(), range_min=geom[2], range_max=thr, times=times)
 
     def _clouds_in_order(self, wanted: NDArray[np.intp]) -> Iterator[tuple | None]:
         """Yield the cloud of each entry of ``wanted`` (bag index, -1 = none), streaming the bag once, as
@@ -540,7 +551,7 @@ class RosbagDataset(Dataset):
                     times = None  # the whole cloud at the frame's stamp
             yield Frame(
                 stamp=float(self.stamps[i]),
-                scan2d=self._scan(k) if k >= 0 else None,
+                scan2d=self._scan(k, self.stamps[i]) if k >= 0 else None,
                 cloud3d=cloud,
                 point_times=times,
                 stamp_in_sweep=None if times is None else stamp_in_sweep(times),

@@ -126,7 +126,7 @@ class SimulatedDataset(Dataset):
         except (TypeError, ValueError) as exc:
             raise DataFormatError(f"{meta_path}: bad sensor description: {' '.join(str(exc).split())[:300]}") from None
         scans = root / "scans2d.npz"
-        z = _load_npz(scans, ("stamps", "ranges", "angles"))
+        z = _load_npz(scans, ("stamps", "ranges", "angles"), ("beam_time",))
         try:
             self.stamps = np.asarray(z["stamps"], dtype=float).reshape(-1)
             self._ranges = np.asarray(z["ranges"])
@@ -137,6 +137,16 @@ class SimulatedDataset(Dataset):
         if self._ranges.shape != (n, len(self.angles)) or len(self.stamps) != n:
             raise DataFormatError(f"{scans}: expected {n} scans of {len(self.angles)} beams, got ranges "
                                   f"{self._ranges.shape} and {len(self.stamps)} stamps")
+        self.beam_times: NDArray[np.float64] | None = None
+        if "beam_time" in z:
+            bt = np.asarray(z["beam_time"]).reshape(-1)
+            if bt.shape != self.angles.shape or not np.issubdtype(bt.dtype, np.floating) or not np.all(np.isfinite(bt)):
+                raise DataFormatError(f"{scans}: beam_time must be {len(self.angles)} finite seconds, one per beam, "
+                                      f"got shape {bt.shape} {bt.dtype}")
+            if np.any(bt):
+                self.beam_times = bt.astype(float)
+                self.beam_time = {"field": "beam_time", "convention": "float64 s after the stamp (the scan's first "
+                                  "beam), one per beam"}
         self.groundtruth = read_tum(root / "groundtruth.tum", dof=3)
         self.odometry = read_tum(root / "odometry.tum", dof=3)
         for name, tr in (("groundtruth.tum", self.groundtruth), ("odometry.tum", self.odometry)):
@@ -158,7 +168,7 @@ class SimulatedDataset(Dataset):
         """The 2D scan of frame ``index`` in the 2D sensor frame."""
         s = self.sensors["lidar2d"]
         return LaserScan2D(self._ranges[index].astype(float), self.angles, float(s["range_min"]),
-                           float(s["range_max"]))
+                           float(s["range_max"]), None if self.beam_times is None else self.beam_times.copy())
 
     @property
     def ranges2d(self) -> NDArray[np.float32]:

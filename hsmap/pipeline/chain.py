@@ -45,6 +45,7 @@ import numpy as np
 from ..config import to_dict
 from ..datasets.frames import Dataset, Frame
 from ..deskew import deskew_frame
+from ..deskew2d import deskew_scan_frame
 from ..errors import InputError
 from ..fusion import align_maps, slice_scans
 from ..grid import GridGeometry, OccupancyGrid, grid_from_scans, scans_to_points, write_label_image, write_map
@@ -144,7 +145,7 @@ def _grids_stage(ds2: Dataset, ds3: Dataset, traj2: Trajectory, traj3: Trajector
         for f in _counted(ds2.frames(clouds=False), bar):
             pose, ok = t2.at([f.stamp], max_dt=1e-3)
             if ok[0] and f.scan2d is not None:
-                scans.append(f.scan2d)
+                scans.append(deskew_scan_frame(f, prior=t2)[0].scan2d if deskew else f.scan2d)
                 poses.append(pose[0])
                 ext.append(f.extrinsic2d)
         if not scans:

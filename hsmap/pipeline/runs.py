@@ -83,6 +83,8 @@ def _frames_digest(frames: Iterable[Frame]) -> str:
         for a in (None if f.scan2d is None else f.scan2d.ranges, None if f.scan2d is None else f.scan2d.angles,
                   f.cloud3d, f.odometry, f.extrinsic2d, f.extrinsic3d):
             h.update((_array_digest(a) or "-").encode())
+        if f.scan2d is not None and f.scan2d.times is not None:  # untimed scans keep their digests
+            h.update(b"beam times" + _array_digest(f.scan2d.times).encode())
     return h.hexdigest()
 
 

@@ -3,7 +3,10 @@
 What a real multi-LiDAR robot writes, and what ``hsmap map`` is meant to take:
 
 - ``/scan`` (``sensor_msgs/LaserScan``, frame ``laser``): the floor-level 2D LiDAR at ``scan_rate`` Hz, no
-  return as ``+inf`` (REP 117);
+  return as ``+inf`` (REP 117); with the scenario's ``sensors.lidar2d.scan_time`` > 0, beam i measured
+  ``i * time_increment`` after the stamp (the first beam's, as ROS drivers stamp it) from the pose the robot has
+  then, ``scan_time`` the scanner's turn; else every beam at the stamp (``time_increment`` 0, ``scan_time`` the
+  scan period);
 - ``/ouster/points`` (``sensor_msgs/PointCloud2``, frame ``os_lidar``): the 3D LiDAR every ``cloud_every``-th
   scan period, ``cloud_offset`` of a period after the scan (the two are not synchronised), as an Ouster driver
   publishes it: an organised cloud (``height`` = channels, ``width`` = columns) of 48-byte points (x, y, z,
@@ -37,7 +40,7 @@ from .robot import mast_sway, sample_legs, simulate_motion
 from .scenario import Scenario
 from .sensors import Lidar3DConfig
 from .world import World
-from .writer import _as_scenario, noise_rngs, rolling_scan3d
+from .writer import _as_scenario, noise_rngs, rolling_scan2d, rolling_scan3d
 
 __all__ = ["OUSTER_POINT", "SimulatedBag", "write_simulated_bag", "ouster_cloud_bytes"]
 
@@ -165,6 +168,9 @@ def write_simulated_bag(
     if int(cloud_every) < 1 or not 0.0 <= cloud_offset < 1.0 or not scan_rate > 0 or not odom_rate > 0:
         raise ConfigError(f"cloud_every must be >= 1, cloud_offset in [0, 1), rates > 0; got {cloud_every}, "
                           f"{cloud_offset}, {scan_rate}, {odom_rate}")
+    if scn.lidar2d.scan_time * scan_rate > 1.0 + 1e-9:
+        raise ConfigError(f"lidar2d.scan_time ({scn.lidar2d.scan_time:g} s) must not outlast the scan period "
+                          f"1 / scan_rate = {1.0 / scan_rate:g} s")
     out = Path(out)
     lone = out.suffix in (".mcap", ".db3")
     folder = out.with_name(out.stem + ".bagdir") if lone else out
@@ -268,11 +274,15 @@ def write_simulated_bag(
                 put("/tf", t, T["tf2_msgs/msg/TFMessage"](transforms=[transform(t, "odom", "base_link", M)]),
                     "tf2_msgs/msg/TFMessage")
             elif kind == "scan":
-                r = world.scan2d(scan_gt[k : k + 1], l2, [scan_rngs[k]])[0].astype(np.float32)
+                if l2.scan_time == 0:
+                    r = world.scan2d(scan_gt[k : k + 1], l2, [scan_rngs[k]])[0].astype(np.float32)
+                else:
+                    r = rolling_scan2d(world, motion.legs, [t], l2, [scan_rngs[k]])[0]
                 r[~np.isfinite(r)] = np.inf
                 msg = T["sensor_msgs/msg/LaserScan"](
                     header=header(t, "laser"), angle_min=float(angles[0]), angle_max=float(angles[-1]),
-                    angle_increment=float(angles[1] - angles[0]), time_increment=0.0, scan_time=1.0 / scan_rate,
+                    angle_increment=float(angles[1] - angles[0]), time_increment=l2.time_increment,
+                    scan_time=l2.scan_time if l2.scan_time > 0 else 1.0 / scan_rate,
                     range_min=float(l2.range_min), range_max=float(l2.range_max), ranges=r,
                     intensities=np.zeros(0, dtype=np.float32))
                 put("/scan", t, msg, "sensor_msgs/msg/LaserScan")

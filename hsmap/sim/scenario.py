@@ -244,6 +244,9 @@ def parse_scenario(data: Any, file: str = "<scenario>", check: bool = True) -> S
     sensors = P.mapping(data.get("sensors") or {}, "sensors", {"lidar2d", "lidar3d"})
     scn.lidar2d = P.config(Lidar2DConfig, sensors.get("lidar2d"), "sensors.lidar2d")
     scn.lidar3d = P.config(Lidar3DConfig, sensors.get("lidar3d"), "sensors.lidar3d")
+    if scn.lidar2d.scan_time * scn.frame_rate > 1.0 + 1e-9:
+        raise P.error("sensors.lidar2d.scan_time", f"one turn of {scn.lidar2d.scan_time:g} s outlasts the frame "
+                      f"period 1 / frame_rate = {1.0 / scn.frame_rate:g} s")
     if scn.ceiling_height is not None and scn.lidar3d.position[2] >= scn.ceiling_height:
         raise P.error("sensors.lidar3d.position", f"the 3D LiDAR at z = {scn.lidar3d.position[2]} m is not "
                       f"below the ceiling at {scn.ceiling_height} m")

@@ -77,6 +77,10 @@ class Lidar2DConfig:
         Heading of the sensor in the robot base frame, degrees.
     height : float
         Mounting height above the floor (the base frame's z = 0 is the floor), metres.
+    scan_time : float
+        Seconds of one turn of the scanner (ROS ``LaserScan.scan_time``): beam i is measured
+        ``i * angle_increment_deg / 360 * scan_time`` after the scan's stamp (its first beam), from the pose the
+        robot has then; 0 takes the whole scan at the stamp.
     """
 
     angle_min_deg: float = -135.0
@@ -89,8 +93,13 @@ class Lidar2DConfig:
     position: list[float] = field(default_factory=lambda: [0.15, 0.0])
     yaw_deg: float = 0.0
     height: float = 0.20
+    scan_time: float = 0.0
 
     def __post_init__(self) -> None:
+        if isinstance(self.scan_time, bool) or not isinstance(self.scan_time, (int, float)):
+            raise ConfigError(f"lidar2d.scan_time must be a number, got {self.scan_time!r}")
+        if not (np.isfinite(self.scan_time) and 0.0 <= self.scan_time <= 1.0):
+            raise ConfigError(f"lidar2d.scan_time must be in [0, 1] s, got {self.scan_time}")
         self.position = _check_vector("lidar2d.position", self.position, 2)
         _check_positive("lidar2d.angle_increment_deg", self.angle_increment_deg)
         if not self.angle_max_deg > self.angle_min_deg:
@@ -121,6 +130,15 @@ class Lidar2DConfig:
         """Pose (x, y, yaw) of the sensor in the robot base frame."""
         return np.array([self.position[0], self.position[1], np.deg2rad(self.yaw_deg)])
 
+    @property
+    def time_increment(self) -> float:
+        """Seconds between two beams (ROS ``LaserScan.time_increment``): ``scan_time * angle_increment_deg / 360``."""
+        return float(self.scan_time) * float(self.angle_increment_deg) / 360.0
+
+    def beam_times(self) -> NDArray[np.float64]:
+        """Seconds (M,) from the scan's stamp (its first beam) at which each beam is measured."""
+        return self.time_increment * np.arange(self.beams)
+
     def describe(self) -> dict:
         """The sensor as written to ``dataset.yaml`` (radians, metres)."""
         a = self.angles()
@@ -138,6 +156,12 @@ class Lidar2DConfig:
             "extrinsic": [float(v) for v in self.extrinsic()],
             "extrinsic_convention": "x y yaw (m, m, rad) of the sensor in the robot base frame",
             "mount_height": float(self.height),
+            **({} if self.scan_time == 0 else {
+                "scan_time": float(self.scan_time),
+                "time_increment": self.time_increment,
+                "scan_convention": "beam i is measured beam_time[i] = i * time_increment s after the scan's stamp "
+                "(its first beam) from the pose the robot has then; time_increment = scan_time * angle_increment "
+                "/ (2 pi)"}),
         }
 
 

@@ -4,7 +4,8 @@ Folder contents (format version :data:`FORMAT_VERSION`; ``README.md`` in the fol
 
 - ``dataset.yaml``      written last: a folder without it is incomplete. Format, scenario, seed, frame count and
                         rate, sensor descriptions, the file list.
-- ``scans2d.npz``       ``stamps (N,)`` float64 s, ``ranges (N, M)`` float32 m (NaN = no return), ``angles (M,)``.
+- ``scans2d.npz``       ``stamps (N,)`` float64 s, ``ranges (N, M)`` float32 m (NaN = no return), ``angles (M,)``;
+                        with a 2D scan time, ``beam_time (M,)`` float64 s after the stamp of each beam.
 - ``clouds3d/NNNNNN.npz`` per frame ``range_mm (C, W)`` uint16 range image (0 = no return), ``stamp`` float64.
 - ``groundtruth.tum``, ``odometry.tum``: robot base poses at the scan stamps.
 - ``rooms.png`` (16-bit labels, 0 = no room) + ``rooms.yaml`` (resolution, origin, label -> name).
@@ -38,12 +39,12 @@ from ..io import atomic_path, staged_outputs, sweep_stale_temporaries, write_jso
 from ..trajectory import Trajectory, write_tum
 from . import layout
 from .catalog import resolve_scenario
-from .robot import Motion, mast_matrices, mast_poses, mast_sway, simulate_motion
+from .robot import Motion, mast_matrices, mast_poses, mast_sway, sample_legs, simulate_motion
 from .scenario import Scenario, load_scenario
 from .world import World, _finish
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "SimulationSummary", "simulate", "save_npz", "motion_for", "noise_rngs",
-           "write_sensor_frames", "rolling_scan3d"]
+           "write_sensor_frames", "rolling_scan2d", "rolling_scan3d"]
 
 
 FILE_DESCRIPTIONS = {
@@ -230,6 +231,8 @@ def _write_dataset(scn: Scenario, out: Path, seed: int, *, max_frames: int | Non
                                       "about the mast's foot; the 3D LiDAR is at this pose times its extrinsic), TUM")
     if scn.lidar3d.sweep_time > 0:
         files["clouds3d/"] += "; column_time (columns,) float64 s after stamp at which each column was measured"
+    if scn.lidar2d.scan_time > 0:
+        files["scans2d.npz"] += "; beam_time (M,) float64 s after the stamp at which each beam was measured"
     write_text(out / "README.md", _readme(scn, summary, grid))
     meta = {
         "format": FORMAT,
@@ -272,8 +275,13 @@ def write_sensor_frames(out: Path, world, motion: Motion, lidar2d, lidar3d, seed
     ranges2d = np.empty((n, lidar2d.beams), dtype=np.float32)
     for a in range(0, n, 256):
         b = min(n, a + 256)
-        ranges2d[a:b] = world.scan2d(motion.groundtruth[a:b], lidar2d, noise_rngs(seed, 2, range(a, b)))
-    save_npz(out / "scans2d.npz", stamps=motion.stamps, ranges=ranges2d, angles=lidar2d.angles())
+        if lidar2d.scan_time == 0:
+            ranges2d[a:b] = world.scan2d(motion.groundtruth[a:b], lidar2d, noise_rngs(seed, 2, range(a, b)))
+        else:
+            ranges2d[a:b] = rolling_scan2d(world, motion.legs, motion.stamps[a:b], lidar2d,
+                                           noise_rngs(seed, 2, range(a, b)))
+    beam_time = {} if lidar2d.scan_time == 0 else {"beam_time": lidar2d.beam_times()}
+    save_npz(out / "scans2d.npz", stamps=motion.stamps, ranges=ranges2d, angles=lidar2d.angles(), **beam_time)
     timings["scan2d"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -320,6 +328,28 @@ def write_sensor_frames(out: Path, world, motion: Motion, lidar2d, lidar3d, seed
     return ranges2d
 
 
+def rolling_scan2d(world, legs, stamps, lidar2d, rngs=None) -> np.ndarray:
+    """Planar scans (N, M) in metres (NaN = no return) of scans starting at ``stamps`` (N,): beam i cast at
+    ``stamps + lidar2d.beam_times()[i]`` from the robot's pose along ``legs`` then. ``rngs``: None or one
+    Generator per scan (noise and dropout as :meth:`hsmap.sim.world.World.scan2d`)."""
+
+    stamps = np.asarray(stamps, dtype=float).reshape(-1)
+    bt = lidar2d.beam_times()
+    M = len(bt)
+    poses = sample_legs(legs, (stamps[:, None] + bt[None, :]).reshape(-1)).reshape(len(stamps), M, 3)
+    ext = lidar2d.extrinsic()
+    c, s = np.cos(poses[..., 2]), np.sin(poses[..., 2])
+    ang = poses[..., 2] + ext[2] + lidar2d.angles()[None, :]
+    rays = np.empty((len(stamps), M, 6), dtype=np.float32)
+    rays[..., 0] = poses[..., 0] + c * ext[0] - s * ext[1]
+    rays[..., 1] = poses[..., 1] + s * ext[0] + c * ext[1]
+    rays[..., 2] = lidar2d.height
+    rays[..., 3], rays[..., 4], rays[..., 5] = np.cos(ang), np.sin(ang), 0.0
+    r = world.cast_rays(rays.reshape(-1, 6)).reshape(len(stamps), M)
+    return _finish(r, lidar2d.range_min, lidar2d.range_max, lidar2d.noise_sigma, lidar2d.dropout, rngs).astype(
+        np.float32)
+
+
 def rolling_scan3d(world, legs, stamps, lidar3d, rngs=None, directions=None, sway=None) -> np.ndarray:
     """Range images (N, channels, columns) in metres (NaN = no return) of sweeps starting at ``stamps`` (N,):
     column j cast at ``stamps + lidar3d.column_times()[j]`` from the robot's pose along ``legs`` then, the mast
@@ -348,16 +378,31 @@ def _write_png16(path: Path, labels: np.ndarray) -> None:
         Image.fromarray(np.ascontiguousarray(labels.astype(np.uint16))).save(tmp, format="PNG")
 
 
-def _timing(l3) -> str:
+def _timing(l2, l3) -> str:
     """The README's sentence on when the LiDARs measure."""
-    if l3.static:
+    if l3.static and l2.scan_time == 0:
         return ("Both LiDARs take each frame's scan\ninstantaneously at the frame's ground-truth pose (no motion "
                 "distortion); the robot moves on a flat floor.")
+    if l2.scan_time == 0:
+        first = "The 2D LiDAR takes each scan at the frame's stamp"
+    else:
+        first = (f"The 2D LiDAR turns once in {l2.scan_time:g} s from the stamp, beam i\nmeasured `beam_time[i]` "
+                 "after it from the pose the robot has then")
+    if l3.static:
+        return f"{first}; the 3D LiDAR takes each cloud at the stamp; the robot moves on a flat floor."
     sway = (f", its {l3.position[2]:g} m mast swaying at {l3.sway_frequency:g} Hz (damping {l3.sway_damping:g}) "
             "with the base's acceleration" if l3.sway_frequency > 0 else "")
-    return (f"The 2D LiDAR takes each scan at the frame's stamp; the 3D LiDAR sweeps over {l3.sweep_time:g} s from "
+    return (f"{first}; the 3D LiDAR sweeps over {l3.sweep_time:g} s from "
             f"the stamp,\ncolumn j at `column_time[j]` after it, from the pose the robot has then{sway}; the robot "
             "moves on a flat floor.")
+
+
+def _beam_time_line(l2) -> str:
+    """The README's line on ``beam_time`` (empty for scans taken at one instant)."""
+    if l2.scan_time == 0:
+        return ""
+    return (f"\n  `beam_time` ({l2.beams},) float64 s: beam i is measured i * {l2.time_increment:g} s after the "
+            f"stamp\n  (one turn of the scanner takes {l2.scan_time:g} s: `sensors.lidar2d.scan_time`).")
 
 
 def _readme(scn: Scenario, s: SimulationSummary, grid) -> str:
@@ -374,7 +419,7 @@ Read it with `hsmap.datasets.simulated.SimulatedDataset(folder)`.
 ## Frames and units
 Metres, seconds, radians (degrees only where a key says `_deg`). The world frame has z up and the floor at
 z = 0. The robot base frame lies on the floor (x forward, y left). Poses are (x, y, yaw); 3D poses
-(x, y, z, roll, pitch, yaw) with R = Rz(yaw) Ry(pitch) Rx(roll). {_timing(l3)}
+(x, y, z, roll, pitch, yaw) with R = Rz(yaw) Ry(pitch) Rx(roll). {_timing(l2, l3)}
 
 ## Files
 - `dataset.yaml`: format `{FORMAT}` version {FORMAT_VERSION}, scenario, seed, frame count and rate, the
@@ -383,7 +428,7 @@ z = 0. The robot base frame lies on the floor (x forward, y left). Poses are (x,
   ({l2.beams},) rad. The 2D LiDAR scans a horizontal plane {l2.height:g} m above the floor from
   {l2.angle_min_deg:g} to {l2.angle_max_deg:g} deg in {l2.angle_increment_deg:g} deg steps, ranges
   {l2.range_min:g}..{l2.range_max:g} m, Gaussian noise sigma {l2.noise_sigma:g} m; its pose in the base
-  frame is `sensors.lidar2d.extrinsic` (x, y, yaw).
+  frame is `sensors.lidar2d.extrinsic` (x, y, yaw).{_beam_time_line(l2)}
 - `clouds3d/NNNNNN.npz` (one per frame, NNNNNN = frame index): `range_mm` ({l3.channels}, {l3.columns})
   uint16 millimetres, 0 = no return; `stamp` float64 s. Row i looks at elevation
   `sensors.lidar3d.vertical_angles_deg[i]` (top beam first), column j at azimuth -pi + j * 2 pi / {l3.columns}

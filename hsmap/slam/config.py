@@ -155,7 +155,8 @@ class SlamConfig:
         2D runs with wheel odometry: the final trajectory is smoothed with the odometry
         (:func:`hsmap.smoothing.smooth_with_odometry`); the map stays the graph's.
     deskew : bool
-        6-DOF: clouds with per-point times are moved to their stamps before use (:mod:`hsmap.deskew`).
+        Clouds with per-point times (6-DOF, :mod:`hsmap.deskew`) and 2D scans with beam times (3-DOF,
+        :mod:`hsmap.deskew2d`) are moved to their stamps before use.
     """
 
     dof: int = 3

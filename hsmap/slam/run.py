@@ -196,7 +196,8 @@ def run_slam(
     """
     from tqdm.auto import tqdm
 
-    slam = HsSlam(config, rng=rng, initial_pose=initial_pose, prior=prior)
+    slam = HsSlam(config, rng=rng, initial_pose=initial_pose, prior=prior,
+                  odometry=getattr(dataset, "odometry", None) if isinstance(dataset, Dataset) else None)
     prior_info: dict = {}
     stamps = getattr(dataset, "stamps", None)
     if prior is not None and stamps is not None:

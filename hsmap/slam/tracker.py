@@ -13,6 +13,7 @@ from numpy.typing import NDArray
 from .._threads import current_threads
 from ..datasets.frames import Frame
 from ..deskew import deskew_frame
+from ..deskew2d import deskew_scan_frame
 from ..errors import InputError, UnusableFrameError
 from ..geometry import compose, relative, wrap_angle
 from ..harmony import as_rng
@@ -74,6 +75,9 @@ class HsSlam:
         Pose of the first frame (default: the origin).
     prior : Trajectory, optional
         6-DOF only: (x, y, yaw) poses from a 2D run, looked up by stamp, used as seeds with a narrower range.
+    odometry : Trajectory, optional
+        3-DOF: the input's wheel odometry (x, y, yaw) at its frame stamps; 2D scans with beam times are deskewed
+        with its motion, interpolated at the beams' times (with ``use_odometry``).
 
     Attributes
     ----------
@@ -86,7 +90,8 @@ class HsSlam:
     """
 
     def __init__(self, config: SlamConfig | None = None, *, rng: int | np.random.Generator | None = None,
-                 initial_pose: NDArray[np.float64] | None = None, prior: Trajectory | None = None) -> None:
+                 initial_pose: NDArray[np.float64] | None = None, prior: Trajectory | None = None,
+                 odometry: Trajectory | None = None) -> None:
         self.config = config or SlamConfig()
         cfg = self.config
         self.rng = as_rng(rng)
@@ -98,6 +103,7 @@ class HsSlam:
         self._initial = None if initial_pose is None else np.asarray(initial_pose, dtype=float)
         if self._initial is not None and self._initial.shape != (cfg.dof,):
             raise InputError(f"initial_pose must have {cfg.dof} values, got shape {self._initial.shape}")
+        self._odometry_track = odometry if cfg.dof == 3 and cfg.use_odometry and odometry is not None else None
         self._prior = None
         if prior is not None:
             if cfg.dof != 6:
@@ -257,10 +263,20 @@ class HsSlam:
         return result
 
     def deskewed(self, frame: Frame) -> Frame:
-        """The frame with its cloud moved to its stamp (6-DOF with ``deskew``: :func:`hsmap.deskew.deskew_frame`)."""
-        if not self.config.deskew or self.config.dof != 6 or frame.point_times is None:
+        """The frame with its cloud (6-DOF) or its 2D scan (3-DOF) moved to its stamp, with ``deskew``
+        (:func:`hsmap.deskew.deskew_frame`, :func:`hsmap.deskew2d.deskew_scan_frame`; a 2D scan's motion from
+        the input's odometry track where there is one); frames without point or beam times are returned as they
+        are."""
+        if not self.config.deskew:
             return frame
         odom = self.odometry.previous if self.config.use_odometry else None
+        if self.config.dof == 3:
+            if frame.scan2d is None or frame.scan2d.times is None:
+                return frame
+            return deskew_scan_frame(frame, prior=self._odometry_track, previous_stamps=self.stamps[-2:],
+                                     previous_poses=self.poses[-2:], previous_odometry=odom)[0]
+        if frame.point_times is None:
+            return frame
         return deskew_frame(frame, prior=self._prior, previous_stamps=self.stamps[-2:],
                             previous_poses=self.poses[-2:], previous_odometry=odom)[0]
 

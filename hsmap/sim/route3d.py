@@ -92,7 +92,8 @@ class Route3DConfig:
     subdivision : int
         Planning pixels per voxel edge.
     explore : ExploreConfig
-        Clearance and path costs, as for the floor-plan buildings.
+        Path costs (``preferred_clearance``, ``wall_cost``, ``max_leg``), as for the floor-plan buildings; the
+        least clearance is the robot's radius (:func:`plan_route3d`'s ``footprint``), not ``explore.clearance``.
     """
 
     body: list[float] = field(default_factory=lambda: [0.05, 1.8])

@@ -66,6 +66,7 @@ class WorldRun:
                 "duration_s": round(float(self.motion.stamps[-1] - self.motion.stamps[0]), 3),
                 "rooms": int(r.rooms.max(initial=0)), "rooms_visited": [int(k) for k in r.route.order],
                 "rooms_entered": r.rooms_entered(), "unreachable_rooms": len(r.route.unreachable),
+                "footprint_m": r.footprint,
                 "route": r.route.as_dict(), "world": self.world.describe(),
                 "timings_s": {k: round(v, 3) for k, v in self.timings.items()}}
 

@@ -134,7 +134,8 @@ class Route3D:
     geometry : GridGeometry
         One pixel per voxel column.
     traversable : ndarray of shape (H, W), bool
-        Where the robot's centre may be before the clearance is applied (traversable and visible).
+        Traversable columns from whose centre the mast LiDAR sees the map (before the clearance and the mast's
+        sweep are applied).
     rooms : ndarray of shape (H, W), int32
         The map's rooms in its ``rooms_band`` (0 = none).
     slice_grid : OccupancyGrid

@@ -187,3 +187,28 @@ def test_a_map_with_no_room_for_the_robot_is_a_one_line_error(tmp_path, capsys):
     assert main(["simulate", "--world", str(ply), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "points.ply" in err[0]
+
+
+def _deepest_y(r) -> float:
+    pts = np.vstack([r.route.start[None, :2], r.route.waypoints])
+    return float(pts[:, 1].max())
+
+
+def test_route_enters_a_door_seen_above_its_floor_and_one_only_the_footprint_fits():
+    ix = lambda x: int(round(x / RES)) + 2  # noqa: E731
+    door = (slice(ix(4.4), ix(5.6)), slice(ix(1.5), ix(2.6)))
+    w = _office()
+    w.state[door[0], door[1], 1:6] = UNKNOWN  # the door's floor-level voxels unseen, free above, floor seen
+    r = plan_route3d(w)
+    assert _deepest_y(r) > 3.0  # into the room: unseen floor under an observed-free column on a seen floor
+    assert len(r.rooms_entered()) == 2
+    w.state[door[0], door[1], 0] = UNKNOWN  # no floor seen under the door either: clutter may stand there
+    assert _deepest_y(plan_route3d(w)) < 2.0
+    # a door 0.6 m wide (6 voxels): a robot of radius 0.26 m passes with its middle on a voxel face, not when
+    # its centre must stand on voxel centres, nor with a radius of 0.30 m
+    narrow = _office()
+    narrow.state[ix(4.4):ix(4.4) + 3, ix(2), 1:27] = OCCUPIED
+    narrow.state[ix(5.6) - 3:ix(5.6), ix(2), 1:27] = OCCUPIED
+    assert _deepest_y(plan_route3d(narrow, footprint=0.26)) > 3.0
+    assert _deepest_y(plan_route3d(narrow, Route3DConfig(subdivision=1), footprint=0.26)) < 2.0
+    assert _deepest_y(plan_route3d(narrow, footprint=0.30)) < 2.0

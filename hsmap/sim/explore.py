@@ -4,7 +4,8 @@
 level), at the images' resolution:
 
 1. clearance: each free pixel's distance to the nearest obstacle; the robot's centre may only be where the
-   clearance is at least ``clearance`` (the robot's radius and a margin);
+   clearance is at least ``clearance`` (the robot's radius and a margin; a caller may give the robot's own
+   radius, ``footprint``, and restrict where the centre may stand, ``stand``, without narrowing the clearance);
 2. goals: in each ground-truth room the pixel farthest from the room's border and its furniture (its free
    centre) among those the robot may stand on; the rooms are joined by the largest connected part of that
    space (the one holding most goals); a room with no such pixel in it, or none joined to the others, is
@@ -135,8 +136,21 @@ def _smooth(path: NDArray[np.int64], clear: NDArray[np.float64], cfg: ExploreCon
     return keep
 
 
-def plan_exploration(plan: FloorPlan, config: ExploreConfig | None = None) -> Exploration:
+def plan_exploration(plan: FloorPlan, config: ExploreConfig | None = None, *, footprint: float | None = None,
+                     stand: NDArray[np.bool_] | None = None) -> Exploration:
     """Plan the route through every reachable ground-truth room (see the module docstring).
+
+    Parameters
+    ----------
+    plan : FloorPlan
+        What is read: ``geometry``, ``furnished_free`` (H, W) bool, ``rooms`` (H, W) int labels, ``files``.
+    config : ExploreConfig, optional
+    footprint : float, optional
+        Least clearance of the robot's centre, metres, in place of ``config.clearance`` (the robot's own radius:
+        paths still keep ``preferred_clearance`` where the space allows, through the costs).
+    stand : ndarray of shape (H, W), bool, optional
+        Where the robot's centre may be besides the clearance (default everywhere); the clearance is measured
+        from ``furnished_free`` alone.
 
     Raises
     ------
@@ -150,7 +164,10 @@ def plan_exploration(plan: FloorPlan, config: ExploreConfig | None = None) -> Ex
     res = g.resolution
     free = plan.furnished_free
     clear = np.where(free, (ndi.distance_transform_edt(free) - 0.5) * res, 0.0)
-    ok = clear >= cfg.clearance
+    need = cfg.clearance if footprint is None else float(footprint)
+    ok = clear >= need
+    if stand is not None:
+        ok &= stand
     comp, _ = ndi.label(ok, structure=_EIGHT)
     unreachable: dict[int, str] = {}
     candidates: dict[int, NDArray[np.int64]] = {}  # room -> its pixels the robot may stand on, best first
@@ -161,7 +178,7 @@ def plan_exploration(plan: FloorPlan, config: ExploreConfig | None = None) -> Ex
         inner = ndi.distance_transform_edt(np.pad(room, 1))[1:-1, 1:-1]
         inner = np.where(ok[sl] & room, inner, -1.0)
         if inner.max() < 0:
-            unreachable[k] = (f"no free pixel {cfg.clearance:g} m clear of walls and furniture at floor level "
+            unreachable[k] = (f"no free pixel {need:g} m clear of walls and furniture at floor level "
                               "(the robot does not fit)")
             continue
         flat = np.flatnonzero(inner.ravel() >= 0)
@@ -170,7 +187,7 @@ def plan_exploration(plan: FloorPlan, config: ExploreConfig | None = None) -> Ex
         candidates[k] = np.stack([rr + sl[0].start, cc + sl[1].start], -1)
     if not candidates:
         raise EmptyInputError(f"{plan.files.get('furnished', plan.name)}: no ground-truth room has free space "
-                              f"{cfg.clearance:g} m clear of walls and furniture: nothing to explore")
+                              f"{need:g} m clear of walls and furniture: nothing to explore")
     # the connected part of the free space that holds most rooms' centres (ties: the largest)
     best_comp = np.array([comp[tuple(c[0])] for c in candidates.values()])
     sizes = np.bincount(comp.ravel())
@@ -206,8 +223,9 @@ def plan_exploration(plan: FloorPlan, config: ExploreConfig | None = None) -> Ex
         order.append(nxt)
         todo.remove(nxt)
     waypoints_rc = [goals_rc[first]]
+    legs_clear = clear if stand is None else np.where(stand, clear, 0.0)  # legs stay where the robot may stand
     for path in pieces:
-        idx = _smooth(path, clear, cfg, res)
+        idx = _smooth(path, legs_clear, cfg, res)
         waypoints_rc.extend(path[i] for i in idx[1:])
     wp = g.pixel_to_world(np.asarray(waypoints_rc, dtype=float))
     if len(wp) > 1:

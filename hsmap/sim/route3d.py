@@ -5,23 +5,32 @@ exploration (:func:`hsmap.sim.explore.plan_exploration`) and plans with it:
 
 1. traversability, one pixel per voxel column: the robot may stand on a column where no voxel of its body's
    height band (``body``, from just above the floor to above the mast's LiDAR) is occupied and where the map
-   knows the space is free at floor level (``known``, every voxel of that band free: clutter the map never saw
-   may stand in unknown space) and at both LiDARs' heights (a sensor inside unknown space would see nothing);
-2. visibility: the robot may only stand where the mast LiDAR would see the map: at least ``min_visible`` of a
-   coarse set of its beams (``visibility_beams``, over its vertical field of view, cast from the column's centre
-   at the LiDAR's height) return a hit; a sensor inside a pocket of unknown space (where the map's own recording
-   sensor stood, or a room seen only through its door) sees nothing, and a SLAM run would be blind there;
+   knows the space is free at floor level (``known``): each voxel of that band is free, or unknown under a
+   free voxel of the body band in the same column with the floor's slab observed under the column (an
+   occupied voxel in ``floor_slab``): a laser passing over the floor and hitting it leaves floor-level voxels
+   it never grazed unknown; unknown space with no observed floor under it may hold clutter the map never saw;
+   ``sensor_heights`` must be free too;
+2. visibility: the robot's centre may only be where the mast LiDAR would see the map: at least ``min_visible``
+   of a coarse set of its beams (``visibility_beams``, over its vertical field of view, cast from the column's
+   centre at the LiDAR's height) return a hit; a sensor inside a pocket of unknown space (where the map's own
+   recording sensor stood, or a room seen only through its door) sees nothing, and a SLAM run would be blind
+   there. The mast stands off the robot's centre (``lidar3d.position``) and sweeps a circle of that radius as
+   the robot turns: every place within it must see the map. A blind column is no obstacle: the footprint's
+   clearance is measured from the untraversable columns;
 3. rooms: the map's own rooms in its ``rooms_band`` (the paper's 1.7-1.8 m slice), as ``hsmap segment MAP3D
    --band`` finds them (:func:`hsmap.maps3d.band_grid` with :func:`hsmap.maps3d.segmentation_free`'s free
-   space, segmented by :func:`hsmap.segmentation.segment_rooms`): reported, not
-   planned on;
-4. goals covering the space the robot fits in: the largest connected part of the traversable columns with the
-   robot's clearance (:class:`~hsmap.sim.explore.ExploreConfig`) is cut into cells around seeds spread by
-   farthest-point sampling until every pixel is within ``cover_spacing`` of a seed (from the pixel with most
-   room around it; ties to the lowest index), so the route reaches the corridor's ends and every part of a room
-   the robot fits into, not only one centre per room of the slice;
-5. the route: :func:`~hsmap.sim.explore.plan_exploration` with those cells as its rooms (footprint clearance,
-   costs keeping to the middle of corridors and doorways, each cell's free centre in turn, straight legs).
+   space, segmented by :func:`hsmap.segmentation.segment_rooms`);
+4. planning grid: ``subdivision`` pixels per voxel edge, so the robot's centre may lie between voxel centres
+   (a doorway an even number of voxels wide has its middle on a voxel face); the footprint keeps the robot's
+   radius (``footprint``) clear of every untraversable column's faces;
+5. goals covering the space the robot fits in: the largest connected part of the places the robot's centre may
+   be is split by the rooms of the slice (a pixel of no room joins the nearest room's pixels), and each room's
+   part is cut into cells around seeds spread by farthest-point sampling until every pixel is within
+   ``cover_spacing`` of a seed (from the pixel with most room around it; ties to the lowest index): the route
+   reaches the corridor's ends and goes into every room it fits into, as far as the robot fits and sees;
+6. the route: :func:`~hsmap.sim.explore.plan_exploration` with those cells as its rooms (the footprint's
+   clearance, costs keeping ``explore.preferred_clearance`` from obstacles where the space allows, each cell's
+   free centre in turn, straight legs through places the robot may stand).
 
 Heights are metres above the floor (the world's z = 0).
 """
@@ -38,9 +47,11 @@ from ..grid import FREE, OCCUPIED, UNKNOWN, GridGeometry, OccupancyGrid
 from ..maps3d import Map3D, band_grid, segmentation_free
 from ..segmentation import SegmentationConfig, segment_rooms
 from .explore import Exploration, ExploreConfig, plan_exploration
+from .robot import RobotConfig
 from .sensors import Lidar3DConfig
 from .voxelworld import FREE as VFREE
 from .voxelworld import OCCUPIED as VOCC
+from .voxelworld import UNKNOWN as VUNK
 from .voxelworld import VoxelWorld
 
 __all__ = ["Route3DConfig", "Route3D", "plan_route3d", "traversable", "band_image", "voxel_geometry", "cover_cells",
@@ -66,7 +77,10 @@ class Route3DConfig:
     body : list of 2 float
         Heights the robot occupies (base, mast and its LiDAR), metres above the floor: no occupied voxel there.
     known : list of 2 float
-        Heights where every voxel must be known free (the base and the 2D LiDAR's plane).
+        Heights where every voxel must be known free (the base and the 2D LiDAR's plane), or unknown under an
+        observed-free column on an observed floor.
+    floor_slab : list of 2 float
+        Heights (below the floor's surface) where an occupied voxel shows the floor under a column was seen.
     rooms_band : list of 2 float
         Heights of the slice whose rooms are reported (:meth:`Route3D.rooms_entered`).
     cover_spacing : float
@@ -75,21 +89,27 @@ class Route3DConfig:
         Least share of the mast LiDAR's beams that return where the robot stands.
     visibility_beams : list of 2 int
         Channels and columns of the coarse beam set the visibility is measured with.
+    subdivision : int
+        Planning pixels per voxel edge.
     explore : ExploreConfig
-        Clearance and path costs, as for the floor-plan buildings.
+        Path costs (``preferred_clearance``, ``wall_cost``, ``max_leg``), as for the floor-plan buildings; the
+        least clearance is the robot's radius (:func:`plan_route3d`'s ``footprint``), not ``explore.clearance``.
     """
 
     body: list[float] = field(default_factory=lambda: [0.05, 1.8])
     known: list[float] = field(default_factory=lambda: [0.05, 0.45])
+    floor_slab: list[float] = field(default_factory=lambda: [-0.15, 0.0])
     rooms_band: list[float] = field(default_factory=lambda: [1.7, 1.8])
     cover_spacing: float = 3.0
     min_visible: float = 0.3
     visibility_beams: list[int] = field(default_factory=lambda: [8, 32])
+    subdivision: int = 2
     explore: ExploreConfig = field(default_factory=ExploreConfig)
 
     def __post_init__(self) -> None:
         self.body = list(_band("body", self.body))
         self.known = list(_band("known", self.known))
+        self.floor_slab = list(_band("floor_slab", self.floor_slab))
         self.rooms_band = list(_band("rooms_band", self.rooms_band))
         if not (isinstance(self.cover_spacing, (int, float)) and np.isfinite(self.cover_spacing)
                 and self.cover_spacing > 0):
@@ -100,6 +120,8 @@ class Route3DConfig:
         if not (isinstance(v, (list, tuple)) and len(v) == 2 and all(isinstance(k, int) and k >= 1 for k in v)):
             raise ConfigError(f"route3d.visibility_beams must be [channels, columns] >= 1, got {v!r}")
         self.visibility_beams = [int(k) for k in v]
+        if isinstance(self.subdivision, bool) or not (isinstance(self.subdivision, int) and 1 <= self.subdivision <= 8):
+            raise ConfigError(f"route3d.subdivision must be an integer in [1, 8], got {self.subdivision!r}")
 
 
 @dataclass
@@ -112,15 +134,20 @@ class Route3D:
     geometry : GridGeometry
         One pixel per voxel column.
     traversable : ndarray of shape (H, W), bool
-        Where the robot's centre may be before the clearance is applied (traversable and visible).
+        Traversable columns from whose centre the mast LiDAR sees the map (before the clearance and the mast's
+        sweep are applied).
     rooms : ndarray of shape (H, W), int32
         The map's rooms in its ``rooms_band`` (0 = none).
     slice_grid : OccupancyGrid
         The ``rooms_band`` grid the rooms were found on.
-    cells : ndarray of shape (H, W), int32
-        The cells whose free centres are the route's goals.
+    cells : ndarray of shape (H * s, W * s), int32
+        The cells whose free centres are the route's goals, on ``plan_geometry``.
     visible : ndarray of shape (H, W), float
         Share of the mast LiDAR's coarse beams that return, per traversable column.
+    plan_geometry : GridGeometry
+        The planning grid: ``s`` = ``subdivision`` pixels per voxel edge.
+    footprint : float
+        The robot's radius the route keeps clear, metres.
     """
 
     route: Exploration
@@ -130,6 +157,8 @@ class Route3D:
     slice_grid: OccupancyGrid
     cells: NDArray[np.int32]
     visible: NDArray[np.float64]
+    plan_geometry: GridGeometry | None = None
+    footprint: float = 0.0
 
     def rooms_entered(self) -> list[int]:
         """Rooms (labels) the route's driven path passes through, in label order."""
@@ -181,8 +210,19 @@ def traversable(world: VoxelWorld, config: Route3DConfig | None = None,
     """Columns (H, W) where the robot may stand (see the module docstring, step 1)."""
     cfg = config or Route3DConfig()
     st = world.state
-    ok = ~(st[:, :, _layers(world, *cfg.body)] == VOCC).any(axis=2)
-    ok &= (st[:, :, _layers(world, *cfg.known)] == VFREE).all(axis=2)
+    body, known = _layers(world, *cfg.body), _layers(world, *cfg.known)
+    ok = ~(st[:, :, body] == VOCC).any(axis=2)
+    top = max(body.stop, known.stop)
+    # free_above[..., i]: a free voxel of the body band above layer known.start + i of the column
+    free_body = np.zeros(st.shape[:2] + (top - known.start,), dtype=bool)
+    lo = max(body.start, known.start)
+    free_body[:, :, lo - known.start:body.stop - known.start] = st[:, :, lo:body.stop] == VFREE
+    free_above = np.zeros_like(free_body)
+    free_above[:, :, :-1] = np.flip(np.logical_or.accumulate(np.flip(free_body[:, :, 1:], axis=2), axis=2), axis=2)
+    floor_seen = (st[:, :, _layers(world, *cfg.floor_slab)] == VOCC).any(axis=2)
+    kn = st[:, :, known]
+    under = (kn == VUNK) & free_above[:, :, :known.stop - known.start] & floor_seen[:, :, None]
+    ok &= ((kn == VFREE) | under).all(axis=2)
     for h in sensor_heights:
         ok &= st[:, :, world.layer(h)] == VFREE
     return _image(ok)
@@ -223,7 +263,8 @@ def visibility(world: VoxelWorld, where: NDArray[np.bool_], lidar3d: Lidar3DConf
 
 
 def plan_route3d(world: VoxelWorld, config: Route3DConfig | None = None,
-                 sensor_heights: tuple[float, ...] = (), lidar3d: Lidar3DConfig | None = None) -> Route3D:
+                 sensor_heights: tuple[float, ...] = (), lidar3d: Lidar3DConfig | None = None,
+                 footprint: float | None = None) -> Route3D:
     """Plan the route through a voxel world (see the module docstring).
 
     Parameters
@@ -234,6 +275,8 @@ def plan_route3d(world: VoxelWorld, config: Route3DConfig | None = None,
         Heights of the robot's sensors above the floor, metres: their voxels must be known free.
     lidar3d : Lidar3DConfig, optional
         The mast LiDAR (its height, field of view and range set the visibility); default the study's.
+    footprint : float, optional
+        The robot's radius, metres (default :class:`~hsmap.sim.robot.RobotConfig`'s).
 
     Returns
     -------
@@ -246,23 +289,53 @@ def plan_route3d(world: VoxelWorld, config: Route3DConfig | None = None,
     """
 
     cfg = config or Route3DConfig()
+    need = RobotConfig().radius if footprint is None else float(footprint)
+    if not (np.isfinite(need) and need > 0):
+        raise ConfigError(f"the robot's footprint radius must be > 0 metres, got {footprint!r}")
+    from scipy import ndimage as ndi
+
     geo = voxel_geometry(world)
+    l3 = lidar3d or Lidar3DConfig()
     free = traversable(world, cfg, sensor_heights)
-    vis = visibility(world, free, lidar3d or Lidar3DConfig(), tuple(cfg.visibility_beams))
-    free &= vis >= cfg.min_visible
+    vis = visibility(world, free, l3, tuple(cfg.visibility_beams))
     grid, segmented = band_image(world, *cfg.rooms_band)
+    k = cfg.subdivision
+    fine = GridGeometry((geo.shape[0] * k, geo.shape[1] * k), geo.resolution / k, geo.origin)
+    up = lambda a: np.repeat(np.repeat(a, k, axis=0), k, axis=1)  # noqa: E731
+    # the least visibility within the circle the mast sweeps about the centre as the robot turns
+    n = int(np.ceil(float(np.hypot(*l3.position[:2])) / fine.resolution))
+    yy, xx = np.mgrid[-n:n + 1, -n:n + 1]
+    seen = ndi.minimum_filter(up(vis), footprint=yy ** 2 + xx ** 2 <= n * n, mode="constant", cval=0.0)
+    stand = up(free) & (seen >= cfg.min_visible)
     try:
-        cells = cover_cells(free, geo.resolution, cfg)
         rooms = np.asarray(segment_rooms(segmented).labels, dtype=np.int32)
+        cells = cover_cells(up(free), fine.resolution, cfg, stand=stand, rooms=up(rooms), footprint=need)
     except EmptyInputError as exc:
         raise EmptyInputError(f"{world.source}: {exc}") from None
-    route = plan_exploration(_VoxelPlan(world.source, geo, free, cells), cfg.explore)
-    return Route3D(route, geo, free, rooms, grid, cells, vis)
+    route = plan_exploration(_VoxelPlan(world.source, fine, up(free), cells), cfg.explore, footprint=need,
+                             stand=stand)
+    return Route3D(route, geo, free & (vis >= cfg.min_visible), rooms, grid, cells, vis, fine, need)
 
 
-def cover_cells(free: NDArray[np.bool_], resolution: float, config: Route3DConfig | None = None) -> NDArray[np.int32]:
-    """Cells (H, W) (0 = none, 1..K) covering the largest connected part of ``free`` where the robot's centre
-    may be (see the module docstring, step 3).
+def cover_cells(free: NDArray[np.bool_], resolution: float, config: Route3DConfig | None = None, *,
+                stand: NDArray[np.bool_] | None = None, rooms: NDArray[np.integer] | None = None,
+                footprint: float | None = None) -> NDArray[np.int32]:
+    """Cells (H, W) (0 = none, 1..K) covering the largest connected part of the pixels of ``free`` (H, W) where
+    the robot's centre may be (see the module docstring, step 5).
+
+    Parameters
+    ----------
+    free : ndarray of shape (H, W), bool
+        Traversable pixels (the clearance is measured from the others).
+    resolution : float
+        Metres per pixel.
+    config : Route3DConfig, optional
+    stand : ndarray of shape (H, W), bool, optional
+        Where the centre may be besides the clearance (default everywhere).
+    rooms : ndarray of shape (H, W), int, optional
+        Room labels (0 = none): each room's part is covered on its own (default one part).
+    footprint : float, optional
+        Least clearance of the centre, metres (default ``config.explore.clearance``).
 
     Raises
     ------
@@ -272,28 +345,40 @@ def cover_cells(free: NDArray[np.bool_], resolution: float, config: Route3DConfi
     from scipy import ndimage as ndi
 
     cfg = config or Route3DConfig()
+    need = cfg.explore.clearance if footprint is None else float(footprint)
     clear = np.where(free, (ndi.distance_transform_edt(free) - 0.5) * resolution, 0.0)
-    ok = clear >= cfg.explore.clearance
+    ok = clear >= need
+    if stand is not None:
+        ok &= stand
     comp, n = ndi.label(ok, structure=np.ones((3, 3), dtype=bool))
     if n == 0:
-        raise EmptyInputError(f"no traversable place {cfg.explore.clearance:g} m clear of occupied and unknown "
+        raise EmptyInputError(f"no traversable place {need:g} m clear of occupied and unknown "
                               "space at floor level: the robot fits nowhere in the map")
-    main = 1 + int(np.argmax(np.bincount(comp.ravel())[1:]))
-    rc = np.argwhere(comp == main).astype(float)
-    c = clear[comp == main]
-    seeds = [int(np.argmax(c))]
-    d = np.hypot(*(rc - rc[seeds[0]]).T)
-    limit = cfg.cover_spacing / resolution
-    while d.max() > limit:
-        k = int(np.argmax(d))
-        seeds.append(k)
-        d = np.minimum(d, np.hypot(*(rc - rc[k]).T))
-    owner = np.zeros(len(rc), dtype=np.int64)
-    best = np.full(len(rc), np.inf)
-    for j, k in enumerate(seeds):
-        dk = np.hypot(*(rc - rc[k]).T)
-        closer = dk < best
-        owner[closer], best[closer] = j, dk[closer]
+    main = comp == 1 + int(np.argmax(np.bincount(comp.ravel())[1:]))
+    group = np.zeros(free.shape, dtype=np.int64)
+    if rooms is not None and (rooms[main] > 0).any():
+        lab = np.where(main, rooms, 0)
+        _, near = ndi.distance_transform_edt(lab == 0, return_indices=True)
+        group = lab[near[0], near[1]]  # a pixel of no room joins the nearest room's pixels
     cells = np.zeros(free.shape, dtype=np.int32)
-    cells[comp == main] = owner + 1
+    limit = cfg.cover_spacing / resolution
+    n_cells = 0
+    for g in np.unique(group[main]):
+        part = main & (group == g)
+        rc = np.argwhere(part).astype(float)
+        c = clear[part]
+        seeds = [int(np.argmax(c))]
+        d = np.hypot(*(rc - rc[seeds[0]]).T)
+        while d.max() > limit:
+            k = int(np.argmax(d))
+            seeds.append(k)
+            d = np.minimum(d, np.hypot(*(rc - rc[k]).T))
+        owner = np.zeros(len(rc), dtype=np.int64)
+        best = np.full(len(rc), np.inf)
+        for j, k in enumerate(seeds):
+            dk = np.hypot(*(rc - rc[k]).T)
+            closer = dk < best
+            owner[closer], best[closer] = j, dk[closer]
+        cells[part] = n_cells + owner + 1
+        n_cells += len(seeds)
     return cells

@@ -3,9 +3,10 @@
 :func:`simulate_world` is :func:`hsmap.sim.simulate_building` for a 3D occupancy map (an OctoMap ``.bt``/``.ot``
 or a point map, read by :func:`hsmap.maps3d.read_map3d`): the world is the map's voxels
 (:class:`hsmap.sim.voxelworld.VoxelWorld`, the floor's surface at z = 0), the route goes through the known free
-space into every room of the map's slice the robot fits in (:func:`hsmap.sim.route3d.plan_route3d`), and the
-robot, its odometry, both LiDARs and the writer are the floor-plan buildings' (:class:`BuildingRunConfig`'s
-robot, odometry and 2D LiDAR; the paper's 128 x 1024 mast LiDAR). The folder is the simulator's
+space into every room of the map's slice the robot's footprint (its radius) fits in
+(:func:`hsmap.sim.route3d.plan_route3d`), and the robot, its odometry, both LiDARs and the writer are the
+floor-plan buildings' (:class:`BuildingRunConfig`'s robot, odometry and 2D LiDAR; the paper's 128 x 1024 mast
+LiDAR). The folder is the simulator's
 (:class:`hsmap.datasets.simulated.SimulatedDataset` reads it): ``scans2d.npz``, ``clouds3d/``,
 ``groundtruth.tum``, ``odometry.tum``, ``rooms.png``/``rooms.yaml`` (the rooms of the map's own slice, the
 route's goals: no hand-drawn ground truth), ``doors.json`` (empty), ``world.json`` (the voxel world and the
@@ -65,6 +66,7 @@ class WorldRun:
                 "duration_s": round(float(self.motion.stamps[-1] - self.motion.stamps[0]), 3),
                 "rooms": int(r.rooms.max(initial=0)), "rooms_visited": [int(k) for k in r.route.order],
                 "rooms_entered": r.rooms_entered(), "unreachable_rooms": len(r.route.unreachable),
+                "footprint_m": r.footprint,
                 "route": r.route.as_dict(), "world": self.world.describe(),
                 "timings_s": {k: round(v, 3) for k, v in self.timings.items()}}
 
@@ -112,7 +114,7 @@ def simulate_world(world: VoxelWorld | str | os.PathLike, out: str | os.PathLike
     sweep_stale_temporaries(out / "clouds3d")
 
     t = time.perf_counter()
-    route = plan_route3d(world, cfg.route, lidar3d=cfg.lidar3d)
+    route = plan_route3d(world, cfg.route, lidar3d=cfg.lidar3d, footprint=cfg.robot.radius)
     timings["route"] = time.perf_counter() - t
     t = time.perf_counter()
     bcfg = BuildingRunConfig(frame_rate=cfg.frame_rate, robot=cfg.robot, odometry=cfg.odometry)

@@ -119,8 +119,9 @@ class VoxelMap:
         nrm = np.full(pts.shape, np.nan) if normals is None else np.asarray(normals, dtype=float)
         if nrm.shape != pts.shape:
             raise ShapeError(f"normals must have the shape of the points {pts.shape}, got {nrm.shape}")
-        ok = np.all(np.isfinite(pts), axis=1)
-        pts, nrm = pts[ok], nrm[ok]
+        if not np.isfinite(pts).all():  # one pass over the values; the rows only where some are not finite
+            ok = np.all(np.isfinite(pts), axis=1)
+            pts, nrm = pts[ok], nrm[ok]
         if len(pts) == 0:
             return (pts, nrm) if return_normals else pts
 
@@ -133,6 +134,11 @@ class VoxelMap:
             pts, nrm = sums / counts[:, None], nrm[first]
         else:
             pts, nrm = pts[first], nrm[first]
+        if len(self._keys) == 0:  # a new map: the voxels as they come, already in key order
+            self._keys, self._points, self._normals = keys, pts, nrm
+            if self.average:
+                self._sums, self._counts = sums, counts
+            return (pts.copy(), nrm.copy()) if return_normals else pts.copy()
         pos = np.searchsorted(self._keys, keys)
         hit = pos < len(self._keys)
         hit[hit] = self._keys[pos[hit]] == keys[hit]

@@ -4,7 +4,6 @@ odometry has it and as its scan matched against the previous frame's scan has it
 from __future__ import annotations
 
 import time
-from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 from numpy.typing import NDArray
@@ -36,9 +35,6 @@ class FrameMotions:
     """Per frame, the motion from the previous frame: the odometry's (bias out) with its sigmas (x, y, yaw), and the
     scan-to-scan match's (NaN where there is none).
 
-    Each scan match depends on its two scans and its guess alone, so with ``background`` the matches run on a
-    worker thread while the tracker goes on; :meth:`arrays` waits for them. The result is the same either way.
-
     Parameters
     ----------
     config : SlamConfig
@@ -46,20 +42,17 @@ class FrameMotions:
         Gives the odometry's steps, their sigmas and the learned bias.
     costs : Costs
         Counts one refinement per scan match.
-    background : bool
-        Run the scan matches on a worker thread.
     """
 
-    def __init__(self, config: SlamConfig, odometry: OdometryModel, costs: Costs, *, background: bool) -> None:
+    def __init__(self, config: SlamConfig, odometry: OdometryModel, costs: Costs) -> None:
         self.config = config
         self.odometry = odometry
         self.costs = costs
         self._odometry: list[NDArray[np.float64]] = []
         self._sigma: list[NDArray[np.float64]] = []
-        self._scan: list[NDArray[np.float64] | Future] = []
+        self._scan: list[NDArray[np.float64]] = []
         self._previous: RegistrationTarget | None = None
-        self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hsmap-motions") if background else None
-        self.seconds = 0.0  # the tracker's time spent here (with ``background``: not the worker's)
+        self.seconds = 0.0  # the time spent here
 
     def record(self, frame: Frame, scan: NDArray[np.float64], previous_pose: NDArray[np.float64],
                pose: NDArray[np.float64]) -> None:
@@ -74,28 +67,12 @@ class FrameMotions:
             st, sr = self.odometry.model_sigmas(step, self.odometry.sigma())
             self._odometry.append(self.odometry.corrected(step))
             self._sigma.append(np.array([st, st, sr]))
-            args = (scan, self._previous, relative(previous_pose, pose), self.config)
-            self._scan.append(self._worker.submit(_scan_motion, *args) if self._worker is not None
-                              else _scan_motion(*args))
+            self._scan.append(_scan_motion(scan, self._previous, relative(previous_pose, pose), self.config))
             self.costs.add(refinements=1)
         # the next frame's reference (its normals are estimated when it is first matched)
         self._previous = RegistrationTarget(scan, self.config.registration) if frame.odometry is not None else None
         self.seconds += time.perf_counter() - t0
 
     def arrays(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-        """The odometry's motions, their sigmas and the scan matches' motions, each (frames, 3), once every match
-        has finished."""
-        t0 = time.perf_counter()
-        scan = [m.result() if isinstance(m, Future) else m for m in self._scan]
-        self.close()
-        self.seconds += time.perf_counter() - t0
-        empty = np.empty((0, 3))
-        return (np.asarray(self._odometry).reshape(-1, 3) if self._odometry else empty,
-                np.asarray(self._sigma).reshape(-1, 3) if self._sigma else empty,
-                np.asarray(scan).reshape(-1, 3) if scan else empty)
-
-    def close(self) -> None:
-        """Stop the worker thread (after the matches it holds)."""
-        if self._worker is not None:
-            self._worker.shutdown(wait=True)
-            self._worker = None
+        """The odometry's motions, their sigmas and the scan matches' motions, each (frames, 3)."""
+        return tuple(np.asarray(rows).reshape(-1, 3) for rows in (self._odometry, self._sigma, self._scan))

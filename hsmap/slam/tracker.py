@@ -10,7 +10,6 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from .._threads import current_threads
 from ..datasets.frames import Frame
 from ..deskew import deskew_frame
 from ..deskew2d import deskew_scan_frame
@@ -116,9 +115,7 @@ class HsSlam:
         self.verifier = Verifier(cfg, costs=self.costs)
         self.keyframe_graph = KeyframeGraph(cfg, self.odometry, loop_rng, costs=self.costs)
         self._smooth = cfg.smoothing and cfg.dof == 3 and prior is None
-        # the smoothing's inputs; the scan matches on a worker thread when the run has a second compute thread
-        self.motions = (FrameMotions(cfg, self.odometry, self.costs, background=current_threads() > 1)
-                        if self._smooth else None)
+        self.motions = FrameMotions(cfg, self.odometry, self.costs) if self._smooth else None  # the smoothing's
         self._smoothing: SmoothingResult | None = None
 
     @property

@@ -5,15 +5,15 @@ motion predictions, checked and fused by the :class:`~hsmap.slam.verify.Verifier
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ..datasets.frames import Frame
-from ..deskew import deskew_frame
+from ..deskew import deskew_frame, refine_sweep
 from ..errors import InputError, UnusableFrameError
-from ..geometry import compose, relative, wrap_angle
+from ..geometry import compose, pose_to_matrix, relative, wrap_angle
 from ..harmony import as_rng
 from ..loopclosure import Keyframe
 from ..mapping import VoxelMap
@@ -23,7 +23,7 @@ from ..smoothing import SmoothingResult, smooth_with_odometry
 from ..trajectory import Trajectory
 from .config import SlamConfig
 from .costs import Costs
-from .frames import frame_points, unusable_reason
+from .frames import frame_points, timed_cloud_points, unusable_reason
 from .keyframes import KeyframeGraph, pair_match
 from .odometry import OdometryModel, constrains_xy
 from .verify import Prediction, Verifier
@@ -81,6 +81,8 @@ class HsSlam:
     verifier : Verifier
     keyframe_graph : KeyframeGraph
         The keyframes, their pose graph (:attr:`graph`) and maps (:attr:`map`).
+    frame : Frame or None
+        The last frame processed, as used (its cloud deskewed).
     """
 
     def __init__(self, config: SlamConfig | None = None, *, rng: int | np.random.Generator | None = None,
@@ -93,6 +95,7 @@ class HsSlam:
         self.poses: list[NDArray[np.float64]] = []
         self.stamps: list[float] = []
         self.results: list[FrameResult] = []
+        self.frame: Frame | None = None
         self._initial = None if initial_pose is None else np.asarray(initial_pose, dtype=float)
         if self._initial is not None and self._initial.shape != (cfg.dof,):
             raise InputError(f"initial_pose must have {cfg.dof} values, got shape {self._initial.shape}")
@@ -212,8 +215,13 @@ class HsSlam:
         t0 = time.perf_counter()
         cfg = self.config
         kg = self.keyframe_graph
-        frame = self.deskewed(frame)
-        scan = frame_points(frame, cfg.dof, cfg.min_range, cfg.max_range, voxel=cfg.effective_scan_voxel())
+        times = frame.point_times if self._deskews(frame) else None
+        frame = self.frame = self.deskewed(frame)
+        if times is None:
+            scan = frame_points(frame, cfg.dof, cfg.min_range, cfg.max_range, voxel=cfg.effective_scan_voxel())
+        else:
+            scan, times = timed_cloud_points(frame, np.asarray(times, dtype=float).reshape(-1), cfg.min_range,
+                                             cfg.max_range, cfg.effective_scan_voxel())
         if len(scan) < 3 * cfg.dim or not spans_its_space(scan):
             raise UnusableFrameError(unusable_reason(frame, cfg.dof, cfg.min_range, cfg.max_range, scan),
                                      frame.index, frame.stamp)
@@ -234,6 +242,8 @@ class HsSlam:
             self.costs.registration(res.evaluations)
             self.odometry.learn_bias(frame, res, self.poses[-1])
             res, retried, verified = self._verify(frame, scan, res)
+            if times is not None:
+                res, scan = self._refine_sweep(scan, times, target, res)
             self.odometry.learn_scale(frame, res)
             self.odometry.accumulate_wheel(frame)  # with the bias and scale the prediction below uses
             pose, information, registration_information = self.verifier.fuse(res, self.prediction(frame))
@@ -258,9 +268,25 @@ class HsSlam:
         self.results.append(result)
         return result
 
+    def _deskews(self, frame: Frame) -> bool:
+        return self.config.deskew and self.config.dof == 6 and frame.point_times is not None
+
+    def _refine_sweep(self, scan: NDArray[np.float64], times: NDArray[np.float64], target: RegistrationTarget,
+                      res: RegistrationResult) -> tuple[RegistrationResult, NDArray[np.float64]]:
+        """The registration and the scan (N, 3) refined with the motion over the sweep
+        (:func:`hsmap.deskew.refine_sweep`) where that aligns the scan better; else both as they are."""
+        reg = self.config.registration
+        ref = refine_sweep(scan, times, target, res.pose, threshold=reg.threshold, robust_kernel=reg.robust_kernel)
+        self.costs.add(refinements=1)
+        if not ref.improved:
+            return res, scan
+        pose = ref.pose.copy()
+        pose[3:] = res.pose[3:] + wrap_angle(pose[3:] - res.pose[3:])
+        return replace(res, pose=pose, transformation=pose_to_matrix(pose)), ref.points
+
     def deskewed(self, frame: Frame) -> Frame:
         """The frame with its cloud moved to its stamp (6-DOF with ``deskew``: :func:`hsmap.deskew.deskew_frame`)."""
-        if not self.config.deskew or self.config.dof != 6 or frame.point_times is None:
+        if not self._deskews(frame):
             return frame
         odom = self.odometry.previous if self.config.use_odometry else None
         return deskew_frame(frame, prior=self._prior, previous_stamps=self.stamps[-2:],

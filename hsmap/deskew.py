@@ -289,7 +289,8 @@ def refine_sweep(points: ArrayLike, times: ArrayLike, target, pose: ArrayLike, *
     vel = np.zeros(3)
     cost0, ok, idx, r = _sweep_cost(target, P @ T[:3, :3].T + T[:3, 3], threshold)
     cost, it = cost0, 0
-    for it in range(1, iterations + 1):
+    while it < iterations:
+        it += 1
         if ok.sum() < 9:
             break
         R, t = T[:3, :3], T[:3, 3]

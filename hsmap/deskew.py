@@ -252,7 +252,7 @@ def _sweep_cost(target, moved: NDArray[np.float64], threshold: float) -> tuple:
 
 
 def refine_sweep(points: ArrayLike, times: ArrayLike, target, pose: ArrayLike, *, threshold: float,
-                 robust_kernel: float = 0.0, iterations: int = 5, tolerance: float = 1e-5,
+                 robust_kernel: float = 0.0, iterations: int = 3, tolerance: float = 1e-5,
                  velocity_sigma: tuple[float, float] = VELOCITY_SIGMA) -> SweepRefinement:
     """Refine a deskewed sweep's pose together with the planar motion over the sweep that its deskewing missed.
 

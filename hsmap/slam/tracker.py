@@ -17,7 +17,7 @@ from ..geometry import compose, pose_to_matrix, relative, wrap_angle
 from ..harmony import as_rng
 from ..loopclosure import Keyframe
 from ..mapping import VoxelMap
-from ..posegraph import PoseGraph
+from ..posegraph import EdgeKind, PoseGraph
 from ..registration import RegistrationResult, RegistrationTarget, harmony_icp, spans_its_space
 from ..smoothing import SmoothingResult, smooth_with_odometry
 from ..trajectory import Trajectory
@@ -28,7 +28,12 @@ from .keyframes import KeyframeGraph, pair_match
 from .odometry import OdometryModel, constrains_xy
 from .verify import Prediction, Verifier
 
-__all__ = ["HsSlam", "FrameResult", "mean_pose"]
+__all__ = ["HsSlam", "FrameResult", "mean_pose", "FLOOR_SIGMA"]
+
+#: (m, rad): a 6-DOF run seeded by a 2D run holds every keyframe's height, roll and pitch to the first pose's
+#: (the floor the 2D run moves on) with these sigmas, a unary prior in the pose graph: a building's floor is level
+#: to within them, and the relative edges alone let the tilt and the height wander as a random walk.
+FLOOR_SIGMA = (0.02, float(np.deg2rad(0.5)))
 
 
 @dataclass
@@ -258,6 +263,8 @@ class HsSlam:
         if keyframe and kg.add_keyframe(frame, len(self.results), scan, pose, None if first else information,
                                         registration_information):
             self._reanchor_recent()
+        if keyframe and not first:
+            self._floor_prior()
         self.odometry.advance(frame, relative(self.poses[-2], pose) if len(self.poses) >= 2 else None)
         if keyframe:
             # the next frame's target, built in the keyframe's step: the next frame only tracks
@@ -267,6 +274,19 @@ class HsSlam:
                              retried, verified, float(cost))
         self.results.append(result)
         return result
+
+    def _floor_prior(self) -> None:
+        """6-DOF runs seeded by a prior: the newest keyframe's height, roll and pitch held near the first pose's
+        (:data:`FLOOR_SIGMA`), a unary edge of the pose graph."""
+        if self.config.dof != 6 or self._prior is None or len(self.graph) < 2:
+            return
+        k = len(self.graph) - 1
+        level = self.graph.poses[k].copy()
+        level[2:5] = self.poses[0][2:5]
+        info = np.full(6, 1e-9)  # x, y and yaw: nothing said
+        info[2] = 1.0 / FLOOR_SIGMA[0] ** 2
+        info[3:5] = 1.0 / FLOOR_SIGMA[1] ** 2
+        self.graph.add_edge(k, k, level, np.diag(info), EdgeKind.PRIOR, robust=False)
 
     def _deskews(self, frame: Frame) -> bool:
         return self.config.deskew and self.config.dof == 6 and frame.point_times is not None

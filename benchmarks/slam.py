@@ -309,12 +309,12 @@ def _max_errors(traj: Trajectory, gt: Trajectory) -> dict:
             "over_table1": {k: mx[k] / b for k, b in TABLE1_BOUNDS.items() if mx[k] > b}}
 
 
-def bench_3d_rolling_seed(seed: int, max_frames: int | None, root: str) -> dict:
+def bench_3d_rolling_seed(seed: int, max_frames: int | None, root: str, kiss: bool = True) -> dict:
     """slam-office-rolling (rolling 0.1 s sweeps, a swaying mast, 1 m/s, 60 deg/s), one seed: 6-DOF HS-SLAM
     seeded by its 2D run with and without deskewing, and KISS-ICP (default configuration, its deskewing on, given
     the per-point times); per-DOF maximum errors against the base's ground truth and (``vs_mast``) against the
     swaying mast's (``groundtruth3d.tum``: the pose the 3D LiDAR really had, through its extrinsic), and time per
-    cloud."""
+    cloud. ``kiss``: False leaves KISS-ICP out."""
     from kiss_icp.config import KISSConfig
     from kiss_icp.kiss_icp import KissICP
 
@@ -339,35 +339,36 @@ def bench_3d_rolling_seed(seed: int, max_frames: int | None, root: str) -> dict:
         out["hs_slam_6dof" + ("" if deskew else "_no_deskew")] = {
             "seconds_per_cloud_median": float(np.median(t)), "cpu_seconds_per_cloud_mean": run6.cpu_seconds / n,
             **_max_errors(run6.trajectory, gt), "vs_mast": _max_errors(run6.trajectory, gt_mast)}
-    # KISS-ICP deskews every cloud to its last point's time with the last frame-to-frame motion spread over the
-    # sweep; its poses are compared with the ground truth at that time
-    kcfg = KISSConfig()
-    kcfg.data.max_range, kcfg.data.min_range, kcfg.data.deskew = 30.0, 0.1, True
-    kcfg.mapping.voxel_size = kcfg.data.max_range / 100.0
-    kiss = KissICP(kcfg)
-    ext = frames[0].extrinsic3d
-    k_times, k_poses, k_end = [], [], []
-    c0 = time.process_time()
-    for f in frames:
-        pts = np.ascontiguousarray(f.cloud3d, dtype=np.float64)
-        ts = np.asarray(f.point_times, dtype=np.float64)
-        t1 = time.perf_counter()
-        kiss.register_frame(pts, ts)
-        k_times.append(time.perf_counter() - t1)
-        k_poses.append(compose(compose(ext, matrix_to_pose(np.asarray(kiss.last_pose))), invert(ext)))
-        k_end.append(f.stamp + float(ts.max()))
-    k_cpu = time.process_time() - c0
-    m = motion_for(load_scenario(ds.scenario_path()), seed)
-    end = sample_legs(m.legs, np.asarray(k_end))
-    gt_end = np.zeros((n, 6))
-    gt_end[:, :2], gt_end[:, 5] = end[:, :2], end[:, 2]
-    out["kiss_icp"] = {"version": __import__("kiss_icp").__version__,
-                       "seconds_per_cloud_median": float(np.median(k_times)), "cpu_seconds_per_cloud_mean": k_cpu / n,
-                       "config": {"max_range": 30.0, "min_range": 0.1, "deskew": True,
-                                  "voxel_size": kcfg.mapping.voxel_size},
-                       "compared_at": "each sweep's last point time (where KISS-ICP deskews to)",
-                       **_max_errors(Trajectory(np.asarray(k_end), k_poses), Trajectory(np.asarray(k_end), gt_end))}
-    for name in ("hs_slam_6dof", "hs_slam_6dof_no_deskew", "kiss_icp"):
+    if kiss:
+        # KISS-ICP deskews every cloud to its last point's time with the last frame-to-frame motion spread over the
+        # sweep; its poses are compared with the ground truth at that time
+        kcfg = KISSConfig()
+        kcfg.data.max_range, kcfg.data.min_range, kcfg.data.deskew = 30.0, 0.1, True
+        kcfg.mapping.voxel_size = kcfg.data.max_range / 100.0
+        kicp = KissICP(kcfg)
+        ext = frames[0].extrinsic3d
+        k_times, k_poses, k_end = [], [], []
+        c0 = time.process_time()
+        for f in frames:
+            pts = np.ascontiguousarray(f.cloud3d, dtype=np.float64)
+            ts = np.asarray(f.point_times, dtype=np.float64)
+            t1 = time.perf_counter()
+            kicp.register_frame(pts, ts)
+            k_times.append(time.perf_counter() - t1)
+            k_poses.append(compose(compose(ext, matrix_to_pose(np.asarray(kicp.last_pose))), invert(ext)))
+            k_end.append(f.stamp + float(ts.max()))
+        k_cpu = time.process_time() - c0
+        m = motion_for(load_scenario(ds.scenario_path()), seed)
+        end = sample_legs(m.legs, np.asarray(k_end))
+        gt_end = np.zeros((n, 6))
+        gt_end[:, :2], gt_end[:, 5] = end[:, :2], end[:, 2]
+        out["kiss_icp"] = {"version": __import__("kiss_icp").__version__,
+                           "seconds_per_cloud_median": float(np.median(k_times)), "cpu_seconds_per_cloud_mean": k_cpu / n,
+                           "config": {"max_range": 30.0, "min_range": 0.1, "deskew": True,
+                                      "voxel_size": kcfg.mapping.voxel_size},
+                           "compared_at": "each sweep's last point time (where KISS-ICP deskews to)",
+                           **_max_errors(Trajectory(np.asarray(k_end), k_poses), Trajectory(np.asarray(k_end), gt_end))}
+    for name in [k for k in ("hs_slam_6dof", "hs_slam_6dof_no_deskew", "kiss_icp") if k in out]:
         mx = out[name]["max_abs_error"]
         print(f"rolling seed {seed} {name}: {1000 * out[name]['seconds_per_cloud_median']:.0f} ms/cloud, max x "
               f"{100 * mx['x_m']:.2f} y {100 * mx['y_m']:.2f} z {100 * mx['z_m']:.2f} cm, roll {mx['roll_deg']:.3f} "
@@ -381,10 +382,10 @@ def bench_3d_rolling_seed(seed: int, max_frames: int | None, root: str) -> dict:
     return out
 
 
-def bench_3d_rolling(seeds: list[int], max_frames: int | None, root: str) -> dict:
-    runs = [bench_3d_rolling_seed(s, max_frames, root) for s in seeds]
+def bench_3d_rolling(seeds: list[int], max_frames: int | None, root: str, kiss: bool = True) -> dict:
+    runs = [bench_3d_rolling_seed(s, max_frames, root, kiss) for s in seeds]
     summary = {}
-    for name in ("hs_slam_6dof", "hs_slam_6dof_no_deskew", "kiss_icp"):
+    for name in [k for k in ("hs_slam_6dof", "hs_slam_6dof_no_deskew", "kiss_icp") if k in runs[0]]:
         mx = {k: [r[name]["max_abs_error"][k] for r in runs] for k in TABLE1_BOUNDS}
         summary[name] = {"worst_max_abs_error": {k: float(max(v)) for k, v in mx.items()},
                          "mean_max_abs_error": {k: float(np.mean(v)) for k, v in mx.items()},
@@ -405,6 +406,7 @@ def main(argv=None) -> int:
                     default=[*FREIBURG, "3d"])
     ap.add_argument("--rolling-seeds", nargs="+", type=int, default=[1, 2, 3],
                     help="3d: seeds of the rolling-sweep route (slam-office-rolling)")
+    ap.add_argument("--no-kiss-icp", action="store_true", help="3d-rolling: HS-SLAM only (KISS-ICP left out)")
     ap.add_argument("--generated", default=None,
                     help="3d: where the rolling-sweep datasets are simulated (default the study's data/generated)")
     ap.add_argument("--seeds", nargs="+", type=int, default=[1, 2, 3, 4, 5])
@@ -435,7 +437,8 @@ def main(argv=None) -> int:
             if name in ("3d", "3d-static"):
                 out["3d_slam_office"] = bench_3d(args.max_frames, args.dataset3d)
             if name in ("3d", "3d-rolling"):
-                out["3d_slam_office_rolling"] = bench_3d_rolling(args.rolling_seeds, args.max_frames, args.generated)
+                out["3d_slam_office_rolling"] = bench_3d_rolling(args.rolling_seeds, args.max_frames, args.generated,
+                                                                   not args.no_kiss_icp)
         elif (datasets / "slam2d").is_dir():
             out[name] = bench_freiburg(name, datasets, args.seeds, args.max_frames, args.jobs,
                                        not args.no_loop_closure, Path(args.out).with_suffix("") / "runs", threads)

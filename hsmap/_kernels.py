@@ -760,3 +760,46 @@ def bounding_box(points):  # pragma: no cover - JIT
             if v > hi[k]:
                 hi[k] = v
     return lo, hi
+
+
+@nb.njit(cache=True, nogil=True)
+def voxel_centroids_with(pts, vals, voxel, rmin=0.0, rmax=np.inf):  # pragma: no cover - JIT
+    """:func:`voxel_centroids` of points (N, d), and the mean of ``vals`` (N,) over each voxel (a point's time,
+    say): (centroids (M, d), means (M,))."""
+    n, d = pts.shape
+    keys = np.empty(n, dtype=np.int64)
+    big = np.iinfo(np.int64).max
+    valid = 0
+    for i in range(n):
+        r2 = 0.0
+        for j in range(d):
+            r2 += pts[i, j] * pts[i, j]
+        if not (r2 >= rmin * rmin and r2 <= rmax * rmax):  # also false for NaN
+            keys[i] = big
+            continue
+        k = np.int64(0)
+        for j in range(d):
+            k = (k << 21) | (np.int64(np.floor(pts[i, j] / voxel)) + (1 << 20))
+        keys[i] = k
+        valid += 1
+    voxel_of, ukeys, _, m = _number_voxels(keys, big, valid)
+    sums = np.zeros((m, d))
+    vsums = np.zeros(m)
+    counts = np.zeros(m)
+    for i in range(n):
+        v = voxel_of[i]
+        if v < 0:
+            continue
+        for j in range(d):
+            sums[v, j] += pts[i, j]
+        vsums[v] += vals[i]
+        counts[v] += 1.0
+    order = np.argsort(ukeys[:m])
+    out = np.empty((m, d))
+    outv = np.empty(m)
+    for r in range(m):
+        v = order[r]
+        for j in range(d):
+            out[r, j] = sums[v, j] / counts[v]
+        outv[r] = vsums[v] / counts[v]
+    return out, outv

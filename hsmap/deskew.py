@@ -7,6 +7,10 @@ time ``t`` lies at ``E^-1 M(t) E p`` in the sensor frame at the stamp (``E``: th
 frame). The motion comes from, in this order: a prior trajectory (a 2D run's poses) interpolated at the points'
 times, the wheel odometry's increment into the frame as a constant velocity, or the constant velocity of the
 last two tracked poses; with none of them the cloud is left as it is.
+
+A motion interpolated between poses a frame apart misses what changed within the sweep (a turn starting, the
+mast swaying). :func:`refine_sweep` estimates that remainder from the cloud itself: the pose at the stamp and a
+constant velocity over the sweep, fitted together to the map (point-to-plane).
 """
 
 from __future__ import annotations
@@ -22,14 +26,18 @@ from .datasets.frames import Frame
 from .errors import ShapeError
 from .geometry import interpolate_poses, invert_matrix, matrix_to_pose, pose_to_matrix, relative
 
-__all__ = ["TIME_QUANTUM", "PRIOR_MAX_GAP", "constant_velocity_motion", "trajectory_motion", "deskew_points", "sweep_motion",
-           "deskew_frame"]
+__all__ = ["TIME_QUANTUM", "PRIOR_MAX_GAP", "VELOCITY_SIGMA", "constant_velocity_motion", "trajectory_motion",
+           "deskew_points", "sweep_motion", "deskew_frame", "SweepRefinement", "refine_sweep"]
 
 #: Seconds: point times are grouped to this step before the motion is evaluated (one motion per group).
 TIME_QUANTUM = 1e-5
 #: Seconds: a prior trajectory gives a sweep's motion where its poses lie at most this far from every point time
 #: (a 2D run's poses come one per frame, several sweep lengths apart).
 PRIOR_MAX_GAP = 1.0
+#: (m/s, rad/s): the prior's sigma of the velocity :func:`refine_sweep` adds to a sweep's motion, in translation
+#: and in rotation: a ground robot's speed and turn rate are of this order, so only a direction the cloud does not
+#: constrain is held by it.
+VELOCITY_SIGMA = (1.0, 1.0)
 
 
 def constant_velocity_motion(step: ArrayLike, dt: float, times: ArrayLike) -> NDArray[np.float64]:
@@ -196,3 +204,123 @@ def deskew_frame(frame: Frame, **motion_sources) -> tuple[Frame, str]:
     if motions is not None:
         pts = deskew_points(pts, uq * TIME_QUANTUM, motions, frame.extrinsic3d, inverse.reshape(-1))
     return dataclasses.replace(frame, cloud3d=pts, point_times=None), source
+
+
+@dataclasses.dataclass
+class SweepRefinement:
+    """What :func:`refine_sweep` found.
+
+    Attributes
+    ----------
+    pose : ndarray of shape (6,)
+        The pose at the stamp.
+    velocity : ndarray of shape (3,)
+        The velocity added to the sweep's motion, (vx, vy, wz) in the base frame at the stamp (m/s, rad/s).
+    points : ndarray of shape (N, 3)
+        The points in the base frame at the stamp, moved by that velocity.
+    cost_before, cost_after : float
+        Mean truncated point-to-plane residual over the threshold (an unmatched point counts 1) at the start and
+        at the end.
+    iterations : int
+    """
+
+    pose: NDArray[np.float64]
+    velocity: NDArray[np.float64]
+    points: NDArray[np.float64]
+    cost_before: float
+    cost_after: float
+    iterations: int
+
+    @property
+    def improved(self) -> bool:
+        """Whether the refined pose and motion align the cloud better than the starting ones."""
+        return self.cost_after < self.cost_before
+
+
+def _cross_rows(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    return np.column_stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                            a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]])
+
+
+def _sweep_cost(target, moved: NDArray[np.float64], threshold: float) -> tuple:
+    d, idx = target.nearest(moved, threshold)
+    ok = np.isfinite(d)
+    r = np.einsum("ij,ij->i", target.normals[idx[ok]], moved[ok] - target.points[idx[ok]])
+    cost = float((np.minimum(np.abs(r), threshold).sum() + threshold * (len(moved) - ok.sum()))
+                 / (threshold * max(len(moved), 1)))
+    return cost, ok, idx, r
+
+
+def refine_sweep(points: ArrayLike, times: ArrayLike, target, pose: ArrayLike, *, threshold: float,
+                 robust_kernel: float = 0.0, iterations: int = 3, tolerance: float = 1e-5,
+                 velocity_sigma: tuple[float, float] = VELOCITY_SIGMA) -> SweepRefinement:
+    """Refine a deskewed sweep's pose together with the planar motion over the sweep that its deskewing missed.
+
+    Each point ``p`` (base frame at the stamp, measured ``t`` seconds after it) moves to ``p + t (w x p + v)``
+    for a velocity v = (vx, vy, 0), w = (0, 0, wz) constant over the sweep: what the motion interpolated between
+    poses a frame apart misses is the base's motion in its plane (a turn or a stop starting within the frame).
+    Gauss-Newton on the point-to-plane residuals against ``target`` (correspondences within ``threshold``,
+    Geman-McClure weights of scale ``robust_kernel``, weighted by their spread) finds the pose and the velocity
+    together, the velocity held by a zero-mean prior of ``velocity_sigma``.
+
+    Parameters
+    ----------
+    points : array_like of shape (N, 3)
+        The deskewed points in the base frame.
+    times : array_like of shape (N,)
+        Each point's time in seconds from the stamp.
+    target : hsmap.registration.RegistrationTarget
+        The map (3D, with normals).
+    pose : array_like of shape (6,)
+        The registered pose at the stamp.
+
+    Returns
+    -------
+    SweepRefinement
+    """
+    P = np.array(points, dtype=float)
+    tau = np.asarray(times, dtype=float).reshape(-1)
+    if P.ndim != 2 or P.shape[1] != 3 or len(tau) != len(P):
+        raise ShapeError(f"points must be (N, 3) with one time each, got {P.shape} and {tau.shape}")
+    T = pose_to_matrix(np.asarray(pose, dtype=float))
+    prior = np.zeros(9)
+    prior[6:8] = 1.0 / velocity_sigma[0] ** 2
+    prior[8] = 1.0 / velocity_sigma[1] ** 2
+    vel = np.zeros(3)
+    cost0, ok, idx, r = _sweep_cost(target, P @ T[:3, :3].T + T[:3, 3], threshold)
+    cost, it = cost0, 0
+    while it < iterations:
+        it += 1
+        if ok.sum() < 9:
+            break
+        R, t = T[:3, :3], T[:3, 3]
+        moved = P[ok] @ R.T + t
+        n = target.normals[idx[ok]]
+        tk = tau[ok]
+        # d(residual)/d(pose) (a perturbation on the left, in the map frame) and d/d(vx, vy, wz) (base frame)
+        J = np.column_stack([n, _cross_rows(moved, n), tk * (n @ R[:, 0]), tk * (n @ R[:, 1]),
+                             tk * np.einsum("ij,j->i", _cross_rows(moved - t, n), R[:, 2])])
+        w = np.ones(len(r))
+        if robust_kernel > 0:
+            k2 = robust_kernel * robust_kernel
+            w = k2 * k2 / (k2 + r * r) ** 2
+        # the residuals' spread (weighted, at least 1 mm) puts the data and the velocity's prior in one unit
+        s2 = max(float((w * r * r).sum() / w.sum()), 1e-6)
+        Jw = J * (w / s2)[:, None]
+        A = Jw.T @ J + np.diag(prior)
+        g = Jw.T @ r
+        g[6:] += prior[6:] * vel
+        delta = -np.linalg.solve(A + 1e-9 * np.eye(9), g)
+        dv = delta[6:]
+        x, y = P[:, 0].copy(), P[:, 1]
+        P[:, 0] += tau * (dv[0] - dv[2] * y)
+        P[:, 1] += tau * (dv[1] + dv[2] * x)
+        vel += dv
+        dT = np.eye(4)
+        dT[:3, :3] = Rotation.from_rotvec(delta[3:6]).as_matrix()
+        dT[:3, 3] = delta[:3]
+        T = dT @ T
+        cost, ok, idx, r = _sweep_cost(target, P @ T[:3, :3].T + T[:3, 3], threshold)
+        if np.abs(delta).max() < tolerance:
+            break
+    return SweepRefinement(matrix_to_pose(T), vel, P, cost0, cost, it)

@@ -16,7 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .errors import InputError, ShapeError
 
-__all__ = ["VoxelMap", "voxel_keys", "first_per_voxel", "voxel_downsample"]
+__all__ = ["VoxelMap", "voxel_keys", "first_per_voxel", "voxel_downsample", "voxel_downsample_with"]
 
 _BIAS = 1 << 20  # voxel indices in [-2^20, 2^20) per axis fit in 21 bits; 3 axes fit in an int64
 
@@ -62,6 +62,27 @@ def voxel_downsample(points: NDArray[np.floating], voxel: float, min_range: floa
         raise InputError(f"points beyond +/-{(1 << 20) * voxel:.0f} m cannot be downsampled at {voxel} m voxels")
 
     return _kernels.voxel_centroids(np.ascontiguousarray(pts), float(voxel), float(min_range), float(max_range))
+
+
+def voxel_downsample_with(points: NDArray[np.floating], values: NDArray[np.floating], voxel: float,
+                          min_range: float = 0.0, max_range: float = np.inf
+                          ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """:func:`voxel_downsample` of points (N, d) that also averages ``values`` (N,) per voxel (a point's time).
+
+    Returns the centroids (M, d), the same as :func:`voxel_downsample`'s, and each voxel's mean value (M,).
+    """
+    from . import _kernels  # numba: compiled on first use
+    pts = np.asarray(points, dtype=float)
+    vals = np.asarray(values, dtype=float).reshape(-1)
+    if len(vals) != len(pts):
+        raise ShapeError(f"values must have one entry per point ({len(pts)}), got {len(vals)}")
+    if voxel <= 0 or len(pts) == 0:
+        return pts, vals
+    limit = min(max_range, float(np.nanmax(np.abs(pts), initial=0.0)))
+    if limit >= (1 << 20) * voxel:
+        raise InputError(f"points beyond +/-{(1 << 20) * voxel:.0f} m cannot be downsampled at {voxel} m voxels")
+    return _kernels.voxel_centroids_with(np.ascontiguousarray(pts), np.ascontiguousarray(vals), float(voxel),
+                                         float(min_range), float(max_range))
 
 
 class VoxelMap:

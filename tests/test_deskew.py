@@ -271,3 +271,70 @@ def test_bag_clock_offset_between_the_lidars(tmp_path):
     ds = RosbagDataset(bag.path).driven_by("cloud")
     np.testing.assert_allclose(ds.stamps, bag.clouds.stamps + 0.03, atol=1e-6)
     assert all(f.point_times is None for f in ds.frames())  # a static sweep: no times
+
+
+def _room(spacing, rng=None):
+    """Points (M, 3) and normals on the six faces of an 8 x 6 x 3 m room around (1.3, -0.7, 0.4), on a grid or
+    (``rng``) drawn uniformly."""
+    lo, hi = np.array([-2.7, -3.7, -1.1]), np.array([5.3, 2.3, 1.9])
+    pts, nrm = [], []
+    for axis in range(3):
+        u, v = [a for a in range(3) if a != axis]
+        if rng is None:
+            a, b = np.meshgrid(np.arange(lo[u], hi[u], spacing), np.arange(lo[v], hi[v], spacing))
+            a, b = a.ravel(), b.ravel()
+        else:
+            m = int((hi[u] - lo[u]) * (hi[v] - lo[v]) / spacing**2)
+            a, b = rng.uniform(lo[u], hi[u], m), rng.uniform(lo[v], hi[v], m)
+        for side in (lo[axis], hi[axis]):
+            p = np.zeros((len(a), 3))
+            p[:, axis], p[:, u], p[:, v] = side, a, b
+            n = np.zeros_like(p)
+            n[:, axis] = 1.0
+            pts.append(p)
+            nrm.append(n)
+    return np.vstack(pts), np.vstack(nrm)
+
+
+def test_refine_sweep_finds_the_planar_motion_the_deskewing_missed():
+    from hsmap.deskew import refine_sweep
+    from hsmap.registration import RegistrationTarget
+
+    target = RegistrationTarget(*_room(0.1)[:1], normals=_room(0.1)[1])
+    rng = np.random.default_rng(3)
+    world, _ = _room(0.3, rng)
+    times = (np.arctan2(world[:, 1], world[:, 0]) + np.pi) / (2 * np.pi) * 0.1  # a rolling sweep, 0.1 s
+    true_v = np.array([0.3, -0.2, 0.5])  # m/s, m/s, rad/s left over by the deskewing
+    motion = np.column_stack([true_v[0] * times, true_v[1] * times, true_v[2] * times])
+    M6 = np.zeros((len(times), 6))
+    M6[:, :2], M6[:, 5] = motion[:, :2], motion[:, 2]
+    B = np.linalg.inv(pose_to_matrix(M6))
+    measured = np.einsum("nij,nj->ni", B[:, :3, :3], world) + B[:, :3, 3]  # the base at each point's time
+    assert np.abs(measured - world).max() > 0.1
+    out = refine_sweep(measured, times, target, np.zeros(6), threshold=0.3, robust_kernel=0.07, iterations=10)
+    assert out.improved and out.cost_after < 0.5 * out.cost_before
+    np.testing.assert_allclose(out.velocity, true_v, atol=0.03)
+    assert np.abs(out.pose[:3]).max() < 2e-3 and np.abs(out.pose[3:]).max() < np.deg2rad(0.05)
+    assert np.abs(out.points - world).max() < 0.01
+    # a cloud its deskewing got right is aligned no better by any motion: the tracker keeps it as it is
+    still = refine_sweep(world, times, target, np.zeros(6), threshold=0.3, robust_kernel=0.07)
+    assert not still.improved and np.abs(still.velocity).max() < 0.05
+
+
+def test_timed_points_are_the_frames_points_with_their_mean_times():
+    from hsmap.mapping import voxel_downsample_with
+    from hsmap.slam.frames import frame_points, timed_cloud_points
+
+    rng = np.random.default_rng(1)
+    cloud = rng.uniform(-6, 6, (5000, 3))
+    cloud[:3] = [np.nan, 0.0, 0.0], [0.01, 0.0, 0.0], [40.0, 0.0, 0.0]  # not finite, too near, too far
+    times = rng.uniform(0, 0.1, len(cloud))
+    frame = Frame(stamp=1.0, cloud3d=cloud, point_times=times, extrinsic3d=EXT)
+    pts, t = timed_cloud_points(frame, times, 0.1, 30.0, 0.5)
+    np.testing.assert_array_equal(pts, frame_points(frame, 6, 0.1, 30.0, voxel=0.5))
+    assert len(t) == len(pts) and 0.0 <= t.min() and t.max() <= 0.1
+    # one voxel's time is the mean of its points' times
+    one, mean = voxel_downsample_with(np.array([[0.1, 0.1, 0.1], [0.2, 0.2, 0.2], [5.0, 5.0, 5.0]]),
+                                      np.array([0.02, 0.04, 0.09]), 1.0)
+    np.testing.assert_allclose(one, [[0.15, 0.15, 0.15], [5.0, 5.0, 5.0]])
+    np.testing.assert_allclose(mean, [0.03, 0.09])

@@ -727,3 +727,28 @@ def test_a_registration_that_explains_little_of_its_scan_stays_within_the_learne
     (kept, retried, confirmed), share, turned = verify(mapped_to=15.0)
     assert share >= slam_module.STRICT_MIN_MATCHED
     assert not retried and confirmed and kept is turned
+
+
+def test_a_run_seeded_by_a_2d_run_keeps_its_keyframes_on_the_floor():
+    """Seeded by a 2D run (a robot on one floor), every keyframe but the first gets a unary edge holding its
+    height, roll and pitch to the first pose's, and none on x, y, yaw; a run without a prior gets none."""
+    from hsmap.posegraph import EdgeKind
+    from hsmap.slam.tracker import FLOOR_SIGMA
+
+    frames, truth = _room_frames_3d(6)
+    truth = np.asarray(truth)
+    start = truth[0] + np.array([0.0, 0.0, 0.05, 0.01, -0.02, 0.0])  # the floor's plane, as the run starts on it
+    slam = HsSlam(SlamConfig(dof=6), rng=0, initial_pose=start,
+                  prior=Trajectory(np.arange(6.0), truth[:, [0, 1, 5]]))
+    for f in frames:
+        slam.process(f)
+    floor = [e for e in slam.graph.edges if e.kind == EdgeKind.PRIOR and e.i > 0]
+    assert len(floor) == len(slam.keyframes) - 1 >= 2 and all(e.i == e.j for e in floor)
+    for e in floor:
+        np.testing.assert_allclose(e.measurement[2:5], start[2:5])
+        np.testing.assert_allclose(np.diag(e.information)[2:5], 1.0 / np.array(FLOOR_SIGMA)[[0, 1, 1]] ** 2)
+        assert np.diag(e.information)[[0, 1, 5]].max() < 1e-6
+    plain = HsSlam(SlamConfig(dof=6), rng=0)
+    for f in frames:
+        plain.process(f)
+    assert not [e for e in plain.graph.edges if e.kind == EdgeKind.PRIOR and e.i > 0]

@@ -10,9 +10,9 @@ from scipy.spatial import cKDTree
 from ..datasets.frames import Frame
 from ..errors import UnusableFrameError
 from ..geometry import pose_to_matrix, transform_points
-from ..mapping import voxel_downsample
+from ..mapping import voxel_downsample, voxel_downsample_with
 
-__all__ = ["frame_points", "unusable_reason", "sampled_as_its_normal_says", "grazing_where_sparse",
+__all__ = ["frame_points", "timed_cloud_points", "unusable_reason", "sampled_as_its_normal_says", "grazing_where_sparse",
            "SAMPLING_SLACK"]
 
 #: How much further than its normal and the beams' spacing say a point's nearest neighbour may lie
@@ -48,6 +48,17 @@ def frame_points(frame: Frame, dof: int, min_range: float = 0.0, max_range: floa
     if np.any(ext != 0):
         pts = transform_points(pose_to_matrix(ext), pts)
     return pts
+
+
+def timed_cloud_points(frame: Frame, times: NDArray[np.float64], min_range: float, max_range: float,
+                       voxel: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """:func:`frame_points` of a 6-DOF frame's cloud with ``voxel`` (the same points), and each point's time (M,),
+    the mean of ``times`` (N,), one per cloud point, over its voxel."""
+    pts, t = voxel_downsample_with(np.asarray(frame.cloud3d, dtype=float), times, voxel, min_range, max_range)
+    ext = np.asarray(frame.extrinsic3d, dtype=float)
+    if np.any(ext != 0):
+        pts = transform_points(pose_to_matrix(ext), pts)
+    return pts, t
 
 
 def unusable_reason(frame: Frame, dof: int, min_range: float, max_range: float, scan: NDArray[np.float64]) -> str:

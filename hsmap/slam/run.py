@@ -220,8 +220,8 @@ def run_slam(
                 break
             n_read += 1
             try:
-                frame = slam.deskewed(frame)
                 res = slam.process(frame)
+                frame = slam.frame
             except UnusableFrameError as exc:
                 if strict:
                     raise UnusableFrameError(f"{source}: {exc}", exc.index, exc.stamp) from None

@@ -5,32 +5,37 @@ motion predictions, checked and fused by the :class:`~hsmap.slam.verify.Verifier
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ..datasets.frames import Frame
-from ..deskew import deskew_frame
+from ..deskew import deskew_frame, refine_sweep
 from ..deskew2d import deskew_scan_frame
 from ..errors import InputError, UnusableFrameError
-from ..geometry import compose, relative, wrap_angle
+from ..geometry import compose, pose_to_matrix, relative, wrap_angle
 from ..harmony import as_rng
 from ..loopclosure import Keyframe
 from ..mapping import VoxelMap
-from ..posegraph import PoseGraph
-from ..registration import RegistrationResult, harmony_icp, spans_its_space
+from ..posegraph import EdgeKind, PoseGraph
+from ..registration import RegistrationResult, RegistrationTarget, harmony_icp, spans_its_space
 from ..smoothing import SmoothingResult, smooth_with_odometry
 from ..trajectory import Trajectory
 from .config import SlamConfig
 from .costs import Costs
-from .frames import frame_points, unusable_reason
+from .frames import frame_points, timed_cloud_points, unusable_reason
 from .keyframes import KeyframeGraph
 from .motions import FrameMotions
 from .odometry import OdometryModel
 from .verify import Prediction, Verifier
 
-__all__ = ["HsSlam", "FrameResult", "mean_pose"]
+__all__ = ["HsSlam", "FrameResult", "mean_pose", "FLOOR_SIGMA"]
+
+#: (m, rad): a 6-DOF run seeded by a 2D run holds every keyframe's height, roll and pitch to the first pose's
+#: (the floor the 2D run moves on) with these sigmas, a unary prior in the pose graph: a building's floor is level
+#: to within them, and the relative edges alone let the tilt and the height wander as a random walk.
+FLOOR_SIGMA = (0.02, float(np.deg2rad(0.5)))
 
 
 @dataclass
@@ -86,6 +91,8 @@ class HsSlam:
     verifier : Verifier
     keyframe_graph : KeyframeGraph
         The keyframes, their pose graph (:attr:`graph`) and maps (:attr:`map`).
+    frame : Frame or None
+        The last frame processed, as used (its cloud deskewed).
     """
 
     def __init__(self, config: SlamConfig | None = None, *, rng: int | np.random.Generator | None = None,
@@ -99,6 +106,7 @@ class HsSlam:
         self.poses: list[NDArray[np.float64]] = []
         self.stamps: list[float] = []
         self.results: list[FrameResult] = []
+        self.frame: Frame | None = None
         self._initial = None if initial_pose is None else np.asarray(initial_pose, dtype=float)
         if self._initial is not None and self._initial.shape != (cfg.dof,):
             raise InputError(f"initial_pose must have {cfg.dof} values, got shape {self._initial.shape}")
@@ -213,8 +221,13 @@ class HsSlam:
         t0 = time.perf_counter()
         cfg = self.config
         kg = self.keyframe_graph
-        frame = self.deskewed(frame)
-        scan = frame_points(frame, cfg.dof, cfg.min_range, cfg.max_range, voxel=cfg.effective_scan_voxel())
+        times = frame.point_times if self._deskews(frame) else None
+        frame = self.frame = self.deskewed(frame)
+        if times is None:
+            scan = frame_points(frame, cfg.dof, cfg.min_range, cfg.max_range, voxel=cfg.effective_scan_voxel())
+        else:
+            scan, times = timed_cloud_points(frame, np.asarray(times, dtype=float).reshape(-1), cfg.min_range,
+                                             cfg.max_range, cfg.effective_scan_voxel())
         if len(scan) < 3 * cfg.dim or not spans_its_space(scan):
             raise UnusableFrameError(unusable_reason(frame, cfg.dof, cfg.min_range, cfg.max_range, scan),
                                      frame.index, frame.stamp)
@@ -235,6 +248,8 @@ class HsSlam:
             self.costs.registration(res.evaluations)
             self.odometry.learn_bias(frame, res, self.poses[-1])
             res, retried, verified = self._verify(frame, scan, res)
+            if times is not None:
+                res, scan = self._refine_sweep(scan, times, target, res)
             self.odometry.learn_scale(frame, res)
             self.odometry.accumulate_wheel(frame)  # with the bias and scale the prediction below uses
             pose, information, registration_information = self.verifier.fuse(res, self.prediction(frame))
@@ -249,6 +264,8 @@ class HsSlam:
         if keyframe and kg.add_keyframe(frame, len(self.results), scan, pose, None if first else information,
                                         registration_information):
             self._reanchor_recent()
+        if keyframe and not first:
+            self._floor_prior()
         self.odometry.advance(frame, relative(self.poses[-2], pose) if len(self.poses) >= 2 else None)
         if keyframe:
             # the next frame's target, built in the keyframe's step: the next frame only tracks
@@ -258,6 +275,35 @@ class HsSlam:
                              retried, verified, float(cost))
         self.results.append(result)
         return result
+
+    def _floor_prior(self) -> None:
+        """6-DOF runs seeded by a prior: the newest keyframe's height, roll and pitch held near the first pose's
+        (:data:`FLOOR_SIGMA`), a unary edge of the pose graph."""
+        if self.config.dof != 6 or self._prior is None or len(self.graph) < 2:
+            return
+        k = len(self.graph) - 1
+        level = self.graph.poses[k].copy()
+        level[2:5] = self.poses[0][2:5]
+        info = np.full(6, 1e-9)  # x, y and yaw: nothing said
+        info[2] = 1.0 / FLOOR_SIGMA[0] ** 2
+        info[3:5] = 1.0 / FLOOR_SIGMA[1] ** 2
+        self.graph.add_edge(k, k, level, np.diag(info), EdgeKind.PRIOR, robust=False)
+
+    def _deskews(self, frame: Frame) -> bool:
+        return self.config.deskew and self.config.dof == 6 and frame.point_times is not None
+
+    def _refine_sweep(self, scan: NDArray[np.float64], times: NDArray[np.float64], target: RegistrationTarget,
+                      res: RegistrationResult) -> tuple[RegistrationResult, NDArray[np.float64]]:
+        """The registration and the scan (N, 3) refined with the motion over the sweep
+        (:func:`hsmap.deskew.refine_sweep`) where that aligns the scan better; else both as they are."""
+        reg = self.config.registration
+        ref = refine_sweep(scan, times, target, res.pose, threshold=reg.threshold, robust_kernel=reg.robust_kernel)
+        self.costs.add(refinements=1)
+        if not ref.improved:
+            return res, scan
+        pose = ref.pose.copy()
+        pose[3:] = res.pose[3:] + wrap_angle(pose[3:] - res.pose[3:])
+        return replace(res, pose=pose, transformation=pose_to_matrix(pose)), ref.points
 
     def deskewed(self, frame: Frame) -> Frame:
         """The frame with its cloud (6-DOF) or its 2D scan (3-DOF) moved to its stamp, with ``deskew``

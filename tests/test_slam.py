@@ -752,3 +752,17 @@ def test_a_run_seeded_by_a_2d_run_keeps_its_keyframes_on_the_floor():
     for f in frames:
         plain.process(f)
     assert not [e for e in plain.graph.edges if e.kind == EdgeKind.PRIOR and e.i > 0]
+
+
+def test_level_floor_off_adds_no_floor_edges():
+    """``level_floor: false`` (ramps, several floors): a run seeded by a 2D run holds no keyframe to the floor."""
+    from hsmap.posegraph import EdgeKind
+
+    frames, truth = _room_frames_3d(6)
+    truth = np.asarray(truth)
+    slam = HsSlam(SlamConfig(dof=6, level_floor=False), rng=0, initial_pose=truth[0],
+                  prior=Trajectory(np.arange(6.0), truth[:, [0, 1, 5]]))
+    for f in frames:
+        slam.process(f)
+    assert len(slam.keyframes) >= 3
+    assert not [e for e in slam.graph.edges if e.kind == EdgeKind.PRIOR and e.i > 0]

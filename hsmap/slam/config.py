@@ -157,6 +157,10 @@ class SlamConfig:
     deskew : bool
         Clouds with per-point times (6-DOF, :mod:`hsmap.deskew`) and 2D scans with beam times (3-DOF,
         :mod:`hsmap.deskew2d`) are moved to their stamps before use.
+    level_floor : bool
+        6-DOF runs seeded by a 2D run: every keyframe's height, roll and pitch are held to the first pose's by a
+        unary edge of the pose graph (sigmas ``hsmap.slam.tracker.FLOOR_SIGMA``), as for a robot on one level
+        floor; off for ramps and runs across floors.
     """
 
     dof: int = 3
@@ -188,6 +192,7 @@ class SlamConfig:
     graph: KeyframeGraphConfig = field(default_factory=KeyframeGraphConfig)
     smoothing: bool = True
     deskew: bool = True
+    level_floor: bool = True
 
     def __post_init__(self) -> None:
         if self.dof not in (3, 6):

@@ -277,9 +277,9 @@ class HsSlam:
         return result
 
     def _floor_prior(self) -> None:
-        """6-DOF runs seeded by a prior: the newest keyframe's height, roll and pitch held near the first pose's
-        (:data:`FLOOR_SIGMA`), a unary edge of the pose graph."""
-        if self.config.dof != 6 or self._prior is None or len(self.graph) < 2:
+        """6-DOF runs seeded by a prior (``level_floor``): the newest keyframe's height, roll and pitch held near the
+        first pose's (:data:`FLOOR_SIGMA`), a unary edge of the pose graph."""
+        if not self.config.level_floor or self.config.dof != 6 or self._prior is None or len(self.graph) < 2:
             return
         k = len(self.graph) - 1
         level = self.graph.poses[k].copy()

@@ -283,13 +283,9 @@ def _number_voxels(keys, skip, valid):  # pragma: no cover - JIT
 
 
 @nb.njit(cache=True, nogil=True)
-def voxel_centroids(pts, voxel, rmin=0.0, rmax=np.inf):  # pragma: no cover - JIT
-    """Centroid of the points in each occupied voxel (side `voxel`), in the order of their voxel keys.
-
-    Points that are not finite, or whose distance from the origin is outside [rmin, rmax], are skipped. The
-    voxels are found with a hash table (one pass over the points, which are summed in input order) and only the
-    occupied voxels' keys are sorted: a 131,072-point cloud has some 10-30 thousand voxels at 0.1-0.15 m.
-    """
+def _range_voxel_keys(pts, voxel, rmin, rmax):  # pragma: no cover - JIT
+    """Each point's voxel key (indices floor(p / voxel) + 2^20, 21 bits each), the int64 maximum for a point
+    not finite or whose distance from the origin is outside [rmin, rmax]; that maximum; the count of the others."""
     n, d = pts.shape
     keys = np.empty(n, dtype=np.int64)
     big = np.iinfo(np.int64).max
@@ -306,7 +302,19 @@ def voxel_centroids(pts, voxel, rmin=0.0, rmax=np.inf):  # pragma: no cover - JI
             k = (k << 21) | (np.int64(np.floor(pts[i, j] / voxel)) + (1 << 20))
         keys[i] = k
         valid += 1
-    voxel_of, ukeys, _, m = _number_voxels(keys, big, valid)
+    return keys, big, valid
+
+
+@nb.njit(cache=True, nogil=True)
+def voxel_centroids(pts, voxel, rmin=0.0, rmax=np.inf):  # pragma: no cover - JIT
+    """Centroid of the points in each occupied voxel (side `voxel`), in the order of their voxel keys.
+
+    Points that are not finite, or whose distance from the origin is outside [rmin, rmax], are skipped. The
+    voxels are found with a hash table (one pass over the points, which are summed in input order) and only the
+    occupied voxels' keys are sorted: a 131,072-point cloud has some 10-30 thousand voxels at 0.1-0.15 m.
+    """
+    n, d = pts.shape
+    voxel_of, ukeys, _, m = _number_voxels(*_range_voxel_keys(pts, voxel, rmin, rmax))
     sums = np.zeros((m, d))
     counts = np.zeros(m)
     for i in range(n):
@@ -767,22 +775,7 @@ def voxel_centroids_with(pts, vals, voxel, rmin=0.0, rmax=np.inf):  # pragma: no
     """:func:`voxel_centroids` of points (N, d), and the mean of ``vals`` (N,) over each voxel (a point's time,
     say): (centroids (M, d), means (M,))."""
     n, d = pts.shape
-    keys = np.empty(n, dtype=np.int64)
-    big = np.iinfo(np.int64).max
-    valid = 0
-    for i in range(n):
-        r2 = 0.0
-        for j in range(d):
-            r2 += pts[i, j] * pts[i, j]
-        if not (r2 >= rmin * rmin and r2 <= rmax * rmax):  # also false for NaN
-            keys[i] = big
-            continue
-        k = np.int64(0)
-        for j in range(d):
-            k = (k << 21) | (np.int64(np.floor(pts[i, j] / voxel)) + (1 << 20))
-        keys[i] = k
-        valid += 1
-    voxel_of, ukeys, _, m = _number_voxels(keys, big, valid)
+    voxel_of, ukeys, _, m = _number_voxels(*_range_voxel_keys(pts, voxel, rmin, rmax))
     sums = np.zeros((m, d))
     vsums = np.zeros(m)
     counts = np.zeros(m)

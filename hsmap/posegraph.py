@@ -297,14 +297,10 @@ class PoseGraph:
                                           rounds=rounds, iterations_total=iterations)
             result = OptimizationResult("ok", opt.iterations(), float(before), float(after), rejected,
                                         rounds=rounds, iterations_total=iterations)
-            poses[fixed] = self._P[fixed]  # the gauge exactly: its prior lets the solver move it by rounding noise
-            self._P[: self._n] = poses
-            off = self._update_chi2()
-            if off is None:
+            off = self._take(poses, fixed)
+            if not off:
                 break
             rejected.extend(off)
-            for k in off:
-                self.edges[k].active = False
         result.rejected = rejected
         return result
 
@@ -366,19 +362,25 @@ class PoseGraph:
                 if not np.all(np.isfinite(poses)):
                     return OptimizationResult("failed", message="the optimisation gave non-finite poses",
                                               rounds=rounds, iterations_total=iterations)
-                poses[fixed] = self._P[fixed]
-                self._P[: self._n] = poses
-                off = self._update_chi2()
-                if off is None:
+                off = self._take(poses, fixed)
+                if not off:
                     break
                 rejected.extend(off)
-                for k in off:
-                    self.edges[k].active = False
         except RuntimeError as exc:  # gtsam raises RuntimeError (IndeterminantLinearSystem, ...)
             self._isam = None
             return OptimizationResult("failed", message=f"{type(exc).__name__}: {exc}".splitlines()[0],
                                       rounds=rounds + 1, iterations_total=iterations)
         return OptimizationResult("ok", steps, rejected=rejected, rounds=rounds, iterations_total=iterations)
+
+    def _take(self, poses: NDArray[np.float64], fixed: int) -> list[int]:
+        """Take a solver's ``poses`` (n, dof) as the graph's, node ``fixed`` kept exactly (its prior lets the
+        solver move it by rounding noise), and switch off the edges the gate rejects there (returned)."""
+        poses[fixed] = self._P[fixed]
+        self._P[: self._n] = poses
+        off = self._update_chi2() or []
+        for k in off:
+            self.edges[k].active = False
+        return off
 
     def _active(self) -> NDArray[np.bool_]:
         return self._act[0][: len(self.edges)]

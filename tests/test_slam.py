@@ -404,6 +404,7 @@ def test_points_on_one_line_are_unusable():
 @pytest.mark.parametrize("kwargs, match", [
     (dict(dof=4), "slam.dof must be 3"),
     (dict(keyframe_distance=-1.0), "slam.keyframe_distance must be a finite number >= 0"),
+    (dict(keyframe_angle=float("inf")), "slam.keyframe_angle must be a finite number >= 0"),
     (dict(max_range=0.05), r"slam.max_range \(0.05\) must exceed slam.min_range"),
     (dict(warmup_frames=0), "slam.warmup_frames must be an integer >= 1"),
     (dict(map_voxel=0.0), "slam.map_voxel must be None or > 0"),
@@ -418,6 +419,15 @@ def test_bad_config(kwargs, match):
         SlamConfig(**kwargs)
     with pytest.raises(ConfigError, match=match):  # a changed copy is validated too (hsmap slam --dof)
         dataclasses.replace(SlamConfig(), **kwargs)
+
+
+def test_keyframe_spacing_defaults_by_dof_and_a_set_value_wins():
+    assert (SlamConfig(dof=3).effective_keyframe_distance(), SlamConfig(dof=6).effective_keyframe_distance()) == (0.5, 1.0)
+    assert np.rad2deg([SlamConfig(dof=3).effective_keyframe_angle(),
+                       SlamConfig(dof=6).effective_keyframe_angle()]) == pytest.approx([15.0, 30.0])
+    cfg = SlamConfig(dof=6, keyframe_distance=0.3, keyframe_angle=0.1)
+    assert (cfg.effective_keyframe_distance(), cfg.effective_keyframe_angle()) == (0.3, 0.1)
+    assert SlamConfig(dof=3, keyframe_distance=0.0).effective_keyframe_distance() == 0.0  # every frame
 
 
 def test_one_search_box_knob_the_tracking_registration_config():

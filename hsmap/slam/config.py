@@ -122,8 +122,9 @@ class SlamConfig:
         Voxel size the scans are downsampled to before registration; None: 0.03 m (2D), 0.15 m (3D).
     local_map_radius : float
         Radius of the local map (the registration target) around the robot.
-    keyframe_distance, keyframe_angle : float
-        A frame becomes a keyframe (added to the map) when the robot moved or turned this much since the last one.
+    keyframe_distance, keyframe_angle : float or None
+        A frame becomes a keyframe (added to the map) when the robot moved or turned this much since the last one;
+        None: 0.5 m and 15 deg (2D), 1 m and 30 deg (3D, whose sweeps overlap over more of a move or a turn).
     min_range, max_range : float
         Points of the scans outside [min_range, max_range] from the sensor are ignored.
     odometry_sigma : tuple of 5 floats
@@ -175,8 +176,8 @@ class SlamConfig:
     map_average: bool = True
     scan_voxel: float | None = None
     local_map_radius: float = 20.0
-    keyframe_distance: float = 0.5
-    keyframe_angle: float = np.deg2rad(15.0)
+    keyframe_distance: float | None = None
+    keyframe_angle: float | None = None
     min_range: float = 0.1
     max_range: float = 30.0
     odometry_sigma: tuple[float, ...] = (0.02, 0.05, float(np.deg2rad(1.0)), 0.05, float(np.deg2rad(1.0)))
@@ -221,6 +222,8 @@ class SlamConfig:
         for name in ("prior_translation_range", "prior_yaw_range", "sync_tolerance", "local_map_radius",
                      "keyframe_distance", "keyframe_angle", "min_range", "max_range"):
             v = getattr(self, name)
+            if v is None and name.startswith("keyframe_"):
+                continue
             if not (np.isfinite(v) and v >= 0):
                 raise ConfigError(f"slam.{name} must be a finite number >= 0, got {v!r}")
         if self.max_range <= self.min_range:
@@ -247,6 +250,15 @@ class SlamConfig:
     def effective_map_voxel(self) -> float:
         """``map_voxel`` or its default for the dof."""
         return self.map_voxel or (0.05 if self.dof == 3 else 0.1)
+
+    def effective_keyframe_distance(self) -> float:
+        """``keyframe_distance`` or its default for the dof."""
+        return self.keyframe_distance if self.keyframe_distance is not None else (0.5 if self.dof == 3 else 1.0)
+
+    def effective_keyframe_angle(self) -> float:
+        """``keyframe_angle`` or its default for the dof."""
+        return (self.keyframe_angle if self.keyframe_angle is not None
+                else float(np.deg2rad(15.0 if self.dof == 3 else 30.0)))
 
     def effective_scan_voxel(self) -> float:
         """``scan_voxel`` or its default for the dof."""

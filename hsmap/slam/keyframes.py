@@ -109,8 +109,8 @@ class KeyframeGraph:
         """Whether the robot moved or turned enough since the newest keyframe."""
         cfg = self.config
         d = relative(self.last_key, pose)
-        return bool(np.linalg.norm(d[: self.dim]) >= cfg.keyframe_distance
-                    or np.abs(wrap_angle(d[self.dim:])).max() >= cfg.keyframe_angle)
+        return bool(np.linalg.norm(d[: self.dim]) >= cfg.effective_keyframe_distance()
+                    or np.abs(wrap_angle(d[self.dim:])).max() >= cfg.effective_keyframe_angle())
 
     def attach(self, pose: NDArray[np.float64], keyframe: bool) -> None:
         """Express a new frame's pose in its keyframe's frame: the new keyframe's, or the newest one's."""

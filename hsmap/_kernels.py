@@ -664,12 +664,14 @@ def _cell_range(x, bound, origin, inv_cell, size):  # pragma: no cover - JIT
 
 
 @nb.njit(cache=True, nogil=True)
-def grid_nearest(sp, order, start, origin, inv_cell, dims, q, bound, out_d, out_i, lo, hi):  # pragma: no cover
+def grid_nearest(sp, order, start, origin, inv_cell, dims, q, bound, hint, out_d, out_i, lo, hi):  # pragma: no cover
     """Nearest of the sorted points ``sp`` (2D or 3D) to q[lo:hi] closer than ``bound``: distance (inf if none)
     and original row (len(sp) if none) into out_d, out_i.
 
     The cells within the bound are visited as runs along the last axis, one run per cell of the axes before it
-    (in 2D, the first axis only: the middle loop is then one pass with a stride of 1)."""
+    (in 2D, the first axis only: the middle loop is then one pass with a stride of 1). ``hint[i]`` (a row of
+    ``sp``, -1: none) is a point near q[i]: when closer than the bound, only the cells within its distance are
+    visited, which holds every point at least as near, so the answer is the same."""
     n, d = sp.shape
     last = d - 1
     b2 = bound * bound
@@ -677,15 +679,28 @@ def grid_nearest(sp, order, start, origin, inv_cell, dims, q, bound, out_d, out_
         x = q[i, 0]
         y = q[i, 1]
         z = q[i, last]
-        x0, x1 = _cell_range(x, bound, origin[0], inv_cell, dims[0])
+        best = b2
+        bj = -1
+        reach = bound
+        h = hint[i]
+        if h >= 0:
+            e0 = sp[h, 0] - x
+            e1 = sp[h, 1] - y
+            s = e0 * e0 + e1 * e1  # as the search below sums it
+            if d == 3:
+                e2 = sp[h, 2] - z
+                s += e2 * e2
+            if s < b2:
+                best = s
+                bj = h
+                reach = np.sqrt(s)
+        x0, x1 = _cell_range(x, reach, origin[0], inv_cell, dims[0])
         if d == 3:
-            y0, y1 = _cell_range(y, bound, origin[1], inv_cell, dims[1])
+            y0, y1 = _cell_range(y, reach, origin[1], inv_cell, dims[1])
             stride = dims[1]
         else:
             y0, y1, stride = 0, 0, 1
-        z0, z1 = _cell_range(z, bound, origin[last], inv_cell, dims[last])
-        best = b2
-        bj = -1
+        z0, z1 = _cell_range(z, reach, origin[last], inv_cell, dims[last])
         if z1 >= z0:
             for cx in range(x0, x1 + 1):
                 for cy in range(y0, y1 + 1):

@@ -242,8 +242,8 @@ def _cross_rows(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.fl
                             a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]])
 
 
-def _sweep_cost(target, moved: NDArray[np.float64], threshold: float) -> tuple:
-    d, idx = target.nearest(moved, threshold)
+def _sweep_cost(target, moved: NDArray[np.float64], threshold: float, hint=None) -> tuple:
+    d, idx = target.nearest(moved, threshold, hint)
     ok = np.isfinite(d)
     r = np.einsum("ij,ij->i", target.normals[idx[ok]], moved[ok] - target.points[idx[ok]])
     cost = float((np.minimum(np.abs(r), threshold).sum() + threshold * (len(moved) - ok.sum()))
@@ -320,7 +320,7 @@ def refine_sweep(points: ArrayLike, times: ArrayLike, target, pose: ArrayLike, *
         dT[:3, :3] = Rotation.from_rotvec(delta[3:6]).as_matrix()
         dT[:3, 3] = delta[:3]
         T = dT @ T
-        cost, ok, idx, r = _sweep_cost(target, P @ T[:3, :3].T + T[:3, 3], threshold)
+        cost, ok, idx, r = _sweep_cost(target, P @ T[:3, :3].T + T[:3, 3], threshold, idx)
         if np.abs(delta).max() < tolerance:
             break
     return SweepRefinement(matrix_to_pose(T), vel, P, cost0, cost, it)

@@ -97,16 +97,21 @@ class NeighbourGrid:
         self.dims = dims
         self._inv = 1.0 / self.cell
         self._sorted, self._order, self._start = _kernels.grid_build(pts, origin, self._inv, dims)
+        self._rank: NDArray[np.int64] | None = None  # each row's place in the sorted points, for hints
         self._kernel = _kernels.grid_nearest
 
     def __len__(self) -> int:
         return len(self.points)
 
-    def query(self, points: ArrayLike, distance_upper_bound: float) -> tuple[NDArray[np.float64], NDArray[np.intp]]:
+    def query(self, points: ArrayLike, distance_upper_bound: float, hint: ArrayLike | None = None
+              ) -> tuple[NDArray[np.float64], NDArray[np.intp]]:
         """Distance to the nearest grid point closer than ``distance_upper_bound`` and its row, per point (N, d):
         ``inf`` and ``len(self)`` where none is (cKDTree's answer, bit for bit, but for exact ties: the lowest
         row here). Large queries are split between the compute threads (:func:`hsmap._threads.current_threads`);
-        the answer does not depend on how many."""
+        the answer does not depend on how many.
+
+        ``hint`` (N,): a row near each point (any other value: none), e.g. the answer of a query from nearby
+        (an ICP iteration's); it narrows the search without changing the answer."""
         q = np.ascontiguousarray(points, dtype=np.float64)
         if q.ndim != 2 or q.shape[1] != self.dim:
             raise ShapeError(f"query points must have shape (N, {self.dim}), got {q.shape}")
@@ -116,7 +121,8 @@ class NeighbourGrid:
         n = len(q)
         d = np.empty(n)
         idx = np.empty(n, dtype=np.intp)
-        args = (self._sorted, self._order, self._start, self.origin, self._inv, self.dims, q, bound, d, idx)
+        args = (self._sorted, self._order, self._start, self.origin, self._inv, self.dims, q, bound,
+                self._hint_places(hint, n), d, idx)
         t = current_threads()
         if t <= 1 or n < PARALLEL_MIN_QUERIES:
             self._kernel(*args, 0, n)
@@ -128,6 +134,20 @@ class NeighbourGrid:
         for f in futures:
             f.result()
         return d, idx
+
+
+    def _hint_places(self, hint: ArrayLike | None, n: int) -> NDArray[np.int64]:
+        """The hinted rows' places in the sorted points (-1: no hint), (n,)."""
+        if hint is None:
+            return np.full(n, -1, dtype=np.int64)
+        h = np.asarray(hint)
+        if h.shape != (n,) or not np.issubdtype(h.dtype, np.integer):
+            raise ShapeError(f"hint must be ({n},) whole numbers (rows of the grid's points), got {h.dtype} {h.shape}")
+        if self._rank is None:
+            self._rank = np.empty(len(self.points), dtype=np.int64)
+            self._rank[self._order] = np.arange(len(self.points))
+        ok = (h >= 0) & (h < len(self.points))
+        return np.where(ok, self._rank[np.where(ok, h, 0)], -1)
 
 
 #: KD-tree queries of at least this many points are split between the compute threads

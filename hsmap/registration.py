@@ -361,18 +361,20 @@ class RegistrationTarget:
             self._grid = NeighbourGrid(self.points, cell) if grid_fits(self.points, cell) else False
         return self._grid
 
-    def nearest(self, points: NDArray[np.float64], bound: float) -> tuple[NDArray[np.float64], NDArray[np.intp]]:
+    def nearest(self, points: NDArray[np.float64], bound: float, hint: NDArray[np.intp] | None = None
+                ) -> tuple[NDArray[np.float64], NDArray[np.intp]]:
         """Nearest target point of each point (N, d) closer than ``bound``: (distance, row), ``inf`` and
         ``len(self.points)`` where none is; cKDTree's answer, bit for bit, except that of points at exactly the
         same distance the lowest row is the answer wherever it comes from.
 
         Answered by a :class:`hsmap.neighbours.NeighbourGrid` of cells twice the configured ``threshold`` (the
         refinement's trimming distances) where the target fits one and ``bound`` is at most two cells, else by
-        the KD-tree; large queries are split between the compute threads either way.
+        the KD-tree; large queries are split between the compute threads either way. ``hint`` (N,): rows near
+        the points (a previous answer), which speed the grid's search and change no answer.
         """
         grid = self.prepare()
         if grid is not False and bound <= 2.0 * grid.cell:
-            return grid.query(points, bound)
+            return grid.query(points, bound, hint)
         return tree_query(self.tree, points, distance_upper_bound=bound)
 
     @property
@@ -485,10 +487,11 @@ def refine_icp(
         # with exact correspondences until it converges, as without the field (three left the 6-DOF route's
         # roll and pitch errors at 0.095 / 0.062 deg, against 0.055 / 0.045 without the field)
         schedule, per_stage = schedule[-1:], (min(per_stage, 3) if dim == 2 else per_stage)
+    idx = None  # the previous iteration's correspondences: the next search starts from them
     for dist in schedule:
         for _ in range(per_stage):
             moved = transform_points(T, source)
-            d, idx = target.nearest(moved, dist)
+            d, idx = target.nearest(moved, dist, idx)
             ok = np.isfinite(d)
             if ok.sum() < 2 * dim:
                 break

@@ -110,3 +110,29 @@ def test_a_target_that_does_not_fit_a_grid_answers_from_its_tree():
             np.testing.assert_array_equal(d, d0)
             np.testing.assert_array_equal(i, i0)
         assert (tgt._grid is not False) == grid
+
+
+@settings(**PROFILE)
+@given(dim=st.sampled_from([2, 3]), n=st.integers(1, 300), seed=st.integers(0, 2**31),
+       cell=st.floats(0.01, 2.0), bound=st.floats(0.001, 3.0), scale=st.floats(0.01, 20.0))
+def test_a_hint_changes_no_answer(dim, n, seed, cell, bound, scale):
+    """Property: hinted rows (the true answer, a near point, a far one, none, out of range; ties included, the
+    points on a coarse lattice) narrow the search and leave every answer as it is without them."""
+    rng = np.random.default_rng(seed)
+    pts = np.round(rng.normal(0, scale, (n, dim)) / (scale / 4)) * (scale / 4)  # exact ties between neighbours
+    if not grid_fits(pts, cell):
+        return
+    grid = NeighbourGrid(pts, cell)
+    q = np.concatenate([pts + rng.normal(0, scale / 8, pts.shape), rng.normal(0, scale, (100, dim))])
+    plain = grid.query(q, bound)
+    for hint in (plain[1], rng.integers(-2, n + 2, len(q)), np.full(len(q), n),
+                 cKDTree(pts).query(q, k=min(2, n))[1].reshape(len(q), -1)[:, -1]):
+        hinted = grid.query(q, bound, hint)
+        np.testing.assert_array_equal(hinted[0], plain[0])
+        np.testing.assert_array_equal(hinted[1], plain[1])
+
+
+def test_a_hint_must_name_rows():
+    grid = NeighbourGrid(np.eye(3), 0.5)
+    with pytest.raises(ShapeError, match=r"hint must be \(2,\) whole numbers"):
+        grid.query(np.zeros((2, 3)), 1.0, hint=np.zeros(2))

@@ -450,6 +450,7 @@ def refine_icp(
     method: Refinement | str = Refinement.POINT_TO_PLANE,
     tolerance: float = 1e-5,
     robust_kernel: float = 0.0,
+    hint: NDArray[np.intp] | None = None,
 ) -> NDArray[np.float64]:
     """Local ICP refinement of ``pose`` (a pose vector), in 2D or 3D.
 
@@ -457,7 +458,8 @@ def refine_icp(
     distance are ignored; the trimming distance halves from ``start_distance`` (default ``max_distance``) down to
     ``max_distance``, ``iterations`` at most in all. Point-to-plane (point-to-line in 2D) takes Gauss-Newton steps
     on the target normals, weighted by a Geman-McClure kernel of scale ``robust_kernel`` (metres; 0: none);
-    point-to-point takes the closed-form SVD (Kabsch) step.
+    point-to-point takes the closed-form SVD (Kabsch) step. ``hint`` (N,): target rows near the source points at
+    a pose close to ``pose`` (:meth:`RegistrationTarget.nearest`), which speed the first search.
     """
     from . import _kernels  # numba: compiled on first use
 
@@ -487,7 +489,7 @@ def refine_icp(
         # with exact correspondences until it converges, as without the field (three left the 6-DOF route's
         # roll and pitch errors at 0.095 / 0.062 deg, against 0.055 / 0.045 without the field)
         schedule, per_stage = schedule[-1:], (min(per_stage, 3) if dim == 2 else per_stage)
-    idx = None  # the previous iteration's correspondences: the next search starts from them
+    idx = hint  # the previous iteration's correspondences: the next search starts from them
     for dist in schedule:
         for _ in range(per_stage):
             moved = transform_points(T, source)
@@ -514,12 +516,13 @@ def refine_icp(
 
 
 def _match(pose: NDArray[np.float64], source: NDArray[np.float64], target: RegistrationTarget,
-           threshold: float) -> tuple:
+           threshold: float, hint: NDArray[np.intp] | None = None) -> tuple:
     """Nearest target points of ``source`` moved by ``pose`` within ``threshold``: (T, moved, d, idx), d inf
-    where none (one KD-tree query, shared by the cost, the information and the fitness at a pose)."""
+    where none (one KD-tree query, shared by the cost, the information and the fitness at a pose; ``hint``: the
+    rows at a pose nearby, :meth:`RegistrationTarget.nearest`)."""
     T = pose_to_matrix(pose)
     moved = transform_points(T, source)
-    d, idx = target.nearest(moved, threshold)
+    d, idx = target.nearest(moved, threshold, hint)
     return T, moved, d, idx
 
 
@@ -726,11 +729,12 @@ def harmony_icp(
         reach = np.full(dof, _refine_reach(cfg, lookup, dim))
         reach[dim:] /= radius
         starts = [pose] + ([] if guesses is None else list(guesses[: cfg.refine_seeds]))
+        near = match[3]  # the correspondences at the search's pose, near every start and result
         for start in starts:
             cand = refine_icp(full, tgt, start, max_distance=cfg.threshold, start_distance=cfg.search_threshold,
                               iterations=cfg.refine_iterations, method=cfg.refinement,
-                              robust_kernel=cfg.robust_kernel)
-            cand_match = _match(cand, full, tgt, cfg.threshold)
+                              robust_kernel=cfg.robust_kernel, hint=near)
+            cand_match = _match(cand, full, tgt, cfg.threshold, near)
             cost = _cost_of(cand_match, tgt, cfg.threshold, plane)
             if cost <= best_cost + 1e-12 or (not refined and reach.any() and _within(global_pose, cand, reach, dim)):
                 pose, best_cost, refined, match = cand, cost, True, cand_match

@@ -325,37 +325,43 @@ def correlative_match_2d(source: NDArray[np.float64], target: NDArray[np.float64
     span = int(np.ceil(2 * np.linalg.norm(src, axis=1).max() / rc)) + 2
     shape = [fft.next_fast_len(n + span - 1, real=True) for n in field_c.shape]
     field_f = fft.rfft2(field_c, shape)
+    scale = float(1 / np.longdouble(shape[0] * shape[1]))  # irfft2's own factor, on the rows kept
+    column = np.zeros((shape[0], shape[1] // 2 + 1), dtype=complex)
     found = []  # (coarse score, x, y, yaw)
     for yaw in angles:
         p = _rotated(src, yaw)
-        s0 = p.min(axis=0)
+        s0 = np.array([p[:, 0].min(), p[:, 1].min()])
         si = np.floor((p - s0) / rc).astype(int)
-        h, w = si.max(axis=0) + 1
-        img = np.zeros((h, w))
-        img[si[:, 0], si[:, 1]] = 1.0
-        corr = fft.irfft2(field_f * fft.rfft2(img[::-1, ::-1], shape), shape)
-        corr = corr[: field_c.shape[0] + h - 1, : field_c.shape[1] + w - 1]  # the full convolution
-        # translation of output cell (m, k): t0 - s0 + (m - h + 1, k - w + 1) * rc
+        h, w = int(si[:, 0].max()) + 1, int(si[:, 1].max()) + 1
+        # translation of output cell (m, k) of the full convolution: t0 - s0 + (m - h + 1, k - w + 1) * rc
         off = t0c - s0 - np.array([h - 1, w - 1]) * rc
         lo = np.maximum(np.ceil((centre - half_translation - off) / rc).astype(int), 0)
-        hi = np.minimum(np.floor((centre + half_translation - off) / rc).astype(int), np.array(corr.shape) - 1)
+        hi = np.minimum(np.floor((centre + half_translation - off) / rc).astype(int),
+                        np.array([field_c.shape[0] + h - 2, field_c.shape[1] + w - 2]))
         if np.any(hi < lo):
             continue
-        win = corr[lo[0]:hi[0] + 1, lo[1]:hi[1] + 1] / img.sum()
+        img = np.zeros((h, w))
+        img[si[:, 0], si[:, 1]] = 1.0
+        # rfft2 and irfft2 axis by axis, as they run: the image's h rows alone through the first pass, and the
+        # window's rows alone through the last (the others are zeros in, unread out)
+        column[:h] = fft.rfft(img[::-1, ::-1], shape[1], axis=1)
+        column[h:] = 0.0
+        rows = fft.ifft(field_f * fft.fft(column, axis=0), axis=0, norm="forward")[lo[0]:hi[0] + 1]
+        win = fft.irfft(rows, shape[1], axis=1, norm="forward")[:, lo[1]:hi[1] + 1] * scale / img.sum()
         # the best cells at least `separation` apart (a slope's, too: a corridor's axis scores alike along it)
         flat = win.ravel()
         top = min(flat.size, peaks * (2 * sep_c + 1) ** 2)
         order = np.argpartition(-flat, top - 1)[:top]
         order = order[np.argsort(-flat[order], kind="stable")]
         order = order[flat[order] > 0]
-        mk = np.column_stack(np.unravel_index(order, win.shape))
+        mm, kk = np.unravel_index(order, win.shape)
         for _ in range(peaks):  # greedily: the best left, then none within sep_c cells of it
-            if not len(mk):
+            if not len(mm):
                 break
-            m, k = mk[0]
-            xy = off + (lo + mk[0]) * rc
-            found.append((float(win[m, k]), xy[0], xy[1], float(yaw)))
-            mk = mk[np.abs(mk - mk[0]).max(axis=1) >= sep_c]
+            m, k = int(mm[0]), int(kk[0])
+            found.append((float(win[m, k]), off[0] + (lo[0] + m) * rc, off[1] + (lo[1] + k) * rc, float(yaw)))
+            far = (np.abs(mm - m) >= sep_c) | (np.abs(kk - k) >= sep_c)
+            mm, kk = mm[far], kk[far]
     if not found:
         return predicted.copy(), 0.0, 1.0
     found.sort(key=lambda f: -f[0])

@@ -78,7 +78,7 @@ class OdometryModel:
         self.wheel_edges = wheel_edges
         self.prior = prior
         self.previous: NDArray[np.float64] | None = None  # the last frame's odometry reading
-        self._last_step: tuple | None = None  # (previous, the frame's odometry, their increment) of the last step
+        self._last_step: tuple | None = None  # (both readings' bytes, their increment) of the last step
         self.outliers: list[int] = []
         self.scale = np.ones(2)
         self.bias = np.zeros(3)
@@ -104,13 +104,13 @@ class OdometryModel:
             return None
         # a frame asks for its step several times (seeds, predictions, learning, wheel edges): the increment
         # between the same two readings is computed once
-        last = self._last_step
-        if last is not None and last[0] is self.previous and last[1] is frame.odometry:
-            return last[2].copy()
+        key = np.asarray(self.previous, dtype=float).tobytes() + odom.tobytes()  # the readings, bit for bit
+        if self._last_step is not None and self._last_step[0] == key:
+            return self._last_step[1].copy()
         delta = relative(self.previous, odom)  # (x, y, yaw) increment in the robot frame
         if self.config.dof != 3:
             delta = np.array([delta[0], delta[1], 0.0, 0.0, 0.0, delta[2]])
-        self._last_step = (self.previous, frame.odometry, delta)
+        self._last_step = (key, delta)
         return delta.copy()
 
     def advance(self, frame: Frame, motion: NDArray[np.float64] | None = None) -> None:

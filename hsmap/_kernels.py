@@ -202,8 +202,12 @@ def splat_field_2d(pts, origin, res, field, radius):  # pragma: no cover - JIT
             dx = (a - u) * res
             for b in range(max(cv - radius, 0), min(cv + radius + 1, ny)):
                 dy = (b - v) * res
-                d = np.sqrt(dx * dx + dy * dy)
-                if d < field[a, b]:
+                s = dx * dx + dy * dy
+                f = np.float64(field[a, b])
+                if s >= f * f:  # f * f is exact (f is a float32): sqrt(s) >= f, so no update
+                    continue
+                d = np.sqrt(s)
+                if d < f:
                     field[a, b] = d
 
 
@@ -419,8 +423,12 @@ def splat_nearest_2d(pts, normals, origin, res, field, near, radius):  # pragma:
             dx = (a - u) * res
             for b in range(max(cv - radius, 0), min(cv + radius + 1, ny)):
                 dy = (b - v) * res
-                d = np.sqrt(dx * dx + dy * dy)
-                if d < field[a, b]:
+                s = dx * dx + dy * dy
+                f = np.float64(field[a, b])
+                if s >= f * f:  # f * f is exact (f is a float32): sqrt(s) >= f, so no update
+                    continue
+                d = np.sqrt(s)
+                if d < f:
                     field[a, b] = d
                     near[a, b, 0] = pts[i, 0]
                     near[a, b, 1] = pts[i, 1]

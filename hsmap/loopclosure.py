@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ._threads import current_threads, helper_pool
 from .errors import ConfigError
 from .geometry import compose, pose_to_matrix, relative, transform_points, wrap_angle
 from .harmony import HarmonyConfig
@@ -289,6 +290,61 @@ def _unique_cells(cells: NDArray[np.int64]) -> NDArray[np.int64]:
     return np.column_stack([key // width + lo[0], key % width + lo[1]])
 
 
+def _coarse_peaks(angles: NDArray[np.float64], src: NDArray[np.float64], field_f: NDArray[np.complex128],
+                  field_shape: tuple[int, int], shape: list[int], t0c: NDArray[np.float64], rc: float,
+                  centre: NDArray[np.float64], half_translation: float, sep_c: int, peaks: int
+                  ) -> list[tuple[float, float, float, float]]:
+    """:func:`correlative_match_2d`'s coarse stage at the rotations ``angles``: each one's ``peaks`` best cells of
+    the window at least ``sep_c`` cells apart, as (score, x, y, yaw), rotation by rotation, best first.
+
+    ``field_f`` is the coarse likelihood field's (``field_shape`` cells of ``rc`` metres from ``t0c``) real 2D
+    transform at ``shape``; the source's image at each rotation is cross-correlated with it by FFT.
+    """
+    from scipy import fft
+
+    scale = float(1 / np.longdouble(shape[0] * shape[1]))  # irfft2's own factor, on the rows kept
+    column = np.zeros((shape[0], shape[1] // 2 + 1), dtype=complex)
+    used = 0  # rows of `column` that may hold an earlier image's transform
+    found = []
+    for yaw in angles:
+        p = _rotated(src, yaw)
+        s0 = np.array([p[:, 0].min(), p[:, 1].min()])
+        si = np.floor((p - s0) / rc).astype(int)
+        h, w = int(si[:, 0].max()) + 1, int(si[:, 1].max()) + 1
+        # translation of output cell (m, k) of the full convolution: t0 - s0 + (m - h + 1, k - w + 1) * rc
+        off = t0c - s0 - np.array([h - 1, w - 1]) * rc
+        lo = np.maximum(np.ceil((centre - half_translation - off) / rc).astype(int), 0)
+        hi = np.minimum(np.floor((centre + half_translation - off) / rc).astype(int),
+                        np.array([field_shape[0] + h - 2, field_shape[1] + w - 2]))
+        if np.any(hi < lo):
+            continue
+        img = np.zeros((h, w))
+        img[si[:, 0], si[:, 1]] = 1.0
+        n = img.sum()
+        # rfft2 and irfft2 axis by axis, as they run: the image's h rows alone through the first pass, and the
+        # window's rows alone through the last (the others are zeros in, unread out)
+        column[:h] = fft.rfft(img[::-1, ::-1], shape[1], axis=1)
+        column[h:used] = 0.0
+        used = h
+        rows = fft.ifft(field_f * fft.fft(column, axis=0), axis=0, norm="forward")[lo[0]:hi[0] + 1]
+        win = fft.irfft(rows, shape[1], axis=1, norm="forward")[:, lo[1]:hi[1] + 1] * scale / n
+        # the best cells at least `separation` apart (a slope's, too: a corridor's axis scores alike along it)
+        flat = win.ravel()
+        top = min(flat.size, peaks * (2 * sep_c + 1) ** 2)
+        order = np.argpartition(-flat, top - 1)[:top]
+        order = order[np.argsort(-flat[order], kind="stable")]
+        order = order[flat[order] > 0]
+        mm, kk = np.unravel_index(order, win.shape)
+        for _ in range(peaks):  # greedily: the best left, then none within sep_c cells of it
+            if not len(mm):
+                break
+            m, k = int(mm[0]), int(kk[0])
+            found.append((float(win[m, k]), off[0] + (lo[0] + m) * rc, off[1] + (lo[1] + k) * rc, float(yaw)))
+            far = (np.abs(mm - m) >= sep_c) | (np.abs(kk - k) >= sep_c)
+            mm, kk = mm[far], kk[far]
+    return found
+
+
 def correlative_match_2d(source: NDArray[np.float64], target: NDArray[np.float64], predicted: NDArray[np.float64],
                          half_translation: float, half_rotation: float, resolution: float = 0.2,
                          angle_step: float = float(np.deg2rad(1.0)), separation: float = 2.0, *, coarse: int = 4,
@@ -325,37 +381,14 @@ def correlative_match_2d(source: NDArray[np.float64], target: NDArray[np.float64
     span = int(np.ceil(2 * np.linalg.norm(src, axis=1).max() / rc)) + 2
     shape = [fft.next_fast_len(n + span - 1, real=True) for n in field_c.shape]
     field_f = fft.rfft2(field_c, shape)
-    found = []  # (coarse score, x, y, yaw)
-    for yaw in angles:
-        p = _rotated(src, yaw)
-        s0 = p.min(axis=0)
-        si = np.floor((p - s0) / rc).astype(int)
-        h, w = si.max(axis=0) + 1
-        img = np.zeros((h, w))
-        img[si[:, 0], si[:, 1]] = 1.0
-        corr = fft.irfft2(field_f * fft.rfft2(img[::-1, ::-1], shape), shape)
-        corr = corr[: field_c.shape[0] + h - 1, : field_c.shape[1] + w - 1]  # the full convolution
-        # translation of output cell (m, k): t0 - s0 + (m - h + 1, k - w + 1) * rc
-        off = t0c - s0 - np.array([h - 1, w - 1]) * rc
-        lo = np.maximum(np.ceil((centre - half_translation - off) / rc).astype(int), 0)
-        hi = np.minimum(np.floor((centre + half_translation - off) / rc).astype(int), np.array(corr.shape) - 1)
-        if np.any(hi < lo):
-            continue
-        win = corr[lo[0]:hi[0] + 1, lo[1]:hi[1] + 1] / img.sum()
-        # the best cells at least `separation` apart (a slope's, too: a corridor's axis scores alike along it)
-        flat = win.ravel()
-        top = min(flat.size, peaks * (2 * sep_c + 1) ** 2)
-        order = np.argpartition(-flat, top - 1)[:top]
-        order = order[np.argsort(-flat[order], kind="stable")]
-        order = order[flat[order] > 0]
-        mk = np.column_stack(np.unravel_index(order, win.shape))
-        for _ in range(peaks):  # greedily: the best left, then none within sep_c cells of it
-            if not len(mk):
-                break
-            m, k = mk[0]
-            xy = off + (lo + mk[0]) * rc
-            found.append((float(win[m, k]), xy[0], xy[1], float(yaw)))
-            mk = mk[np.abs(mk - mk[0]).max(axis=1) >= sep_c]
+    # the rotations in contiguous shares, one per compute thread (the transforms release the GIL); each
+    # rotation's peaks are its own, so the list, joined in order, is the same for any number of threads
+    args = (src, field_f, field_c.shape, shape, t0c, rc, centre, half_translation, sep_c, peaks)
+    shares = np.array_split(angles, max(1, min(current_threads(), len(angles) // 16)))
+    futures = [helper_pool(len(shares) - 1).submit(_coarse_peaks, share, *args) for share in shares[1:]]
+    found = _coarse_peaks(shares[0], *args)
+    for f in futures:
+        found += f.result()
     if not found:
         return predicted.copy(), 0.0, 1.0
     found.sort(key=lambda f: -f[0])

@@ -242,17 +242,20 @@ class PoseGraph:
             return out
         P = self.poses
         d = P[ej] - P[ei]
-        length = (np.linalg.norm(d[:, : self.dim], axis=1)
-                  + rotation_weight * np.abs(wrap_angle(d[:, self.dim:])).max(axis=1))
+        turn = np.abs(wrap_angle(d[:, self.dim:]))
+        # 2D: np.linalg.norm's and max's arithmetic, without their overhead on two columns and one
+        length = (np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]) if self.dim == 2
+                  else np.linalg.norm(d[:, : self.dim], axis=1))
+        length += rotation_weight * (turn[:, 0] if self.dim == 2 else turn.max(axis=1))
         length[loop] = 0.0
         # one entry per pair of nodes, the shortest edge's: a sparse matrix sums duplicate entries, and two places
         # tied by several edges (tracking and wheel odometry, a loop and a pair) are no further apart for it
-        lo, hi = np.minimum(ei, ej), np.maximum(ei, ej)
-        order = np.lexsort((length, hi, lo))
-        first = np.ones(len(order), bool)
-        first[1:] = (lo[order][1:] != lo[order][:-1]) | (hi[order][1:] != hi[order][:-1])
-        keep = order[first]
-        G = sparse.csr_matrix((length[keep] + 1e-9, (lo[keep], hi[keep])), shape=(n, n))
+        pair = np.minimum(ei, ej) * n + np.maximum(ei, ej)
+        order = np.argsort(pair, kind="stable")
+        pair = pair[order]
+        first = np.flatnonzero(np.r_[True, pair[1:] != pair[:-1]])
+        shortest = np.minimum.reduceat(length[order], first)
+        G = sparse.csr_matrix((shortest + 1e-9, np.divmod(pair[first], n)), shape=(n, n))
         return csgraph.dijkstra(G, directed=False, indices=source, limit=limit)
 
     # ------------------------------------------------------------------------------------------ optimising

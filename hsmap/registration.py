@@ -498,8 +498,8 @@ def refine_icp(
             if ok.sum() < 2 * dim:
                 break
             p, q = moved[ok], target.points[idx[ok]]
-            dT = np.eye(dim + 1)
             if normals is None:
+                dT = np.eye(dim + 1)
                 mp, mq = p.mean(0), q.mean(0)
                 U, _, Vt = np.linalg.svd((p - mp).T @ (q - mq))
                 S = np.eye(dim)

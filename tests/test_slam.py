@@ -240,6 +240,25 @@ def test_seeds_include_odometry_velocity_and_mean(frames):
     assert len(no_odom.seeds(frames[4])[0]) == 3
 
 
+def test_odometry_step_follows_the_readings_however_often_it_is_asked():
+    from hsmap.slam.odometry import OdometryModel
+
+    frames = make_frames(route=ROUTE[:3])
+    model = OdometryModel(SlamConfig(), learn=False, wheel_edges=False)
+    model.advance(frames[0])
+    f = frames[1]
+    first = model.step(f)
+    np.testing.assert_array_equal(first, relative(frames[0].odometry, f.odometry))
+    first[:] = 99.0  # a caller's copy: changing it changes nothing held
+    np.testing.assert_array_equal(model.step(f), relative(frames[0].odometry, f.odometry))
+    moved = dataclasses.replace(f, odometry=f.odometry + np.array([0.1, 0.0, 0.0]))
+    np.testing.assert_array_equal(model.step(moved), relative(frames[0].odometry, moved.odometry))
+    model.previous[0] += 0.5  # the previous reading changed in place
+    np.testing.assert_array_equal(model.step(f), relative(model.previous, f.odometry))
+    model.advance(f)
+    np.testing.assert_array_equal(model.step(frames[2]), relative(frames[1].odometry, frames[2].odometry))
+
+
 def test_initial_pose(frames):
     start = np.array([1.0, 2.0, 0.5])
     res = run_slam(frames[:10], SlamConfig(), rng=0, initial_pose=start, progress=False)

@@ -275,6 +275,44 @@ def test_correlative_match_finds_a_pose_far_from_the_guess_and_flags_a_corridor(
     assert set(closer.rejections) <= {"far_ambiguous", "far_unconstrained"} and sum(closer.rejections.values()) == 1
 
 
+def test_coarse_peaks_are_the_full_correlations_and_the_same_for_any_thread_count():
+    from scipy import fft
+
+    from hsmap._threads import using_threads
+    from hsmap.loopclosure import _coarse_peaks, _likelihood_field, correlative_match_2d
+
+    src, tgt = _office_scan(np.array([3.0, 2.5, 1.0])), _office_scan(np.array([2.0, 2.0, 0.3]), 1)
+    rc, centre, half, sep_c, peaks = 0.8, np.array([1.0, 0.5]), 6.0, 3, 8
+    angles = 0.5 + np.deg2rad(1.0) * np.arange(-20, 21)
+    field_c, t0c = _likelihood_field(tgt, rc)
+    span = int(np.ceil(2 * np.linalg.norm(src, axis=1).max() / rc)) + 2
+    shape = [fft.next_fast_len(n + span - 1, real=True) for n in field_c.shape]
+    field_f = fft.rfft2(field_c, shape)
+    found = _coarse_peaks(angles, src, field_f, field_c.shape, shape, t0c, rc, centre, half, sep_c, peaks)
+    assert len(found) >= len(angles)
+    # the same cells, bit for bit, as the whole cross-correlation of each rotated image (rfft2, irfft2)
+    for yaw in angles[::10]:
+        p = src @ np.array([[np.cos(yaw), np.sin(yaw)], [-np.sin(yaw), np.cos(yaw)]])
+        s0 = p.min(axis=0)
+        si = np.floor((p - s0) / rc).astype(int)
+        h, w = si.max(axis=0) + 1
+        img = np.zeros((h, w))
+        img[si[:, 0], si[:, 1]] = 1.0
+        corr = fft.irfft2(field_f * fft.rfft2(img[::-1, ::-1], shape), shape) / img.sum()
+        off = t0c - s0 - np.array([h - 1, w - 1]) * rc
+        mine = [f for f in found if f[3] == float(yaw)]
+        assert mine and mine == sorted(mine, key=lambda f: -f[0])
+        for score, x, y, _ in mine:
+            m, k = np.rint((np.array([x, y]) - off) / rc).astype(int)
+            assert score == corr[m, k]
+    # the rotations shared between threads: the same match
+    with using_threads(1):
+        one = correlative_match_2d(src, tgt, np.array([1.0, 0.5, 0.5]), 6.0, np.deg2rad(40.0))
+    with using_threads(2):
+        two = correlative_match_2d(src, tgt, np.array([1.0, 0.5, 0.5]), 6.0, np.deg2rad(40.0))
+    assert np.array_equal(one[0], two[0]) and one[1:] == two[1:]
+
+
 def test_unique_cells_is_numpys_unique_rows():
     from hsmap.loopclosure import _unique_cells
 

@@ -78,6 +78,7 @@ class OdometryModel:
         self.wheel_edges = wheel_edges
         self.prior = prior
         self.previous: NDArray[np.float64] | None = None  # the last frame's odometry reading
+        self._last_step: tuple | None = None  # (both readings' bytes, their increment) of the last step
         self.outliers: list[int] = []
         self.scale = np.ones(2)
         self.bias = np.zeros(3)
@@ -101,10 +102,16 @@ class OdometryModel:
             return None
         if self.outliers and self.outliers[-1] == frame.index:
             return None
+        # a frame asks for its step several times (seeds, predictions, learning, wheel edges): the increment
+        # between the same two readings is computed once
+        key = np.asarray(self.previous, dtype=float).tobytes() + odom.tobytes()  # the readings, bit for bit
+        if self._last_step is not None and self._last_step[0] == key:
+            return self._last_step[1].copy()
         delta = relative(self.previous, odom)  # (x, y, yaw) increment in the robot frame
-        if self.config.dof == 3:
-            return delta
-        return np.array([delta[0], delta[1], 0.0, 0.0, 0.0, delta[2]])
+        if self.config.dof != 3:
+            delta = np.array([delta[0], delta[1], 0.0, 0.0, 0.0, delta[2]])
+        self._last_step = (key, delta)
+        return delta.copy()
 
     def advance(self, frame: Frame, motion: NDArray[np.float64] | None = None) -> None:
         """The frame is done: the next increment starts at its odometry (where it has one), or, where its step was

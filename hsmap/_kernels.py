@@ -310,13 +310,9 @@ def _range_voxel_keys(pts, voxel, rmin, rmax):  # pragma: no cover - JIT
 
 
 @nb.njit(cache=True, nogil=True)
-def voxel_centroids(pts, voxel, rmin=0.0, rmax=np.inf):  # pragma: no cover - JIT
-    """Centroid of the points in each occupied voxel (side `voxel`), in the order of their voxel keys.
-
-    Points that are not finite, or whose distance from the origin is outside [rmin, rmax], are skipped. The
-    voxels are found with a hash table (one pass over the points, which are summed in input order) and only the
-    occupied voxels' keys are sorted: a 131,072-point cloud has some 10-30 thousand voxels at 0.1-0.15 m.
-    """
+def _voxel_sums(pts, voxel, rmin, rmax):  # pragma: no cover - JIT
+    """Each kept point's voxel number (-1: skipped), the voxels' order by key, and per voxel the sum of its points
+    (in input order) and their count."""
     n, d = pts.shape
     voxel_of, ukeys, _, m = _number_voxels(*_range_voxel_keys(pts, voxel, rmin, rmax))
     sums = np.zeros((m, d))
@@ -328,13 +324,31 @@ def voxel_centroids(pts, voxel, rmin=0.0, rmax=np.inf):  # pragma: no cover - JI
         for j in range(d):
             sums[v, j] += pts[i, j]
         counts[v] += 1.0
-    order = np.argsort(ukeys[:m])
+    return voxel_of, np.argsort(ukeys[:m]), sums, counts
+
+
+@nb.njit(cache=True, nogil=True)
+def _centroids(order, sums, counts):  # pragma: no cover - JIT
+    """The voxels' mean points (M, d), in ``order``."""
+    m, d = sums.shape
     out = np.empty((m, d))
     for r in range(m):
         v = order[r]
         for j in range(d):
             out[r, j] = sums[v, j] / counts[v]
     return out
+
+
+@nb.njit(cache=True, nogil=True)
+def voxel_centroids(pts, voxel, rmin=0.0, rmax=np.inf):  # pragma: no cover - JIT
+    """Centroid of the points in each occupied voxel (side `voxel`), in the order of their voxel keys.
+
+    Points that are not finite, or whose distance from the origin is outside [rmin, rmax], are skipped. The
+    voxels are found with a hash table (one pass over the points, which are summed in input order) and only the
+    occupied voxels' keys are sorted: a 131,072-point cloud has some 10-30 thousand voxels at 0.1-0.15 m.
+    """
+    _, order, sums, counts = _voxel_sums(pts, voxel, rmin, rmax)
+    return _centroids(order, sums, counts)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -797,25 +811,9 @@ def bounding_box(points):  # pragma: no cover - JIT
 def voxel_centroids_with(pts, vals, voxel, rmin=0.0, rmax=np.inf):  # pragma: no cover - JIT
     """:func:`voxel_centroids` of points (N, d), and the mean of ``vals`` (N,) over each voxel (a point's time,
     say): (centroids (M, d), means (M,))."""
-    n, d = pts.shape
-    voxel_of, ukeys, _, m = _number_voxels(*_range_voxel_keys(pts, voxel, rmin, rmax))
-    sums = np.zeros((m, d))
-    vsums = np.zeros(m)
-    counts = np.zeros(m)
-    for i in range(n):
-        v = voxel_of[i]
-        if v < 0:
-            continue
-        for j in range(d):
-            sums[v, j] += pts[i, j]
-        vsums[v] += vals[i]
-        counts[v] += 1.0
-    order = np.argsort(ukeys[:m])
-    out = np.empty((m, d))
-    outv = np.empty(m)
-    for r in range(m):
-        v = order[r]
-        for j in range(d):
-            out[r, j] = sums[v, j] / counts[v]
-        outv[r] = vsums[v] / counts[v]
-    return out, outv
+    voxel_of, order, sums, counts = _voxel_sums(pts, voxel, rmin, rmax)
+    vsums = np.zeros(len(counts))
+    for i in range(len(voxel_of)):
+        if voxel_of[i] >= 0:
+            vsums[voxel_of[i]] += vals[i]
+    return _centroids(order, sums, counts), vsums[order] / counts[order]

@@ -57,11 +57,15 @@ def voxel_downsample(points: NDArray[np.floating], voxel: float, min_range: floa
     pts = np.asarray(points, dtype=float)
     if voxel <= 0 or len(pts) == 0:
         return pts
+    _check_voxel_reach(pts, voxel, max_range)
+    return _kernels.voxel_centroids(np.ascontiguousarray(pts), float(voxel), float(min_range), float(max_range))
+
+
+def _check_voxel_reach(pts: NDArray[np.float64], voxel: float, max_range: float) -> None:
+    """The downsampling's voxel keys hold +/- 2^20 voxels: refuse points (within ``max_range``) beyond them."""
     limit = min(max_range, float(np.nanmax(np.abs(pts), initial=0.0)))
     if limit >= (1 << 20) * voxel:
         raise InputError(f"points beyond +/-{(1 << 20) * voxel:.0f} m cannot be downsampled at {voxel} m voxels")
-
-    return _kernels.voxel_centroids(np.ascontiguousarray(pts), float(voxel), float(min_range), float(max_range))
 
 
 def voxel_downsample_with(points: NDArray[np.floating], values: NDArray[np.floating], voxel: float,
@@ -78,9 +82,7 @@ def voxel_downsample_with(points: NDArray[np.floating], values: NDArray[np.float
         raise ShapeError(f"values must have one entry per point ({len(pts)}), got {len(vals)}")
     if voxel <= 0 or len(pts) == 0:
         return pts, vals
-    limit = min(max_range, float(np.nanmax(np.abs(pts), initial=0.0)))
-    if limit >= (1 << 20) * voxel:
-        raise InputError(f"points beyond +/-{(1 << 20) * voxel:.0f} m cannot be downsampled at {voxel} m voxels")
+    _check_voxel_reach(pts, voxel, max_range)
     return _kernels.voxel_centroids_with(np.ascontiguousarray(pts), np.ascontiguousarray(vals), float(voxel),
                                          float(min_range), float(max_range))
 

@@ -135,7 +135,6 @@ class NeighbourGrid:
             f.result()
         return d, idx
 
-
     def _hint_places(self, hint: ArrayLike | None, n: int) -> NDArray[np.int64]:
         """The hinted rows' places in the sorted points (-1: no hint), (n,)."""
         if hint is None:

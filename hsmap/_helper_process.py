@@ -35,13 +35,6 @@ class HelperProcessError(RuntimeError):
     """The helper process could not answer a call (it raised there, died, or never started)."""
 
 
-def _write(stream: BinaryIO, obj: Any) -> None:
-    data = pickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL)
-    stream.write(_HEADER.pack(len(data)))
-    stream.write(data)
-    stream.flush()
-
-
 def _read(stream: BinaryIO) -> Any:
     head = stream.read(_HEADER.size)
     if len(head) < _HEADER.size:
@@ -59,7 +52,10 @@ class HelperProcess:
     def __init__(self) -> None:
         to_child_r, to_child_w = os.pipe()
         from_child_r, from_child_w = os.pipe()
-        env = dict(os.environ, HSMAP_THREADS="1", NUMBA_NUM_THREADS="1")
+        # the child imports this very hsmap, wherever the caller found it
+        here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+        path = os.pathsep.join(p for p in (here, os.environ.get("PYTHONPATH", "")) if p)
+        env = dict(os.environ, HSMAP_THREADS="1", NUMBA_NUM_THREADS="1", PYTHONPATH=path)
         try:
             self._proc = subprocess.Popen(
                 [sys.executable, "-m", "hsmap._helper_process", str(to_child_r), str(from_child_w)],
@@ -214,7 +210,13 @@ def _serve(read_fd: int, write_fd: int) -> None:
                 answer = (True, fn(*args))
             except Exception as exc:  # the caller computes it itself; it needs only the reason
                 answer = (False, f"{module}.{name} raised {type(exc).__name__}: {exc}")
-            _write(answers, answer)
+            try:
+                data = pickle.dumps(answer, protocol=pickle.HIGHEST_PROTOCOL)
+            except Exception as exc:
+                data = pickle.dumps((False, f"{module}.{name} gave an answer that cannot be sent back: {exc}"))
+            answers.write(_HEADER.pack(len(data)))
+            answers.write(data)
+            answers.flush()
 
 
 if __name__ == "__main__":

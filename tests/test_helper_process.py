@@ -34,6 +34,10 @@ def test_a_call_that_raises_fails_alone(helper):
     with pytest.raises(HelperProcessError, match="math.sqrt raised ValueError"):
         bad.result(timeout=60)
     assert helper.submit(math.sqrt, 4.0).result(timeout=60) == 2.0
+    unsendable = helper.submit(__import__("importlib").import_module, "math")  # a module cannot be pickled
+    with pytest.raises(HelperProcessError, match="cannot be sent back"):
+        unsendable.result(timeout=60)
+    assert helper.alive and helper.submit(math.sqrt, 9.0).result(timeout=60) == 3.0
 
 
 def test_a_dead_helper_fails_its_calls_and_is_replaced(monkeypatch):

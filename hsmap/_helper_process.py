@@ -16,6 +16,7 @@ import importlib
 import os
 import pickle
 import queue
+import signal
 import struct
 import subprocess
 import sys
@@ -155,23 +156,32 @@ class HelperProcess:
         self._reader.join(timeout=5)
 
 
+#: Helper processes one process may start: after that many died, its callers compute everything themselves.
+MAX_STARTS = 3
+
 _helper: HelperProcess | None = None
 _helper_pid = 0
+_starts = 0
 _helper_lock = threading.Lock()
 
 
 def helper_process() -> HelperProcess | None:
-    """The helper process, started on first use and kept until exit (a new one after it died or in a forked
-    child); None where none can run (not POSIX, or it failed to start)."""
-    global _helper, _helper_pid
+    """The helper process, started on first use and kept until exit (a new one after it died, at most
+    :data:`MAX_STARTS` in all, or in a forked child); None where none can run (not POSIX, it failed to start, or
+    too many died)."""
+    global _helper, _helper_pid, _starts
     if os.name != "posix":
         return None
     with _helper_lock:
-        if _helper is None or not _helper.alive or _helper_pid != os.getpid():
-            if _helper is not None and _helper_pid == os.getpid():
-                _helper.close()
+        if _helper_pid != os.getpid():
+            _helper, _helper_pid, _starts = None, os.getpid(), 0
+        if _helper is not None and not _helper.alive:
+            _helper.close()
+            _helper = None
+        if _helper is None and _starts < MAX_STARTS:
+            _starts += 1
             try:
-                _helper, _helper_pid = HelperProcess(), os.getpid()
+                _helper = HelperProcess()
             except OSError:
                 _helper = None
         return _helper
@@ -196,7 +206,9 @@ def _close_helper() -> None:
 
 
 def _serve(read_fd: int, write_fd: int) -> None:
-    """The child's loop: read a call, run it, write ``(True, answer)`` or ``(False, why)``, until the pipe closes."""
+    """The child's loop: read a call, run it, write ``(True, answer)`` or ``(False, why)``, until the pipe closes.
+    Ctrl-C reaches the caller's whole process group: the child leaves it to the caller, whose exit closes the pipe."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     with os.fdopen(read_fd, "rb") as calls, os.fdopen(write_fd, "wb") as answers:
         while True:
             try:

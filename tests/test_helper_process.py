@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from test_slam import make_frames
 
+from hsmap import _helper_process as hp
 from hsmap._helper_process import HelperProcess, HelperProcessError, helper_cpu_seconds, helper_process
 from hsmap.slam import SlamConfig, run_slam
 from hsmap.slam import motions as motions_module
@@ -49,6 +50,11 @@ def test_a_dead_helper_fails_its_calls_and_is_replaced(monkeypatch):
         first.submit(math.sqrt, 4.0).result(timeout=60)
     second = helper_process()
     assert second is not first and second.submit(math.sqrt, 16.0).result(timeout=60) == 4.0
+    monkeypatch.setattr(hp, "_starts", hp.MAX_STARTS)  # as many died as may: no more are started
+    second.close()
+    assert helper_process() is None
+    monkeypatch.setattr(hp, "_starts", 0)
+    assert helper_process() is not None
 
 
 def test_the_helper_reports_its_cpu_time():

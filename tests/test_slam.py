@@ -646,6 +646,43 @@ def test_a_retried_registration_stays_in_the_box_it_searched(monkeypatch):
     np.testing.assert_allclose(out.pose, [0.1, -0.2, np.pi - 0.01])
 
 
+def test_a_prior_s_prediction_stands_against_a_retry_that_slid_beyond_its_gate(monkeypatch):
+    """A prediction from a prior trajectory (another SLAM run) does not slip as wheels do. In a corridor the
+    retry's refinement slides along the free axis, inside its box (at least two voxels wide) but beyond the
+    prediction's gate: with a prior the prediction stands unless the slide aligns the scan clearly better; with
+    wheel odometry the slide stands as before (a 6-DOF run in a simulated office slid 0.23 m so, its 2D prior right
+    to 3 mm)."""
+    from hsmap.geometry import pose_to_matrix
+    from hsmap.registration import RegistrationTarget, harmony_icp
+    from hsmap.slam import frame_points
+    from hsmap.slam import verify as slam_module
+
+    walls = np.array([((-20.0, y), (20.0, y)) for y in (-0.8, 0.8)])
+    truth = np.array([0.0, 0.0, 0.0])
+    r, a = raycast_2d(walls, truth, noise=0.005, rng=np.random.default_rng(3))
+    frame = Frame(stamp=1.0, scan2d=LaserScan2D(r, a, 0.05, 10.0), odometry=truth.copy(), index=1)
+    cfg = SlamConfig()
+    scan = frame_points(frame, 3, 0.1, 30.0, cfg.effective_scan_voxel())
+    target = RegistrationTarget(np.vstack([np.column_stack([np.linspace(-15, 15, 601), np.full(601, y)])
+                                           for y in (-0.8, 0.8)]), cfg.registration)
+    sig = np.array([0.005, np.deg2rad(0.5)])  # a gate of verify_sigmas x 5 mm, a box of two voxels
+    gate, box = cfg.verify_sigmas * sig[0], 2 * cfg.effective_scan_voxel()
+    assert gate < 0.04 < box
+    first = harmony_icp(scan, target, initial_guesses=[[0.9, 0.0, 0.0]], config=cfg.registration, rng=1)
+    first = dataclasses.replace(first, pose=np.array([0.9, first.pose[1], first.pose[2]]))  # 0.9 m along
+    slid = dataclasses.replace(first, pose=np.array([0.04, 0.0, 0.0]),  # in the box, beyond the gate
+                               transformation=pose_to_matrix(np.array([0.04, 0.0, 0.0])))
+    monkeypatch.setattr(slam_module, "harmony_icp", lambda *a, **k: slid)
+    half = np.array([0.3, 0.3, np.deg2rad(4.0)])
+    for prior, expected in ((True, truth), (False, slid.pose)):
+        verifier = slam_module.Verifier(cfg, prior=prior)
+        kept, retried, verified = verifier.verify(scan, target, first, lambda gate: (truth.copy(), sig), half,
+                                                  np.random.default_rng(0))
+        assert retried and verified
+        np.testing.assert_allclose(kept.pose, expected, atol=1e-12)
+        np.testing.assert_allclose(kept.transformation[:2, 2], expected[:2], atol=1e-12)
+
+
 def test_a_registration_overrules_the_prediction_only_on_evidence():
     """The first registration stands against the motion prediction only if its residuals are lower beyond
     chance, over enough points: a few points fitting better, or a handful of matches, do not overrule the

@@ -120,7 +120,7 @@ class HsSlam:
                                       wheel_edges=cfg.dof == 3 and prior is None and cfg.graph.odometry_edges,
                                       prior=prior is not None)
         self.costs = Costs()
-        self.verifier = Verifier(cfg, costs=self.costs)
+        self.verifier = Verifier(cfg, costs=self.costs, prior=prior is not None)
         self.keyframe_graph = KeyframeGraph(cfg, self.odometry, loop_rng, costs=self.costs)
         self._smooth = cfg.smoothing and cfg.dof == 3 and prior is None
         self.motions = FrameMotions(cfg, self.odometry, self.costs) if self._smooth else None  # the smoothing's

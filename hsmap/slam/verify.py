@@ -109,12 +109,16 @@ class Verifier:
     config : SlamConfig
     costs : Costs, optional
         Counts the retries' registrations.
+    prior : bool
+        The predictions come from a prior trajectory (another SLAM run), which does not slip as wheels do: a retry
+        that ends beyond the prediction's gate must then align the scan clearly better than the prediction itself.
     """
 
-    def __init__(self, config: SlamConfig, *, costs: Costs | None = None) -> None:
+    def __init__(self, config: SlamConfig, *, costs: Costs | None = None, prior: bool = False) -> None:
         self.config = config
         self.dim = config.dim
         self.costs = costs if costs is not None else Costs()
+        self.prior = prior
 
     def verify(self, scan: NDArray[np.float64], target: RegistrationTarget, res: RegistrationResult,
                predict: Callable[[bool], Prediction], half: NDArray[np.float64], rng: np.random.Generator,
@@ -140,7 +144,7 @@ class Verifier:
         d = relative(centre, res.pose)
         reg = cfg.registration
 
-        def within(s: NDArray[np.float64]) -> bool:
+        def within(s: NDArray[np.float64], d: NDArray[np.float64] = d) -> bool:
             return bool(np.linalg.norm(d[:2]) <= cfg.verify_sigmas * s[0]
                         and abs(wrap_angle(d[-1])) <= cfg.verify_sigmas * s[1])
 
@@ -180,6 +184,13 @@ class Verifier:
             # stands for the retry where it aligns the scan better
             r_centre = residuals(scan, target, centre, reg.threshold)
             if truncated_residual(r_centre, reg.threshold) < truncated_residual(r_alt, reg.threshold):
+                boxed, r_alt = replace(alt, pose=centre.copy(), transformation=pose_to_matrix(centre)), r_centre
+                at_prediction = True
+        elif self.prior and not within(sig, relative(centre, boxed.pose)):
+            # a prior's prediction does not slip: a retry that slid beyond its gate (along a direction the scan
+            # hardly constrains, the box being at least two voxels wide) needs the evidence the first did
+            r_centre = residuals(scan, target, centre, reg.threshold)
+            if not at_least_as_good(r_alt, r_centre, self.dim, strict=True):
                 boxed, r_alt = replace(alt, pose=centre.copy(), transformation=pose_to_matrix(centre)), r_centre
                 at_prediction = True
         alt = boxed

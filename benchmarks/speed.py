@@ -107,7 +107,7 @@ def bench_freiburg(name: str, datasets: Path, max_frames: int | None, repeats: i
 
     from slam import FREIBURG  # benchmarks/slam.py
 
-    from hsmap._helper_process import helper_cpu_seconds
+    from hsmap._helper_process import cpu_seconds
     from hsmap.cli import main as hsmap_main
 
     spec = FREIBURG[name]
@@ -131,9 +131,9 @@ def bench_freiburg(name: str, datasets: Path, max_frames: int | None, repeats: i
                 argv = base + ["--out", str(out_dir)] + (["--no-recording"] if kind == "no_recording" else [])
                 load = load_average()
                 # CPU: this process's and the helper process's (the smoothing's scan matches)
-                t0, c0 = time.perf_counter(), time.process_time() + helper_cpu_seconds()
+                t0, c0 = time.perf_counter(), cpu_seconds()
                 rc = hsmap_main(argv)
-                wall, cpu = time.perf_counter() - t0, time.process_time() + helper_cpu_seconds() - c0
+                wall, cpu = time.perf_counter() - t0, cpu_seconds() - c0
                 if rc != 0:
                     raise SystemExit(f"hsmap {' '.join(argv)} exited {rc}")
                 m = json.loads((out_dir / "metrics.json").read_text())

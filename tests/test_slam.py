@@ -650,8 +650,7 @@ def test_a_prior_s_prediction_stands_against_a_retry_that_slid_beyond_its_gate(m
     """A prediction from a prior trajectory (another SLAM run) does not slip as wheels do. In a corridor the
     retry's refinement slides along the free axis, inside its box (at least two voxels wide) but beyond the
     prediction's gate: with a prior the prediction stands unless the slide aligns the scan clearly better; with
-    wheel odometry the slide stands as before (a 6-DOF run in a simulated office slid 0.23 m so, its 2D prior right
-    to 3 mm)."""
+    wheel odometry the slide stands."""
     from hsmap.geometry import pose_to_matrix
     from hsmap.registration import RegistrationTarget, harmony_icp
     from hsmap.slam import frame_points

@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._blas import blas_limited
-from .._helper_process import helper_cpu_seconds
+from .._helper_process import cpu_seconds
 from .._threads import threads_limited
 from ..config import dump_config, to_dict
 from ..datasets.frames import Dataset, Frame
@@ -209,7 +209,7 @@ def run_slam(
     total = len(dataset) if isinstance(dataset, Dataset) else None
     if max_frames is not None:
         total = min(total, max_frames) if total is not None else max_frames
-    t0, c0 = time.perf_counter(), time.process_time() + helper_cpu_seconds()  # the helper process's CPU too
+    t0, c0 = time.perf_counter(), cpu_seconds()  # the helper process's CPU too
     bar = tqdm(total=total, unit="scan", disable=None if progress is None else not progress,
                desc=f"HS-SLAM {slam.config.dof}-DOF")
     source = str(getattr(dataset, "path", "") or getattr(dataset, "name", "") or "the input")
@@ -247,7 +247,7 @@ def run_slam(
     slam.finish()
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     return SlamResult(slam.trajectory, slam.global_map(), slam.results, slam.config, time.perf_counter() - t0,
-                      peak, getattr(dataset, "name", ""), time.process_time() + helper_cpu_seconds() - c0,
+                      peak, getattr(dataset, "name", ""), cpu_seconds() - c0,
                       loop_closure=slam.loop_summary(), tracked=slam.tracked_trajectory, skipped=skipped,
                       prior=prior_info, input_info=dataset.describe() if isinstance(dataset, Dataset) else {},
                       odometry=slam.odometry_summary(), smoothing=slam.smoothing_summary(),

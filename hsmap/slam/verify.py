@@ -178,19 +178,16 @@ class Verifier:
         if r_first is None:
             r_first = residuals(scan, target, res.pose, reg.threshold)
         r_alt = residuals(scan, target, boxed.pose, reg.threshold)
+        # the prediction itself may stand for the retry: where the retry slid out of its box (the box's edge is no
+        # pose the scan chose) and the prediction aligns the scan better; or, a prior's prediction not slipping as
+        # wheels do, where the retry slid beyond the gate (along a direction the scan hardly constrains, the box
+        # being at least two voxels wide) without the evidence the first registration needs
+        out_of_box = boxed is not alt
         at_prediction = False
-        if boxed is not alt:
-            # the retry slid out of its box: the box's edge is no pose the scan chose, so the prediction itself
-            # stands for the retry where it aligns the scan better
+        if out_of_box or (self.prior and not within(sig, relative(centre, boxed.pose))):
             r_centre = residuals(scan, target, centre, reg.threshold)
-            if truncated_residual(r_centre, reg.threshold) < truncated_residual(r_alt, reg.threshold):
-                boxed, r_alt = replace(alt, pose=centre.copy(), transformation=pose_to_matrix(centre)), r_centre
-                at_prediction = True
-        elif self.prior and not within(sig, relative(centre, boxed.pose)):
-            # a prior's prediction does not slip: a retry that slid beyond its gate (along a direction the scan
-            # hardly constrains, the box being at least two voxels wide) needs the evidence the first did
-            r_centre = residuals(scan, target, centre, reg.threshold)
-            if not at_least_as_good(r_alt, r_centre, self.dim, strict=True):
+            if (truncated_residual(r_centre, reg.threshold) < truncated_residual(r_alt, reg.threshold) if out_of_box
+                    else not at_least_as_good(r_alt, r_centre, self.dim, strict=True)):
                 boxed, r_alt = replace(alt, pose=centre.copy(), transformation=pose_to_matrix(centre)), r_centre
                 at_prediction = True
         alt = boxed

@@ -105,7 +105,7 @@ class HelperProcess:
                 self._to_child.flush()
         except (OSError, ValueError) as exc:
             with self._lock:
-                self._fail(f"the helper process took no call: {exc}")
+                self._fail(f"the helper process stopped taking calls: {exc}")
         finally:
             try:
                 self._to_child.close()  # the child's end of the calls: it stops

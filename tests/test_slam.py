@@ -2,6 +2,7 @@
 
 import dataclasses
 import json
+import types
 
 import numpy as np
 import pytest
@@ -680,6 +681,80 @@ def test_a_prior_s_prediction_stands_against_a_retry_that_slid_beyond_its_gate(m
         assert retried and verified
         np.testing.assert_allclose(kept.pose, expected, atol=1e-12)
         np.testing.assert_allclose(kept.transformation[:2, 2], expected[:2], atol=1e-12)
+
+
+def test_a_prior_s_prediction_is_overruled_only_with_the_wheels_consent(monkeypatch):
+    """In a run seeded by a prior, a pose beyond the prediction's gate that aligns the scan clearly better, the
+    retry's or the first registration's, stands only where ``overrule`` (the wheels) confirms it."""
+    from hsmap.geometry import pose_to_matrix
+    from hsmap.registration import RegistrationTarget
+    from hsmap.slam import frame_points
+    from hsmap.slam import verify as slam_module
+
+    walls = np.array([((-20.0, y), (20.0, y)) for y in (-0.8, 0.8)])
+    truth = np.array([0.0, 0.0, 0.0])
+    r, a = raycast_2d(walls, truth, noise=0.005, rng=np.random.default_rng(3))
+    frame = Frame(stamp=1.0, scan2d=LaserScan2D(r, a, 0.05, 10.0), odometry=truth.copy(), index=1)
+    cfg = SlamConfig()
+    scan = frame_points(frame, 3, 0.1, 30.0, cfg.effective_scan_voxel())
+    target = RegistrationTarget(np.vstack([np.column_stack([np.linspace(-15, 15, 601), np.full(601, y)])
+                                           for y in (-0.8, 0.8)]), cfg.registration)
+    predicted = np.array([0.0, 0.05, 0.0])  # 5 cm off the corridor's centre line: the truth aligns clearly better
+    sig = np.array([0.005, np.deg2rad(0.5)])
+    half = np.array([0.3, 0.3, np.deg2rad(4.0)])
+
+    def result(pose):
+        return dataclasses.replace(_registration_at(scan, target, cfg), pose=np.asarray(pose, dtype=float),
+                                   transformation=pose_to_matrix(np.asarray(pose, dtype=float)))
+
+    # the retry ends at the truth, beyond the gate: it stands with the wheels' consent, else the prediction
+    monkeypatch.setattr(slam_module, "harmony_icp", lambda *a, **k: result(truth))
+    for consent, expected in ((True, truth), (False, predicted)):
+        verifier = slam_module.Verifier(cfg, prior=True)
+        kept, retried, _ = verifier.verify(scan, target, result(truth), lambda gate: (predicted.copy(), sig), half,
+                                           np.random.default_rng(0), overrule=lambda res, consent=consent: consent)
+        assert retried
+        np.testing.assert_allclose(kept.pose, expected, atol=1e-12)
+    # the retry confirms the prediction; the first registration, at the truth, stands only with the wheels' consent
+    monkeypatch.setattr(slam_module, "harmony_icp", lambda *a, **k: result(predicted))
+    for consent, expected in ((True, truth), (False, predicted)):
+        verifier = slam_module.Verifier(cfg, prior=True)
+        kept, retried, _ = verifier.verify(scan, target, result(truth), lambda gate: (predicted.copy(), sig), half,
+                                           np.random.default_rng(0), overrule=lambda res, consent=consent: consent)
+        assert retried
+        np.testing.assert_allclose(kept.pose, expected, atol=1e-12)
+
+
+def _registration_at(scan, target, cfg):
+    from hsmap.registration import harmony_icp
+
+    return harmony_icp(scan, target, initial_guesses=[[0.0, 0.0, 0.0]], config=cfg.registration, rng=1)
+
+
+def test_the_wheels_replace_a_prior_s_step_that_jumped():
+    """A 6-DOF run seeded by a prior: where the frame's odometry step contradicts the prior's and confirms the
+    registration, the odometry predicts the frame; where it confirms the prior, or the frame has none, the prior
+    does."""
+    prior = Trajectory([0.0, 1.0, 2.0], [[0, 0, 0], [0.5, 0, 0], [1.2, 0, 0]])  # the second step jumped 0.2 m
+    slam = HsSlam(SlamConfig(dof=6), prior=prior)
+    slam.poses += [np.zeros(6), np.array([0.5, 0, 0, 0, 0, 0])]
+    slam.stamps += [0.0, 1.0]
+    slam.odometry.previous = np.array([10.0, 0.0, 0.0])
+
+    def registered(x):  # a registration's pose is all the check reads
+        return types.SimpleNamespace(pose=np.array([x, 0, 0, 0, 0, 0.0]))
+
+    def frame(odometry):
+        return Frame(stamp=2.0, cloud3d=np.zeros((10, 3)), odometry=odometry, index=2)
+
+    wheels = frame(np.array([10.5, 0.0, 0.0]))  # the wheels moved 0.5 m, as the robot did
+    assert slam._prior_contradicted(wheels, registered(1.0))
+    slam._wheels_predict = True
+    np.testing.assert_allclose(slam.prediction(wheels)[0], [1.0, 0, 0, 0, 0, 0], atol=1e-12)
+    assert not slam._prior_contradicted(wheels, registered(1.2))  # the registration sides with the prior
+    assert not slam._prior_contradicted(frame(np.array([10.7, 0.0, 0.0])), registered(1.0))  # wheels agree
+    assert not slam._prior_contradicted(frame(None), registered(1.0))
+    np.testing.assert_allclose(slam.prediction(frame(None))[0], [1.2, 0, 0, 0, 0, 0], atol=1e-12)
 
 
 def test_a_registration_overrules_the_prediction_only_on_evidence():

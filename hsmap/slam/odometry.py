@@ -155,6 +155,18 @@ class OdometryModel:
                       "used", HsmapWarning, stacklevel=3)
         return True
 
+    def confirms(self, frame: Frame, previous_pose: NDArray[np.float64], pose: NDArray[np.float64]) -> bool:
+        """Whether the frame's odometry step from ``previous_pose`` ends within ``verify_sigmas`` of the gate's
+        sigmas (:meth:`sigma` with ``gate``) of ``pose``; True for a frame without an odometry step."""
+        step = self.step(frame)
+        if step is None:
+            return True
+        step = self.corrected(step)
+        st, sr = self.model_sigmas(step, self.sigma(gate=True))
+        d = relative(compose(previous_pose, step), pose)
+        k = self.config.verify_sigmas
+        return bool(np.linalg.norm(d[:2]) <= k * st and np.abs(wrap_angle(d[self.dim:])).max() <= k * sr)
+
     def sigma(self, gate: bool = False) -> tuple[float, ...]:
         """The sigma model (``SlamConfig.odometry_sigma``) scaled by what was learned (``gate``: never below the
         configured model)."""

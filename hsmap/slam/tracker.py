@@ -112,6 +112,7 @@ class HsSlam:
             raise InputError(f"initial_pose must have {cfg.dof} values, got shape {self._initial.shape}")
         self._odometry_track = odometry if cfg.dof == 3 and cfg.use_odometry and odometry is not None else None
         self._prior = None
+        self._wheels_predict = False  # this frame's prediction is the odometry's, not the prior's
         if prior is not None:
             if cfg.dof != 6:
                 raise InputError("a prior trajectory seeds 6-DOF runs only (dof=6)")
@@ -184,7 +185,8 @@ class HsSlam:
     def prediction(self, frame: Frame, gate: bool = False) -> Prediction:
         """The predicted pose of ``frame`` and the sigmas (translation, yaw) of its x/y and yaw, or None.
 
-        The previous pose moved by: (6-DOF) the prior trajectory's motion (``prior_sigma``); else the odometry
+        The previous pose moved by: (6-DOF) the prior trajectory's motion (``prior_sigma``), unless the wheels
+        contradict it and confirm the frame's registration instead (:meth:`_prior_contradicted`); else the odometry
         increment (``odometry_sigma``, learned; ``gate``: never tighter than configured); else the last motion
         repeated (``motion_sigma``). None for the first two frames with none of these.
         """
@@ -193,7 +195,7 @@ class HsSlam:
         step, model = None, None
         prior_now = self._prior_pose(frame.stamp)
         prior_prev = self._prior_pose(self.stamps[-1]) if prior_now is not None else None
-        if prior_now is not None and prior_prev is not None:
+        if prior_now is not None and prior_prev is not None and not self._wheels_predict:
             step, model = relative(prior_prev, prior_now), cfg.prior_sigma
             step[2:5] = 0.0  # the prior knows x, y and yaw only
         elif (odo := self.odometry.step(frame)) is not None:
@@ -208,13 +210,33 @@ class HsSlam:
         pred[self.dim:] = prev[self.dim:] + wrap_angle(pred[self.dim:] - prev[self.dim:])
         return pred, sig
 
+    def _prior_contradicted(self, frame: Frame, res: RegistrationResult) -> bool:
+        """A run seeded by a prior: whether the frame's odometry step contradicts the prior's prediction and
+        confirms the registration ``res`` instead (the prior's own step jumped, as a 2D run's may along a corridor);
+        the odometry then predicts the frame."""
+        if self._prior is None:
+            return False
+        self._wheels_predict = False
+        pred = self.prediction(frame)
+        if pred is None:
+            return False
+        prev = self.poses[-1]
+        return not self.odometry.confirms(frame, prev, pred[0]) and self.odometry.confirms(frame, prev, res.pose)
+
     # ---------------------------------------------------------------------------------------------- loop
     def _verify(self, frame: Frame, scan: NDArray[np.float64], res: RegistrationResult
                 ) -> tuple[RegistrationResult, bool, bool]:
-        """:meth:`Verifier.verify` of a registration of ``frame`` against the current target."""
+        """:meth:`Verifier.verify` of a registration of ``frame`` against the current target. In a run seeded by a
+        prior, a registration beyond the prior's gate overrules it only where the wheel odometry confirms it: two
+        agreeing sources outweigh a scan that aligns better by aliasing (a wall seen through a door, a scene not yet
+        mapped), while a prior whose own step jumped is overruled."""
+        overrule = None
+        if self._prior is not None:
+            def overrule(r: RegistrationResult) -> bool:
+                return self.odometry.confirms(frame, self.poses[-1], r.pose)
         return self.verifier.verify(scan, self.keyframe_graph.target, res,
                                     lambda gate: self.prediction(frame, gate), self._ranges(prior=False), self.rng,
-                                    lambda r: self.odometry.set_aside(frame, r, self.poses))
+                                    lambda r: self.odometry.set_aside(frame, r, self.poses), overrule)
 
     def process(self, frame: Frame) -> FrameResult:
         """Register one frame and update the map (and the pose graph); returns what was done."""
@@ -247,6 +269,7 @@ class HsSlam:
                               config=cfg.registration, rng=self.rng)
             self.costs.registration(res.evaluations)
             self.odometry.learn_bias(frame, res, self.poses[-1])
+            self._wheels_predict = self._prior_contradicted(frame, res)
             res, retried, verified = self._verify(frame, scan, res)
             if times is not None:
                 res, scan = self._refine_sweep(scan, times, target, res)

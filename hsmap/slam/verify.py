@@ -122,7 +122,8 @@ class Verifier:
 
     def verify(self, scan: NDArray[np.float64], target: RegistrationTarget, res: RegistrationResult,
                predict: Callable[[bool], Prediction], half: NDArray[np.float64], rng: np.random.Generator,
-               set_aside: Callable[[RegistrationResult], bool] | None = None
+               set_aside: Callable[[RegistrationResult], bool] | None = None,
+               overrule: Callable[[RegistrationResult], bool] | None = None
                ) -> tuple[RegistrationResult, bool, bool]:
         """Check a registration ``res`` of ``scan`` (N, dim) against the prediction; retry around the prediction
         when they disagree.
@@ -132,7 +133,8 @@ class Verifier:
         of its scan, of the learned ones (``predict(False)``). The retry searches the box of the prediction's
         uncertainty (within ``half``, the tracking's box) and the pose that aligns the scan clearly better wins.
         A registration beyond the gate stands as it is where ``set_aside(res)`` sets the odometry step aside
-        (:meth:`hsmap.slam.odometry.OdometryModel.set_aside`).
+        (:meth:`hsmap.slam.odometry.OdometryModel.set_aside`); it overrules the retry only where ``overrule(res)``
+        (default: always; a run seeded by a prior: where the wheels side with it).
 
         Returns the registration to keep, whether it was retried, and whether its pose is confirmed.
         """
@@ -178,25 +180,29 @@ class Verifier:
         if r_first is None:
             r_first = residuals(scan, target, res.pose, reg.threshold)
         r_alt = residuals(scan, target, boxed.pose, reg.threshold)
-        # the prediction itself may stand for the retry: where the retry slid out of its box (the box's edge is no
-        # pose the scan chose) and the prediction aligns the scan better; or, a prior's prediction not slipping as
-        # wheels do, where the retry slid beyond the gate (along a direction the scan hardly constrains, the box
-        # being at least two voxels wide) without the evidence the first registration needs
+        # the prediction itself may stand for the retry: a prior's prediction, which does not slip as wheels do,
+        # wherever the retry ended beyond the gate (sliding along a direction the scan hardly constrains, the box
+        # being at least two voxels wide) without the evidence the first registration needs or without
+        # ``overrule``'s consent; else where the retry slid out of its box (the box's edge is no pose the scan
+        # chose) and the prediction aligns the scan better
         out_of_box = boxed is not alt
+        beyond = self.prior and not within(sig, relative(centre, boxed.pose))
         at_prediction = False
-        if out_of_box or (self.prior and not within(sig, relative(centre, boxed.pose))):
+        if out_of_box or beyond:
             r_centre = residuals(scan, target, centre, reg.threshold)
-            if (truncated_residual(r_centre, reg.threshold) < truncated_residual(r_alt, reg.threshold) if out_of_box
-                    else not at_least_as_good(r_alt, r_centre, self.dim, strict=True)):
+            if (not (at_least_as_good(r_alt, r_centre, self.dim, strict=True) and (overrule is None or overrule(boxed)))
+                    if beyond else
+                    truncated_residual(r_centre, reg.threshold) < truncated_residual(r_alt, reg.threshold)):
                 boxed, r_alt = replace(alt, pose=centre.copy(), transformation=pose_to_matrix(centre)), r_centre
                 at_prediction = True
         alt = boxed
         # the first registration stands only if it aligns the scan clearly better (the odometry slipped), or,
         # against the prediction itself, explains it at least twice as well
         first_matched = matched_share(r_first)
-        if at_least_as_good(r_first, r_alt, self.dim, strict=True) or (
+        if (at_least_as_good(r_first, r_alt, self.dim, strict=True) or (
                 at_prediction and first_matched >= STRICT_MIN_MATCHED
-                and truncated_residual(r_first, reg.threshold) < 0.5 * truncated_residual(r_alt, reg.threshold)):
+                and truncated_residual(r_first, reg.threshold) < 0.5 * truncated_residual(r_alt, reg.threshold))
+                ) and (overrule is None or overrule(res)):
             return res, True, True
         # a registration that explains too little of its scan cannot veto the prediction either: the scan sees
         # space the map does not hold

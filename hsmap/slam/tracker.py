@@ -190,12 +190,15 @@ class HsSlam:
         increment (``odometry_sigma``, learned; ``gate``: never tighter than configured); else the last motion
         repeated (``motion_sigma``). None for the first two frames with none of these.
         """
+        return self._predict(frame, gate, use_prior=not self._wheels_predict)
+
+    def _predict(self, frame: Frame, gate: bool, use_prior: bool) -> Prediction:
         cfg = self.config
         prev = self.poses[-1]
         step, model = None, None
-        prior_now = self._prior_pose(frame.stamp)
+        prior_now = self._prior_pose(frame.stamp) if use_prior else None
         prior_prev = self._prior_pose(self.stamps[-1]) if prior_now is not None else None
-        if prior_now is not None and prior_prev is not None and not self._wheels_predict:
+        if prior_now is not None and prior_prev is not None:
             step, model = relative(prior_prev, prior_now), cfg.prior_sigma
             step[2:5] = 0.0  # the prior knows x, y and yaw only
         elif (odo := self.odometry.step(frame)) is not None:
@@ -216,8 +219,7 @@ class HsSlam:
         the odometry then predicts the frame."""
         if self._prior is None:
             return False
-        self._wheels_predict = False
-        pred = self.prediction(frame)
+        pred = self._predict(frame, False, use_prior=True)
         if pred is None:
             return False
         prev = self.poses[-1]

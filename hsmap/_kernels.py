@@ -23,8 +23,8 @@ PARALLEL_MIN_WORK = 32768
 
 #: _score_pose's fastmath flags: all but 'reassoc'. It is inlined into the kernels that call it, and with 'reassoc'
 #: LLVM may vectorise its sum over the points (another order of additions) in one compilation and not in
-#: another: a run that compiled the kernels gave other last bits than a run that loaded them from numba's cache
-#: (intel seed 1: 442 loops against 439 from frame 3437 on). Without it the sum keeps its order.
+#: another: a run that compiled the kernels could give other last bits than a run that loaded them from numba's
+#: cache. Without it the sum keeps its order.
 SCORE_FASTMATH = {"nnan", "ninf", "nsz", "arcp", "contract", "afn"}
 
 

@@ -12,7 +12,7 @@ take a robust Cauchy kernel, and :meth:`PoseGraph.optimize` switches off those w
 chi-square gate after optimisation, so that a false closure cannot bend the map), ``pair`` (scan-to-scan
 registrations between two overlapping keyframes, Lu and Milios 1997; robust and gated as loops are, but all those
 beyond the gate are switched off in one round: a pair starts from the graph's own relative pose and cannot bend the
-map as a false loop can, while re-optimising once per rejected pair had tripled the optimisations' time on intel) and
+map as a false loop can, and one round for all of them keeps the re-optimisations few) and
 ``prior`` (absolute poses, unary).
 
 GTSAM (``gtsam`` on PyPI) is used for the optimisation: it is the maintained, widely used factor-graph library

@@ -18,13 +18,13 @@ wheel slip or a frame that jumped from setting them. The SLAM trajectory and the
 so the hat gives the SLAM poses less noise than they have: it errs towards leaving them alone.
 
 Outliers, told apart by the three sources (:func:`vote`). An odometry step slipped where its motion differs from
-both the SLAM motion and the scan match beyond the chi-square 99.9 % quantile of their noise: it is left out (the chain is cut there) and the wheel does not bend the trajectory; intel's odometry, whose
-messages lag the scans and then catch up, has some 400 such steps. A SLAM pose that no scan match into or out of
-it confirms, and that the smoothed estimate puts beyond the same quantile of its white noise (one frame, or a
-few, that left the track where the odometry and its neighbours say otherwise), is down-weighted (``gate / m^2``)
-in the passes after the first, plain least-squares one (iteratively reweighted least squares), and put back where
-they say. A scan match that its scene does not constrain (a featureless corridor) says nothing and confirms
-nothing.
+both the SLAM motion and the scan match beyond the chi-square 99.9 % quantile of their noise: it is left out (the
+chain is cut there) and the wheel does not bend the trajectory (odometry messages that lag the scans and then catch
+up give many such steps). A SLAM pose that no scan match into or out of it confirms, and that the smoothed estimate
+puts beyond the same quantile of its white noise (one frame, or a few, that left the track where the odometry and
+its neighbours say otherwise), is down-weighted (``gate / m^2``) in the passes after the first, plain least-squares
+one (iteratively reweighted least squares), and put back where they say. A scan match that its scene does not
+constrain (a featureless corridor) says nothing and confirms nothing.
 """
 
 from __future__ import annotations
@@ -181,7 +181,7 @@ def vote(slam: NDArray[np.float64], odometry: NDArray[np.float64], scan: NDArray
     motions agree within the chi-square 99.9 % quantile of their summed variances (the SLAM motion's: ``2
     white``). ``slipped``: the odometry agrees with neither the SLAM motion nor a scan match that said something
     (the wheels against the two laser sources; where those two disagree with each other too, the wheels are the
-    furthest off, and intel's, whose messages lag the scans and catch up, are the ones that lie there).
+    furthest off: odometry messages that lag the scans and catch up lie there).
     ``scan_agrees``: the scan match agrees with the SLAM motion.
     """
     gate = chi2.ppf(0.999, 3)
@@ -215,7 +215,7 @@ def smooth_with_odometry(poses: ArrayLike, odometry_motion: ArrayLike, odometry_
     iterations : int
         Passes at most: least squares, then reweighted passes (each a linearisation at the current estimate and one
         sparse solve) until no pose moves by more than 0.1 mm and 1e-6 rad. A stretch of frames that left the track
-        is brought back over several passes (four frames 1 m off on fr-clinic: some 20).
+        is brought back over several passes.
 
     Returns
     -------

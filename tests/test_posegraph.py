@@ -92,7 +92,7 @@ def test_a_false_matched_edge_is_switched_off_whatever_its_kind(kind, solver):
 @pytest.mark.parametrize("solver", SOLVERS)
 def test_false_pairs_go_in_one_round_false_loops_one_per_round(kind, solver):
     """A false loop distorts the others' residuals, so only the worst goes per round; pairs beyond the gate go
-    together (re-optimising once per rejected pair had tripled the optimisations' time on intel)."""
+    together, in one round."""
     rng = np.random.default_rng(1)
     truth = square_loop()
     g = drifting_chain(truth, rng, yaw_bias=np.deg2rad(0.05), solver=solver)

@@ -16,6 +16,7 @@ import importlib
 import os
 import pickle
 import queue
+import resource
 import signal
 import struct
 import subprocess
@@ -27,7 +28,8 @@ from collections.abc import Callable
 from concurrent.futures import Future
 from typing import Any, BinaryIO
 
-__all__ = ["HelperProcess", "HelperProcessError", "helper_process", "helper_cpu_seconds", "cpu_seconds"]
+__all__ = ["HelperProcess", "HelperProcessError", "helper_process", "helper_cpu_seconds", "cpu_seconds",
+           "peak_memory_mb"]
 
 _HEADER = struct.Struct("<Q")
 
@@ -203,6 +205,23 @@ def cpu_seconds() -> float:
     """``time.process_time()`` plus :func:`helper_cpu_seconds`: a difference of two readings is the CPU a piece
     of work used in this process and in the helper process."""
     return time.process_time() + helper_cpu_seconds()
+
+
+def _own_peak_memory_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def peak_memory_mb() -> float:
+    """This process's peak resident memory (MiB) plus the running helper process's, each at its own peak: a bound
+    on what the two held at once."""
+    own = _own_peak_memory_mb()
+    helper = _helper
+    if helper is None or not helper.alive or _helper_pid != os.getpid():
+        return own
+    try:
+        return own + float(helper.submit(_own_peak_memory_mb).result())
+    except HelperProcessError:
+        return own
 
 
 @atexit.register

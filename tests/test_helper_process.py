@@ -67,6 +67,15 @@ def test_the_helper_reports_its_cpu_time():
     assert helper_cpu_seconds() > before
 
 
+def test_the_peak_memory_counts_the_helper_s():
+    own = hp._own_peak_memory_mb()
+    h = helper_process()
+    assert h is not None and h.submit(math.sqrt, 1.0).result(timeout=60) == 1.0
+    helper_peak = h.submit(hp._own_peak_memory_mb).result(timeout=60)
+    assert helper_peak > 1.0  # a Python with NumPy
+    assert hp.peak_memory_mb() >= own + helper_peak - 1e-9
+
+
 def _motions(frames, helper):
     """FrameMotions fed from a 2D run's own tracking, with or without the helper process."""
     res = run_slam(frames, SlamConfig(), rng=1, progress=False, threads=1)

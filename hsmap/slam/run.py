@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import resource
 import time
 import warnings
 from collections.abc import Callable, Iterable
@@ -14,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._blas import blas_limited
-from .._helper_process import cpu_seconds
+from .._helper_process import cpu_seconds, peak_memory_mb
 from .._threads import threads_limited
 from ..config import dump_config, to_dict
 from ..datasets.frames import Dataset, Frame
@@ -37,7 +36,7 @@ class SlamResult:
     frames: list[FrameResult]
     config: SlamConfig
     seconds: float
-    peak_memory_mb: float
+    peak_memory_mb: float  # this process's peak resident memory plus the helper process's
     input_name: str = ""
     cpu_seconds: float = float("nan")
     loop_closure: dict = field(default_factory=dict)
@@ -245,7 +244,7 @@ def run_slam(
     if len(skipped) > _WARN_SKIPPED:
         warnings.warn(f"{source}: {len(skipped)} of {n_read} frames skipped in all", HsmapWarning, stacklevel=2)
     slam.finish()
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    peak = peak_memory_mb()  # the helper process's too
     return SlamResult(slam.trajectory, slam.global_map(), slam.results, slam.config, time.perf_counter() - t0,
                       peak, getattr(dataset, "name", ""), cpu_seconds() - c0,
                       loop_closure=slam.loop_summary(), tracked=slam.tracked_trajectory, skipped=skipped,

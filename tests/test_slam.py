@@ -645,24 +645,33 @@ def test_a_retried_registration_stays_in_the_box_it_searched(monkeypatch):
     np.testing.assert_allclose(out.pose, [0.1, -0.2, np.pi - 0.01])
 
 
+def _corridor_scan(cfg):
+    """A scan from the middle of a 1.6 m corridor along x (its pose, the origin), its points and the walls as a
+    registration target."""
+    from hsmap.registration import RegistrationTarget
+    from hsmap.slam import frame_points
+
+    walls = np.array([((-20.0, y), (20.0, y)) for y in (-0.8, 0.8)])
+    truth = np.array([0.0, 0.0, 0.0])
+    r, a = raycast_2d(walls, truth, noise=0.005, rng=np.random.default_rng(3))
+    frame = Frame(stamp=1.0, scan2d=LaserScan2D(r, a, 0.05, 10.0), odometry=truth.copy(), index=1)
+    scan = frame_points(frame, 3, 0.1, 30.0, cfg.effective_scan_voxel())
+    target = RegistrationTarget(np.vstack([np.column_stack([np.linspace(-15, 15, 601), np.full(601, y)])
+                                           for y in (-0.8, 0.8)]), cfg.registration)
+    return truth, scan, target
+
+
 def test_a_prior_s_prediction_stands_against_a_retry_that_slid_beyond_its_gate(monkeypatch):
     """A prediction from a prior trajectory (another SLAM run) does not slip as wheels do. In a corridor the
     retry's refinement slides along the free axis, inside its box (at least two voxels wide) but beyond the
     prediction's gate: with a prior the prediction stands unless the slide aligns the scan clearly better; with
     wheel odometry the slide stands."""
     from hsmap.geometry import pose_to_matrix
-    from hsmap.registration import RegistrationTarget, harmony_icp
-    from hsmap.slam import frame_points
+    from hsmap.registration import harmony_icp
     from hsmap.slam import verify as slam_module
 
-    walls = np.array([((-20.0, y), (20.0, y)) for y in (-0.8, 0.8)])
-    truth = np.array([0.0, 0.0, 0.0])
-    r, a = raycast_2d(walls, truth, noise=0.005, rng=np.random.default_rng(3))
-    frame = Frame(stamp=1.0, scan2d=LaserScan2D(r, a, 0.05, 10.0), odometry=truth.copy(), index=1)
     cfg = SlamConfig()
-    scan = frame_points(frame, 3, 0.1, 30.0, cfg.effective_scan_voxel())
-    target = RegistrationTarget(np.vstack([np.column_stack([np.linspace(-15, 15, 601), np.full(601, y)])
-                                           for y in (-0.8, 0.8)]), cfg.registration)
+    truth, scan, target = _corridor_scan(cfg)
     sig = np.array([0.005, np.deg2rad(0.5)])  # a gate of verify_sigmas x 5 mm, a box of two voxels
     gate, box = cfg.verify_sigmas * sig[0], 2 * cfg.effective_scan_voxel()
     assert gate < 0.04 < box
@@ -685,18 +694,10 @@ def test_a_prior_s_prediction_is_overruled_only_with_the_wheels_consent(monkeypa
     """In a run seeded by a prior, a pose beyond the prediction's gate that aligns the scan clearly better, the
     retry's or the first registration's, stands only where ``overrule`` (the wheels) confirms it."""
     from hsmap.geometry import pose_to_matrix
-    from hsmap.registration import RegistrationTarget
-    from hsmap.slam import frame_points
     from hsmap.slam import verify as slam_module
 
-    walls = np.array([((-20.0, y), (20.0, y)) for y in (-0.8, 0.8)])
-    truth = np.array([0.0, 0.0, 0.0])
-    r, a = raycast_2d(walls, truth, noise=0.005, rng=np.random.default_rng(3))
-    frame = Frame(stamp=1.0, scan2d=LaserScan2D(r, a, 0.05, 10.0), odometry=truth.copy(), index=1)
     cfg = SlamConfig()
-    scan = frame_points(frame, 3, 0.1, 30.0, cfg.effective_scan_voxel())
-    target = RegistrationTarget(np.vstack([np.column_stack([np.linspace(-15, 15, 601), np.full(601, y)])
-                                           for y in (-0.8, 0.8)]), cfg.registration)
+    truth, scan, target = _corridor_scan(cfg)
     predicted = np.array([0.0, 0.05, 0.0])  # 5 cm off the corridor's centre line: the truth aligns clearly better
     sig = np.array([0.005, np.deg2rad(0.5)])
     half = np.array([0.3, 0.3, np.deg2rad(4.0)])
@@ -705,22 +706,17 @@ def test_a_prior_s_prediction_is_overruled_only_with_the_wheels_consent(monkeypa
         return dataclasses.replace(_registration_at(scan, target, cfg), pose=np.asarray(pose, dtype=float),
                                    transformation=pose_to_matrix(np.asarray(pose, dtype=float)))
 
-    # the retry ends at the truth, beyond the gate: it stands with the wheels' consent, else the prediction
-    monkeypatch.setattr(slam_module, "harmony_icp", lambda *a, **k: result(truth))
-    for consent, expected in ((True, truth), (False, predicted)):
-        verifier = slam_module.Verifier(cfg, prior=True)
-        kept, retried, _ = verifier.verify(scan, target, result(truth), lambda gate: (predicted.copy(), sig), half,
-                                           np.random.default_rng(0), overrule=lambda res, consent=consent: consent)
-        assert retried
-        np.testing.assert_allclose(kept.pose, expected, atol=1e-12)
-    # the retry confirms the prediction; the first registration, at the truth, stands only with the wheels' consent
-    monkeypatch.setattr(slam_module, "harmony_icp", lambda *a, **k: result(predicted))
-    for consent, expected in ((True, truth), (False, predicted)):
-        verifier = slam_module.Verifier(cfg, prior=True)
-        kept, retried, _ = verifier.verify(scan, target, result(truth), lambda gate: (predicted.copy(), sig), half,
-                                           np.random.default_rng(0), overrule=lambda res, consent=consent: consent)
-        assert retried
-        np.testing.assert_allclose(kept.pose, expected, atol=1e-12)
+    # the retry ends at the truth, beyond the gate; or it confirms the prediction and the first registration, at
+    # the truth, aligns the scan clearly better: either stands with the wheels' consent, else the prediction
+    for retry in (truth, predicted):
+        monkeypatch.setattr(slam_module, "harmony_icp", lambda *a, retry=retry, **k: result(retry))
+        for consent, expected in ((True, truth), (False, predicted)):
+            verifier = slam_module.Verifier(cfg, prior=True)
+            kept, retried, _ = verifier.verify(scan, target, result(truth), lambda gate: (predicted.copy(), sig),
+                                               half, np.random.default_rng(0),
+                                               overrule=lambda res, consent=consent: consent)
+            assert retried
+            np.testing.assert_allclose(kept.pose, expected, atol=1e-12)
 
 
 def _registration_at(scan, target, cfg):

@@ -189,16 +189,21 @@ def helper_process() -> HelperProcess | None:
         return _helper
 
 
+def _ask_helper(fn: Callable[[], float]) -> float | None:
+    """``fn()`` as the running helper process answers it, or None where none runs or it cannot answer."""
+    helper = _helper
+    if helper is None or not helper.alive or _helper_pid != os.getpid():
+        return None
+    try:
+        return float(helper.submit(fn).result())
+    except HelperProcessError:
+        return None
+
+
 def helper_cpu_seconds() -> float:
     """The CPU seconds the running helper process has used (after the calls submitted so far), or 0 where none
     runs: a caller adds the difference over its work to its own ``time.process_time()``."""
-    helper = _helper
-    if helper is None or not helper.alive or _helper_pid != os.getpid():
-        return 0.0
-    try:
-        return float(helper.submit(time.process_time).result())
-    except HelperProcessError:
-        return 0.0
+    return _ask_helper(time.process_time) or 0.0
 
 
 def cpu_seconds() -> float:
@@ -214,14 +219,7 @@ def _own_peak_memory_mb() -> float:
 def peak_memory_mb() -> float:
     """This process's peak resident memory (MiB) plus the running helper process's, each at its own peak: a bound
     on what the two held at once."""
-    own = _own_peak_memory_mb()
-    helper = _helper
-    if helper is None or not helper.alive or _helper_pid != os.getpid():
-        return own
-    try:
-        return own + float(helper.submit(_own_peak_memory_mb).result())
-    except HelperProcessError:
-        return own
+    return _own_peak_memory_mb() + (_ask_helper(_own_peak_memory_mb) or 0.0)
 
 
 @atexit.register

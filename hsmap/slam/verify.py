@@ -185,14 +185,17 @@ class Verifier:
         # being at least two voxels wide) without the evidence the first registration needs or without
         # ``overrule``'s consent; else where the retry slid out of its box (the box's edge is no pose the scan
         # chose) and the prediction aligns the scan better
+        consents = overrule if overrule is not None else (lambda _: True)
         out_of_box = boxed is not alt
         beyond = self.prior and not within(sig, relative(centre, boxed.pose))
         at_prediction = False
         if out_of_box or beyond:
             r_centre = residuals(scan, target, centre, reg.threshold)
-            if (not (at_least_as_good(r_alt, r_centre, self.dim, strict=True) and (overrule is None or overrule(boxed)))
-                    if beyond else
-                    truncated_residual(r_centre, reg.threshold) < truncated_residual(r_alt, reg.threshold)):
+            if beyond:
+                prediction_stands = not (at_least_as_good(r_alt, r_centre, self.dim, strict=True) and consents(boxed))
+            else:
+                prediction_stands = truncated_residual(r_centre, reg.threshold) < truncated_residual(r_alt, reg.threshold)
+            if prediction_stands:
                 boxed, r_alt = replace(alt, pose=centre.copy(), transformation=pose_to_matrix(centre)), r_centre
                 at_prediction = True
         alt = boxed
@@ -202,7 +205,7 @@ class Verifier:
         if (at_least_as_good(r_first, r_alt, self.dim, strict=True) or (
                 at_prediction and first_matched >= STRICT_MIN_MATCHED
                 and truncated_residual(r_first, reg.threshold) < 0.5 * truncated_residual(r_alt, reg.threshold))
-                ) and (overrule is None or overrule(res)):
+                ) and consents(res):
             return res, True, True
         # a registration that explains too little of its scan cannot veto the prediction either: the scan sees
         # space the map does not hold

@@ -617,7 +617,7 @@ def test_a_retried_registration_stays_in_the_box_it_searched(monkeypatch):
                                                  for y in (-0.8, 0.8)]), slam.config.registration)
     sig = np.array([0.02, np.deg2rad(1.0)])
     predicted = truth.copy()
-    monkeypatch.setattr(slam, "prediction", lambda frame, gate=False: (predicted.copy(), sig))
+    monkeypatch.setattr(slam, "prediction", lambda frame, gate=False, use_prior=True: (predicted.copy(), sig))
     first = harmony_icp(scan, slam.keyframe_graph.target, initial_guesses=[[0.9, 0.0, 0.0]], config=slam.config.registration,
                         rng=1)
     first = dataclasses.replace(first, pose=np.array([0.9, first.pose[1], first.pose[2]]))  # 0.9 m along
@@ -743,12 +743,10 @@ def test_the_wheels_replace_a_prior_s_step_that_jumped():
 
     wheels = frame(np.array([10.5, 0.0, 0.0]))  # the wheels moved 0.5 m, as the robot did
     assert slam._prior_contradicted(wheels, registered(1.0))
-    slam._wheels_predict = True
-    np.testing.assert_allclose(slam.prediction(wheels)[0], [1.0, 0, 0, 0, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(slam.prediction(wheels, use_prior=False)[0], [1.0, 0, 0, 0, 0, 0], atol=1e-12)
     assert not slam._prior_contradicted(wheels, registered(1.2))  # the registration sides with the prior
     assert not slam._prior_contradicted(frame(np.array([10.7, 0.0, 0.0])), registered(1.0))  # wheels agree
     assert not slam._prior_contradicted(frame(None), registered(1.0))
-    slam._wheels_predict = False
     np.testing.assert_allclose(slam.prediction(wheels)[0], [1.2, 0, 0, 0, 0, 0], atol=1e-12)
 
 
@@ -805,7 +803,8 @@ def test_a_registration_that_explains_little_of_its_scan_cannot_veto_the_predict
         xs = np.arange(-15.0, mapped_to, 0.05)
         slam.keyframe_graph.target = RegistrationTarget(np.vstack([np.column_stack([xs, np.full(len(xs), y)]) for y in (-1.0, 1.0)]),
                                           slam.config.registration)
-        monkeypatch.setattr(slam, "prediction", lambda frame, gate=False: (truth.copy(), np.array([0.02, 0.02])))
+        monkeypatch.setattr(slam, "prediction",
+                            lambda frame, gate=False, use_prior=True: (truth.copy(), np.array([0.02, 0.02])))
         found = harmony_icp(scan, slam.keyframe_graph.target, initial_guesses=[truth], config=slam.config.registration, rng=1)
         back = dataclasses.replace(found, pose=np.array([-2.0, 0.0, 0.0]))
         monkeypatch.setattr(slam_module, "harmony_icp", lambda *a, **k: dataclasses.replace(found, pose=truth.copy()))
@@ -846,7 +845,8 @@ def test_a_registration_that_explains_little_of_its_scan_stays_within_the_learne
         slam.keyframe_graph.target = RegistrationTarget(np.vstack([np.column_stack([xs, np.full(len(xs), y)]) for y in (-1.0, 1.0)]),
                                           slam.config.registration)
         monkeypatch.setattr(slam, "prediction",
-                            lambda frame, gate=False: (truth.copy(), (configured if gate else learned).copy()))
+                            lambda frame, gate=False, use_prior=True:
+                            (truth.copy(), (configured if gate else learned).copy()))
         found = harmony_icp(scan, slam.keyframe_graph.target, initial_guesses=[truth], config=slam.config.registration, rng=1)
         turned = dataclasses.replace(found, pose=np.array([0.0, 0.06, np.deg2rad(1.8)]))  # inside the wide gate
         monkeypatch.setattr(slam_module, "harmony_icp", lambda *a, **k: dataclasses.replace(found, pose=truth.copy()))

@@ -112,7 +112,7 @@ class HsSlam:
             raise InputError(f"initial_pose must have {cfg.dof} values, got shape {self._initial.shape}")
         self._odometry_track = odometry if cfg.dof == 3 and cfg.use_odometry and odometry is not None else None
         self._prior = None
-        self._wheels_predict = False  # this frame's prediction is the odometry's, not the prior's
+        self._prior_at: dict[float, NDArray[np.float64] | None] = {}  # the prior's (x, y, yaw) at recent stamps
         if prior is not None:
             if cfg.dof != 6:
                 raise InputError("a prior trajectory seeds 6-DOF runs only (dof=6)")
@@ -143,12 +143,17 @@ class HsSlam:
 
     # --------------------------------------------------------------------------------------------- seeds
     def _prior_pose(self, stamp: float) -> NDArray[np.float64] | None:
+        """The prior's (x, y, yaw) at ``stamp`` with the previous pose's height, roll and pitch, or None."""
         if self._prior is None:
             return None
-        poses, found = self._prior.interpolate([stamp], self.config.sync_tolerance)
-        if not found[0]:
+        planar = self._prior_at.get(stamp, False)
+        if planar is False:  # a frame asks for its own stamp and the previous frame's several times
+            poses, found = self._prior.interpolate([stamp], self.config.sync_tolerance)
+            planar = poses[0] if found[0] else None
+            self._prior_at = {k: v for k, v in self._prior_at.items() if k in self.stamps[-1:]} | {stamp: planar}
+        if planar is None:
             return None
-        (x, y, yaw), prev = poses[0], self.poses[-1]
+        (x, y, yaw), prev = planar, self.poses[-1]
         return np.array([x, y, prev[2], prev[3], prev[4], yaw])
 
     def seeds(self, frame: Frame) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -182,17 +187,14 @@ class HsSlam:
             return np.array([t, t, y])
         return np.array([t, t, reg.z_range, reg.roll_pitch_range, reg.roll_pitch_range, y])
 
-    def prediction(self, frame: Frame, gate: bool = False) -> Prediction:
+    def prediction(self, frame: Frame, gate: bool = False, use_prior: bool = True) -> Prediction:
         """The predicted pose of ``frame`` and the sigmas (translation, yaw) of its x/y and yaw, or None.
 
-        The previous pose moved by: (6-DOF) the prior trajectory's motion (``prior_sigma``), unless the wheels
-        contradict it and confirm the frame's registration instead (:meth:`_prior_contradicted`); else the odometry
-        increment (``odometry_sigma``, learned; ``gate``: never tighter than configured); else the last motion
-        repeated (``motion_sigma``). None for the first two frames with none of these.
+        The previous pose moved by: (6-DOF, ``use_prior``) the prior trajectory's motion (``prior_sigma``); else
+        the odometry increment (``odometry_sigma``, learned; ``gate``: never tighter than configured); else the
+        last motion repeated (``motion_sigma``). None for the first two frames with none of these. A frame whose
+        wheels contradict the prior (:meth:`_prior_contradicted`) is predicted without it.
         """
-        return self._predict(frame, gate, use_prior=not self._wheels_predict)
-
-    def _predict(self, frame: Frame, gate: bool, use_prior: bool) -> Prediction:
         cfg = self.config
         prev = self.poses[-1]
         step, model = None, None
@@ -219,14 +221,14 @@ class HsSlam:
         the odometry then predicts the frame."""
         if self._prior is None:
             return False
-        pred = self._predict(frame, False, use_prior=True)
+        pred = self.prediction(frame)
         if pred is None:
             return False
         prev = self.poses[-1]
         return not self.odometry.confirms(frame, prev, pred[0]) and self.odometry.confirms(frame, prev, res.pose)
 
     # ---------------------------------------------------------------------------------------------- loop
-    def _verify(self, frame: Frame, scan: NDArray[np.float64], res: RegistrationResult
+    def _verify(self, frame: Frame, scan: NDArray[np.float64], res: RegistrationResult, use_prior: bool = True
                 ) -> tuple[RegistrationResult, bool, bool]:
         """:meth:`Verifier.verify` of a registration of ``frame`` against the current target. In a run seeded by a
         prior, a registration beyond the prior's gate overrules it only where the wheel odometry confirms it: two
@@ -237,7 +239,8 @@ class HsSlam:
             def overrule(r: RegistrationResult) -> bool:
                 return self.odometry.confirms(frame, self.poses[-1], r.pose)
         return self.verifier.verify(scan, self.keyframe_graph.target, res,
-                                    lambda gate: self.prediction(frame, gate), self._ranges(prior=False), self.rng,
+                                    lambda gate: self.prediction(frame, gate, use_prior), self._ranges(prior=False),
+                                    self.rng,
                                     lambda r: self.odometry.set_aside(frame, r, self.poses), overrule)
 
     def process(self, frame: Frame) -> FrameResult:
@@ -271,13 +274,14 @@ class HsSlam:
                               config=cfg.registration, rng=self.rng)
             self.costs.registration(res.evaluations)
             self.odometry.learn_bias(frame, res, self.poses[-1])
-            self._wheels_predict = self._prior_contradicted(frame, res)
-            res, retried, verified = self._verify(frame, scan, res)
+            use_prior = not self._prior_contradicted(frame, res)
+            res, retried, verified = self._verify(frame, scan, res, use_prior)
             if times is not None:
                 res, scan = self._refine_sweep(scan, times, target, res)
             self.odometry.learn_scale(frame, res)
             self.odometry.accumulate_wheel(frame)  # with the bias and scale the prediction below uses
-            pose, information, registration_information = self.verifier.fuse(res, self.prediction(frame))
+            pred = self.prediction(frame, use_prior=use_prior)
+            pose, information, registration_information = self.verifier.fuse(res, pred)
             fitness, inlier, rmse, evaluations, cost = (res.fitness, res.inlier_ratio, res.rmse, res.evaluations,
                                                         res.cost)
         keyframe = first or (verified and (len(self.poses) < cfg.warmup_frames or kg.is_keyframe(pose)))

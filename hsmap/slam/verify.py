@@ -194,7 +194,8 @@ class Verifier:
             if beyond:
                 prediction_stands = not (at_least_as_good(r_alt, r_centre, self.dim, strict=True) and consents(boxed))
             else:
-                prediction_stands = truncated_residual(r_centre, reg.threshold) < truncated_residual(r_alt, reg.threshold)
+                prediction_stands = (truncated_residual(r_centre, reg.threshold)
+                                     < truncated_residual(r_alt, reg.threshold))
             if prediction_stands:
                 boxed, r_alt = replace(alt, pose=centre.copy(), transformation=pose_to_matrix(centre)), r_centre
                 at_prediction = True

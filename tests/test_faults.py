@@ -440,7 +440,7 @@ def _wait_for(predicate, proc: subprocess.Popen, what: str, limit: float = 300.0
 
 
 _STOPPING_SLAM = """
-import os, signal, sys
+import os, sys, time
 from pathlib import Path
 
 import hsmap.slam
@@ -449,10 +449,11 @@ from hsmap.cli import main
 marker, where = sys.argv[1], sys.argv[2]
 
 
-def stop():  # say so, then wait for the test's signal
+def stop():  # say so, then wait for the test's signal (a short sleep: a signal caught on any thread, or just
+    # before the wait began, is handled at the next wake-up, where signal.pause() could wait for ever)
     Path(marker).write_text(str(os.getpid()))
     while True:
-        signal.pause()
+        time.sleep(0.05)
 
 
 if where == "frame":
@@ -486,7 +487,12 @@ def test_slam_process_killed_or_interrupted(bag, previous, tmp_path, capsys, whe
     else:
         assert staged == ["config.yaml", "map.ply", "slam.rrd", "trajectory.tum"]
     os.killpg(proc.pid, sig)
-    _, err = proc.communicate()
+    try:
+        _, err = proc.communicate(timeout=120)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate()
+        pytest.fail(f"the run did not end within 120 s of signal {sig!r}")
     if sig == signal.SIGKILL:
         assert proc.returncode == -signal.SIGKILL
         left = snapshot(out)

@@ -791,6 +791,72 @@ def voxel_reduce(pts, voxel, bias):  # pragma: no cover - JIT
 
 
 @nb.njit(cache=True, nogil=True)
+def voxel_accumulate(pts, nrm, voxel, bias, table, ukeys, sums, counts, fpts, fnrm, m):  # pragma: no cover - JIT
+    """Add the finite points (N, d) and their normals to a running voxel reduction: ``m`` voxels so far, numbered in
+    the order they first appear, each with its key (as :func:`voxel_reduce`), the sum of its points in input
+    order, their count, and its first point and normal; ``table`` (a power of two, slot -> voxel number) hashes
+    the keys. The arrays must hold m + N voxels and ``table`` twice as many. Returns (the new m, -1), or (m, row)
+    for the first point beyond the keys' 21 bits."""
+    n, d = pts.shape
+    size = table.shape[0]
+    bits = 0
+    while (1 << bits) < size:
+        bits += 1
+    mask = np.uint64(size - 1)
+    for i in range(n):
+        finite = True
+        for j in range(d):
+            if not np.isfinite(pts[i, j]):
+                finite = False
+        if not finite:
+            continue
+        k = np.int64(0)
+        for j in range(d):
+            ix = np.int64(np.floor(pts[i, j] / voxel)) + bias
+            if ix < 0 or ix >= 2 * bias:
+                return m, i
+            k = (k << 21) | ix
+        h = (np.uint64(k) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(64 - bits)
+        while True:
+            v = table[h]
+            if v < 0:
+                v = m
+                table[h] = v
+                ukeys[v] = k
+                counts[v] = 0.0
+                for j in range(d):
+                    sums[v, j] = 0.0
+                    fpts[v, j] = pts[i, j]
+                    fnrm[v, j] = nrm[i, j]
+                m += 1
+                break
+            if ukeys[v] == k:
+                break
+            h = (h + np.uint64(1)) & mask
+        for j in range(d):
+            sums[v, j] += pts[i, j]
+        counts[v] += 1.0
+    return m, -1
+
+
+@nb.njit(cache=True, nogil=True)
+def voxel_rehash(ukeys, m, size):  # pragma: no cover - JIT
+    """A hash table of ``size`` slots (a power of two) for the first ``m`` voxel keys, as :func:`voxel_accumulate`
+    probes it."""
+    bits = 0
+    while (1 << bits) < size:
+        bits += 1
+    mask = np.uint64(size - 1)
+    table = np.full(size, -1, dtype=np.int64)
+    for v in range(m):
+        h = (np.uint64(ukeys[v]) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(64 - bits)
+        while table[h] >= 0:
+            h = (h + np.uint64(1)) & mask
+        table[h] = v
+    return table
+
+
+@nb.njit(cache=True, nogil=True)
 def bounding_box(points):  # pragma: no cover - JIT
     """(lower, upper) corners of points (N, d), N >= 1: one pass (numpy's min(axis=0) on an (N, 3) array walks
     it three elements at a time, some 20 times slower)."""

@@ -11,6 +11,8 @@ Thinning: :func:`voxel_downsample` keeps the centroid of each voxel (the scans b
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -85,6 +87,14 @@ def voxel_downsample_with(points: NDArray[np.floating], values: NDArray[np.float
     _check_voxel_reach(pts, voxel, max_range)
     return _kernels.voxel_centroids_with(np.ascontiguousarray(pts), np.ascontiguousarray(vals), float(voxel),
                                          float(min_range), float(max_range))
+
+
+def _grown(a: NDArray | None, m: int, cap: int, dtype, width: int) -> NDArray:
+    """An array of ``cap`` rows (of ``width`` columns; 0: a vector) holding the first ``m`` rows of ``a``."""
+    out = np.empty((cap, width) if width else cap, dtype=dtype)
+    if m:
+        out[:m] = a[:m]
+    return out
 
 
 class VoxelMap:
@@ -181,6 +191,48 @@ class VoxelMap:
             self._sums = np.insert(self._sums, pos_new, sums[new], axis=0)
             self._counts = np.insert(self._counts, pos_new, counts[new])
         return (pts[new], nrm[new]) if return_normals else pts[new]
+
+    @classmethod
+    def from_parts(cls, dim: int, voxel: float, parts: Iterable[tuple[ArrayLike, ArrayLike | None]], *,
+                   average: bool = False) -> VoxelMap:
+        """A new map of the points (N, dim) and normals (or None) of ``parts``, inserted in order: the map one
+        :meth:`add` of all of them concatenated makes, built a part at a time, in memory that grows with the
+        voxels rather than the points."""
+        from . import _kernels  # numba: compiled on first use
+        vm = cls(dim, voxel, average=average)
+        cap, m = 0, 0
+        table = ukeys = sums = counts = fpts = fnrm = None
+        for points, normals in parts:
+            pts = np.ascontiguousarray(points, dtype=float)
+            if pts.ndim != 2 or pts.shape[1] != dim:
+                raise ShapeError(f"points must have shape (N, {dim}), got {pts.shape}")
+            nrm = (np.full(pts.shape, np.nan) if normals is None
+                   else np.ascontiguousarray(normals, dtype=float))
+            if nrm.shape != pts.shape:
+                raise ShapeError(f"normals must have the shape of the points {pts.shape}, got {nrm.shape}")
+            if not len(pts):
+                continue
+            if m + len(pts) > cap:  # room for every point to be a new voxel; the table at most half full
+                cap = max(2 * cap, m + len(pts), 1024)
+                ukeys, counts, sums, fpts, fnrm = (
+                    _grown(a, m, cap, dtype, width) for a, dtype, width in
+                    ((ukeys, np.int64, 0), (counts, float, 0), (sums, float, dim), (fpts, float, dim),
+                     (fnrm, float, dim)))
+                table = _kernels.voxel_rehash(ukeys, m, 1 << int(2 * cap - 1).bit_length())
+            m, bad = _kernels.voxel_accumulate(pts, nrm, vm.voxel, _BIAS, table, ukeys, sums, counts, fpts, fnrm, m)
+            if bad >= 0:
+                raise InputError(f"points beyond +/-{_BIAS * vm.voxel:.0f} m cannot be stored at voxel size "
+                                 f"{vm.voxel} m (e.g. {pts[bad].tolist()})")
+        if m == 0:
+            return vm
+        order = np.argsort(ukeys[:m])
+        vm._keys, vm._normals = ukeys[order], fnrm[order]
+        if average:
+            vm._sums, vm._counts = sums[order], counts[order]
+            vm._points = vm._sums / vm._counts[:, None]
+        else:
+            vm._points = fpts[order]
+        return vm
 
     def crop(self, centre: ArrayLike, radius: float) -> NDArray[np.float64]:
         """Map points within ``radius`` metres of ``centre`` (horizontal distance in 3D)."""

@@ -108,3 +108,28 @@ def test_a_keyframe_map_within_a_radius_crops_as_the_whole_map():
         b, bn = part.crop_with_normals(c, r)
         np.testing.assert_array_equal(a, b)
         np.testing.assert_array_equal(an, bn)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("average", [False, True])
+def test_a_map_built_from_parts_is_one_insertion_of_them_all(dim, average):
+    """VoxelMap.from_parts: bit for bit the map one add() of the parts concatenated makes, non-finite rows dropped,
+    parts without normals NaN, its arrays grown as the voxels come; a point beyond the keys' reach is refused."""
+    rng = np.random.default_rng(dim)
+    parts = [(rng.normal(0, s, (n, dim)), rng.normal(size=(n, dim))) for n, s in ((0, 1), (7, 1), (3000, 4),
+                                                                                  (5000, 9))]
+    parts[2][0][11, 0] = np.nan
+    parts.append((rng.normal(0, 1, (40, dim)), None))
+    built = VoxelMap.from_parts(dim, 0.3, parts, average=average)
+    whole = VoxelMap(dim, 0.3, average=average)
+    whole.add(np.concatenate([p for p, _ in parts]),
+              np.concatenate([np.full(p.shape, np.nan) if n is None else n for p, n in parts]))
+    assert len(built) == len(whole) > 1024  # past the first capacity
+    np.testing.assert_array_equal(built.points, whole.points)
+    np.testing.assert_array_equal(built.normals, whole.normals)
+    assert len(built.add(whole.points)) == 0  # the same voxels, sorted the same way
+    assert len(VoxelMap.from_parts(dim, 0.3, [])) == 0
+    with pytest.raises(InputError, match="cannot be stored"):
+        VoxelMap.from_parts(dim, 0.1, [(np.zeros((2, dim)), None), (np.full((1, dim), 1e9), None)])
+    with pytest.raises(ShapeError):
+        VoxelMap.from_parts(dim, 0.1, [(np.zeros((2, dim + 1)), None)])

@@ -857,6 +857,42 @@ def voxel_rehash(ukeys, m, size):  # pragma: no cover - JIT
 
 
 @nb.njit(cache=True, nogil=True)
+def centred_scatter(pts):  # pragma: no cover - JIT
+    """The spread of points (N, d), N >= 1, about their mean: (scale, S) with scale the largest absolute centred
+    coordinate and S (d, d) the sum of the outer products of the centred points divided by it; scale is NaN where
+    a coordinate is not finite."""
+    n, d = pts.shape
+    mean = np.zeros(d)
+    for i in range(n):
+        for j in range(d):
+            mean[j] += pts[i, j]
+    for j in range(d):
+        mean[j] /= n
+    scale = 0.0
+    for i in range(n):
+        for j in range(d):
+            a = abs(pts[i, j] - mean[j])
+            if not a < np.inf:
+                return np.nan, np.zeros((d, d))
+            if a > scale:
+                scale = a
+    S = np.zeros((d, d))
+    if scale == 0.0:
+        return scale, S
+    c = np.empty(d)
+    for i in range(n):
+        for j in range(d):
+            c[j] = (pts[i, j] - mean[j]) / scale
+        for j in range(d):
+            for k in range(j, d):
+                S[j, k] += c[j] * c[k]
+    for j in range(d):
+        for k in range(j):
+            S[j, k] = S[k, j]
+    return scale, S
+
+
+@nb.njit(cache=True, nogil=True)
 def bounding_box(points):  # pragma: no cover - JIT
     """(lower, upper) corners of points (N, d), N >= 1: one pass (numpy's min(axis=0) on an (N, 3) array walks
     it three elements at a time, some 20 times slower)."""

@@ -66,10 +66,11 @@ def euler_to_matrix(roll: ArrayLike, pitch: ArrayLike, yaw: ArrayLike) -> NDArra
     """Rotation matrices (..., 3, 3) = Rz(yaw) @ Ry(pitch) @ Rx(roll)."""
     r, p, y = (np.asarray(v, dtype=float) for v in (roll, pitch, yaw))
     cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
-    row0 = np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], -1)
-    row1 = np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], -1)
-    row2 = np.stack([-sp, cp * sr, cp * cr], -1)
-    return np.stack([row0, row1, row2], -2)
+    R = np.empty(np.broadcast_shapes(r.shape, p.shape, y.shape) + (3, 3))
+    R[..., 0, 0], R[..., 0, 1], R[..., 0, 2] = cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr
+    R[..., 1, 0], R[..., 1, 1], R[..., 1, 2] = sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr
+    R[..., 2, 0], R[..., 2, 1], R[..., 2, 2] = -sp, cp * sr, cp * cr
+    return R
 
 
 def matrix_to_euler(R: ArrayLike) -> NDArray[np.float64]:

@@ -285,16 +285,16 @@ def spans_its_space(points: NDArray[np.float64], rank: int | None = None) -> boo
     A cloud that does not span its space has no unique registration: it can slide or turn without changing its
     fit (:func:`harmony_icp` raises :class:`~hsmap.errors.DegenerateInputError` for one).
     """
-    pts = np.asarray(points, dtype=float)
+    from . import _kernels  # numba: compiled on first use
+    pts = np.ascontiguousarray(points, dtype=float)
     d = pts.shape[1]
     rank = d if rank is None else rank
     if len(pts) < rank + 1:
         return False
-    c = pts - pts.mean(axis=0)
-    scale = float(np.abs(c).max())
+    scale, scatter = _kernels.centred_scatter(pts)
     if not scale > 0 or not np.isfinite(scale):
         return rank == 0
-    ev = np.linalg.eigvalsh((c / scale).T @ (c / scale))  # ascending; spreads squared
+    ev = np.linalg.eigvalsh(scatter)  # ascending; spreads squared
     return bool(ev[d - rank] > 1e-18 * ev[-1])
 
 

@@ -8,7 +8,7 @@ from scipy.spatial import cKDTree
 
 from ._blas import blas_limited
 
-__all__ = ["estimate_normals", "orient_normals"]
+__all__ = ["estimate_normals", "orient_normals", "load_3d_estimator"]
 
 
 def orient_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
@@ -24,6 +24,11 @@ def orient_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
     out = np.array(normals, dtype=float, copy=True)
     out[np.einsum("ij,ij->i", out, vp - pts) < 0] *= -1.0
     return out
+
+
+def load_3d_estimator() -> None:
+    """Import the 3D estimator's library (Open3D, some seconds) now, not in the first 3D :func:`estimate_normals`."""
+    import open3d  # noqa: F401
 
 
 @blas_limited

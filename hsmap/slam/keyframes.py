@@ -17,7 +17,7 @@ from ..geometry import compose, pose_to_matrix, relative, transform_points, wrap
 from ..information import drop_degenerate
 from ..loopclosure import Keyframe, LoopCloser, keyframe_voxel_map
 from ..mapping import VoxelMap, voxel_downsample
-from ..normals import estimate_normals, orient_normals
+from ..normals import estimate_normals, load_3d_estimator, orient_normals
 from ..posegraph import EdgeKind, PoseGraph, information_with_floor
 from ..registration import (
     Refinement,
@@ -80,6 +80,8 @@ class KeyframeGraph:
         self.costs = costs if costs is not None else Costs()
         cfg, lc = config, config.loop_closure
         self.dim = cfg.dim
+        if self.dim == 3:
+            load_3d_estimator()  # with the graph, not in its first keyframe's step
         self.odometry = odometry
         self._loop_rng = loop_rng
         self.graph = PoseGraph(cfg.dof, solver=cfg.graph.solver)

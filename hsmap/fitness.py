@@ -79,6 +79,9 @@ class DistanceField:
     bounds : array_like of shape (2, d), optional
         [lower corner, upper corner] of the volume in world metres; default: the points' bounding box grown by
         the truncation. Points outside the volume do not count.
+    recycle : DistanceField, optional
+        A field its owner no longer uses: its grid's memory is reused where it is large enough (a map's field
+        rebuilt around the robot then touches no fresh memory), and that field is invalid afterwards.
     normals : ndarray of shape (M, d), optional
         Unit normals of the points. The field then also keeps, per node, the nearest point and its normal:
         correspondences for a point-to-line (point-to-plane) refinement at the cost of one look-up
@@ -92,7 +95,8 @@ class DistanceField:
     """
 
     def __init__(self, points: ArrayLike, resolution: float, truncation: float,
-                 bounds: ArrayLike | None = None, normals: ArrayLike | None = None) -> None:
+                 bounds: ArrayLike | None = None, normals: ArrayLike | None = None,
+                 recycle: DistanceField | None = None) -> None:
         pts = np.asarray(points, dtype=float)
         if not resolution > 0:
             raise InputError(f"field resolution must be > 0 m, got {resolution}")
@@ -122,7 +126,14 @@ class DistanceField:
         shape = cells.astype(int)
         self.shape = tuple(int(s) for s in shape)
         # Padded storage: one cell of `truncation` on every side; `values` is a view of the interior.
-        self._padded = np.full(tuple(s + 2 for s in self.shape), np.float32(truncation), dtype=np.float32)
+        padded = tuple(s + 2 for s in self.shape)
+        size = int(np.prod(padded))
+        store = None if recycle is None else recycle._store
+        if store is None or store.size < size:  # a recycled grid grows with a margin: the next may be larger
+            store = np.empty(size if recycle is None else size + size // 4, dtype=np.float32)
+        self._store = store  # the memory of the grid (and of the grid's successor where it recycles this one)
+        self._padded = store[:size].reshape(padded)
+        self._padded.fill(np.float32(truncation))
         self.values = self._padded[(slice(1, -1),) * self.dim]
         self._strides = np.array([int(np.prod(self._padded.shape[i + 1 :])) for i in range(self.dim)])
         self._pshape = np.array(self._padded.shape)

@@ -94,6 +94,24 @@ def test_field_grows_incrementally(rng, dim):
         DistanceField(a, 0.05, 0.3, bounds=[np.ones(dim), np.zeros(dim)])
 
 
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_a_field_on_a_recycled_grid_is_a_fresh_one(rng, dim):
+    """DistanceField(recycle=old): the same values as a fresh field, in the old grid's memory where it is large
+    enough, in new memory where it is not."""
+    a = rng.uniform(0, 4, (400, dim))
+    b = rng.uniform(1, 3, (300, dim))
+    old = DistanceField(a, 0.05, 0.3)
+    store = old._store
+    smaller = DistanceField(b, 0.05, 0.3, recycle=old)
+    assert smaller._store is store
+    np.testing.assert_array_equal(smaller.values, DistanceField(b, 0.05, 0.3).values)
+    larger = DistanceField(a, 0.04, 0.3, recycle=smaller)
+    assert larger._store is not store
+    np.testing.assert_array_equal(larger.values, DistanceField(a, 0.04, 0.3).values)
+    q = rng.uniform(0, 4, (200, dim))
+    np.testing.assert_array_equal(larger(q), DistanceField(a, 0.04, 0.3)(q))
+
 @pytest.mark.parametrize("dim", [2, 3])
 @pytest.mark.parametrize("variant", ["classic", "ihs", "global-best"])
 def test_compiled_harmony_rounds_match_the_python_loop(rng, dim, variant):

@@ -370,7 +370,7 @@ class KeyframeGraph:
             # 2D: nearest points for the refinement; 3D refines on exact correspondences
             plane = self.dim == 2 and reg.refinement is Refinement.POINT_TO_PLANE
             self._field = DistanceField(pts, res, reg.search_threshold, bounds=[lo, hi],
-                                        normals=normals if plane else None)
+                                        normals=normals if plane else None, recycle=self._field)
             self._field_centre = centre.copy()
         self.target = RegistrationTarget(pts, reg, normals=normals, fields={reg.search_threshold: self._field})
         self.target.prepare()

@@ -352,33 +352,34 @@ def voxel_centroids(pts, voxel, rmin=0.0, rmax=np.inf):  # pragma: no cover - JI
 
 
 @nb.njit(cache=True, nogil=True)
-def point_to_plane_normal_equations(p, q, n, kernel):  # pragma: no cover - JIT
-    """J^T W J and J^T W r of the point-to-plane (point-to-line in 2D) residuals r_i = n_i . (p_i - q_i).
-
-    2D: unknowns (tx, ty, theta), J_i = [n_x, n_y, n_y p_x - n_x p_y]; 3D: (t, omega), J_i = [n, p x n].
-    W: Geman-McClure weights w_i = k^2 / (k^2 + r_i^2)^2 (times k^2, so w -> 1 for small r) with scale
-    k = ``kernel``; ``kernel <= 0`` gives plain least squares.
-    """
+def _plane_equations(p, dist, idx, q, n, kernel):  # pragma: no cover - JIT
+    """:func:`point_to_plane_normal_equations` of the correspondences (p_i, q_idx[i], n_idx[i]) of the points with
+    a finite ``dist``, and how many there were."""
     m, d = p.shape
     k = 3 if d == 2 else 6
     A = np.zeros((k, k))
     g = np.zeros(k)
     J = np.empty(k)
+    count = 0
     for i in range(m):
+        if not np.isfinite(dist[i]):
+            continue
+        c = idx[i]
+        count += 1
         r = 0.0
         for j in range(d):
-            r += n[i, j] * (p[i, j] - q[i, j])
+            r += n[c, j] * (p[i, j] - q[c, j])
         if d == 2:
-            J[0] = n[i, 0]
-            J[1] = n[i, 1]
-            J[2] = n[i, 1] * p[i, 0] - n[i, 0] * p[i, 1]
+            J[0] = n[c, 0]
+            J[1] = n[c, 1]
+            J[2] = n[c, 1] * p[i, 0] - n[c, 0] * p[i, 1]
         else:
-            J[0] = n[i, 0]
-            J[1] = n[i, 1]
-            J[2] = n[i, 2]
-            J[3] = p[i, 1] * n[i, 2] - p[i, 2] * n[i, 1]
-            J[4] = p[i, 2] * n[i, 0] - p[i, 0] * n[i, 2]
-            J[5] = p[i, 0] * n[i, 1] - p[i, 1] * n[i, 0]
+            J[0] = n[c, 0]
+            J[1] = n[c, 1]
+            J[2] = n[c, 2]
+            J[3] = p[i, 1] * n[c, 2] - p[i, 2] * n[c, 1]
+            J[4] = p[i, 2] * n[c, 0] - p[i, 0] * n[c, 2]
+            J[5] = p[i, 0] * n[c, 1] - p[i, 1] * n[c, 0]
         w = 1.0
         if kernel > 0:
             t = kernel * kernel + r * r
@@ -390,23 +391,39 @@ def point_to_plane_normal_equations(p, q, n, kernel):  # pragma: no cover - JIT
     for a in range(k):
         for b in range(a):
             A[a, b] = A[b, a]
+    return A, g, count
+
+
+@nb.njit(cache=True, nogil=True)
+def point_to_plane_normal_equations(p, q, n, kernel):  # pragma: no cover - JIT
+    """J^T W J and J^T W r of the point-to-plane (point-to-line in 2D) residuals r_i = n_i . (p_i - q_i).
+
+    2D: unknowns (tx, ty, theta), J_i = [n_x, n_y, n_y p_x - n_x p_y]; 3D: (t, omega), J_i = [n, p x n].
+    W: Geman-McClure weights w_i = k^2 / (k^2 + r_i^2)^2 (times k^2, so w -> 1 for small r) with scale
+    k = ``kernel``; ``kernel <= 0`` gives plain least squares.
+    """
+    m = p.shape[0]
+    A, g, _ = _plane_equations(p, np.zeros(m), np.arange(m), q, n, kernel)
     return A, g
 
 
 @nb.njit(cache=True, nogil=True)
-def point_to_plane_step(p, q, n, kernel):  # pragma: no cover - JIT
-    """One Gauss-Newton step of point-to-plane ICP: the update transform (d+1, d+1) and the step's largest entry.
+def point_to_plane_step(p, dist, idx, q, n, kernel):  # pragma: no cover - JIT
+    """One Gauss-Newton step of point-to-plane ICP on the correspondences (p_i, q_idx[i], n_idx[i]) of the points
+    with a finite ``dist``: the update transform (d+1, d+1), the step's largest entry and how many correspondences
+    there were (fewer than 2 d: no step, the identity).
 
     Solves the normal equations of :func:`point_to_plane_normal_equations` (a 1e-9 ridge keeps them regular) and
     turns the increment (translation, rotation) into a rigid transform (Rodrigues' formula in 3D).
     """
     d = p.shape[1]
-    A, g = point_to_plane_normal_equations(p, q, n, kernel)
-    k = A.shape[0]
-    for a in range(k):
+    A, g, count = _plane_equations(p, dist, idx, q, n, kernel)
+    dT = np.eye(d + 1)
+    if count < 2 * d:
+        return dT, 0.0, count
+    for a in range(A.shape[0]):
         A[a, a] += 1e-9
     delta = -np.linalg.solve(A, g)
-    dT = np.eye(d + 1)
     if d == 2:
         c, s = np.cos(delta[2]), np.sin(delta[2])
         dT[0, 0], dT[0, 1], dT[1, 0], dT[1, 1] = c, -s, s, c
@@ -419,7 +436,7 @@ def point_to_plane_step(p, q, n, kernel):  # pragma: no cover - JIT
             dT[:3, :3] = R
     for a in range(d):
         dT[a, d] = delta[a]
-    return dT, np.abs(delta).max()
+    return dT, np.abs(delta).max(), count
 
 
 @nb.njit(cache=True, nogil=True)

@@ -494,11 +494,15 @@ def refine_icp(
         for _ in range(per_stage):
             moved = transform_points(T, source)
             d, idx = target.nearest(moved, dist, idx)
-            ok = np.isfinite(d)
-            if ok.sum() < 2 * dim:
+            if normals is not None:
+                dT, step, found = _kernels.point_to_plane_step(moved, d, idx, target.points, normals, robust_kernel)
+            else:
+                ok = np.isfinite(d)
+                found = int(ok.sum())
+            if found < 2 * dim:
                 break
-            p, q = moved[ok], target.points[idx[ok]]
             if normals is None:
+                p, q = moved[ok], target.points[idx[ok]]
                 dT = np.eye(dim + 1)
                 mp, mq = p.mean(0), q.mean(0)
                 U, _, Vt = np.linalg.svd((p - mp).T @ (q - mq))
@@ -507,8 +511,6 @@ def refine_icp(
                 dT[:dim, :dim] = Vt.T @ S @ U.T
                 dT[:dim, dim] = mq - dT[:dim, :dim] @ mp
                 step = max(np.abs(dT[:dim, dim]).max(), np.abs(dT[:dim, :dim] - np.eye(dim)).max())
-            else:
-                dT, step = _kernels.point_to_plane_step(p, q, normals[idx[ok]], robust_kernel)
             T = dT @ T
             if step < tolerance:
                 break

@@ -910,6 +910,30 @@ def centred_scatter(pts):  # pragma: no cover - JIT
 
 
 @nb.njit(cache=True, nogil=True)
+def crop_rows(points, normals, cx, cy, r2):  # pragma: no cover - JIT
+    """The rows of points (N, d) and normals (N, d) whose first two coordinates lie within squared distance ``r2``
+    of (cx, cy), in order: one pass to count, one to copy."""
+    n, d = points.shape
+    keep = np.empty(n, dtype=np.bool_)
+    m = 0
+    for i in range(n):
+        dx = points[i, 0] - cx
+        dy = points[i, 1] - cy
+        keep[i] = dx * dx + dy * dy <= r2
+        m += keep[i]
+    out_p = np.empty((m, d))
+    out_n = np.empty((m, d))
+    j = 0
+    for i in range(n):
+        if keep[i]:
+            for k in range(d):
+                out_p[j, k] = points[i, k]
+                out_n[j, k] = normals[i, k]
+            j += 1
+    return out_p, out_n
+
+
+@nb.njit(cache=True, nogil=True)
 def bounding_box(points):  # pragma: no cover - JIT
     """(lower, upper) corners of points (N, d), N >= 1: one pass (numpy's min(axis=0) on an (N, 3) array walks
     it three elements at a time, some 20 times slower)."""

@@ -240,8 +240,9 @@ class VoxelMap:
 
     def crop_with_normals(self, centre: ArrayLike, radius: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Map points within ``radius`` metres of ``centre`` and their normals."""
-        near = self._near(centre, radius)
-        return self._points[near], self._normals[near]
+        from . import _kernels  # numba: compiled on first use
+        c = np.asarray(centre, dtype=float)
+        return _kernels.crop_rows(self._points, self._normals, float(c[0]), float(c[1]), float(radius) * radius)
 
     def _near(self, centre: ArrayLike, radius: float) -> NDArray[np.bool_]:
         c = np.asarray(centre, dtype=float)[:2]

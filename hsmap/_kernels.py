@@ -934,6 +934,32 @@ def crop_rows(points, normals, cx, cy, r2):  # pragma: no cover - JIT
 
 
 @nb.njit(cache=True, nogil=True)
+def insert_rows(a, pos, rows):  # pragma: no cover - JIT
+    """``np.insert(a, pos, rows, axis=0)`` for a (M, d) and rows (K, d) with ``pos`` (K,) ascending: row k goes
+    before a's row pos[k]. One pass, copying the runs of ``a`` between the insertions."""
+    m, d = a.shape
+    k = pos.shape[0]
+    out = np.empty((m + k, d), dtype=a.dtype)
+    src = 0
+    for r in range(k):
+        stop = pos[r]
+        dst = src + r
+        for i in range(src, stop):
+            for j in range(d):
+                out[dst, j] = a[i, j]
+            dst += 1
+        for j in range(d):
+            out[dst, j] = rows[r, j]
+        src = stop
+    dst = src + k
+    for i in range(src, m):
+        for j in range(d):
+            out[dst, j] = a[i, j]
+        dst += 1
+    return out
+
+
+@nb.njit(cache=True, nogil=True)
 def bounding_box(points):  # pragma: no cover - JIT
     """(lower, upper) corners of points (N, d), N >= 1: one pass (numpy's min(axis=0) on an (N, 3) array walks
     it three elements at a time, some 20 times slower)."""

@@ -183,13 +183,18 @@ class VoxelMap:
             self._points[at] = self._sums[at] / self._counts[at, None]
         if not new.any():
             return (pts[:0], nrm[:0]) if return_normals else pts[:0]
-        pos_new = pos[new]  # where the new keys go in the sorted arrays (np.insert keeps them sorted)
-        self._keys = np.insert(self._keys, pos_new, keys[new])
-        self._points = np.insert(self._points, pos_new, pts[new], axis=0)
-        self._normals = np.insert(self._normals, pos_new, nrm[new], axis=0)
+        pos_new = pos[new]  # where the new keys go in the sorted arrays (inserted there, they stay sorted)
+
+        def inserted(a, rows):
+            return _kernels.insert_rows(a.reshape(len(a), -1), pos_new, rows.reshape(len(rows), -1)).reshape(
+                (-1, *a.shape[1:]))
+
+        self._keys = inserted(self._keys, keys[new])
+        self._points = inserted(self._points, pts[new])
+        self._normals = inserted(self._normals, nrm[new])
         if self.average:
-            self._sums = np.insert(self._sums, pos_new, sums[new], axis=0)
-            self._counts = np.insert(self._counts, pos_new, counts[new])
+            self._sums = inserted(self._sums, sums[new])
+            self._counts = inserted(self._counts, counts[new])
         return (pts[new], nrm[new]) if return_normals else pts[new]
 
     @classmethod

@@ -133,3 +133,18 @@ def test_a_map_built_from_parts_is_one_insertion_of_them_all(dim, average):
         VoxelMap.from_parts(dim, 0.1, [(np.zeros((2, dim)), None), (np.full((1, dim), 1e9), None)])
     with pytest.raises(ShapeError):
         VoxelMap.from_parts(dim, 0.1, [(np.zeros((2, dim + 1)), None)])
+
+
+@pytest.mark.parametrize("average", [False, True])
+def test_a_map_filled_in_batches_is_the_map_filled_at_once(average):
+    """New voxels are inserted among the stored ones in key order: batch after batch, the same voxels, points and
+    normals as one insertion (means up to rounding)."""
+    rng = np.random.default_rng(5)
+    pts, nrm = rng.normal(0, 3, (6000, 3)), rng.normal(size=(6000, 3))
+    batched, once = VoxelMap(3, 0.4, average=average), VoxelMap(3, 0.4, average=average)
+    for part in np.array_split(np.arange(6000), 7):
+        batched.add(pts[part], nrm[part])
+    once.add(pts, nrm)
+    assert np.array_equal(batched._keys, once._keys) and np.all(np.diff(batched._keys) > 0)
+    np.testing.assert_allclose(batched.points, once.points, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(batched.normals, once.normals)

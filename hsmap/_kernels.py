@@ -289,32 +289,41 @@ def _number_voxels(keys, skip, valid):  # pragma: no cover - JIT
 @nb.njit(cache=True, nogil=True)
 def _range_voxel_keys(pts, voxel, rmin, rmax):  # pragma: no cover - JIT
     """Each point's voxel key (indices floor(p / voxel) + 2^20, 21 bits each), the int64 maximum for a point
-    not finite or whose distance from the origin is outside [rmin, rmax]; that maximum; the count of the others."""
+    not finite or whose distance from the origin is outside [rmin, rmax]; that maximum; the count of the others;
+    the first of those whose indices do not fit 21 bits (-1: none; the keys are then incomplete)."""
     n, d = pts.shape
     keys = np.empty(n, dtype=np.int64)
     big = np.iinfo(np.int64).max
     valid = 0
     for i in range(n):
         r2 = 0.0
+        finite = True
         for j in range(d):
             r2 += pts[i, j] * pts[i, j]
-        if not (r2 >= rmin * rmin and r2 <= rmax * rmax):  # also false for NaN
+            finite &= np.isfinite(pts[i, j])
+        if not (finite and r2 >= rmin * rmin and r2 <= rmax * rmax):  # also false for NaN
             keys[i] = big
             continue
         k = np.int64(0)
         for j in range(d):
-            k = (k << 21) | (np.int64(np.floor(pts[i, j] / voxel)) + (1 << 20))
+            ix = np.int64(np.floor(pts[i, j] / voxel)) + (1 << 20)
+            if ix < 0 or ix >= (1 << 21):
+                return keys, big, valid, i
+            k = (k << 21) | ix
         keys[i] = k
         valid += 1
-    return keys, big, valid
+    return keys, big, valid, -1
 
 
 @nb.njit(cache=True, nogil=True)
 def _voxel_sums(pts, voxel, rmin, rmax):  # pragma: no cover - JIT
     """Each kept point's voxel number (-1: skipped), the voxels' order by key, and per voxel the sum of its points
-    (in input order) and their count."""
+    (in input order) and their count; and the first kept point beyond the keys' reach (-1: none; then no voxels)."""
     n, d = pts.shape
-    voxel_of, ukeys, _, m = _number_voxels(*_range_voxel_keys(pts, voxel, rmin, rmax))
+    keys, big, valid, bad = _range_voxel_keys(pts, voxel, rmin, rmax)
+    if bad >= 0:
+        return np.full(n, -1, dtype=np.int64), np.empty(0, dtype=np.int64), np.zeros((0, d)), np.zeros(0), bad
+    voxel_of, ukeys, _, m = _number_voxels(keys, big, valid)
     sums = np.zeros((m, d))
     counts = np.zeros(m)
     for i in range(n):
@@ -324,7 +333,7 @@ def _voxel_sums(pts, voxel, rmin, rmax):  # pragma: no cover - JIT
         for j in range(d):
             sums[v, j] += pts[i, j]
         counts[v] += 1.0
-    return voxel_of, np.argsort(ukeys[:m]), sums, counts
+    return voxel_of, np.argsort(ukeys[:m]), sums, counts, bad
 
 
 @nb.njit(cache=True, nogil=True)
@@ -346,9 +355,11 @@ def voxel_centroids(pts, voxel, rmin=0.0, rmax=np.inf):  # pragma: no cover - JI
     Points that are not finite, or whose distance from the origin is outside [rmin, rmax], are skipped. The
     voxels are found with a hash table (one pass over the points, which are summed in input order) and only the
     occupied voxels' keys are sorted: a 131,072-point cloud has some 10-30 thousand voxels at 0.1-0.15 m.
+    Returns the centroids and the first kept point beyond the keys' 2^20 voxels from the origin (-1: none; else
+    no centroids).
     """
-    _, order, sums, counts = _voxel_sums(pts, voxel, rmin, rmax)
-    return _centroids(order, sums, counts)
+    _, order, sums, counts, bad = _voxel_sums(pts, voxel, rmin, rmax)
+    return _centroids(order, sums, counts), bad
 
 
 @nb.njit(cache=True, nogil=True)
@@ -979,10 +990,10 @@ def bounding_box(points):  # pragma: no cover - JIT
 @nb.njit(cache=True, nogil=True)
 def voxel_centroids_with(pts, vals, voxel, rmin=0.0, rmax=np.inf):  # pragma: no cover - JIT
     """:func:`voxel_centroids` of points (N, d), and the mean of ``vals`` (N,) over each voxel (a point's time,
-    say): (centroids (M, d), means (M,))."""
-    voxel_of, order, sums, counts = _voxel_sums(pts, voxel, rmin, rmax)
+    say): (centroids (M, d), means (M,), the first point beyond reach or -1)."""
+    voxel_of, order, sums, counts, bad = _voxel_sums(pts, voxel, rmin, rmax)
     vsums = np.zeros(len(counts))
     for i in range(len(voxel_of)):
         if voxel_of[i] >= 0:
             vsums[voxel_of[i]] += vals[i]
-    return _centroids(order, sums, counts), vsums[order] / counts[order]
+    return _centroids(order, sums, counts), vsums[order] / counts[order], bad

@@ -53,21 +53,23 @@ def voxel_downsample(points: NDArray[np.floating], voxel: float, min_range: floa
     """Centroid of the points in each occupied voxel (cube or square of side ``voxel``), ordered by voxel.
 
     Points that are not finite, or whose distance from the origin is outside [min_range, max_range], are dropped
-    first. Coordinates must lie within +/- 2^20 voxels of the origin (about +/- 100 km at 0.1 m).
+    first. The points kept must lie within +/- 2^20 voxels of the origin (about +/- 100 km at 0.1 m).
     """
     from . import _kernels  # numba: compiled on first use
     pts = np.asarray(points, dtype=float)
     if voxel <= 0 or len(pts) == 0:
         return pts
-    _check_voxel_reach(pts, voxel, max_range)
-    return _kernels.voxel_centroids(np.ascontiguousarray(pts), float(voxel), float(min_range), float(max_range))
+    pts = np.ascontiguousarray(pts)
+    out, bad = _kernels.voxel_centroids(pts, float(voxel), float(min_range), float(max_range))
+    _check_voxel_reach(pts, bad, voxel)
+    return out
 
 
-def _check_voxel_reach(pts: NDArray[np.float64], voxel: float, max_range: float) -> None:
-    """The downsampling's voxel keys hold +/- 2^20 voxels: refuse points (within ``max_range``) beyond them."""
-    limit = min(max_range, float(np.nanmax(np.abs(pts), initial=0.0)))
-    if limit >= (1 << 20) * voxel:
-        raise InputError(f"points beyond +/-{(1 << 20) * voxel:.0f} m cannot be downsampled at {voxel} m voxels")
+def _check_voxel_reach(pts: NDArray[np.float64], bad: int, voxel: float) -> None:
+    """The downsampling's voxel keys hold +/- 2^20 voxels: refuse a kept point (row ``bad``, -1: none) beyond."""
+    if bad >= 0:
+        raise InputError(f"points beyond +/-{(1 << 20) * voxel:.0f} m cannot be downsampled at {voxel} m voxels "
+                         f"(e.g. {pts[bad].tolist()})")
 
 
 def voxel_downsample_with(points: NDArray[np.floating], values: NDArray[np.floating], voxel: float,
@@ -84,9 +86,11 @@ def voxel_downsample_with(points: NDArray[np.floating], values: NDArray[np.float
         raise ShapeError(f"values must have one entry per point ({len(pts)}), got {len(vals)}")
     if voxel <= 0 or len(pts) == 0:
         return pts, vals
-    _check_voxel_reach(pts, voxel, max_range)
-    return _kernels.voxel_centroids_with(np.ascontiguousarray(pts), np.ascontiguousarray(vals), float(voxel),
-                                         float(min_range), float(max_range))
+    pts = np.ascontiguousarray(pts)
+    out, means, bad = _kernels.voxel_centroids_with(pts, np.ascontiguousarray(vals), float(voxel), float(min_range),
+                                                    float(max_range))
+    _check_voxel_reach(pts, bad, voxel)
+    return out, means
 
 
 def _grown(a: NDArray | None, m: int, cap: int, dtype, width: int) -> NDArray:

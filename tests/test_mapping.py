@@ -18,8 +18,13 @@ def test_voxel_downsample_gives_centroids_within_the_range_limits():
     pts = np.array([[0.01, 0.01], [0.03, 0.05], [0.5, 0.0], [5.0, 0.0], [np.inf, 0.0]])
     out = voxel_downsample(pts, 0.1, min_range=0.0, max_range=1.0)
     np.testing.assert_allclose(out, [[0.02, 0.03], [0.5, 0.0]])
-    with pytest.raises(InputError, match="cannot be downsampled"):
-        voxel_downsample(np.array([[1e6, 0.0]]), 0.1)
+    with pytest.raises(InputError, match=r"cannot be downsampled .*\[1000000.0, 0.0\]"):
+        voxel_downsample(np.array([[1.0, 0.0], [1e6, 0.0]]), 0.1)
+    # only the points kept must fit the keys: a far point beyond max_range and a non-finite one are dropped
+    np.testing.assert_allclose(voxel_downsample(pts[[0, 1, 3]], 0.1, max_range=10.0), [[0.02, 0.03], [5.0, 0.0]])
+    np.testing.assert_allclose(voxel_downsample(np.array([[0.01, 0.01], [1e9, 0.0], [np.inf, 0.0], [-np.inf, 1.0]]),
+                                                0.1, max_range=100.0), [[0.01, 0.01]])
+    np.testing.assert_allclose(voxel_downsample(np.array([[0.01, 0.01], [np.inf, 0.0]]), 0.1), [[0.01, 0.01]])
 
 
 def test_voxel_map_keeps_one_point_per_voxel():

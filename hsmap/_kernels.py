@@ -243,8 +243,12 @@ def splat_field_3d(pts, origin, res, field, radius, tau, a_lo=0, a_hi=-1):  # pr
                 c1 = min(min(cw + radius + 1, nz), int(np.floor(w + hz)) + 2)
                 for c in range(c0, c1):
                     dz = (c - w) * res
-                    d = np.sqrt(dxy + dz * dz)
-                    if d < field[a, b, c]:
+                    s = dxy + dz * dz
+                    f = np.float64(field[a, b, c])
+                    if s >= f * f:  # f * f is exact (f is a float32): sqrt(s) >= f, so no update
+                        continue
+                    d = np.sqrt(s)
+                    if d < f:
                         field[a, b, c] = d
 
 

@@ -79,15 +79,15 @@ class DistanceField:
     bounds : array_like of shape (2, d), optional
         [lower corner, upper corner] of the volume in world metres; default: the points' bounding box grown by
         the truncation. Points outside the volume do not count.
-    recycle : DistanceField, optional
-        A field its owner no longer uses: its grid's memory is reused where it is large enough (a map's field
-        rebuilt around the robot then touches no fresh memory), and that field is invalid afterwards.
     normals : ndarray of shape (M, d), optional
         Unit normals of the points. The field then also keeps, per node, the nearest point and its normal:
         correspondences for a point-to-line (point-to-plane) refinement at the cost of one look-up
         (:func:`hsmap.registration.refine_icp`). 2D: :attr:`nearest`, (nx, ny, 4) float32 (x, y, nx, ny), NaN
         where none is within the band; 3D: :attr:`nearest_index`, (nx, ny, nz) int32 rows of
         :attr:`nearest_points` and :attr:`nearest_normals` (-1 where none), a quarter of the memory.
+    recycle : DistanceField, optional
+        A field its owner no longer uses: its grid's memory is reused where it is large enough (a map's field
+        rebuilt around the robot then touches no fresh memory), and that field is invalid afterwards.
 
     Notes
     -----

@@ -2,9 +2,9 @@
 that a run doing twice the work exceeds."""
 
 import json
-import math
 
 import pytest
+from _budget import budget, over_budget
 
 from hsmap.slam import Costs, SlamConfig, run_slam, write_slam_outputs
 
@@ -24,11 +24,7 @@ REFERENCE = {
     "map_rebuilds": 22,
     "points_inserted": 423621,
 }
-#: How much a count may grow before the test fails: a change doubling the work fails it.
-MARGIN = 1.3
-#: A count this small may grow by this much however small it is (a search or an optimisation more).
-SLACK = 2
-BUDGET = {k: max(math.ceil(MARGIN * v), v + SLACK) for k, v in REFERENCE.items()}
+BUDGET = budget(REFERENCE)
 
 
 # ---------------------------------------------------------------------------------------------- the counters
@@ -80,8 +76,7 @@ def test_intel_run_stays_within_its_cost_budget(intel_run, tmp_path):
     assert costs["registrations"] >= FRAMES - 1
     assert costs["harmony_evaluations"] >= costs["registrations"]
     assert costs["points_inserted"] >= sum(f.points for f in intel_run.frames if f.keyframe)
-    over = {k: f"{costs[k]} > {BUDGET[k]} (reference {REFERENCE[k]} x {MARGIN})"
-            for k in BUDGET if costs[k] > BUDGET[k]}
+    over = over_budget(costs, REFERENCE)
     assert not over, f"HS-SLAM's work on the first {FRAMES} intel frames grew beyond its budget: {over}"
     paths = write_slam_outputs(intel_run, tmp_path)
     assert json.loads(paths["metrics"].read_text())["costs"] == costs

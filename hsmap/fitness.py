@@ -125,15 +125,9 @@ class DistanceField:
                 "use the KD-tree backend (RegistrationConfig(backend='kdtree'))")
         shape = cells.astype(int)
         self.shape = tuple(int(s) for s in shape)
+        self._stores: dict[str, NDArray] = {}  # the grids' memory (the successor's too, where it recycles this)
         # Padded storage: one cell of `truncation` on every side; `values` is a view of the interior.
-        padded = tuple(s + 2 for s in self.shape)
-        size = int(np.prod(padded))
-        store = None if recycle is None else recycle._store
-        if store is None or store.size < size:  # a recycled grid grows with a margin: the next may be larger
-            store = np.empty(size if recycle is None else size + size // 4, dtype=np.float32)
-        self._store = store  # the memory of the grid (and of the grid's successor where it recycles this one)
-        self._padded = store[:size].reshape(padded)
-        self._padded.fill(np.float32(truncation))
+        self._padded = self._grid("padded", tuple(s + 2 for s in self.shape), np.float32(truncation), recycle)
         self.values = self._padded[(slice(1, -1),) * self.dim]
         self._strides = np.array([int(np.prod(self._padded.shape[i + 1 :])) for i in range(self.dim)])
         self._pshape = np.array(self._padded.shape)
@@ -145,10 +139,23 @@ class DistanceField:
         self.nearest_normals = np.empty((0, self.dim))
         if normals is not None:
             if self.dim == 2:
-                self.nearest = np.full(self.shape + (4,), np.nan, dtype=np.float32)
+                self.nearest = self._grid("nearest", self.shape + (4,), np.float32(np.nan), recycle)
             else:
-                self.nearest_index = np.full(self.shape, -1, dtype=np.int32)
+                self.nearest_index = self._grid("nearest_index", self.shape, np.int32(-1), recycle)
         self.add(pts, normals)
+
+    def _grid(self, name: str, shape: tuple[int, ...], fill: np.generic, recycle: DistanceField | None
+              ) -> NDArray:
+        """An array of ``shape`` and ``fill``'s type holding ``fill``, in ``recycle``'s grid of that name where it
+        is large enough; a recycled grid grows with a quarter's margin (the next may be larger still)."""
+        size = int(np.prod(shape))
+        store = None if recycle is None else recycle._stores.get(name)
+        if store is None or store.size < size or store.dtype != fill.dtype:
+            store = np.empty(size if recycle is None else size + size // 4, dtype=fill.dtype)
+        self._stores[name] = store
+        out = store[:size].reshape(shape)
+        out.fill(fill)
+        return out
 
     @property
     def keeps_nearest(self) -> bool:

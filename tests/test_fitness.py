@@ -99,15 +99,18 @@ def test_field_grows_incrementally(rng, dim):
 def test_a_field_on_a_recycled_grid_is_a_fresh_one(rng, dim):
     """DistanceField(recycle=old): the same values as a fresh field, in the old grid's memory where it is large
     enough, in new memory where it is not."""
-    a = rng.uniform(0, 4, (400, dim))
-    b = rng.uniform(1, 3, (300, dim))
-    old = DistanceField(a, 0.05, 0.3)
-    store = old._store
-    smaller = DistanceField(b, 0.05, 0.3, recycle=old)
-    assert smaller._store is store
-    np.testing.assert_array_equal(smaller.values, DistanceField(b, 0.05, 0.3).values)
-    larger = DistanceField(a, 0.04, 0.3, recycle=smaller)
-    assert larger._store is not store
+    a, na = rng.uniform(0, 4, (400, dim)), rng.normal(size=(400, dim))
+    b, nb = rng.uniform(1, 3, (300, dim)), rng.normal(size=(300, dim))
+    near = "nearest" if dim == 2 else "nearest_index"
+    old = DistanceField(a, 0.05, 0.3, normals=na)
+    stores = dict(old._stores)
+    smaller = DistanceField(b, 0.05, 0.3, normals=nb, recycle=old)
+    assert all(smaller._stores[k] is stores[k] for k in ("padded", near))
+    fresh = DistanceField(b, 0.05, 0.3, normals=nb)
+    np.testing.assert_array_equal(smaller.values, fresh.values)
+    np.testing.assert_array_equal(getattr(smaller, near), getattr(fresh, near))
+    larger = DistanceField(a, 0.04, 0.3, recycle=smaller)  # without normals: no nearest grid
+    assert larger._stores["padded"] is not stores["padded"] and larger.keeps_nearest is False
     np.testing.assert_array_equal(larger.values, DistanceField(a, 0.04, 0.3).values)
     q = rng.uniform(0, 4, (200, dim))
     np.testing.assert_array_equal(larger(q), DistanceField(a, 0.04, 0.3)(q))

@@ -778,57 +778,12 @@ def grid_nearest(sp, order, start, origin, inv_cell, dims, q, bound, hint, out_d
 
 
 @nb.njit(cache=True, nogil=True)
-def voxel_reduce(pts, voxel, bias):  # pragma: no cover - JIT
-    """The occupied voxels of finite points (N, d), in the order of their keys (:func:`hsmap.mapping.voxel_keys`:
-    the indices floor(p / voxel) + bias, 21 bits each): (keys, first row of each voxel, the sum of its points in
-    input order, how many). If a point lies beyond the 21 bits, keys is empty and first[0] is its row.
-
-    One pass over the points with a hash table of the voxels (:func:`_number_voxels`, as :func:`voxel_centroids`;
-    a map rebuilt from 100 keyframes is a million points in some 75 thousand voxels), then a sort of the voxels
-    only.
-    """
-    n, d = pts.shape
-    keys = np.empty(n, dtype=np.int64)
-    for i in range(n):
-        k = np.int64(0)
-        for j in range(d):
-            ix = np.int64(np.floor(pts[i, j] / voxel)) + bias
-            if ix < 0 or ix >= 2 * bias:
-                bad = np.empty(1, dtype=np.int64)
-                bad[0] = i
-                return np.empty(0, dtype=np.int64), bad, np.empty((0, d)), np.empty(0)
-            k = (k << 21) | ix
-        keys[i] = k
-    voxel_of, ukeys, first, m = _number_voxels(keys, -1, n)  # keys are >= 0
-    sums = np.zeros((m, d))
-    counts = np.zeros(m)
-    for i in range(n):
-        v = voxel_of[i]
-        for j in range(d):
-            sums[v, j] += pts[i, j]
-        counts[v] += 1.0
-    order = np.argsort(ukeys[:m])
-    out_sums = np.empty((m, d))
-    out_counts = np.empty(m)
-    out_first = np.empty(m, dtype=np.int64)
-    out_keys = np.empty(m, dtype=np.int64)
-    for r in range(m):
-        v = order[r]
-        out_keys[r] = ukeys[v]
-        out_first[r] = first[v]
-        out_counts[r] = counts[v]
-        for j in range(d):
-            out_sums[r, j] = sums[v, j]
-    return out_keys, out_first, out_sums, out_counts
-
-
-@nb.njit(cache=True, nogil=True)
 def voxel_accumulate(pts, nrm, voxel, bias, table, ukeys, sums, counts, fpts, fnrm, m):  # pragma: no cover - JIT
     """Add the finite points (N, d) and their normals to a running voxel reduction: ``m`` voxels so far, numbered in
-    the order they first appear, each with its key (as :func:`voxel_reduce`), the sum of its points in input
-    order, their count, and its first point and normal; ``table`` (a power of two, slot -> voxel number) hashes
-    the keys. The arrays must hold m + N voxels and ``table`` twice as many. Returns (the new m, -1), or (m, row)
-    for the first point beyond the keys' 21 bits."""
+    the order they first appear, each with its key (:func:`hsmap.mapping.voxel_keys`: the indices
+    floor(p / voxel) + bias, 21 bits each), the sum of its points in input order, their count, and its first point
+    and normal; ``table`` (a power of two, slot -> voxel number) hashes the keys. The arrays must hold m + N voxels
+    and ``table`` twice as many. Returns (the new m, -1), or (m, row) for the first point beyond the keys' 21 bits."""
     n, d = pts.shape
     size = table.shape[0]
     bits = 0

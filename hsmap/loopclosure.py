@@ -242,14 +242,16 @@ def keyframe_voxel_map(poses, keyframes: list[Keyframe], which, dim: int, voxel:
     ``within`` = (centre, radius): only the points within ``radius`` metres of ``centre`` (horizontally in 3D).
     A voxel whose points are all kept is the same as in the whole map (the same points in the same order), so
     the map is the whole map's crop within ``radius`` less two voxel diagonals."""
+    c = None if within is None else np.asarray(within[0], dtype=float)[:2]
+    r2 = None if within is None else within[1] ** 2
+
     def moved():
         for k, pose in zip(which, poses, strict=True):
             T = pose_to_matrix(pose)
             p = transform_points(T, keyframes[k].points)
             n = keyframes[k].normals @ T[:dim, :dim].T
-            if within is not None:
-                c = np.asarray(within[0], dtype=float)[:2]
-                keep = ((p[:, :2] - c) ** 2).sum(1) <= within[1] ** 2
+            if c is not None:
+                keep = ((p[:, :2] - c) ** 2).sum(1) <= r2
                 p, n = p[keep], n[keep]
             yield p, n
 

@@ -93,12 +93,43 @@ def voxel_downsample_with(points: NDArray[np.floating], values: NDArray[np.float
     return out, means
 
 
-def _grown(a: NDArray | None, m: int, cap: int, dtype, width: int) -> NDArray:
-    """An array of ``cap`` rows (of ``width`` columns; 0: a vector) holding the first ``m`` rows of ``a``."""
-    out = np.empty((cap, width) if width else cap, dtype=dtype)
-    if m:
-        out[:m] = a[:m]
-    return out
+def _voxel_reduction(parts: Iterable[tuple[ArrayLike, ArrayLike | None]], dim: int, voxel: float
+                     ) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64],
+                                NDArray[np.float64]]:
+    """The voxels (side ``voxel``) of the finite points (N, dim) of ``parts`` and their normals (or None), taken in
+    order a part at a time, in the order of their keys (:func:`voxel_keys`): (keys, first points, first normals,
+    point sums in input order, counts). Memory grows with the voxels, not with the points of all the parts."""
+    from . import _kernels  # numba: compiled on first use
+    cap, m = 0, 0
+    table = keys = sums = counts = first = first_normals = None
+    for points, normals in parts:
+        pts = np.ascontiguousarray(points, dtype=float)
+        if pts.ndim != 2 or pts.shape[1] != dim:
+            raise ShapeError(f"points must have shape (N, {dim}), got {pts.shape}")
+        nrm = np.full(pts.shape, np.nan) if normals is None else np.ascontiguousarray(normals, dtype=float)
+        if nrm.shape != pts.shape:
+            raise ShapeError(f"normals must have the shape of the points {pts.shape}, got {nrm.shape}")
+        if not len(pts):
+            continue
+        if m + len(pts) > cap:  # room for every point to be a new voxel; the table at most half full
+            cap = max(2 * cap, m + len(pts), 1024)
+            grown = []
+            for a, dtype, width in ((keys, np.int64, 0), (counts, float, 0), (sums, float, dim), (first, float, dim),
+                                    (first_normals, float, dim)):
+                out = np.empty((cap, width) if width else cap, dtype=dtype)
+                if m:
+                    out[:m] = a[:m]
+                grown.append(out)
+            keys, counts, sums, first, first_normals = grown
+            table = _kernels.voxel_rehash(keys, m, 1 << int(2 * cap - 1).bit_length())
+        m, bad = _kernels.voxel_accumulate(pts, nrm, voxel, _BIAS, table, keys, sums, counts, first, first_normals, m)
+        if bad >= 0:
+            raise InputError(f"points beyond +/-{_BIAS * voxel:.0f} m cannot be stored at voxel size {voxel} m "
+                             f"(e.g. {pts[bad].tolist()})")
+    if m == 0:
+        return np.empty(0, dtype=np.int64), *(np.empty((0, dim)),) * 3, np.empty(0)
+    order = np.argsort(keys[:m])
+    return keys[order], first[order], first_normals[order], sums[order], counts[order]
 
 
 class VoxelMap:
@@ -150,27 +181,11 @@ class VoxelMap:
         Returns the points of the voxels that were new, (K, dim) (and their normals, with ``return_normals``).
         """
         from . import _kernels  # numba: compiled on first use
-        pts = np.asarray(points, dtype=float)
-        if pts.ndim != 2 or pts.shape[1] != self.dim:
-            raise ShapeError(f"points must have shape (N, {self.dim}), got {pts.shape}")
-        nrm = np.full(pts.shape, np.nan) if normals is None else np.asarray(normals, dtype=float)
-        if nrm.shape != pts.shape:
-            raise ShapeError(f"normals must have the shape of the points {pts.shape}, got {nrm.shape}")
-        if not np.isfinite(pts).all():  # one pass over the values; the rows only where some are not finite
-            ok = np.all(np.isfinite(pts), axis=1)
-            pts, nrm = pts[ok], nrm[ok]
-        if len(pts) == 0:
-            return (pts, nrm) if return_normals else pts
-
-        # the voxels' sorted keys, first rows, sums (in input order) and counts: one pass of a hash table
-        keys, first, sums, counts = _kernels.voxel_reduce(np.ascontiguousarray(pts), self.voxel, _BIAS)
+        keys, pts, nrm, sums, counts = _voxel_reduction([(points, normals)], self.dim, self.voxel)
         if len(keys) == 0:
-            raise InputError(f"points beyond +/-{_BIAS * self.voxel:.0f} m cannot be stored at voxel size "
-                             f"{self.voxel} m (e.g. {pts[first[0]].tolist()})")
+            return (pts, nrm) if return_normals else pts
         if self.average:
-            pts, nrm = sums / counts[:, None], nrm[first]
-        else:
-            pts, nrm = pts[first], nrm[first]
+            pts = sums / counts[:, None]
         if len(self._keys) == 0:  # a new map: the voxels as they come, already in key order
             self._keys, self._points, self._normals = keys, pts, nrm
             if self.average:
@@ -207,52 +222,23 @@ class VoxelMap:
         """A new map of the points (N, dim) and normals (or None) of ``parts``, inserted in order: the map one
         :meth:`add` of all of them concatenated makes, built a part at a time, in memory that grows with the
         voxels rather than the points."""
-        from . import _kernels  # numba: compiled on first use
         vm = cls(dim, voxel, average=average)
-        cap, m = 0, 0
-        table = ukeys = sums = counts = fpts = fnrm = None
-        for points, normals in parts:
-            pts = np.ascontiguousarray(points, dtype=float)
-            if pts.ndim != 2 or pts.shape[1] != dim:
-                raise ShapeError(f"points must have shape (N, {dim}), got {pts.shape}")
-            nrm = (np.full(pts.shape, np.nan) if normals is None
-                   else np.ascontiguousarray(normals, dtype=float))
-            if nrm.shape != pts.shape:
-                raise ShapeError(f"normals must have the shape of the points {pts.shape}, got {nrm.shape}")
-            if not len(pts):
-                continue
-            if m + len(pts) > cap:  # room for every point to be a new voxel; the table at most half full
-                cap = max(2 * cap, m + len(pts), 1024)
-                ukeys, counts, sums, fpts, fnrm = (
-                    _grown(a, m, cap, dtype, width) for a, dtype, width in
-                    ((ukeys, np.int64, 0), (counts, float, 0), (sums, float, dim), (fpts, float, dim),
-                     (fnrm, float, dim)))
-                table = _kernels.voxel_rehash(ukeys, m, 1 << int(2 * cap - 1).bit_length())
-            m, bad = _kernels.voxel_accumulate(pts, nrm, vm.voxel, _BIAS, table, ukeys, sums, counts, fpts, fnrm, m)
-            if bad >= 0:
-                raise InputError(f"points beyond +/-{_BIAS * vm.voxel:.0f} m cannot be stored at voxel size "
-                                 f"{vm.voxel} m (e.g. {pts[bad].tolist()})")
-        if m == 0:
-            return vm
-        order = np.argsort(ukeys[:m])
-        vm._keys, vm._normals = ukeys[order], fnrm[order]
-        if average:
-            vm._sums, vm._counts = sums[order], counts[order]
-            vm._points = vm._sums / vm._counts[:, None]
-        else:
-            vm._points = fpts[order]
+        keys, first, first_normals, sums, counts = _voxel_reduction(parts, dim, vm.voxel)
+        if len(keys):
+            vm._keys, vm._normals = keys, first_normals
+            if average:
+                vm._sums, vm._counts = sums, counts
+                vm._points = sums / counts[:, None]
+            else:
+                vm._points = first
         return vm
 
     def crop(self, centre: ArrayLike, radius: float) -> NDArray[np.float64]:
         """Map points within ``radius`` metres of ``centre`` (horizontal distance in 3D)."""
-        return self._points[self._near(centre, radius)]
+        return self.crop_with_normals(centre, radius)[0]
 
     def crop_with_normals(self, centre: ArrayLike, radius: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Map points within ``radius`` metres of ``centre`` and their normals."""
         from . import _kernels  # numba: compiled on first use
         c = np.asarray(centre, dtype=float)
         return _kernels.crop_rows(self._points, self._normals, float(c[0]), float(c[1]), float(radius) * radius)
-
-    def _near(self, centre: ArrayLike, radius: float) -> NDArray[np.bool_]:
-        c = np.asarray(centre, dtype=float)[:2]
-        return ((self._points[:, :2] - c) ** 2).sum(1) <= radius * radius

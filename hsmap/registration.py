@@ -496,12 +496,12 @@ def refine_icp(
             d, idx = target.nearest(moved, dist, idx)
             if normals is not None:
                 dT, step, found = _kernels.point_to_plane_step(moved, d, idx, target.points, normals, robust_kernel)
+                if found < 2 * dim:
+                    break
             else:
                 ok = np.isfinite(d)
-                found = int(ok.sum())
-            if found < 2 * dim:
-                break
-            if normals is None:
+                if ok.sum() < 2 * dim:
+                    break
                 p, q = moved[ok], target.points[idx[ok]]
                 dT = np.eye(dim + 1)
                 mp, mq = p.mean(0), q.mean(0)

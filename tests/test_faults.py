@@ -449,8 +449,8 @@ from hsmap.cli import main
 marker, where = sys.argv[1], sys.argv[2]
 
 
-def stop():  # say so, then wait for the test's signal (a short sleep: a signal caught on any thread, or just
-    # before the wait began, is handled at the next wake-up, where signal.pause() could wait for ever)
+def stop():  # say so, then wait for the test's signal, handled at the next short sleep's end whichever thread
+    # caught it and whenever it came
     Path(marker).write_text(str(os.getpid()))
     while True:
         time.sleep(0.05)

@@ -12,8 +12,8 @@ component: k > 1 means the registration claims too little uncertainty, l < 1 tha
 model.
 
 It is a diagnosis, not part of HS-SLAM: d also holds the previous fused pose's error, and where one source's
-variance is small against the other's the fit cannot tell its scale (it runs to the bound). 2026-12-01 (issue 10)
-found k = 3-9 on intel, fr079 and fr-clinic, and fr-clinic's odometry some 20 times better in yaw than its model.
+variance is small against the other's the fit cannot tell its scale (it runs to the bound). What it found on each
+log is in ``docs/slam-results.md``.
 
     .venv/bin/python benchmarks/noise_models.py fr-clinic --seed 1
 

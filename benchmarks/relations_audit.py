@@ -13,28 +13,18 @@ It also asks which robot frame the relations describe: it scores the trajectory 
 ``--frame-offsets`` along the robot's x axis (the pose composed with (dx, 0, 0), the frame a sensor offset would
 move), for all relations, those with Δt <= 10 s and > 60 s, and those whose two poses face more than 90 deg apart
 (a place revisited the other way round: a frame offset d moves their relative pose by up to 2 d, a relation
-between poses facing the same way by almost nothing). On intel and fr079 (2026-12-01, seed 1) the error is
-sharpest at 0: the opposite-facing relations are met to 0.028 and 0.048 m there and to 0.15-0.21 m 0.1 m either
-side. On fr-clinic they are not met at any offset: 0.88 m at 0, 0.55 m at best, some 0.25-0.3 m behind the bag's
-base_link (the long relations' mean error 0.50 -> 0.35 m). Declaring the laser 0.22 m further back instead
-(``--extrinsic2d -0.22,0,0``) makes every relation worse (0.172 m against 0.131), and the odometry agrees with the
-bag's offset.
+between poses facing the same way by almost nothing).
 
 It also scores the relations with dt <= 10 s as three sources have them: the raw wheel odometry, the two scans
-alone (ICP of one to the other, no map) and the trajectory. Median rotation error, 2026-12-02 (seed 1 at 6b88e85):
-intel odometry 1.29 deg, scans alone 0.19, trajectory 0.20; fr079 1.42, 0.27, 0.27; fr-clinic **0.06**, 0.32, 0.26.
-On intel and fr079 the relations agree with what the scans say; on fr-clinic with the odometry, five times more
-closely than with the two scans that each relation joins.
+alone (ICP of one to the other, no map) and the trajectory; the source they agree with most closely is the one
+they were made from.
 
 With ``--independent TUM`` (a trajectory of the log made without its odometry: ``hsmap slam --no-odometry``) it
 also asks two independent sensors about each relation's rotation: a relation that the raw wheel odometry and the
 scans alone both miss by more than ``--min-rotation`` (1 deg), while they agree with each other to half of what
 each misses it by, is one that both sensors contradict. The check does not involve the trajectory audited, so it
 cannot select relations in its favour; the script reports how many there are, where in the log, and the audited
-trajectory's errors with and without them. fr-clinic (2026-12-02, seed 1 at 127930a, the scan-only run seed 1):
-211 of 2820 relations (7.5 %), dt median 6 s, 92 of them at t = 3000-3500 s; HS-SLAM's 0.1191 m / 0.808 deg is
-0.0991 m / 0.472 deg without them (Cartographer's 0.1078 m / 0.747 deg was measured against every relation). On
-intel 7 of 2984 (0.2 %), on fr079 16 of 1685 (0.9 %).
+trajectory's errors with and without them.
 
 With ``--maps`` it also scores the long relations (dt > ``--maps-min-dt``, 60 s) map to map. A long relation
 often joins a place and its revisit the other way round (a corridor driven back), and a 180 deg laser facing the
@@ -42,33 +32,15 @@ other way sees the other side of every pillar and alcove: the two scans barely o
 above cannot judge them (their costs sit near the truncation). Here the scans within ``--maps-window`` (15 s) of
 each end, placed by the trajectory, make two maps; the second is scored against the first where the trajectory
 puts it and moved rigidly by the correction that gives the trajectory's relative pose the relation's value.
-2026-12-02, seed 1 of ``hsmap slam LOG --dof 3 --seed 1`` at f892987:
-- fr-clinic: of the 178 long relations, HS-SLAM misses 115 by more than 0.2 m; the maps align better at HS-SLAM's
-  poses on 95 and at the relation on none. Its long-range error is 0.479 m against all of them, 0.163 m without
-  those 95. Most are the return to the start (t = 166-300 s against 4600-4800 s, 0.55-0.65 m, the relations
-  asking to move the way back 0.6 m along the hall, which would put the two ways' alcoves 0.6 m apart).
-- The check is not biased towards the trajectory it audits: on the same logs without loop closure
-  (``--no-loop-closure``), whose long-range error is real (fr-clinic 23 m, intel 0.13 m), the maps side with the
-  relation on 159 of 174 (fr-clinic) and 154 of 175 (intel). The 13 fr-clinic relations they contradict then
-  are, bar one, those they contradict with loop closure too: t = 3119-3187 s against 3346-3356 s (eight relations
-  HS-SLAM misses by 3.4-4.1 m and 23-28 deg), 1753-1764 s against 1965-1968 s (four) and 3982 s against 4061 s.
 
 It also counts the relations that are the raw odometry's relative pose to 3 mm and 0.02 deg (copied from it, not
 measured: made by hand, a relation starts from the odometry and is kept where it looks right) and pairs the
-relations with dt <= 10 s, the odometry and the trajectory. 2026-12-02, seed 1 of ``hsmap slam LOG --dof 3 --seed 1``
-at 68721bd:
-- fr-clinic: 154 of 2820 relations are copies (152 of its 2589 short ones; 12 % are within 1 cm and 0.1 deg of the
-  odometry, against 0.6 % of HS-SLAM's), most in the first 250 s, where the odometry meets the short relations
-  to 1 mm and HS-SLAM to 3.5 cm. The short relations, pairwise mean m / deg: relations-odometry 0.0740 / 0.489,
-  relations-HS-SLAM 0.0908 / 0.725, odometry-HS-SLAM 0.0437 / 0.352: the two sensors agree with each other twice
-  as closely as either agrees with the relations, and HS-SLAM moved towards the odometry scores better at every
-  step (0.0908, 0.0845, 0.0793, 0.0755, 0.0740 m at w = 0, 0.25, 0.5, 0.75, 1).
-- intel 4 copies of 2984, fr079 none of 1685; there the relations follow the scans (intel: relations-HS-SLAM
-  0.0160 m, relations-odometry 0.0308 m, moving towards the odometry worse at every step; fr079 0.0253 against
-  0.0590 m).
+relations with dt <= 10 s, the odometry and the trajectory, moving the trajectory's relative poses towards the
+odometry's in steps to see which way the error goes.
 
 It is a check of the benchmark, not a score: the published figures (Cartographer's 0.1078 m on fr-clinic) were
-measured against every relation, in the bag's frame, and so is ``benchmarks/slam.py``.
+measured against every relation, in the bag's frame, and so is ``benchmarks/slam.py``. What it found on each log is
+in ``docs/slam-results.md``.
 
     .venv/bin/python benchmarks/relations_audit.py fr-clinic reports/some-run/trajectory.tum \
         [--independent reports/no-odometry-run/trajectory.tum] [--maps]
@@ -164,9 +136,7 @@ def short_relations_by_source(name: str, frames: list, stamps: np.ndarray, odome
     """The relations with dt <= 10 s as three sources have them: the raw wheel odometry, the two scans alone
     (point-to-line ICP of scan j to scan i from the odometry's relative pose, no map), and the trajectory.
 
-    Which source the relations agree with says what they were made from: on fr-clinic (2026-12-02, seed 1) the raw
-    odometry meets their rotation to 0.06 deg (median) where the two scans alone and the trajectory both give
-    0.3 deg; on fr079 the scans and the trajectory give 0.27 deg, the odometry 1.3 deg.
+    Which source the relations agree with says what they were made from.
     """
     from hsmap.registration import RegistrationConfig, RegistrationTarget, refine_icp
 

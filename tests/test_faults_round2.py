@@ -275,6 +275,23 @@ def test_the_local_cluster_and_its_dashboard_listen_on_loopback_only():
     assert listening and all(a.ip in ("127.0.0.1", "::1") for a in listening), listening
 
 
+def test_the_local_cluster_workers_keep_the_allocators_own_settings():
+    """Dask's default MALLOC_TRIM_THRESHOLD_ would turn off glibc's adaptive mmap threshold in the workers (every
+    large array mapped and faulted in afresh); its one-thread BLAS settings stay."""
+    import os
+
+    from hsmap.study.distributed import _client
+
+    client, cluster = _client(1, None)
+    try:
+        env = next(iter(client.run(lambda: {k: os.environ.get(k) for k in ("MALLOC_TRIM_THRESHOLD_",
+                                                                             "OMP_NUM_THREADS")}).values()))
+    finally:
+        client.close()
+        cluster.close()
+    assert env == {"MALLOC_TRIM_THRESHOLD_": None, "OMP_NUM_THREADS": "1"}
+
+
 # --- inputs --------------------------------------------------------------------------------------------------------
 
 

@@ -63,6 +63,7 @@ def _one_line(exc: BaseException) -> str:
 
 def _client(workers: int | None, scheduler: str | None):
     try:
+        import dask
         from dask.distributed import Client, LocalCluster
     except ImportError as exc:  # pragma: no cover - a dependency of hsmap
         raise DependencyError(f"dask.distributed is needed for the batch ({exc}); pip install 'dask[distributed]'") \
@@ -77,9 +78,15 @@ def _client(workers: int | None, scheduler: str | None):
     n = int(workers or 2)
     if n < 1:
         raise ConfigError(f"--workers must be >= 1, got {workers}")
+    # The workers start with glibc's own allocator settings. Dask's default sets MALLOC_TRIM_THRESHOLD_, and a
+    # fixed threshold turns off glibc's adaptive mmap threshold: every large array is then mapped afresh and its
+    # pages faulted in again, which slows the runs (the SLAM runs most). Its thread settings are kept.
+    environ = {k: v for k, v in dask.config.get("distributed.nanny.pre-spawn-environ", {}).items()
+               if k != "MALLOC_TRIM_THRESHOLD_"}
     # the scheduler, its workers and its dashboard (which has no authentication) listen on loopback only
-    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
-                           dashboard_address="127.0.0.1:0", silence_logs=40)
+    with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}):
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
+                               dashboard_address="127.0.0.1:0", silence_logs=40)
     return Client(cluster), cluster
 
 

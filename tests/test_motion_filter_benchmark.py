@@ -1,27 +1,16 @@
 """benchmarks/motion_filter.py: which scans a motion filter registers, and how the others are placed."""
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
+from _benchmarks import benchmark_modules
 
 from hsmap.geometry import compose
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
 def mf():
-    sys.path.insert(0, str(ROOT / "benchmarks"))
-    try:
-        spec = importlib.util.spec_from_file_location("motion_filter", ROOT / "benchmarks" / "motion_filter.py")
-        mod = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(mod)
+    with benchmark_modules("motion_filter") as (mod,):
         yield mod
-    finally:
-        sys.path.remove(str(ROOT / "benchmarks"))
 
 
 def test_registered_after_distance_or_angle(mf):

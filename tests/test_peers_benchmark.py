@@ -1,6 +1,5 @@
 """benchmarks/rawlog.py (MRPT rawlogs from hsmap frames) and benchmarks/peers.py's report of peers that cannot run."""
 
-import importlib
 import shutil
 import subprocess
 import sys
@@ -8,22 +7,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _benchmarks import benchmark_modules
 
 from hsmap.datasets.frames import Frame, LaserScan2D
 from hsmap.geometry import relative
 
-ROOT = Path(__file__).resolve().parents[1]
-
 
 @pytest.fixture(scope="module")
 def bench():
-    sys.path.insert(0, str(ROOT / "benchmarks"))
-    try:
-        yield importlib.import_module("rawlog"), importlib.import_module("peers")
-    finally:
-        sys.path.remove(str(ROOT / "benchmarks"))
-        for name in ("rawlog", "peers", "_report", "slam"):
-            sys.modules.pop(name, None)
+    with benchmark_modules("rawlog", "peers") as mods:
+        yield mods
 
 
 def _frames(n=4, beams=37, seed=0):

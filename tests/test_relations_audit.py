@@ -1,29 +1,18 @@
 """benchmarks/relations_audit.py's check of a benchmark's relations by two independent sensors."""
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
+from _benchmarks import benchmark_modules
 
 from hsmap.datasets.relations import Relations
 from hsmap.geometry import compose, relative
 from hsmap.trajectory import Trajectory
 
-ROOT = Path(__file__).resolve().parents[1]
-
 
 @pytest.fixture(scope="module")
 def audit():
-    sys.path.insert(0, str(ROOT / "benchmarks"))
-    try:
-        spec = importlib.util.spec_from_file_location("relations_audit", ROOT / "benchmarks" / "relations_audit.py")
-        mod = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(mod)
+    with benchmark_modules("relations_audit") as (mod,):
         yield mod
-    finally:
-        sys.path.remove(str(ROOT / "benchmarks"))
 
 
 def test_relations_both_sensors_contradict_are_counted_and_only_they(audit):

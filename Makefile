@@ -64,7 +64,7 @@ bench: setup
 	$(BIN)/python benchmarks/readers.py
 
 lint: setup
-	$(BIN)/ruff check hsmap tests benchmarks
+	$(BIN)/ruff check hsmap tests benchmarks notebooks
 
 # Re-resolve the pinned versions (needs the registry); commit requirements.lock afterwards.
 lock:

@@ -31,7 +31,7 @@ from .errors import InputError
 from .geometry import euler_to_matrix
 from .neighbours import tree_query
 
-__all__ = ["DistanceField", "KDTreeLookup", "FieldObjective", "transform_batch", "Fitness", "score"]
+__all__ = ["DistanceField", "KDTreeLookup", "FieldObjective", "transform_batch", "Fitness", "score", "field_bounds"]
 
 
 def transform_batch(poses: NDArray[np.float64], points: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -58,6 +58,23 @@ MAX_FIELD_CELLS = 2**28
 #: A 3D splat is split into slabs between the compute threads from this many node updates (points x cube of the
 #: band): a keyframe's 2,000-5,000 new points in a 9-cell band are 1.5-3.6 million.
 PARALLEL_MIN_SPLAT = 200_000
+
+
+def field_bounds(points: NDArray[np.float64], resolution: float, truncation: float,
+                 within: ArrayLike | None = None) -> NDArray[np.float64]:
+    """[lower, upper] corners of a field of ``points``: their bounding box grown by the truncation and two cells
+    (:class:`DistanceField`'s default), or the part of it that covers the box ``within`` = [lower, upper] and the
+    cells its look-ups interpolate from. That part's lower corner is one of the default volume's nodes, so the
+    nodes the two share lie at the same places (up to rounding) and hold the same distances: a field there answers
+    as the whole one does inside ``within``."""
+    margin = truncation + 2 * resolution
+    lo, hi = points.min(axis=0) - margin, points.max(axis=0) + margin
+    if within is None:
+        return np.array([lo, hi])
+    w = np.asarray(within, dtype=float)
+    start = lo + np.maximum(np.floor((w[0] - lo) / resolution) - 2, 0.0) * resolution
+    end = np.minimum(hi, w[1] + 2 * resolution)
+    return np.array([lo, hi]) if np.any(end <= start) else np.array([start, end])
 
 
 class DistanceField:
@@ -106,8 +123,7 @@ class DistanceField:
         self.resolution = float(resolution)
         self.truncation = float(truncation)
         if bounds is None:
-            margin = truncation + 2 * resolution
-            lo, hi = pts.min(axis=0) - margin, pts.max(axis=0) + margin
+            lo, hi = field_bounds(pts, resolution, truncation)
         else:
             lo, hi = np.asarray(bounds, dtype=float)
             if lo.shape != (self.dim,) or np.any(hi <= lo):

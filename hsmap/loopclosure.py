@@ -678,14 +678,28 @@ class LoopCloser:
         # refine and check in the frame of the old keyframe nearest to the match (the edge's other end)
         anchor = members[int(np.argmin([np.linalg.norm(P[k][:2] - found[:2]) for k in members]))]
         to_anchor = np.linalg.inv(pose_to_matrix(P[anchor]))
-        target = RegistrationTarget(transform_points(to_anchor, vm.points), cfg.registration,
-                                    normals=vm.normals @ to_anchor[: self.dim, : self.dim].T)
         centre = relative(P[anchor], found)
         half = np.array([3 * cfg.far_resolution, 3 * cfg.far_resolution, 3 * cfg.far_angle_step])  # a cell or two off
+        # the old map's fields only where the source can land (the old map may span the whole building)
+        target = RegistrationTarget(transform_points(to_anchor, vm.points), cfg.registration,
+                                    normals=vm.normals @ to_anchor[: self.dim, : self.dim].T,
+                                    field_within=self._reach(source, centre, half))
         res = harmony_icp(source, target, bounds=np.column_stack([centre - half, centre + half]),
                           initial_guesses=centre[None], config=cfg.registration, rng=rng)
         self.registrations, self.evaluations = self.registrations + 1, self.evaluations + res.evaluations
         return self._checked(res, anchor, newest, relative(P[anchor], P[newest]), centre, half, prefix="far_")
+
+    def _reach(self, source: NDArray[np.float64], centre: NDArray[np.float64], half: NDArray[np.float64]
+               ) -> NDArray[np.float64]:
+        """[lower, upper] corners of a box holding every point of ``source`` at every pose within ``centre +/-
+        half``, and a refinement's drift beyond it: the source's bounding box at ``centre``, grown by the farthest a
+        corner of the window, twice over, moves a point, and by the registration's farthest look-up."""
+        reg = self.config.registration
+        placed = transform_points(pose_to_matrix(centre), source)
+        radius = float(np.sqrt((source**2).sum(axis=1).max()))
+        move = 2 * (float(np.linalg.norm(half[: self.dim])) + radius * float(np.abs(half[self.dim:]).max()))
+        grow = move + max(reg.search_threshold, reg.fine_threshold or 0.0, reg.threshold)
+        return np.array([placed.min(axis=0) - grow, placed.max(axis=0) + grow])
 
     def corroborate(self, closure: LoopClosure, graph: PoseGraph) -> list[LoopClosure]:
         """The far matches that ``closure`` and an earlier one now corroborate (both), or [] (kept pending)."""

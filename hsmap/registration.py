@@ -25,7 +25,7 @@ from scipy.spatial import cKDTree
 from ._blas import blas_limited
 from ._threads import threads_limited
 from .errors import ConfigError, DegenerateInputError, EmptyInputError, InputError, ShapeError
-from .fitness import DistanceField, FieldObjective, KDTreeLookup, score
+from .fitness import DistanceField, FieldObjective, KDTreeLookup, field_bounds, score
 from .geometry import dof_of_dim, matrix_to_pose, pose_to_matrix, relative, transform_points, wrap_angle
 from .harmony import HarmonyConfig, HarmonyResult, as_rng, harmony_search
 from .information import adjoint, constrained_axes, drop_degenerate, safe_inverse
@@ -309,15 +309,20 @@ class RegistrationTarget:
         Unit normals of the points, when known (otherwise estimated on first use by PCA of neighbourhoods).
     fields : dict of float to DistanceField, optional
         Distance fields already built for given truncations (e.g. a map's field grown scan by scan).
+    field_within : array_like of shape (2, d), optional
+        [lower, upper] corners of the box that the registrations' transformed source points stay in: the fields
+        built here cover only that box (:func:`hsmap.fitness.field_bounds`), and answer as whole ones there.
     """
 
     def __init__(self, points: ArrayLike, config: RegistrationConfig | None = None, *,
-                 normals: ArrayLike | None = None, fields: dict[float, DistanceField] | None = None) -> None:
+                 normals: ArrayLike | None = None, fields: dict[float, DistanceField] | None = None,
+                 field_within: ArrayLike | None = None) -> None:
         self.config = config or RegistrationConfig()
         self.points, self.dropped = _clean_cloud(points, "target")
         _check_spread(self.points, "target")
         self.dim = self.points.shape[1]
         self._lookups: dict[float, DistanceField | KDTreeLookup] = dict(fields or {})
+        self._field_within = None if field_within is None else np.asarray(field_within, dtype=float)
         self._tree: cKDTree | None = None
         self._grid: NeighbourGrid | None | bool = None  # False: the points do not fit a grid
         self._normals: NDArray[np.float64] | None = None
@@ -338,7 +343,10 @@ class RegistrationTarget:
                     res = max(0.02, truncation / 10.0) if self.dim == 2 else truncation / 4.0
                 # 2D: keep nearest points too, for the point-to-line refinement's correspondences
                 plane = self.dim == 2 and self.config.refinement is Refinement.POINT_TO_PLANE
-                lk = DistanceField(self.points, res, truncation, normals=self.normals if plane else None)
+                bounds = (None if self._field_within is None
+                          else field_bounds(self.points, res, truncation, self._field_within))
+                lk = DistanceField(self.points, res, truncation, bounds=bounds,
+                                   normals=self.normals if plane else None)
             else:
                 lk = KDTreeLookup(self.points, truncation)
             self._lookups[truncation] = lk

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from hsmap.errors import InputError
-from hsmap.fitness import DistanceField, KDTreeLookup, score, transform_batch
+from hsmap.fitness import DistanceField, KDTreeLookup, field_bounds, score, transform_batch
 from hsmap.geometry import pose_to_matrix, transform_points
 
 
@@ -114,6 +114,33 @@ def test_a_field_on_a_recycled_grid_is_a_fresh_one(rng, dim):
     np.testing.assert_array_equal(larger.values, DistanceField(a, 0.04, 0.3).values)
     q = rng.uniform(0, 4, (200, dim))
     np.testing.assert_array_equal(larger(q), DistanceField(a, 0.04, 0.3)(q))
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_a_field_within_a_box_answers_as_the_whole_one_there(rng, dim):
+    """field_bounds(within=box): a corner on the whole field's nodes, inside its volume; that part's nodes hold the
+    whole field's distances and nearest points, and look-ups inside the box read the same; a box beside the
+    points gives the whole volume."""
+    pts, nrm = rng.uniform(0, 6, (1500, dim)), rng.normal(size=(1500, dim))
+    res, tau = 0.05, 0.3
+    whole_bounds = field_bounds(pts, res, tau)
+    lo = pts.min(axis=0) - (tau + 2 * res)
+    np.testing.assert_array_equal(whole_bounds, [lo, pts.max(axis=0) + (tau + 2 * res)])
+    box = np.array([np.full(dim, 1.23), np.full(dim, 3.1)])
+    b = field_bounds(pts, res, tau, box)
+    cells = (b[0] - lo) / res
+    np.testing.assert_allclose(cells, np.round(cells), atol=1e-9)
+    assert np.all(b[0] <= box[0] - 2 * res) and np.all(b[0] > box[0] - 4 * res) and np.all(b[1] <= whole_bounds[1])
+    whole = DistanceField(pts, res, tau, normals=nrm)
+    part = DistanceField(pts, res, tau, bounds=b, normals=nrm)
+    assert part.values.size < 0.3 * whole.values.size
+    at = tuple(slice(int(round(c)), int(round(c)) + n) for c, n in zip(cells, part.shape, strict=True))
+    np.testing.assert_allclose(part.values, whole.values[at], atol=1e-6)
+    if dim == 2:
+        np.testing.assert_allclose(part.nearest, whole.nearest[at], atol=1e-12)
+    q = rng.uniform(box[0], box[1], (3000, dim))
+    np.testing.assert_allclose(part(q), whole(q), atol=1e-6)
+    np.testing.assert_array_equal(field_bounds(pts, res, tau, box + 20.0), whole_bounds)
+
 
 @pytest.mark.parametrize("dim", [2, 3])
 @pytest.mark.parametrize("variant", ["classic", "ihs", "global-best"])

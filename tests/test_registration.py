@@ -125,6 +125,26 @@ def test_explicit_bounds_are_respected():
     assert np.all(res.pose >= -0.1 - 1e-12) and np.all(res.pose <= 0.1 + 1e-12)
 
 
+def test_a_target_with_fields_within_a_box_registers_as_the_whole_one():
+    """RegistrationTarget(field_within=box): the fields cover the box the moved source stays in, not the whole
+    target (here the room and a copy 60 m away), and the registration ends where the whole one does."""
+    p0 = np.array([4.0, 3.0, 0.0])
+    src, tgt, truth = scan_pair_2d(p0, p0 + [0.3, -0.2, 0.2], seed=8)
+    tgt = np.vstack([tgt, tgt + [60.0, 0.0]])
+    half = np.array([0.3, 0.3, 0.1])
+    bounds = np.column_stack([truth - half, truth + half])
+    placed = transform_points(truth, src)
+    reach = np.hypot(*half[:2]) + np.sqrt((src**2).sum(axis=1).max()) * half[2] + 0.5
+    box = np.array([placed.min(axis=0) - reach, placed.max(axis=0) + reach])
+    whole, part = RegistrationTarget(tgt), RegistrationTarget(tgt, field_within=box)
+    a = harmony_icp(src, whole, bounds=bounds, rng=3)
+    b = harmony_icp(src, part, bounds=bounds, rng=3)
+    np.testing.assert_allclose(b.pose, a.pose, atol=1e-9)
+    assert b.inlier_ratio == pytest.approx(a.inlier_ratio)
+    tau = RegistrationConfig().search_threshold
+    assert part.lookup(tau).values.size < 0.2 * whole.lookup(tau).values.size
+
+
 def test_prepared_target_reused():
     p0 = np.array([4.0, 3.0, 0.0])
     target = None

@@ -95,7 +95,8 @@ class DistanceField:
         Distances are clipped at this value (the fitness threshold).
     bounds : array_like of shape (2, d), optional
         [lower corner, upper corner] of the volume in world metres; default: the points' bounding box grown by
-        the truncation. Points outside the volume do not count.
+        the truncation and two cells (:func:`field_bounds`). Points outside the volume still lower the nodes
+        inside it within the truncation of them; look-ups outside it read the truncation.
     normals : ndarray of shape (M, d), optional
         Unit normals of the points. The field then also keeps, per node, the nearest point and its normal:
         correspondences for a point-to-line (point-to-plane) refinement at the cost of one look-up

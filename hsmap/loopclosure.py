@@ -692,13 +692,11 @@ class LoopCloser:
     def _reach(self, source: NDArray[np.float64], centre: NDArray[np.float64], half: NDArray[np.float64]
                ) -> NDArray[np.float64]:
         """[lower, upper] corners of a box holding every point of ``source`` at every pose within ``centre +/-
-        half``, and a refinement's drift beyond it: the source's bounding box at ``centre``, grown by the farthest a
-        corner of the window, twice over, moves a point, and by the registration's farthest look-up."""
-        reg = self.config.registration
-        placed = transform_points(pose_to_matrix(centre), source)
+        half``, and a refinement's drift beyond it: the source's bounding box at ``centre``, grown by twice the
+        farthest a corner of the window moves a point."""
+        placed = transform_points(centre, source)
         radius = float(np.sqrt((source**2).sum(axis=1).max()))
-        move = 2 * (float(np.linalg.norm(half[: self.dim])) + radius * float(np.abs(half[self.dim:]).max()))
-        grow = move + max(reg.search_threshold, reg.fine_threshold or 0.0, reg.threshold)
+        grow = 2 * (float(np.linalg.norm(half[: self.dim])) + radius * float(np.abs(half[self.dim:]).max()))
         return np.array([placed.min(axis=0) - grow, placed.max(axis=0) + grow])
 
     def corroborate(self, closure: LoopClosure, graph: PoseGraph) -> list[LoopClosure]:

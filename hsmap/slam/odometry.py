@@ -27,6 +27,12 @@ def constrains_xy(info: NDArray[np.float64] | None, degenerate_ratio: float) -> 
             and constrained_axes(info[:2, :2], degenerate_ratio).shape[1] == 2)
 
 
+def _distance(a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
+    """How far apart two planar steps (x, y, yaw) end, a radian of turn counted as a metre."""
+    d = relative(a, b)
+    return float(np.hypot(d[0], d[1]) + abs(wrap_angle(d[2])))
+
+
 class _Window:
     """The last ``size`` rows of three values, in a fixed array (their order is not kept: for medians)."""
 
@@ -79,6 +85,9 @@ class OdometryModel:
         self.prior = prior
         self.previous: NDArray[np.float64] | None = None  # the last frame's odometry reading
         self._last_step: tuple | None = None  # (both readings' bytes, their increment) of the last step
+        # the last frame's odometry step, where it was used (the wheels' own previous motion, for set_aside)
+        self._wheel_step: NDArray[np.float64] | None = None
+        self._spike: NDArray[np.float64] | None = None  # the reading of a frame whose step was set aside
         self.outliers: list[int] = []
         self.scale = np.ones(2)
         self.bias = np.zeros(3)
@@ -96,7 +105,11 @@ class OdometryModel:
         self.wheel_gated = 0  # wheel edges down-weighted (slipped)
 
     def step(self, frame: Frame) -> NDArray[np.float64] | None:
-        """The odometry increment since the previous frame, as a pose vector of the run's dof, or None."""
+        """The odometry increment since the previous frame, as a pose vector of the run's dof, or None.
+
+        After a frame whose step was set aside, the increment starts at whichever of two readings continues the
+        wheels' steady motion (their last used step): the odometry as it would have read there (a spike that
+        returns) or the reading it sent (a jump that stays)."""
         odom = None if frame.odometry is None else np.asarray(frame.odometry, dtype=float)
         if not (self.config.use_odometry and odom is not None and self.previous is not None):
             return None
@@ -108,6 +121,10 @@ class OdometryModel:
         if self._last_step is not None and self._last_step[0] == key:
             return self._last_step[1].copy()
         delta = relative(self.previous, odom)  # (x, y, yaw) increment in the robot frame
+        if self._spike is not None and self._wheel_step is not None:
+            stays = relative(self._spike, odom)
+            if _distance(stays, self._wheel_step[[0, 1, -1]]) < _distance(delta, self._wheel_step[[0, 1, -1]]):
+                delta = stays
         if self.config.dof != 3:
             delta = np.array([delta[0], delta[1], 0.0, 0.0, 0.0, delta[2]])
         self._last_step = (key, delta)
@@ -115,22 +132,35 @@ class OdometryModel:
 
     def advance(self, frame: Frame, motion: NDArray[np.float64] | None = None) -> None:
         """The frame is done: the next increment starts at its odometry (where it has one), or, where its step was
-        set aside, at the odometry as it would read had it moved by ``motion`` (the tracked motion, (dof,))."""
+        set aside, at the odometry as it would read had it moved by ``motion`` (the tracked motion, (dof,)) or at
+        the reading it sent, whichever the next step finds steadier (:meth:`step`)."""
         if frame.odometry is None:
+            self._wheel_step = self._spike = None
             return
         if self.outliers[-1:] == [frame.index] and motion is not None:
+            self._spike = np.asarray(frame.odometry, dtype=float)
             self.previous = compose(self.previous, motion if self.config.dof == 3 else motion[[0, 1, 5]])
-        else:
-            self.previous = np.asarray(frame.odometry, dtype=float)
+            return
+        self._wheel_step = self.step(frame)
+        self._spike = None
+        self.previous = np.asarray(frame.odometry, dtype=float)
 
     def set_aside(self, frame: Frame, res: RegistrationResult, poses: list[NDArray[np.float64]]) -> bool:
-        """Whether the frame's odometry step is an outlier to be set aside (with a warning): the registration
-        ``res`` lies outside the odometry's gate (the caller checked), while it and the previous motion repeated
-        (from the tracked ``poses``) agree with each other and both disagree with the odometry, by more than
-        ``verify_sigmas`` of ``motion_sigma`` at the previous motion's length. The frame is then tracked without
-        its odometry."""
+        """Whether the frame's odometry step is a spike to be set aside (with a warning); the frame is then tracked
+        without it. The registration ``res`` lies outside the odometry's gate (the caller checked).
+
+        Only evidence the matches cannot have made themselves counts: the wheels' own step jumps, ending further
+        than ``verify_sigmas`` of ``motion_sigma`` from where their previous step (the last frame's, used) would
+        put it, while the registration and the previous tracked motion (from ``poses``) agree; the registration
+        constrains its translation in every direction (``degenerate_ratio``); and the previous frame's step was
+        not set aside. A scan match that slides is a run of matches drifting while the wheels stay steady: the
+        wheels win there, as they do wherever the match is poorly constrained."""
         cfg = self.config
-        if self.prior or len(poses) < 2 or frame.index is None:
+        if self.prior or len(poses) < 2 or frame.index is None or self._wheel_step is None:
+            return False
+        if self.outliers and self.outliers[-1] == frame.index - 1:
+            return False
+        if not constrains_xy(res.information, cfg.degenerate_ratio):
             return False
         odo = self.step(frame)
         if odo is None:
@@ -145,14 +175,15 @@ class OdometryModel:
                         abs(wrap_angle(d[-1])) > cfg.verify_sigmas * sr)
 
         by_motion, by_odometry = compose(prev, motion), compose(prev, self.corrected(odo))
-        if not apart(by_motion, by_odometry) or apart(by_motion, res.pose):
+        by_wheels = compose(prev, self.corrected(self._wheel_step))
+        if not apart(by_wheels, by_odometry) or not apart(by_motion, by_odometry) or apart(by_motion, res.pose):
             return False
         self.outliers.append(int(frame.index))
         d = relative(by_odometry, res.pose)
         warnings.warn(f"frame {frame.index} (stamp {frame.stamp:.6f}): its odometry puts it "
                       f"{float(np.linalg.norm(d[:2])):.2f} m and {float(np.rad2deg(abs(wrap_angle(d[-1])))):.1f} deg "
-                      "from where the scan match and the previous motion agree it is; that odometry step is not "
-                      "used", HsmapWarning, stacklevel=3)
+                      "from where the scan match and the previous motion agree it is, a jump the wheels' previous "
+                      "step does not make; that odometry step is not used", HsmapWarning, stacklevel=3)
         return True
 
     def confirms(self, frame: Frame, previous_pose: NDArray[np.float64], pose: NDArray[np.float64]) -> bool:
@@ -298,4 +329,5 @@ class OdometryModel:
                 "scale_translation": float(self.scale[0]),
                 "scale_rotation": float(self.scale[1]),
                 "bias": [float(v) for v in self.bias],  # x, y, yaw in sigmas of the configured model
+                "set_aside": len(self.outliers),  # frames whose odometry step was set aside
                 "sigma": [float(v) for v in self.sigma()]}

@@ -147,6 +147,12 @@ def _left_out_note(folder: Path, left: dict[str, list[str]], what: str) -> str:
     return f"{folder}: {n} file{'s' if n > 1 else ''} not read as {what}s: {'; '.join(parts)}"
 
 
+def _listed(names: list[str], most: int = 20) -> list[str]:
+    """``names`` in natural order, at most ``most`` of them and a last ``"... and N more"``."""
+    names = sorted(names, key=natural_key)
+    return names if len(names) <= most else names[:most] + [f"... and {len(names) - most} more"]
+
+
 def is_cloud_folder(path: str | os.PathLike) -> bool:
     """Whether ``path`` is a folder holding point-cloud files (and no bag or simulator description)."""
     p = Path(path)
@@ -462,7 +468,7 @@ class _Stream:
         st = self.stamps
         return {"folder": str(self.folder), "files": len(self.files), "kind": self.kind,
                 "first": self.files[0].name, "last": self.files[-1].name,
-                "left_out": {why: sorted(names, key=natural_key) for why, names in self.left_out.items()},
+                "left_out": {why: _listed(names) for why, names in self.left_out.items()},
                 "stamps": self.stamp_source,
                 "rate_hz": (len(st) - 1) / float(st[-1] - st[0]) if len(st) > 1 else None}
 

@@ -146,6 +146,8 @@ def read_pcd(path: str | os.PathLike) -> np.ndarray:
 
 def _ascii(p: Path, data: bytes, dtype: np.dtype, n: int) -> np.ndarray:
     per = sum(int(np.prod(dtype[k].shape)) for k in range(len(dtype.names)))
+    # each word of text becomes a bytes object (about 40 bytes) and a float before the records are filled
+    check_allocation(float(len(data)) * 8, f"{p}: {len(data)} bytes of ascii points", DataFormatError)
     words = data.split()
     if len(words) < n * per:
         raise DataFormatError(f"{p}: damaged: its header declares {n} points of {per} values, the file holds "

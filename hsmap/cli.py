@@ -23,7 +23,7 @@ import warnings
 from . import __version__
 from ._blas import limited_blas
 from .commands import COMMANDS
-from .errors import HsmapError, HsmapWarning
+from .errors import HsmapError, HsmapNote, HsmapWarning
 from .limits import MAX_MESSAGE
 
 _NEGATIVE = re.compile(r"^-\.?\d")  # '-0.04,0,0', '-.5', '-2'
@@ -72,8 +72,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
-    """Warnings as one line on stderr (``hsmap: warning: ...``), not Python's two-line form."""
-    print(f"hsmap: warning: {message}", file=sys.stderr if file is None else file)
+    """Warnings as one line on stderr (``hsmap: warning: ...``, notes ``hsmap: note: ...``), not Python's
+    two-line form."""
+    kind = "note" if issubclass(category, HsmapNote) else "warning"
+    print(f"hsmap: {kind}: {message}", file=sys.stderr if file is None else file)
 
 
 class _Terminated(KeyboardInterrupt):

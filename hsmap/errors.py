@@ -19,6 +19,7 @@ __all__ = [
     "DatasetError",
     "ScenarioError",
     "HsmapWarning",
+    "HsmapNote",
     "CacheError",
     "DependencyError",
     "OutputError",
@@ -83,6 +84,11 @@ class ScenarioError(ConfigError):
 class HsmapWarning(UserWarning):
     """Something hsmap worked around (a failed optimisation, a skipped input): the result is usable but the user
     should know."""
+
+
+class HsmapNote(HsmapWarning):
+    """Something hsmap did that the user may not expect but that needs no action (files of an input folder left
+    out as not being its data); the command line prints it as ``hsmap: note: ...``."""
 
 
 class OutputError(HsmapError, OSError):

@@ -331,7 +331,12 @@ ISSUE13 = [
     ("b.mcap", ["--cloud-rate", "10"], "b.mcap: --cloud-rate do not apply to a ROS bag"),
     ("b.mcap", ["--scan-rate", "10"], "b.mcap: --scan-rate do not apply to a ROS bag"),
     # cloud folders: times.txt or --cloud-rate, a folder of 2D scans
-    ("clouds", [], "clouds: no times.txt in the folder or beside it; give the clouds' rate with --cloud-rate HZ"),
+    ("clouds", [], "clouds: no times.txt in the folder or beside it; give the clouds' stamps with --times FILE (one "
+                   "a line, or a TUM trajectory) or their rate with --cloud-rate HZ"),
+    ("clouds", ["--times", "nowhere.txt"], "--times nowhere.txt: no such file; expected the clouds' stamps"),
+    ("c_count", ["--times", "c_count/times.txt", "--cloud-rate", "2"], "--times and --cloud-rate both give the "
+                                                                       "clouds' stamps; give one of them"),
+    ("b.mcap", ["--times", "t.txt"], "b.mcap: --times do not apply to a ROS bag"),
     ("clouds", ["--cloud-rate", "0"], "--cloud-rate must be a rate in Hz > 0, got 0.0"),
     ("clouds", ["--cloud-rate", "10", "--scan-rate", "5"], "--scan-rate needs a folder of 2D scans (--scans DIR)"),
     ("clouds", ["--cloud-rate", "10", "--scans", "nowhere"], "--scans nowhere: no such folder; expected a folder of scan files"),

@@ -73,7 +73,7 @@ def test_the_wheel_holds_the_package_data(tmp_path):
     notebooks = sorted(p.name for p in (REPO / "notebooks").iterdir() if p.suffix == ".ipynb" or p.name == "README.md")
     assert {f"hsmap/study/notebooks/{n}" for n in notebooks} <= names
     assert {"hsmap/__main__.py", "hsmap/sim/scenarios/two-rooms.yaml", "hsmap/sim/scenarios/slam-office.yaml",
-            "hsmap/study/published.yaml", "hsmap/study/public_data.yaml"} <= names
+            "hsmap/study/published.yaml", "hsmap/study/public_data.yaml", "hsmap/study/balm.sha256"} <= names
     assert not [n for n in names if n.startswith(("tests/", "notebooks/", "data/"))]
     requires = meta.get_all("Requires-Dist")
     jupyter = [d for d in requires if d.split(";")[0].strip().split(">")[0] in ("jupyterlab", "papermill",

@@ -68,26 +68,39 @@ def _mirror_copy(src: Path, dst: Path, names=("bormann",)) -> Path:
     return dst
 
 
-def test_registry_lists_both_datasets_with_pinned_sources():
+def test_registry_lists_the_datasets_with_pinned_sources():
     reg = registry()
-    assert list(reg) == ["freiburg", "bormann", "octomap"]
+    assert list(reg) == ["freiburg", "bormann", "octomap", "balm"]
     assert len(reg["bormann"].files) == 45 and reg["bormann"].folder == "ipa_room_segmentation"
     assert {f.path for f in reg["freiburg"].files} >= {"intel/intel.orig.bag", "intel/intel.relations",
                                                          "fr079/fr079.orig.bag", "fr-clinic/fr-clinic.relations"}
     assert {f.path for f in reg["octomap"].files} == {"geb079.bt", "LICENSE.txt"}
     assert reg["octomap"].folder == "octomap"
+    balm = reg["balm"]
+    assert balm.folder == "balm" and balm.layout == "balm" and balm.size is None
+    assert sorted(f.path for f in balm.files) == sorted(["alidarPose.csv", *(f"full{k}.pcd" for k in range(177))])
+    assert balm.files[1].url == ("https://raw.githubusercontent.com/hku-mars/BALM/5dc1bf927fcb65ef17f0e687f553c234d6b"
+                                 "17365/datas/benchmark_realworld/full0.pcd")
     for ds in reg.values():
         assert ds.citation and ds.licence and ds.sources
         for f in ds.files:
             # a pinned commit (40 hex digits) of a public repository, and a SHA-256
             assert f.url.startswith("https://raw.githubusercontent.com/"), f.url
             assert len(f.url.split("/")[5]) == 40, f.url
-            assert len(f.sha256) == 64 and f.size > 0
+            assert len(f.sha256) == 64 and (f.size is None if ds.name == "balm" else f.size > 0)
 
 
 @pytest.mark.datasets
 def test_registry_hashes_are_those_of_the_study_data(datasets_dir):
     for ds in registry().values():
+        if ds.name == "balm":  # the shared copy drops the originals' all-zero normals; it keeps their hashes
+            folder = datasets_dir / "balm"
+            if not folder.is_dir():
+                continue
+            listed = (folder / "originals.sha256").read_text().split()
+            assert dict(zip(listed[1::2], listed[::2], strict=True)) == {f.path: f.sha256 for f in ds.files}
+            assert _sha(folder / "alidarPose.csv") == next(f.sha256 for f in ds.files if f.path == "alidarPose.csv")
+            continue
         for f in ds.files:
             local = datasets_dir / ds.folder / f.path
             assert local.stat().st_size == f.size, f.path
@@ -100,11 +113,12 @@ def test_fetch_fills_an_empty_cache_and_verifies_every_file(datasets_dir, cache,
     assert not fetch_dir().exists()
     assert missing_data_reason(["freiburg", "bormann"], fetch_dir()).startswith("no data (run hsmap data fetch)")
 
-    assert main(["data", "fetch", "--mirror", url]) == 0
+    # (the shared balm copy is not the originals: its fetch is tested on a file set of its own)
+    assert main(["data", "fetch", "freiburg", "bormann", "octomap", "--mirror", url]) == 0
     out = capsys.readouterr().out
     assert "freiburg: 10 files" in out and "bormann: 45 files" in out and "(45 downloaded, 0 already there)" in out
     for ds in registry().values():
-        for f in ds.files:
+        for f in ds.files if ds.name != "balm" else ():
             got = cache / "datasets" / ds.folder / f.path
             assert _sha(got) == f.sha256, f.path
     # found where readers look, without $HSMAP_DATASETS
@@ -154,7 +168,7 @@ def test_a_missing_file_and_bad_arguments_fail_with_one_line(datasets_dir, cache
     with pytest.raises(DatasetError, match=r"^ipa_room_segmentation/office_b.png: download from http://127\.0\.0"
                                            r"\.1:\d+/ipa_room_segmentation/office_b.png failed: .*404"):
         fetch(["bormann"], mirror=url)
-    with pytest.raises(InputError, match="unknown dataset 'kitti'; the public datasets are: freiburg, bormann, octomap"):
+    with pytest.raises(InputError, match="unknown dataset 'kitti'; the public datasets are: freiburg, bormann, octomap, balm"):
         fetch(["kitti"])
     for args, words in ((["kitti"], "unknown dataset 'kitti'"), (["--mirror", "127.0.0.1:1"], "mirror must be")):
         assert main(["data", "fetch", *args]) == 2
@@ -194,7 +208,7 @@ def test_notebook_08_is_skipped_without_the_data_and_runs_once_fetched(datasets_
     assert run.error.startswith("no data (run hsmap data fetch): freiburg and bormann not found in ")
     assert "skipped" in (out / "index.html").read_text()
 
-    fetch(mirror=serve(datasets_dir))
+    fetch(["freiburg", "bormann"], mirror=serve(datasets_dir))
     result = run_notebooks(repo / "notebooks", out, only=["08"], quick=True, parameters=params, log=None)
     (run,) = result.runs
     assert result.ok and run.status == "ok", run.error
@@ -225,3 +239,65 @@ def test_fetch_octomap_from_a_local_mirror(octomap_source, cache, serve, tmp_pat
     assert folder == cache / "datasets" / "octomap"
     assert _sha(folder / "geb079.bt") == "7663c2466e2fe335a27d1d592f91766c8154511e63a9615aeecdad1defb04d3b"
     assert missing_data_reason(["octomap"], fetch_dir()) == ""
+
+
+def _fake_balm(served: Path, stamps: list[float]) -> tuple[dict, list[str]]:
+    """A small BALM-like file set served under ``balm/``: numbered sweeps and an alidarPose.csv (4x4 poses, the
+    stamp in the last cell); the registry entry of those files, hashed here."""
+    import numpy as np
+
+    from hsmap.datasets.pcd import write_pcd
+
+    folder = served / "balm"
+    folder.mkdir(parents=True)
+    names = [f"full{k}.pcd" for k in range(len(stamps))]
+    rng = np.random.default_rng(0)
+    for name in names:
+        write_pcd(folder / name, rng.normal(size=(50, 3)) + 3.0, data="binary")
+    rows = []
+    for k, t in enumerate(stamps):
+        c, s = np.cos(0.1 * k), np.sin(0.1 * k)
+        m = [[c, -s, 0, 0.5 * k], [s, c, 0, 0.0], [0, 0, 1, 0.1], [0, 0, 0, t]]
+        rows += [",".join(f"{v:.6f}" for v in r) + "," for r in m]
+    (folder / "alidarPose.csv").write_text("\n".join(rows) + "\n")
+    return folder, ["alidarPose.csv", *names]
+
+
+def test_fetch_balm_lays_it_out_as_hsmap_reads_it(cache, serve, tmp_path, monkeypatch, capsys):
+    """The originals from a mirror, hash-checked, then times.txt and groundtruth.tum beside them; the folder opens
+    as a recording of its sweeps in natural order with the poses' stamps."""
+    import numpy as np
+
+    from hsmap.datasets.open import open_dataset
+    from hsmap.errors import HsmapNote
+    from hsmap.study.registry import PublicDataset, PublicFile
+    from hsmap.trajectory import read_tum
+
+    stamps = [1630577758.56949 + 0.5 * k for k in range(12)]
+    src, names = _fake_balm(tmp_path / "served", stamps)
+    real = registry()["balm"]
+    files = tuple(PublicFile(n, f"https://raw.githubusercontent.com/hku-mars/BALM/{'0' * 40}/{n}",
+                             _sha(src / n), None) for n in names)
+    fake = PublicDataset("balm", real.title, real.folder, real.citation, real.licence, real.sources, files,
+                         real.layout)
+    monkeypatch.setattr(public_data, "registry", lambda: {"balm": fake})
+    url = serve(tmp_path / "served")
+
+    assert main(["data", "fetch", "balm", "--mirror", url]) == 0
+    out = capsys.readouterr().out
+    assert "balm/times.txt: written from the originals" in out and "balm: 13 files" in out
+    folder = cache / "datasets" / "balm"
+    assert np.loadtxt(folder / "times.txt").tolist() == pytest.approx(stamps, abs=1e-6)
+    gt = read_tum(folder / "groundtruth.tum")
+    np.testing.assert_allclose(gt.poses[:, [0, 5]], [[0.5 * k, 0.1 * k] for k in range(12)], atol=1e-6)
+    with pytest.warns(HsmapNote, match=r"2 files not read as clouds: groundtruth.tum \(not a cloud file\); "
+                                       r"alidarPose.csv \(text beside the .pcd clouds\)"):
+        ds = open_dataset(folder)  # times.txt and no other option
+    assert [f.name for f in ds._clouds.files] == names[1:]  # full0, full1, ..., full10, full11
+    np.testing.assert_allclose(ds.stamps, gt.stamps, rtol=0, atol=1e-6)
+
+    # a file whose bytes differ from the list is refused and not stored
+    (folder / "full10.pcd").unlink()
+    (src / "full10.pcd").write_bytes(b"damaged")
+    assert main(["data", "fetch", "balm", "--mirror", url]) == 2
+    assert "balm/full10.pcd: refused" in capsys.readouterr().err and not (folder / "full10.pcd").exists()

@@ -1,10 +1,12 @@
 """The public benchmark data of the study: the Freiburg SLAM benchmark logs (Kümmerle et al. 2009) and the room
-segmentation maps of Bormann et al. 2016, and OctoMap's 3D map of Freiburg building 079 (Hornung et al. 2013).
+segmentation maps of Bormann et al. 2016, OctoMap's 3D map of Freiburg building 079 (Hornung et al. 2013), and
+BALM's 177 real sweeps of a hand-held 3D LiDAR (Liu et al. 2023; laid out as hsmap reads it: times.txt and
+groundtruth.tum beside the clouds).
 'hsmap data fetch' downloads them from their original public
 repositories (pinned commits), checks each file's SHA-256 and stores them in hsmap's user cache, where notebook
 08, the tests and the benchmark scripts find them; $HSMAP_DATASETS, when set, is used instead. A file whose hash
 differs is refused and not stored. $HSMAP_DATA_MIRROR (or --mirror) replaces the original URLs with one base URL
-serving the same layout (slam2d/..., ipa_room_segmentation/..., octomap/...)."""
+serving the same layout (slam2d/..., ipa_room_segmentation/..., octomap/..., balm/...)."""
 
 from __future__ import annotations
 
@@ -17,7 +19,7 @@ HELP = "download the public benchmark data (hash-checked) into the user cache, o
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
     p = sub.add_parser("fetch", help="download the public datasets (default: all) and check their SHA-256")
-    p.add_argument("names", nargs="*", metavar="NAME", help="freiburg, bormann and/or octomap (default: all)")
+    p.add_argument("names", nargs="*", metavar="NAME", help="freiburg, bormann, octomap and/or balm (default: all)")
     p.add_argument("--mirror", metavar="URL",
                    help="base URL serving the datasets layout, instead of the original URLs "
                         "(default $HSMAP_DATA_MIRROR)")
@@ -40,7 +42,8 @@ def _fetch(args: argparse.Namespace) -> int:
     for r in results:
         done = (f"{len(r.downloaded)} downloaded" + (f", {len(r.replaced)} damaged copies replaced" if r.replaced
                                                      else "") + f", {len(r.present)} already there")
-        print(f"{r.dataset.name}: {len(r.dataset.files)} files, {r.dataset.size / 1e6:.1f} MB, SHA-256 ok "
+        nbytes = sum((r.folder / f.path).stat().st_size for f in r.dataset.files)
+        print(f"{r.dataset.name}: {len(r.dataset.files)} files, {nbytes / 1e6:.1f} MB, SHA-256 ok "
               f"({done}) in {r.folder}")
         print(f"  cite: {' '.join(r.dataset.citation.split())}")
     import os
@@ -59,7 +62,8 @@ def _list(args: argparse.Namespace) -> int:
     for ds in registry().values():
         folder = dataset_folder(ds.name, root)
         where = f"present in {folder}" if folder else "missing (hsmap data fetch " + ds.name + ")"
-        print(f"{ds.name}: {ds.title}; {len(ds.files)} files, {ds.size / 1e6:.1f} MB; {where}")
+        size = "" if ds.size is None else f", {ds.size / 1e6:.1f} MB"
+        print(f"{ds.name}: {ds.title}; {len(ds.files)} files{size}; {where}")
         for s in ds.sources:
             print(f"  source: {s}")
     return 0

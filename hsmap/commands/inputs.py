@@ -13,11 +13,12 @@ FLAGS = {
     "scan_topic": "--scan-topic", "cloud_topic": "--cloud-topic", "odom_topic": "--odom-topic",
     "base_frame": "--base-frame", "extrinsic2d": "--extrinsic2d", "extrinsic3d": "--extrinsic3d",
     "sync_tolerance": "--sync-tolerance", "cloud_rate": "--cloud-rate", "scans": "--scans",
-    "scan_rate": "--scan-rate", "drive": "--dof",
+    "scan_rate": "--scan-rate", "drive": "--dof", "times": "--times",
 }
 
 INPUT_HELP = ("simulator folder (dataset.yaml), ROS1 .bag, ROS2 bag folder or lone .mcap/.db3 file, CARMEN log "
-              "(.log/.clf, optionally .gz), or a folder of .pcd/.ply/KITTI .bin/.csv clouds")
+              "(.log/.clf, optionally .gz), or a folder of .pcd/.ply/KITTI .bin/.csv clouds (in natural order of "
+              "their names: full2 before full10; stamps from a times.txt there, --times or --cloud-rate)")
 
 
 def add_input_arguments(parser: argparse.ArgumentParser) -> None:
@@ -33,11 +34,15 @@ def add_input_arguments(parser: argparse.ArgumentParser) -> None:
                    help="pose of the 2D LiDAR in the robot base frame (metres, radians), overriding the input's "
                         "(TF, a log's PARAM); without it and without TF the offset is zero, with a warning")
     g.add_argument("--extrinsic3d", metavar="X,Y,Z,ROLL,PITCH,YAW",
-                   help="pose of the 3D LiDAR in the robot base frame (metres, radians), overriding the input's")
+                   help="pose of the 3D LiDAR in the robot base frame (metres, radians), overriding the input's; a "
+                        "folder of clouds alone is posed in the LiDAR's own frame (zero, no warning) without it")
     g.add_argument("--sync-tolerance", type=float, metavar="S",
                    help="seconds: the largest gap between a frame and the other sensor's message attached to it, "
                         "and between a cloud and the 2D poses interpolated for it, unless those are two consecutive poses of "
                         "the 2D run's regular cadence (default 0.1)")
+    g.add_argument("--times", metavar="FILE",
+                   help="cloud folders: the clouds' stamps (s), one a line or a TUM trajectory (its first column), "
+                        "one per cloud file in natural order, instead of a times.txt in the folder")
     g.add_argument("--cloud-rate", type=float, metavar="HZ",
                    help="cloud folders: the clouds' rate (file k at k / HZ s) instead of a times.txt")
     g.add_argument("--scans", metavar="DIR", help="cloud folders: a folder of 2D scans (points in the 2D "
@@ -104,7 +109,8 @@ def open_input(args: argparse.Namespace, drive: str | None = None, progress: boo
     return open_dataset(args.input, scan_topic=args.scan_topic, cloud_topic=args.cloud_topic,
                         odom_topic=args.odom_topic, base_frame=args.base_frame, extrinsic2d=ext2, extrinsic3d=ext3,
                         sync_tolerance=sync_tolerance(args), drive=drive, cloud_rate=args.cloud_rate,
-                        scans=args.scans, scan_rate=args.scan_rate, option_names=FLAGS, progress=progress)
+                        scans=args.scans, scan_rate=args.scan_rate, times=args.times, option_names=FLAGS,
+                        progress=progress)
 
 
 def slam_overrides(cfg, args: argparse.Namespace, *, deskew: bool = False):

@@ -3,64 +3,192 @@ of 2D scans beside it.
 
 Layout
 ------
-- The clouds: one file per 3D LiDAR sweep, in the 3D sensor's frame, **ordered by file name** (zero-padded
-  names such as KITTI's ``000000.bin`` sort in time). One kind of file per folder:
+- The clouds: one file per 3D LiDAR sweep, in the 3D sensor's frame, in **natural order** of their names (digit
+  runs compared as numbers: ``full2`` before ``full10``; KITTI's zero-padded ``000000.bin`` as they sort; names that
+  are decimal numbers, such as stamps, by value). One kind of file per folder:
 
-  - ``.pcd`` and ``.ply``: read with Open3D (ASCII or binary);
+  - ``.pcd``: ``DATA ascii``, ``binary`` or ``binary_compressed`` (:mod:`hsmap.datasets.pcd`), any fields
+    beside ``x y z``;
+  - ``.ply``: read with Open3D (ASCII or binary);
   - ``.bin``: KITTI Velodyne, float32 ``x y z intensity`` per point (16 bytes);
   - ``.csv`` (or ``.txt``): one point per line, ``x y [z]`` separated by commas or spaces, ``#`` comments.
 
   Points at exactly (0, 0, 0) and non-finite ones are no returns and are dropped.
-- The stamps (seconds): a ``times.txt`` with one number per line, one line per file in name order, in the
-  folder or beside it (KITTI's ``sequences/NN/times.txt`` next to ``velodyne/``); or a fixed rate
-  (``cloud_rate``, the command line's ``--cloud-rate HZ``: file *k* at *k* / rate), which wins over a
-  ``times.txt``.
+- Files that are not clouds are left out, with one note (:class:`~hsmap.errors.HsmapNote`) naming them and why:
+  files of other endings (``README.md``), text files (``.csv``/``.txt``) beside ``.pcd``/``.ply``/``.bin`` clouds
+  (poses, calibration), and, where most files are numbered alike (``full#.pcd``), the files not named so. Two
+  kinds of cloud file (``.pcd`` and ``.ply``) are an error naming them.
+- The stamps (seconds), one per cloud in natural order: a stamps file given as ``times`` (``--times FILE``), else
+  a ``times.txt`` in the folder or beside it (KITTI's ``sequences/NN/times.txt`` next to ``velodyne/``). A stamps
+  file holds one stamp a line, or is a TUM trajectory (``t x y z qx qy qz qw``, its first column taken). Or a fixed
+  rate (``cloud_rate``, ``--cloud-rate HZ``: file *k* at *k* / rate), which wins over a ``times.txt``.
 - Optionally the 2D scans (``scans``, ``--scans DIR``): a folder of the same kinds of files, each a 2D LiDAR
   scan as points in the 2D sensor's frame (z ignored), with its own ``times.txt`` or rate (``scan_rate``,
   ``--scan-rate HZ``).
 
 With both sensors, frames are made by one of them (``drive``: the scans by default, the clouds for a 6-DOF run,
 :meth:`CloudFolderDataset.driven_by`) and the other's nearest file within ``sync_tolerance`` is attached, as
-for a bag (:mod:`hsmap.datasets.rosbag`). A folder has no transforms: the sensor offsets are zero unless given
-(``extrinsic2d``/``extrinsic3d``), with a warning, and a folder has no odometry.
+for a bag (:mod:`hsmap.datasets.rosbag`). A folder has no transforms and no odometry. Clouds alone (no 2D scans)
+are posed in their own frame: the robot base is the 3D sensor (a hand-held LiDAR), its offset zero without a
+warning (source :data:`SOURCE_SENSOR`); ``extrinsic3d`` gives one where a base matters. With 2D scans too, the
+offsets are zero unless given (``extrinsic2d``/``extrinsic3d``), with a warning.
 """
 
 from __future__ import annotations
 
 import math
 import os
+import re
+import warnings
+from collections import Counter
 from collections.abc import Iterator
+from decimal import Decimal
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import DataFormatError, DatasetError, InputError
+from ..errors import DataFormatError, DatasetError, HsmapNote, InputError
 from ..io import read_number_rows
 from ..limits import check_allocation
 from ..trajectory import nearest_index
 from .frames import SOURCE_DEFAULT, Dataset, Frame, LaserScan2D, stamp_in_sweep
 
-__all__ = ["CloudFolderDataset", "CLOUD_SUFFIXES", "is_cloud_folder", "read_points", "read_points_timed"]
+__all__ = ["CloudFolderDataset", "CLOUD_SUFFIXES", "SOURCE_SENSOR", "is_cloud_folder", "natural_key",
+           "cloud_files", "read_stamps", "read_points", "read_points_timed"]
 
 #: File endings read as point clouds (``.txt`` as ``.csv``).
 CLOUD_SUFFIXES = (".pcd", ".ply", ".bin", ".csv", ".txt")
 TIMES = "times.txt"
+#: The offset source of clouds alone: posed in their own frame.
+SOURCE_SENSOR = "sensor frame (clouds alone)"
+_TEXT = (".csv", ".txt")
+#: Names listed per reason in the note on files left out.
+_NOTE_NAMES = 6
 
 _OPTION_NAMES = {"cloud_rate": "cloud_rate", "scans": "scans", "scan_rate": "scan_rate",
                  "sync_tolerance": "sync_tolerance", "drive": "drive", "extrinsic2d": "extrinsic2d",
-                 "extrinsic3d": "extrinsic3d"}
+                 "extrinsic3d": "extrinsic3d", "times": "times"}
 
 
-def _point_files(folder: Path) -> list[Path]:
-    return sorted(f for f in folder.iterdir()
-                  if f.is_file() and f.suffix.lower() in CLOUD_SUFFIXES and f.name != TIMES)
+def natural_key(name: str) -> tuple:
+    """Sort key of a file name in natural order: digit runs compared as numbers (``full2`` before ``full10``); a
+    name whose stem is a decimal number (a stamp, ``1630577758.5690``) by its value, before other names."""
+    stem = name[: -len(Path(name).suffix)] if Path(name).suffix else name
+    if re.fullmatch(r"\d+(\.\d+)?", stem):
+        return (0, (Decimal(stem),), name)
+    parts = tuple((0, int(t), "") if t.isdigit() else (1, 0, t) for t in re.split(r"(\d+)", stem) if t)
+    return (1, parts, name)
+
+
+def _pattern(name: str) -> str:
+    """A file name with its digit runs as ``#`` and its ending in lower case (``full#.pcd``)."""
+    p = Path(name)
+    return re.sub(r"\d+", "#", name[: len(name) - len(p.suffix)]) + p.suffix.lower()
+
+
+def _candidates(folder: Path, skip: set[str]) -> tuple[list[Path], dict[str, list[str]]]:
+    """The files of ``folder`` with a cloud ending (but ``skip``), and the others by why they are left out."""
+    left: dict[str, list[str]] = {}
+    found = []
+    for f in folder.iterdir():
+        if f.name.startswith(".") or f.name in skip or not f.is_file():
+            continue
+        if f.suffix.lower() in CLOUD_SUFFIXES:
+            found.append(f)
+        else:
+            left.setdefault("not a cloud file", []).append(f.name)
+    return found, left
+
+
+def cloud_files(folder: str | os.PathLike, skip: tuple[str, ...] = (), what: str = "cloud"
+                ) -> tuple[list[Path], dict[str, list[str]]]:
+    """The cloud files of ``folder`` in natural order (:func:`natural_key`), and the files left out, by why.
+
+    Left out: ``times.txt`` and ``skip`` (without a word), hidden files and folders, files of other endings, text
+    files (``.csv``/``.txt``) beside binary clouds (``.pcd``/``.ply``/``.bin``) and, where more than half the files
+    are numbered alike (``full#.pcd``), those named otherwise.
+
+    Raises
+    ------
+    DatasetError
+        The folder holds two kinds of cloud file (naming them).
+    """
+    folder = Path(folder)
+    found, left = _candidates(folder, {TIMES, *skip})
+    binary = sorted({f.suffix.lower() for f in found} - set(_TEXT))
+    if binary:
+        text = [f for f in found if f.suffix.lower() in _TEXT]
+        if text:
+            left.setdefault(f"text beside the {' and '.join(binary)} {what}s", []).extend(f.name for f in text)
+            found = [f for f in found if f.suffix.lower() not in _TEXT]
+    kinds = sorted({f.suffix.lower() for f in found})
+    if len(kinds) > 1:
+        raise DatasetError(f"{folder}: holds {' and '.join(kinds)} files; expected one kind of {what} file")
+    if found:
+        counts = Counter(_pattern(f.name) for f in found)
+        top, n = max(counts.items(), key=lambda kv: (kv[1], kv[0]))
+        if "#" in top and n > len(found) / 2 and n < len(found):
+            others = [f for f in found if _pattern(f.name) != top]
+            left.setdefault(f"not named like the numbered {what}s {top}", []).extend(f.name for f in others)
+            found = [f for f in found if _pattern(f.name) == top]
+    return sorted(found, key=lambda f: natural_key(f.name)), left
+
+
+def _left_out_note(folder: Path, left: dict[str, list[str]], what: str) -> str:
+    """One line naming the files left out of ``folder`` and why."""
+    parts = []
+    for why, names in left.items():
+        names = sorted(names, key=natural_key)
+        shown = ", ".join(names[:_NOTE_NAMES]) + (f" and {len(names) - _NOTE_NAMES} more" if len(names) >
+                                                  _NOTE_NAMES else "")
+        parts.append(f"{shown} ({why})")
+    n = sum(len(v) for v in left.values())
+    return f"{folder}: {n} file{'s' if n > 1 else ''} not read as {what}s: {'; '.join(parts)}"
+
+
+def _listed(names: list[str], most: int = 20) -> list[str]:
+    """``names`` in natural order, at most ``most`` of them and a last ``"... and N more"``."""
+    names = sorted(names, key=natural_key)
+    return names if len(names) <= most else names[:most] + [f"... and {len(names) - most} more"]
 
 
 def is_cloud_folder(path: str | os.PathLike) -> bool:
     """Whether ``path`` is a folder holding point-cloud files (and no bag or simulator description)."""
     p = Path(path)
-    return p.is_dir() and bool(_point_files(p))
+    return p.is_dir() and bool(_candidates(p, {TIMES})[0])
+
+
+def read_stamps(path: str | os.PathLike) -> tuple[NDArray[np.float64], str]:
+    """The stamps (seconds) of a stamps file: one a line, or a TUM trajectory (``t x y z qx qy qz qw``; its first
+    column); ``#`` lines and blank lines skipped. Also what the file is (``"stamps"`` or ``"TUM trajectory"``).
+
+    Raises
+    ------
+    DatasetError
+        No such file.
+    DataFormatError
+        A line holds neither one number nor a TUM line's eight (naming the file and line), or no line holds any.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise DatasetError(f"{p}: no such file; expected a stamps file (one a line, or a TUM trajectory)")
+    check_allocation(float(p.stat().st_size) * 16, f"{p}: a stamps file of {p.stat().st_size} bytes",
+                     DataFormatError)
+    width, at = None, 0
+    with open(p, encoding="utf-8", errors="replace") as fh:
+        for line in fh:
+            at += 1
+            text = line.strip()
+            if text and not text.startswith("#"):
+                width = len(text.replace(",", " ").split())
+                break
+    if width not in (None, 1, 8):
+        raise DataFormatError(f"{p}:{at}: expected one stamp a line or a TUM trajectory line (t x y z qx qy "
+                              f"qz qw), got {width} values")
+    tum = width == 8
+    rows = read_number_rows(p, "t x y z qx qy qz qw" if tum else "t", "stamps")
+    return rows[:, 0].astype(float), "TUM trajectory" if tum else "stamps"
 
 
 def read_points(path: str | os.PathLike) -> NDArray[np.float64]:
@@ -79,14 +207,17 @@ def read_points(path: str | os.PathLike) -> NDArray[np.float64]:
             raise DataFormatError(f"{p}: {size} bytes is not a whole number of KITTI points (16 bytes: float32 x, y, "
                                   "z, intensity)")
         pts = np.fromfile(p, dtype="<f4").reshape(-1, 4)[:, :3].astype(float)
-    elif suffix in (".pcd", ".ply"):
+    elif suffix == ".pcd":
+        from .pcd import read_pcd
+
+        rec = read_pcd(p)
+        pts = _xyz(p, rec)
+    elif suffix == ".ply":
         with open(p, "rb") as fh:
             head = fh.read(256)
-        ok = head.startswith(b"ply") if suffix == ".ply" else (b"FIELDS" in head or head.startswith(b"# .PCD"))
-        if not ok:
-            raise DataFormatError(f"{p}: not a {suffix[1:].upper()} point cloud (expected a "
-                                  f"{'ply' if suffix == '.ply' else 'PCD VERSION/FIELDS'} header)")
-        declared = _declared_points(p, suffix)
+        if not head.startswith(b"ply"):
+            raise DataFormatError(f"{p}: not a PLY point cloud (expected a ply header)")
+        declared = _declared_points(p)
         import open3d as o3d
 
         pts = np.asarray(o3d.io.read_point_cloud(str(p)).points, dtype=float)
@@ -111,14 +242,22 @@ def read_points(path: str | os.PathLike) -> NDArray[np.float64]:
     return pts[np.isfinite(pts).all(axis=1) & (pts != 0.0).any(axis=1)]
 
 
+def _xyz(p: Path, rec: np.ndarray) -> NDArray[np.float64]:
+    """The (N, 3) positions of a PCD's records."""
+    names = rec.dtype.names or ()
+    if not {"x", "y", "z"} <= set(names) or any(rec.dtype[k].shape for k in "xyz"):
+        raise DataFormatError(f"{p}: no x, y, z fields of one value each (FIELDS {' '.join(names)})")
+    return np.column_stack([rec["x"], rec["y"], rec["z"]]).astype(float)
+
+
 _PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
               "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}
 
 
-def _declared_points(p: Path, suffix: str) -> int | None:
-    """The number of points the header of PLY/PCD file ``p`` declares, after checking that the file is long
-    enough to hold them (binary data: their bytes; text: two characters a value) and that they fit in the
-    memory; None where the header cannot tell (a PLY whose vertices have list properties, compressed PCD).
+def _declared_points(p: Path) -> int | None:
+    """The number of points the header of PLY file ``p`` declares, after checking that the file is long enough to
+    hold them (binary data: their bytes; text: two characters a value) and that they fit in the memory; None where
+    the header cannot tell (vertices with list properties).
 
     Raises
     ------
@@ -129,60 +268,28 @@ def _declared_points(p: Path, suffix: str) -> int | None:
     size = p.stat().st_size
     with open(p, "rb") as fh:
         head = fh.read(65536)
-    end = head.find(b"end_header\n") if suffix == ".ply" else -1
-    lines = (head[:end] if suffix == ".ply" else head).decode("latin-1").splitlines()
+    end = head.find(b"end_header\n")
+    if end < 0:
+        raise DataFormatError(f"{p}: damaged PLY header (no end_header line in its first 64 KiB)")
+    lines = head[:end].decode("latin-1").splitlines()
     count, width, binary, variable, values = None, 0, False, False, 0
-    if suffix == ".ply":
-        if end < 0:
-            raise DataFormatError(f"{p}: damaged PLY header (no end_header line in its first 64 KiB)")
-        data_start, element = end + len(b"end_header\n"), None
-        for line in lines:
-            w = line.split()
-            if w[:1] == ["format"] and len(w) > 1:
-                binary = w[1].startswith("binary")
-            elif w[:1] == ["element"] and len(w) == 3:
-                element = w[1]
-                if element == "vertex":
-                    try:
-                        count = int(w[2])
-                    except ValueError:
-                        raise DataFormatError(f"{p}: damaged PLY header: 'element vertex {w[2]}'") from None
-            elif w[:1] == ["property"] and element == "vertex":
-                if len(w) > 1 and w[1] == "list":
-                    variable = True
-                width += _PLY_SIZES.get(w[1], 0) if binary and len(w) > 1 else 2
-                values += 1
-    else:
-        data_start, fields = None, 0
-        offset = 0
-        for raw in head.split(b"\n"):
-            offset += len(raw) + 1
-            w = raw.decode("latin-1").split()
-            if w[:1] == ["POINTS"] and len(w) == 2:
+    data_start, element = end + len(b"end_header\n"), None
+    for line in lines:
+        w = line.split()
+        if w[:1] == ["format"] and len(w) > 1:
+            binary = w[1].startswith("binary")
+        elif w[:1] == ["element"] and len(w) == 3:
+            element = w[1]
+            if element == "vertex":
                 try:
-                    count = int(w[1])
+                    count = int(w[2])
                 except ValueError:
-                    raise DataFormatError(f"{p}: damaged PCD header: 'POINTS {w[1]}'") from None
-            elif w[:1] == ["SIZE"]:
-                sizes = [int(x) for x in w[1:] if x.isdigit()]
-            elif w[:1] == ["COUNT"]:
-                counts = [int(x) for x in w[1:] if x.isdigit()]
-            elif w[:1] == ["FIELDS"]:
-                fields = len(w) - 1
-            elif w[:1] == ["DATA"]:
-                binary = len(w) > 1 and w[1] == "binary"
-                variable = len(w) > 1 and w[1] not in ("ascii", "binary")
-                data_start = offset
-                break
-        if data_start is None:
-            raise DataFormatError(f"{p}: damaged PCD header (no DATA line in its first 64 KiB)")
-        if binary:
-            sz = locals().get("sizes") or [4] * fields
-            ct = locals().get("counts") or [1] * len(sz)
-            width = sum(a * b for a, b in zip(sz, ct, strict=False))
-        else:
-            values = sum(locals().get("counts") or [1] * fields)
-            width = 2 * max(values, 1)
+                    raise DataFormatError(f"{p}: damaged PLY header: 'element vertex {w[2]}'") from None
+        elif w[:1] == ["property"] and element == "vertex":
+            if len(w) > 1 and w[1] == "list":
+                variable = True
+            width += _PLY_SIZES.get(w[1], 0) if binary and len(w) > 1 else 2
+            values += 1
     if count is None or variable:
         return None
     if count < 0:
@@ -224,49 +331,43 @@ def _header(path: Path, end: bytes) -> tuple[list[str], int]:
 
 
 def _records(path: Path) -> tuple[np.ndarray, str] | None:
-    """The vertex records of a .pcd (ascii or binary) or .ply (ascii or binary, vertices first) file with a
+    """The vertex records of a .pcd (:func:`hsmap.datasets.pcd.read_pcd`) or .ply (ascii or binary, vertices first) file with a
     per-point time field (:data:`hsmap.datasets.rosbag.POINT_TIME_FIELDS`) and that field's name; None for
     any other file."""
     from .rosbag import POINT_TIME_FIELDS
 
     if path.suffix.lower() == ".pcd":
-        lines, pos = _header(path, b"DATA")
-        head = {ln.split()[0].upper(): ln.split()[1:] for ln in lines if ln and not ln.startswith("#")}
-        names = head.get("FIELDS", [])
+        from .pcd import read_pcd
+
+        rec = read_pcd(path)
+        names = rec.dtype.names
         tname = next((n for n in POINT_TIME_FIELDS if n in names), None)
-        mode = (head.get("DATA") or [""])[0].lower()
-        if tname is None or mode not in ("ascii", "binary") or any(c != "1" for c in head.get("COUNT", [])):
+        if tname is None or rec.dtype[tname].shape:
             return None
-        try:
-            codes = [_PCD_TYPES[(t.upper(), int(z))] for t, z in zip(head["TYPE"], head["SIZE"], strict=True)]
-            n = int(head["POINTS"][0])
-        except (KeyError, ValueError, IndexError):
-            raise DataFormatError(f"{path}: a PCD header without valid TYPE/SIZE/POINTS for its FIELDS") from None
-        ascii_ = mode == "ascii"
-        endian = "<"
-    else:
-        lines, pos = _header(path, b"end_header")
-        fmt = next((ln.split()[1] for ln in lines if ln.startswith("format ")), "")
-        names, codes, n, in_vertex = [], [], 0, False
-        for ln in lines:
-            w = ln.split()
-            if w[:1] == ["element"]:
-                if names:  # vertices must come first
-                    break
-                in_vertex = w[1:2] == ["vertex"]
-                n = int(w[2]) if in_vertex and len(w) > 2 and w[2].isdigit() else 0
-                if not in_vertex:
-                    return None
-            elif w[:1] == ["property"] and in_vertex:
-                if w[1] == "list" or w[1] not in _PLY_TYPES:
-                    return None
-                codes.append(_PLY_TYPES[w[1]])
-                names.append(w[2])
-        tname = next((nm for nm in POINT_TIME_FIELDS if nm in names), None)
-        if tname is None or fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
-            return None
-        ascii_ = fmt == "ascii"
-        endian = ">" if fmt == "binary_big_endian" else "<"
+        _xyz(path, rec)  # x, y, z there
+        return rec, tname
+    lines, pos = _header(path, b"end_header")
+    fmt = next((ln.split()[1] for ln in lines if ln.startswith("format ")), "")
+    names, codes, n, in_vertex = [], [], 0, False
+    for ln in lines:
+        w = ln.split()
+        if w[:1] == ["element"]:
+            if names:  # vertices must come first
+                break
+            in_vertex = w[1:2] == ["vertex"]
+            n = int(w[2]) if in_vertex and len(w) > 2 and w[2].isdigit() else 0
+            if not in_vertex:
+                return None
+        elif w[:1] == ["property"] and in_vertex:
+            if w[1] == "list" or w[1] not in _PLY_TYPES:
+                return None
+            codes.append(_PLY_TYPES[w[1]])
+            names.append(w[2])
+    tname = next((nm for nm in POINT_TIME_FIELDS if nm in names), None)
+    if tname is None or fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
+        return None
+    ascii_ = fmt == "ascii"
+    endian = ">" if fmt == "binary_big_endian" else "<"
     if not {"x", "y", "z"} <= set(names) or len(set(names)) != len(names):
         return None
     dtype = np.dtype({"names": names, "formats": [endian + c for c in codes]})
@@ -319,20 +420,24 @@ def _scan_from_points(pts: NDArray[np.float64]) -> LaserScan2D:
 
 
 class _Stream:
-    """One sensor's files and stamps."""
+    """One sensor's files and stamps; ``left_out``: the folder's files that are not its data, by why."""
 
-    def __init__(self, folder: Path, rate: float | None, what: str, folder_flag: str, rate_flag: str) -> None:
+    def __init__(self, folder: Path, rate: float | None, what: str, folder_flag: str, rate_flag: str,
+                 times: str | os.PathLike | None = None, times_flag: str | None = None) -> None:
         if not folder.is_dir():
             raise DatasetError(f"{folder_flag} {folder}: no such folder; expected a folder of {what} files "
                                f"({', '.join(CLOUD_SUFFIXES)})")
         self.folder = folder
-        self.files = _point_files(folder)
+        if times is not None and rate is not None:
+            raise InputError(f"{times_flag} and {rate_flag} both give the {what}s' stamps; give one of them")
+        times = None if times is None else Path(times)
+        skip = (times.name,) if times is not None and times.parent.resolve() == folder.resolve() else ()
+        self.files, self.left_out = cloud_files(folder, skip, what)
+        if self.left_out:  # before the stamps are counted against the files
+            warnings.warn(_left_out_note(folder, self.left_out, what), HsmapNote, stacklevel=3)
         if not self.files:
             raise DatasetError(f"{folder_flag} {folder}: no {what} files ({', '.join(CLOUD_SUFFIXES)})")
-        kinds = sorted({f.suffix.lower() for f in self.files})
-        if len(kinds) > 1:
-            raise DatasetError(f"{folder}: holds {' and '.join(kinds)} files; expected one kind of {what} file")
-        self.kind = kinds[0]
+        self.kind = self.files[0].suffix.lower()
         n = len(self.files)
         if rate is not None:
             if not (math.isfinite(rate) and rate > 0):
@@ -340,23 +445,30 @@ class _Stream:
             self.stamps = np.arange(n) / float(rate)
             self.stamp_source = f"{rate_flag} {rate:g}"
             return
-        times = next((t for t in (folder / TIMES, folder.parent / TIMES) if t.is_file()), None)
         if times is None:
-            raise DatasetError(f"{folder}: no {TIMES} in the folder or beside it; give the {what}s' rate with "
-                               f"{rate_flag} HZ")
-
-        arr = read_number_rows(times, "t", "stamps")
-        if len(arr) != n:
-            raise DataFormatError(f"{times}: {len(arr)} stamps for the {n} {what} files of {folder}; expected one "
-                                  "per file, in name order")
-        self.stamps = arr[:, 0].astype(float)
+            times = next((t for t in (folder / TIMES, folder.parent / TIMES) if t.is_file()), None)
+        elif not times.is_file():
+            raise DatasetError(f"{times_flag} {times}: no such file; expected the {what}s' stamps, one a line or a "
+                               "TUM trajectory")
+        if times is None:
+            give = f"stamps with {times_flag} FILE (one a line, or a TUM trajectory) or their " if times_flag else ""
+            raise DatasetError(f"{folder}: no {TIMES} in the folder or beside it; give the {what}s' {give}rate "
+                               f"with {rate_flag} HZ")
+        stamps, kind = read_stamps(times)
+        if len(stamps) != n:
+            raise DataFormatError(f"{times}: {len(stamps)} stamps{' (a TUM trajectory)' if kind != 'stamps' else ''} "
+                                  f"for the {n} {what} files of {folder}; expected one per file, in natural order")
+        self.stamps = stamps
         if not np.all(np.isfinite(self.stamps)) or np.any(np.diff(self.stamps) <= 0):
-            raise DataFormatError(f"{times}: stamps must be finite and increase from line to line (file name order)")
+            raise DataFormatError(f"{times}: stamps must be finite and increase from line to line (the files' "
+                                  "natural order)")
         self.stamp_source = str(times)
 
     def describe(self) -> dict:
         st = self.stamps
         return {"folder": str(self.folder), "files": len(self.files), "kind": self.kind,
+                "first": self.files[0].name, "last": self.files[-1].name,
+                "left_out": {why: _listed(names) for why, names in self.left_out.items()},
                 "stamps": self.stamp_source,
                 "rate_hz": (len(st) - 1) / float(st[-1] - st[0]) if len(st) > 1 else None}
 
@@ -379,14 +491,18 @@ class CloudFolderDataset(Dataset):
     drive : str, optional
         ``"scan"`` or ``"cloud"``: the sensor whose files make the frames (default the scans when given).
     extrinsic2d, extrinsic3d : array_like of shape (3,) / (6,), optional
-        The sensors' poses in the robot base frame (zero, with a warning, when not given).
+        The sensors' poses in the robot base frame. Not given: zero; with 2D scans, with a warning; for clouds
+        alone without one (the base is the 3D sensor, source :data:`SOURCE_SENSOR`).
+    times : str or Path, optional
+        The clouds' stamps file (one a line, or a TUM trajectory), instead of a ``times.txt``.
     option_names : mapping, optional
         The caller's names of the options, for messages (``{"cloud_rate": "--cloud-rate", ...}``).
     """
 
     def __init__(self, path: str | os.PathLike, *, cloud_rate: float | None = None, scans: str | os.PathLike | None = None,
                  scan_rate: float | None = None, sync_tolerance: float = 0.1, drive: str | None = None,
-                 extrinsic2d=None, extrinsic3d=None, option_names: dict | None = None) -> None:
+                 extrinsic2d=None, extrinsic3d=None, times: str | os.PathLike | None = None,
+                 option_names: dict | None = None) -> None:
         names = {**_OPTION_NAMES, **(option_names or {})}
         self._names = names
         p = Path(path)
@@ -400,14 +516,15 @@ class CloudFolderDataset(Dataset):
         if scan_rate is not None and scans is None:
             raise InputError(f"{names['scan_rate']} needs a folder of 2D scans ({names['scans']} DIR)")
         self.cloud_rate, self.scan_rate = cloud_rate, scan_rate
-        self.extra_paths = [] if scans is None else [str(scans)]  # read too: part of the input's identity
-        self._clouds = _Stream(p, cloud_rate, "cloud", "input", names["cloud_rate"])
+        # read too: part of the input's identity
+        self.extra_paths = ([] if scans is None else [str(scans)]) + ([] if times is None else [str(times)])
+        self._clouds = _Stream(p, cloud_rate, "cloud", "input", names["cloud_rate"], times, names["times"])
         self._scans = None if scans is None else _Stream(Path(scans), scan_rate, "scan", names["scans"],
                                                         names["scan_rate"])
         self.extrinsic2d = np.zeros(3) if self._scans is not None else None
         self.extrinsic3d = np.zeros(6)
         self.extrinsic_sources.clear()
-        self.extrinsic_sources["3d"] = SOURCE_DEFAULT
+        self.extrinsic_sources["3d"] = SOURCE_DEFAULT if self._scans is not None else SOURCE_SENSOR
         if self._scans is not None:
             self.extrinsic_sources["2d"] = SOURCE_DEFAULT
         if extrinsic3d is not None:

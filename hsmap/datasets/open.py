@@ -18,7 +18,7 @@ BAG_SUFFIXES = (".bag", ".mcap", ".db3")
 
 #: Options only some readers take, with the kinds of input that take them.
 _BAG_OPTIONS = ("scan_topic", "cloud_topic", "odom_topic", "base_frame")
-_FOLDER_OPTIONS = ("cloud_rate", "scans", "scan_rate")
+_FOLDER_OPTIONS = ("cloud_rate", "scans", "scan_rate", "times")
 
 
 def open_dataset(
@@ -35,6 +35,7 @@ def open_dataset(
     cloud_rate: float | None = None,
     scans: str | os.PathLike | None = None,
     scan_rate: float | None = None,
+    times: str | os.PathLike | None = None,
     option_names: Mapping[str, str] | None = None,
     progress: bool | None = False,
 ) -> Dataset:
@@ -47,8 +48,8 @@ def open_dataset(
         - a ``.bag`` file (ROS1), a ROS2 bag folder (with ``metadata.yaml``), or a ROS2 ``.mcap``/``.db3``
           storage file, in its folder or alone: :class:`hsmap.datasets.rosbag.RosbagDataset`;
         - a ``.log``/``.clf`` file or its ``.gz``: :class:`hsmap.datasets.carmen.CarmenDataset`;
-        - a folder of ``.pcd``/``.ply``/KITTI ``.bin``/``.csv`` clouds:
-          :class:`hsmap.datasets.clouds.CloudFolderDataset`.
+        - a folder of ``.pcd``/``.ply``/KITTI ``.bin``/``.csv`` clouds (natural order, stamps from a ``times.txt``,
+          ``times`` or ``cloud_rate``): :class:`hsmap.datasets.clouds.CloudFolderDataset`.
     scan_topic, cloud_topic, odom_topic, base_frame : str, optional
         Bags only: topics (each auto-detected by message type when None, ``""`` for none) and the robot base frame.
     extrinsic2d, extrinsic3d : array_like of shape (3,) / (6,), optional
@@ -60,8 +61,9 @@ def open_dataset(
     drive : str, optional
         ``"scan"`` or ``"cloud"``: which sensor's messages make the frames where an input has both at their own
         rates (bags, cloud folders); default the scans when there are any. A 6-DOF run wants ``"cloud"``.
-    cloud_rate, scans, scan_rate :
-        Cloud folders only: the clouds' rate (Hz) instead of a ``times.txt``, a folder of 2D scans, their rate.
+    cloud_rate, scans, scan_rate, times :
+        Cloud folders only: the clouds' rate (Hz) instead of a ``times.txt``, a folder of 2D scans, their rate, the
+        clouds' stamps file (one a line, or a TUM trajectory) instead of a ``times.txt``.
     option_names : mapping, optional
         The caller's names of these options, used in messages (the command line passes its flags:
         ``{"scan_topic": "--scan-topic", ...}``).
@@ -77,7 +79,7 @@ def open_dataset(
     from .rosbag import DEFAULT_SYNC_TOLERANCE, OPTION_NAMES
 
     names = {**OPTION_NAMES, "cloud_rate": "cloud_rate", "scans": "scans", "scan_rate": "scan_rate",
-             **(option_names or {})}
+             "times": "times", **(option_names or {})}
     p = Path(path)
     if not p.exists():
         raise DatasetError(f"{p}: no such file or folder")
@@ -85,7 +87,7 @@ def open_dataset(
         raise DatasetError(f"{p}: not a regular file or a folder{f' (a link to {p.resolve()})' if p.is_symlink() else ''}"
                            "; expected a recording file or folder")
     given = {"scan_topic": scan_topic, "cloud_topic": cloud_topic, "odom_topic": odom_topic, "base_frame": base_frame,
-             "cloud_rate": cloud_rate, "scans": scans, "scan_rate": scan_rate}
+             "cloud_rate": cloud_rate, "scans": scans, "scan_rate": scan_rate, "times": times}
     given = [k for k, v in given.items() if v is not None]
     tol = DEFAULT_SYNC_TOLERANCE if sync_tolerance is None else sync_tolerance
     kind = _kind(p)
@@ -107,7 +109,8 @@ def open_dataset(
         from .clouds import CloudFolderDataset
 
         return CloudFolderDataset(p, cloud_rate=cloud_rate, scans=scans, scan_rate=scan_rate, sync_tolerance=tol,
-                                  drive=drive, extrinsic2d=extrinsic2d, extrinsic3d=extrinsic3d, option_names=names)
+                                  drive=drive, extrinsic2d=extrinsic2d, extrinsic3d=extrinsic3d, times=times,
+                                  option_names=names)
     only(())
     if kind == "simulated dataset folder":
         try:

@@ -1,5 +1,6 @@
-"""The public benchmark data (Freiburg SLAM logs, Bormann et al.'s room segmentation maps): where each file
-comes from, its SHA-256, and ``hsmap data fetch``, which downloads them into the user cache.
+"""The public benchmark data (Freiburg SLAM logs, Bormann et al.'s room segmentation maps, OctoMap's building 079,
+BALM's real 3D LiDAR sweeps): where each file comes from, its SHA-256, and ``hsmap data fetch``, which downloads
+them into the user cache.
 
 The registry is package data, ``hsmap/study/public_data.yaml``: per dataset its folder in the datasets layout
 (``slam2d/``, ``ipa_room_segmentation/``), citation, licence and sources, and per file the URL of the original
@@ -7,6 +8,9 @@ at a pinned commit of its public repository and the SHA-256 of its bytes. :func:
 `pooch <https://www.fatiando.org/pooch/>`_ (a download goes to a temporary file, is hash-checked and only then
 moved into place; a file whose hash differs is deleted and refused) into :func:`hsmap.study.paths.fetch_dir`, under a
 ``filelock`` lock, so that two fetches at once do not trip over each other.
+
+A dataset with a ``layout`` gets the files hsmap reads beside its originals once they are all there
+(:func:`lay_out`; BALM: ``times.txt`` and ``groundtruth.tum`` from ``alidarPose.csv``), written atomically.
 
 ``$HSMAP_DATA_MIRROR`` (or ``mirror=``) replaces the original URLs with one base URL that serves the datasets
 layout (``MIRROR/slam2d/intel/intel.orig.bag``): an institute's mirror, or the tests' local HTTP server.
@@ -37,6 +41,8 @@ __all__ = [
     "fetch_dir",
     "dataset_folder",
     "missing_data_reason",
+    "lay_out",
+    "balm_poses",
     "MIRROR_ENV",
     "NO_DATA",
 ]
@@ -114,7 +120,7 @@ def fetch(
     Parameters
     ----------
     names : sequence of str, optional
-        ``freiburg``, ``bormann`` and/or ``octomap``.
+        ``freiburg``, ``bormann``, ``octomap`` and/or ``balm``.
     dest : path, optional
         Default :func:`hsmap.study.paths.fetch_dir`.
     mirror : str, optional
@@ -190,6 +196,68 @@ def _fetch_one(ds: PublicDataset, dest: Path, mirror: str | None, timeout: float
         if f.path not in replaced:
             downloaded.append(f.path)
         if log is not None:
-            size = f"{f.size / 1e6:.1f} MB" if f.size >= 100_000 else f"{f.size / 1e3:.0f} kB"
+            nbytes = local.stat().st_size
+            size = f"{nbytes / 1e6:.1f} MB" if nbytes >= 100_000 else f"{nbytes / 1e3:.0f} kB"
             log(f"  {rel}: {'replaced a damaged copy' if f.path in replaced else 'downloaded'}, {size}, SHA-256 ok")
+    if ds.layout is not None:
+        for written in lay_out(ds.name, folder):
+            if log is not None:
+                log(f"  {ds.folder}/{written.name}: written from the originals")
     return FetchResult(ds, folder, tuple(downloaded), tuple(present), tuple(replaced))
+
+
+def balm_poses(path: str | os.PathLike):
+    """The poses of BALM's ``alidarPose.csv`` as a :class:`~hsmap.trajectory.Trajectory`: per sweep, 4 lines of 4
+    comma-separated numbers, the rows of the sensor's 4x4 pose in the world whose last cell holds the sweep's Unix
+    time (seconds) instead of 1.
+
+    Raises
+    ------
+    DataFormatError
+        Not a whole number of 4x4 blocks of numbers, a bottom row other than (0, 0, 0, time), or stamps that do
+        not increase (naming the file).
+    """
+    import numpy as np
+
+    from ..errors import DataFormatError
+    from ..geometry import matrix_to_euler
+    from ..trajectory import Trajectory
+
+    p = Path(path)
+    try:
+        values = [float(v) for v in p.read_text(encoding="utf-8").replace("\n", ",").split(",") if v.strip()]
+    except ValueError as exc:
+        raise DataFormatError(f"{p}: expected comma-separated numbers ({exc})") from None
+    except OSError as exc:
+        raise DatasetError(f"{p}: cannot read it ({exc.strerror or exc})") from None
+    if not values or len(values) % 16:
+        raise DataFormatError(f"{p}: {len(values)} numbers; expected 16 (a 4x4 pose) per sweep")
+    m = np.asarray(values).reshape(-1, 4, 4)
+    stamps = m[:, 3, 3].copy()
+    if not (np.all(np.isfinite(m)) and np.all(m[:, 3, :3] == 0.0)):
+        raise DataFormatError(f"{p}: expected finite 4x4 poses whose bottom row is 0, 0, 0, time")
+    if np.any(np.diff(stamps) <= 0):
+        raise DataFormatError(f"{p}: the stamps (the last cell of each pose) must increase from sweep to sweep")
+    return Trajectory(stamps, np.column_stack([m[:, :3, 3], matrix_to_euler(m[:, :3, :3])]))
+
+
+def lay_out(name: str, folder: str | os.PathLike, out: str | os.PathLike | None = None) -> list[Path]:
+    """Write the files hsmap reads beside public dataset ``name``'s originals in ``folder`` (into ``out``, default
+    ``folder``; the shared copy is read-only); the paths written. BALM: ``times.txt`` (each sweep's stamp, one a
+    line, in sweep order) and ``groundtruth.tum`` (the reference poses, TUM), from ``alidarPose.csv``."""
+    import numpy as np
+
+    from ..io import atomic_open
+    from ..trajectory import write_tum
+
+    ds = _choose([name])[0]
+    folder = Path(folder)
+    out = Path(out) if out is not None else folder
+    if ds.layout != "balm":
+        return []
+    traj = balm_poses(folder / "alidarPose.csv")
+    out.mkdir(parents=True, exist_ok=True)
+    with atomic_open(out / "times.txt", "w", encoding="utf-8") as fh:
+        np.savetxt(fh, traj.stamps, fmt="%.6f")
+    write_tum(out / "groundtruth.tum", traj)
+    return [out / "times.txt", out / "groundtruth.tum"]

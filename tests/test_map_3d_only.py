@@ -169,3 +169,25 @@ def test_segment_of_a_run_folder_segments_its_3d_map_with_free_space(mapped, tmp
     band = json.loads((seg / "band.json").read_text())
     assert band["cells"]["segmented_free"] > 0 and band["rooms"] == 2
     assert band["floor_source"].startswith("under the path")
+
+
+def test_segment_of_a_slam_folder_carves_free_space_from_the_trajectory(mapped, tmp_path):
+    """A ``hsmap slam`` folder holds occupied points only (map.ply): the free space comes from the rays to the
+    sensor's positions along trajectory.tum, and the floor from under the path, so the band has free cells."""
+    import shutil
+
+    out, _ = mapped
+    run = tmp_path / "slam"
+    run.mkdir()
+    shutil.copy(out / "map3d.ply", run / "map.ply")
+    shutil.copy(out / "trajectory3d.tum", run / "trajectory.tum")
+    code, err = run_cli("segment", str(run), "--out", str(tmp_path / "seg"), "--band", "1.7,1.8", "--resolution",
+                        "0.1")
+    assert code == 0, err
+    band = json.loads((tmp_path / "seg" / "band.json").read_text())
+    assert band["map3d"] == "map.ply" and band["cells"]["free"] > 0 and band["rooms"] == 2
+
+
+def test_segment_of_a_folder_that_is_no_run_is_one_line(tmp_path):
+    code, err = run_cli("segment", str(tmp_path), "--out", str(tmp_path / "seg"), "--band", "1.7,1.8")
+    assert code == 2 and "not a run's output folder" in err and len(err.strip().splitlines()) == 1

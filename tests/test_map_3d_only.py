@@ -191,3 +191,13 @@ def test_segment_of_a_slam_folder_carves_free_space_from_the_trajectory(mapped, 
 def test_segment_of_a_folder_that_is_no_run_is_one_line(tmp_path):
     code, err = run_cli("segment", str(tmp_path), "--out", str(tmp_path / "seg"), "--band", "1.7,1.8")
     assert code == 2 and "not a run's output folder" in err and len(err.strip().splitlines()) == 1
+
+
+def test_map_of_a_3d_only_recording_again_reads_every_stage_back(mapped, recording):
+    out, _ = mapped
+    root, _, truth = recording
+    code, err = run_cli("map", str(root / "clouds"), "--out", str(out), "--poses", str(truth), "--quiet")
+    assert code == 0, err
+    stages = json.loads((out / "metrics.json").read_text())["stages"]
+    assert set(stages) == {"slam3d", "voxels", "grids", "rooms", "outputs"}
+    assert all(s["unchanged"] for s in stages.values()), stages

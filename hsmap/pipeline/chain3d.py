@@ -65,7 +65,7 @@ from .chain import (
     _write_ply,
 )
 from .config import ChainConfig
-from .runs import cached_slam
+from .runs import cached_slam, dataset_fingerprint
 
 __all__ = ["map_recording_3d", "given_poses", "GivenPoses", "OUTPUTS", "SKIPPED"]
 
@@ -116,7 +116,8 @@ def given_poses(dataset: Dataset, trajectory: Trajectory, source: str, max_dt: f
     traj = Trajectory(stamps[ok], poses[ok])
     digest = hashlib.sha256(np.ascontiguousarray(traj.poses).tobytes() + traj.stamps.tobytes()).hexdigest()
     metrics = {"frames": int(ok.sum()), "poses_from": source, "clouds_without_pose": int((~ok).sum())}
-    return GivenPoses(traj, f"poses:{digest}", metrics)
+    key = description_digest({"dataset": dataset_fingerprint(dataset), "poses": digest})
+    return GivenPoses(traj, key, metrics)
 
 
 # --- the stages ---------------------------------------------------------------------------------------------

@@ -296,7 +296,9 @@ def test_map_bad_input_is_one_line_naming_the_flag(tiny_bag, tmp_path, args, mes
     assert len(err.strip().splitlines()) == 1
 
 
-def test_map_needs_both_lidars(tmp_path):
+def test_map_needs_3d_clouds(tmp_path):
+    """A recording without clouds is refused; one with clouds alone goes through the 3D-only chain
+    (tests/test_map_3d_only.py), here failing on its one unusable cloud with a one-line reason."""
     from test_slam import write_carmen
 
     from hsmap.testing import office_route
@@ -304,12 +306,13 @@ def test_map_needs_both_lidars(tmp_path):
     log = tmp_path / "office.log"
     write_carmen(log, office_route()[:3])
     code, err = run_cli("map", str(log), "--out", str(tmp_path / "o"))
-    assert code == 2 and "a CARMEN log has 2D scans only; hsmap map needs 2D scans and 3D clouds" in err
+    assert code == 2 and "a CARMEN log has 2D scans only; hsmap map needs 3D clouds" in err
     (tmp_path / "clouds").mkdir()
     np.array([[1.0, 2.0, 3.0, 1.0]], dtype="<f4").tofile(tmp_path / "clouds" / "000000.bin")
     code, err = run_cli("map", str(tmp_path / "clouds"), "--out", str(tmp_path / "o"), "--cloud-rate", "10",
-                        "--extrinsic3d", "0,0,1.6,0,0,0")
-    assert code == 2 and "need a folder of them (--scans DIR)" in err and len(err.strip().splitlines()) == 1
+                        "--extrinsic3d", "0,0,1.6,0,0,0", "--quiet")
+    errors = [line for line in err.splitlines() if line.startswith("hsmap: error:")]
+    assert code == 2 and len(errors) == 1 and "none of its 1 frames could be used" in errors[0], err
 
 
 def test_slam_6dof_on_a_recording_with_a_faster_2d_lidar(tmp_path):

@@ -7,6 +7,12 @@ room/door graph of the slice and of the floor grid (the paper's Figure 18 compar
 both point maps; map2d.ply and map3d.ply; summary.html with the figures and numbers; metrics.json (what was read,
 the offsets and their sources, warnings, every stage's numbers); map.rrd, one rerun recording of it all.
 
+A recording with a 3D LiDAR only (no 2D scans) goes through the chain's 3D stages: 6-DOF HS-SLAM on the clouds
+alone (or the poses of --poses TUM), a voxel occupancy map with free space carved along every ray (map3d.bt, an
+OctoMap), the floor found under the sensor's path (several floor levels), the floor-level band and the slice in
+heights above that floor, rooms, doors and graphs of both; the 2D-only outputs (trajectory2d.tum, map2d.ply,
+overlay.png) are skipped, and the output says so.
+
 Every stage shows a progress bar and is kept in --out/.stages/: run again with the same inputs and the stages
 are read back ("unchanged"); change a flag and only the stages after it run again. --out is checked before
 the long work starts (a folder, or creatable, and writable). The outputs are written into a hidden staging
@@ -26,7 +32,7 @@ HELP = "the paper's whole chain on one recording: both SLAM maps, Nav2 grids, ov
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from .inputs import INPUT_HELP, add_input_arguments
 
-    parser.add_argument("input", help=INPUT_HELP + "; it needs 2D scans and 3D clouds")
+    parser.add_argument("input", help=INPUT_HELP + "; it needs 3D clouds, and 2D scans for the 2D stages")
     parser.add_argument("--out", required=True, help="output folder")
     parser.add_argument("--seed", type=int, default=0, help="seed of every random choice (default 0)")
     parser.add_argument("--config", help="YAML file with the sections slam2d, slam3d, grids, segmentation "
@@ -43,6 +49,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-deskew", action="store_true",
                         help="use the 3D clouds and 2D scans as they are (for drivers that deskew them): no motion "
                              "compensation by their per-point and per-beam times")
+    parser.add_argument("--poses", metavar="TUM",
+                        help="3D-only recordings: the sensor's poses from this TUM trajectory (interpolated at each "
+                             "cloud's stamp) instead of the 6-DOF HS-SLAM run")
     add_input_arguments(parser)
     parser.add_argument("--no-recording", action="store_true", help="do not write map.rrd")
     parser.add_argument("--quiet", action="store_true", help="no progress bars or summary")
@@ -76,13 +85,18 @@ def run(args: argparse.Namespace) -> int:
         grids = dataclasses.replace(grids, resolution=float(args.resolution))
     seg = cfg.segmentation if args.method is None else dataclasses.replace(cfg.segmentation, method=args.method)
     # before the long work: a file, a folder that cannot be created or written is reported now
-    refuse_overwriting_input(args.out, [args.input, args.scans], MAP_OUTPUTS)
+    refuse_overwriting_input(args.out, [args.input, args.scans, args.poses], MAP_OUTPUTS)
     out = prepare_output_dir(args.out, "--out", create=False)
     slam2d, slam3d = slam_overrides(cfg.slam2d, args, deskew=True), slam_overrides(cfg.slam3d, args, deskew=True)
     progress = False if args.quiet else None
     dataset = open_input(args, progress=progress)
     if isinstance(dataset, CarmenDataset):
-        raise DatasetError(f"{args.input}: a CARMEN log has 2D scans only; hsmap map needs 2D scans and 3D clouds")
+        raise DatasetError(f"{args.input}: a CARMEN log has 2D scans only; hsmap map needs 3D clouds")
+    if not _has_scans(dataset):
+        return _run_3d(args, dataset, out, dataclasses.replace(cfg, slam3d=slam3d, grids=grids, segmentation=seg),
+                       progress)
+    if args.poses is not None:
+        raise InputError(f"--poses applies to recordings with a 3D LiDAR only; {args.input} has 2D scans")
     for sensor in ("scan", "cloud"):
         try:
             dataset.driven_by(sensor)
@@ -93,21 +107,70 @@ def run(args: argparse.Namespace) -> int:
                       door_depth=grids.door_depth, door_margin=grids.door_margin,
                       recording=not args.no_recording, progress=progress)
     if not args.quiet:
-        import sys
+        _report_2d(m, out, args.no_recording)
+    return 0
 
-        s2, s3, fus = m["slam2d"], m["slam3d"], m["fusion"]
+
+def _has_scans(dataset) -> bool:
+    """Whether the recording has 2D scans (a 3D-only recording has clouds alone)."""
+    from ..errors import DatasetError
+
+    try:
+        view = dataset.driven_by("scan")
+    except DatasetError:
+        return False
+    first = next(iter(view.frames(clouds=False)), None)
+    return first is not None and first.scan2d is not None
+
+
+def _run_3d(args: argparse.Namespace, dataset, out, cfg, progress) -> int:
+    import sys
+
+    from ..pipeline.chain3d import given_poses, map_recording_3d
+    from ..trajectory import read_tum
+
+    poses = None
+    if args.poses is not None:
+        ds3 = dataset.driven_by("cloud")
+        poses = given_poses(ds3, read_tum(args.poses), f"--poses {args.poses}", cfg.slam3d.sync_tolerance)
+    m = map_recording_3d(dataset, out, config=cfg, seed=args.seed, poses=poses, recording=not args.no_recording,
+                         progress=progress)
+    if not args.quiet:
+        s3, v = m["slam3d"], m["voxels"]
         lines = [
-            f"2D HS-SLAM: {s2['frames']} scans, {s2['loops_closed']} loops closed; 6-DOF HS-SLAM: {s3['frames']} "
-            f"clouds, 2D prior for {(s3.get('prior') or {}).get('frames_with_prior')} of them",
-            f"2D map -> slice: ({fus['x']:+.3f} m, {fus['y']:+.3f} m, {fus['yaw_deg']:+.2f} deg), overlap "
-            f"{fus['overlap']:.3f}",
+            "3D LiDAR only: " + (f"poses from {s3['poses_from']}" if "poses_from" in s3 else
+                                 f"6-DOF HS-SLAM on {s3['frames']} clouds, no 2D prior, {s3['loops_closed']} loops "
+                                 "closed"),
+            f"3D map: {v['voxels']['occupied']} occupied, {v['voxels']['free']} free voxels of {v['resolution']:g} m; "
+            f"floor under the path at z {v['floor_z']['min']:.2f} to {v['floor_z']['max']:.2f} m",
             f"slice: {m['slice']['rooms']} rooms, {m['slice']['doors']} doors ({m['slice']['graph']}); floor-level "
-            f"map: {m['floor']['rooms']} rooms, {m['floor']['doors']} doors",
+            f"band: {m['floor']['rooms']} rooms, {m['floor']['doors']} doors",
+            "skipped (no 2D LiDAR): " + ", ".join(m["skipped"]),
             *(f"warning: {w}" for w in m["warnings"]),
             "stages: " + ", ".join(f"{k} " + ("unchanged" if v["unchanged"] else f"{v['seconds']:.1f} s")
                                    for k, v in m["stages"].items()),
-            f"wrote {out}/summary.html, metrics.json, slice.yaml/.pgm, floor.yaml/.pgm, rooms.png, doors.json, "
-            f"topology.json, map2d.ply, map3d.ply{'' if args.no_recording else ', map.rrd'}",
+            f"wrote {out}/summary.html, metrics.json, map3d.bt, slice.yaml/.pgm, floor.yaml/.pgm, rooms.png, "
+            f"doors.json, topology.json, map3d.ply{'' if args.no_recording else ', map.rrd'}",
         ]
         sys.stderr.write("\n".join(lines) + "\n")
     return 0
+
+
+def _report_2d(m: dict, out, no_recording: bool) -> None:
+    import sys
+
+    s2, s3, fus = m["slam2d"], m["slam3d"], m["fusion"]
+    lines = [
+        f"2D HS-SLAM: {s2['frames']} scans, {s2['loops_closed']} loops closed; 6-DOF HS-SLAM: {s3['frames']} "
+        f"clouds, 2D prior for {(s3.get('prior') or {}).get('frames_with_prior')} of them",
+        f"2D map -> slice: ({fus['x']:+.3f} m, {fus['y']:+.3f} m, {fus['yaw_deg']:+.2f} deg), overlap "
+        f"{fus['overlap']:.3f}",
+        f"slice: {m['slice']['rooms']} rooms, {m['slice']['doors']} doors ({m['slice']['graph']}); floor-level "
+        f"map: {m['floor']['rooms']} rooms, {m['floor']['doors']} doors",
+        *(f"warning: {w}" for w in m["warnings"]),
+        "stages: " + ", ".join(f"{k} " + ("unchanged" if v["unchanged"] else f"{v['seconds']:.1f} s")
+                               for k, v in m["stages"].items()),
+        f"wrote {out}/summary.html, metrics.json, slice.yaml/.pgm, floor.yaml/.pgm, rooms.png, doors.json, "
+        f"topology.json, map2d.ply, map3d.ply{'' if no_recording else ', map.rrd'}",
+    ]
+    sys.stderr.write("\n".join(lines) + "\n")

@@ -5,7 +5,10 @@ or a ROS map_server YAML (its image, resolution, origin and thresholds), or a 3D
 .ply/.pcd point map) with --band LO,HI: the band's occupancy grid in heights above the floor (the floor found as
 the lowest large horizontal layer of occupied voxels, or --floor Z) is written as grid.yaml + grid.pgm
 (map_server trinary: occupied, observed free, unknown) and band.json (floor, band, cell counts), and segmented as
-an image would be. The free space segmented is the band's observed free cells and its unknown cells whose column
+an image would be. MAP may also be a run's output folder (``hsmap map`` or ``hsmap slam``): its 3D map (map3d.bt
+with its free space, else map3d.ply or map.ply with free space carved from the sensor's positions along the
+trajectory) cut at --band above the floor found under the path (the floor under the nearest sensor pose: several
+floor levels). The free space segmented is the band's observed free cells and its unknown cells whose column
 the sensor saw through (observed free at another height, nothing occupied within 0.3 m of the band: no wall there;
 ``hsmap.maps3d.seen_through``), so that a room seen through its door from a corridor is one space and not a fan
 of rays, less passages narrower than the narrowest door (2 x min_door_half_width: cracks in walls the sensor
@@ -25,7 +28,7 @@ HELP = "detect doors and segment a 2D map into rooms, with the room/door graph"
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("map", help="map image (PNG/PGM; >= 250 free), map_server YAML, or a 3D map (.bt, .ot, "
-                                    ".ply, .pcd) with --band")
+                                    ".ply, .pcd) or a run's output folder (hsmap map, hsmap slam) with --band")
     parser.add_argument("--out", required=True, help="output folder")
     parser.add_argument("--resolution", type=float, default=None,
                         help="metres per pixel (default: the YAML's, or 0.05 for images)")
@@ -49,6 +52,87 @@ OUTPUTS = ("rooms.png", "doors.json", "topology.json", "topology.graphml", "topo
 MAP3D_SUFFIXES = (".bt", ".ot", ".ply", ".pcd")
 
 
+#: A run's output folder: its 3D map and the trajectory of the sensor's base, in the order they are looked for.
+RUN_MAPS = (("map3d.bt", "trajectory3d.tum"), ("map3d.ply", "trajectory3d.tum"), ("map.ply", "trajectory.tum"))
+
+
+def _extrinsic3d(folder):
+    """The 3D LiDAR's offset in the base frame that a run's metrics.json records (zero when it has none)."""
+    import json
+
+    import numpy as np
+
+    try:
+        info = json.loads((folder / "metrics.json").read_text(encoding="utf-8")).get("input_info") or {}
+    except (OSError, ValueError, AttributeError):
+        info = {}
+    for part in (info.get("clouds") or {}, info):
+        value = ((part.get("extrinsics") or {}).get("3d") or {}).get("value") if isinstance(part, dict) else None
+        if value is not None and len(value) == 6:
+            return np.asarray(value, dtype=float)
+    return np.zeros(6)
+
+
+def _run_folder_map(folder, resolution: float | None):
+    """A run's folder (``hsmap map`` or ``hsmap slam``): its 3D map with free space (an OctoMap's own, or carved
+    from the sensor's positions along the trajectory) and the sensor's world positions."""
+    from pathlib import Path
+
+    from ..errors import DatasetError, InputError
+    from ..geometry import pose_to_matrix
+    from ..maps3d import read_map3d
+    from ..trajectory import read_tum
+
+    folder = Path(folder)
+    for map_name, traj_name in RUN_MAPS:
+        if (folder / map_name).is_file() and (folder / traj_name).is_file():
+            break
+    else:
+        raise DatasetError(f"{folder}: not a run's output folder (expected map3d.bt or map3d.ply with "
+                           "trajectory3d.tum, from hsmap map, or map.ply with trajectory.tum, from hsmap slam)")
+    T = pose_to_matrix(read_tum(folder / traj_name).as_6dof().poses) @ pose_to_matrix(_extrinsic3d(folder))
+    positions = T[:, :3, 3]
+    if map_name.endswith(".bt"):
+        if resolution is not None:
+            raise InputError(f"--resolution applies to point maps; {folder / map_name} has its own resolution")
+        return read_map3d(folder / map_name), positions, map_name
+    kw = {} if resolution is None else {"resolution": float(resolution)}
+    return read_map3d(folder / map_name, poses=positions, **kw), positions, map_name
+
+
+def _map_and_floor(args):
+    """The 3D map to cut, the floor to cut it at (a height, or 0 in a map levelled to the floor under the path),
+    and band.json's facts about them."""
+    from pathlib import Path
+
+    import numpy as np
+
+    from ..errors import InputError
+    from ..maps3d import floor_height, read_map3d
+    from ..occupancy3d import floor_field, floor_under_path, level_map
+    from ..pipeline.config import GridsConfig
+
+    if not Path(args.map).is_dir():
+        kw = {} if args.resolution is None else {"resolution": float(args.resolution)}
+        if kw and not args.map.lower().endswith((".ply", ".pcd")):
+            raise InputError(f"--resolution applies to point maps (.ply/.pcd); {args.map} has its own resolution")
+        m = read_map3d(args.map, **kw)
+        found = floor_height(m)
+        floor = found if args.floor is None else float(args.floor)
+        return m, floor, {"floor": floor, "floor_found": found, "floor_source":
+                          "found (lowest large horizontal layer of occupied voxels)" if args.floor is None
+                          else "--floor"}
+    m, positions, name = _run_folder_map(args.map, args.resolution)
+    if args.floor is not None:
+        return m, float(args.floor), {"map3d": name, "floor": float(args.floor), "floor_source": "--floor"}
+    g = GridsConfig()
+    floors = floor_under_path(m, positions, radius=g.floor_radius, depth=g.floor_depth)
+    info = {"map3d": name, "floor": float(np.median(floors)), "floor_found": [float(floors.min()), float(floors.max())],
+            "floor_source": f"under the path ({len(floors)} sensor poses; the band follows the floor under the "
+                            "nearest pose)"}
+    return level_map(m, floor_field(m, positions, floors)), 0.0, info
+
+
 def _band_grid(args: argparse.Namespace, min_passage: float):
     """A 3D map's band: its occupancy grid, the grid segmented (seen-through cells free), band.json's facts."""
     import math
@@ -57,7 +141,7 @@ def _band_grid(args: argparse.Namespace, min_passage: float):
 
     from ..errors import InputError
     from ..grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
-    from ..maps3d import band_grid, band_layers, floor_height, read_map3d, seen_through, segmentation_free
+    from ..maps3d import band_grid, band_layers, seen_through, segmentation_free
     from .inputs import parse_vector
 
     if args.band is None:
@@ -67,12 +151,7 @@ def _band_grid(args: argparse.Namespace, min_passage: float):
         raise InputError(f"--band must be LO,HI with LO < HI, got {args.band!r}")
     if args.floor is not None and not math.isfinite(args.floor):
         raise InputError(f"--floor must be a finite height in metres, got {args.floor}")
-    kw = {} if args.resolution is None else {"resolution": float(args.resolution)}
-    if kw and not args.map.lower().endswith((".ply", ".pcd")):
-        raise InputError(f"--resolution applies to point maps (.ply/.pcd); {args.map} has its own resolution")
-    m = read_map3d(args.map, **kw)
-    found = floor_height(m)
-    floor = found if args.floor is None else float(args.floor)
+    m, floor, floor_info = _map_and_floor(args)
     layers = band_layers(m, lo, hi, floor=floor)
     grid = band_grid(m, lo, hi, floor=floor)
     seen = seen_through(m, lo, hi, floor=floor)
@@ -82,10 +161,7 @@ def _band_grid(args: argparse.Namespace, min_passage: float):
         "resolution": m.resolution,
         "voxels": list(m.shape),
         "origin": m.origin.tolist(),
-        "floor": floor,
-        "floor_found": found,
-        "floor_source": "found (lowest large horizontal layer of occupied voxels)" if args.floor is None
-        else "--floor",
+        **floor_info,
         "band": [float(lo), float(hi)],
         "band_heights": [float(z[0]), float(z[-1])],
         "cells": {"occupied": int(grid.occupied.sum()), "free": int(grid.free.sum()),
@@ -130,7 +206,7 @@ def run(args: argparse.Namespace) -> int:
     refuse_overwriting_input(args.out, [args.map, args.config], OUTPUTS)
     out = prepare_output_dir(args.out, "--out", create=False)
     band = None
-    if Path(args.map).suffix.lower() in MAP3D_SUFFIXES:
+    if Path(args.map).suffix.lower() in MAP3D_SUFFIXES or Path(args.map).is_dir():
         band_map, grid, band = _band_grid(args, 2.0 * cfg.min_door_half_width)
         print(f"floor at z = {band['floor']:.3f} m ({band['floor_source']}); band {band['band'][0]:g}-"
               f"{band['band'][1]:g} m above it: voxel layers z = {band['band_heights'][0]:.3f}-"
@@ -138,7 +214,8 @@ def run(args: argparse.Namespace) -> int:
               f"{band['cells']['unknown']} unknown ({band['cells']['unknown_seen_through']} seen through); "
               f"{band['cells']['segmented_free']} cells segmented as free space")
     elif args.band is not None or args.floor is not None:
-        raise InputError(f"--band and --floor apply to 3D maps ({', '.join(MAP3D_SUFFIXES)}), not {args.map}")
+        raise InputError(f"--band and --floor apply to 3D maps ({', '.join(MAP3D_SUFFIXES)}) and run folders, not "
+                         f"{args.map}")
     else:
         grid = read_map(args.map, args.resolution)
     try:

@@ -14,6 +14,8 @@ a simulator folder) goes through the paper's pipeline, stage by stage:
 5. ``rooms``: doors, rooms and the room/door graph of the slice and, for the paper's Figure 18 comparison, of
    the floor grid (:func:`hsmap.segmentation.segment_rooms`, :func:`hsmap.topology.room_graph`).
 
+A recording with a 3D LiDAR only goes through :func:`hsmap.pipeline.chain3d.map_recording_3d` instead.
+
 Each stage is a folder of :class:`hsmap.pipeline.cache.FolderCache` under ``DIR/.stages/``, keyed on its inputs
 (the recording's contents, the reader's options, the configuration, the seed, the stages before it) and on the
 code: a second run with the same inputs reads every stage back ("unchanged") and only rewrites the outputs.

@@ -30,6 +30,18 @@ class GridsConfig:
         Azimuth bins of the virtual scans the slice is made of.
     door_depth, door_margin : float
         The box around each door whose map points are the door's (:func:`hsmap.segmentation.points_in_doors`).
+    voxel : float
+        3D-only recordings: the edge of the 3D occupancy map's voxels (``map3d.bt``), which is also the cell of
+        its band grids.
+    max_range : float
+        3D-only recordings: rays are cut this far from the sensor; a farther return only carves free space.
+    floor_band : tuple of 2 floats
+        3D-only recordings: heights above the floor of the floor-level band (``floor.pgm``), where a robot's 2D
+        LiDAR would scan; ``slice`` is then in heights above the floor, too.
+    floor_radius : float
+        3D-only recordings: metres around each sensor pose in which the floor below it is looked for.
+    floor_depth : tuple of 2 floats
+        3D-only recordings: metres below the sensor (nearest, farthest) where the floor may lie.
     """
 
     resolution: float = 0.05
@@ -37,6 +49,11 @@ class GridsConfig:
     slice_bins: int = 720
     door_depth: float = 0.3
     door_margin: float = 0.15
+    voxel: float = 0.1
+    max_range: float = 30.0
+    floor_band: tuple[float, float] = (0.3, 0.4)
+    floor_radius: float = 4.0
+    floor_depth: tuple[float, float] = (0.2, 3.0)
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.resolution) and self.resolution > 0):
@@ -45,6 +62,16 @@ class GridsConfig:
         if z.shape != (2,) or not np.all(np.isfinite(z)) or not z[0] < z[1]:
             raise ConfigError(f"grids.slice must be two heights low < high (metres), got {self.slice!r}")
         self.slice = (float(z[0]), float(z[1]))
+        for name in ("voxel", "max_range", "floor_radius"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
+                raise ConfigError(f"grids.{name} must be a number of metres > 0, got {v!r}")
+        for name, low in (("floor_band", -np.inf), ("floor_depth", 0.0)):
+            z = np.asarray(getattr(self, name), dtype=float)
+            if z.shape != (2,) or not np.all(np.isfinite(z)) or not low <= z[0] < z[1]:
+                raise ConfigError(f"grids.{name} must be two heights low < high (metres"
+                                  f"{', low >= 0' if low == 0 else ''}), got {getattr(self, name)!r}")
+            setattr(self, name, (float(z[0]), float(z[1])))
         if not isinstance(self.slice_bins, (int, np.integer)) or self.slice_bins < 1:
             raise ConfigError(f"grids.slice_bins must be an integer >= 1, got {self.slice_bins!r}")
         for name in ("door_depth", "door_margin"):

@@ -306,10 +306,12 @@ MAP_LEGEND = """### hsmap map: the paper's chain on one recording
 - **red points** at the 2D LiDAR's height: the 2D HS-SLAM map; `world/map/floor`, its grid, is hidden at first
 - **red / black points** in a door: the door's points in the 3D / 2D map (`world/doors/D<k>`)
 - **blue line**: the 6-DOF trajectory (estimate); **yellow line**: the 2D trajectory; **orange box**: the robot
+- a recording with a 3D LiDAR only has no 2D map, path or door points
 """
 
 
 def record_map(path: Path, run2, run3, grids, fusion, seg, graph, doors, pts2, pts3, h2) -> None:
+    """The chain's recording; ``run2`` and ``fusion`` are None for a 3D-only recording (no 2D map or path)."""
     g = grids["slice"]
     blueprint = hv.default_blueprint(
         legend=True, eye=hv.eye_for_bounds(*hv.grid_bounds(g.geometry, (0.0, 3.0))),
@@ -319,9 +321,10 @@ def record_map(path: Path, run2, run3, grids, fusion, seg, graph, doors, pts2, p
     with hv.open_recording(path, application_id="hsmap_map", blueprint=blueprint) as rec:
         hv.log_legend(rec, MAP_LEGEND)
         hv.log_occupancy_grid(rec, g.data, g.geometry)
-        f = fusion["floor"]
-        hv.log_occupancy_grid(rec, f.data, f.geometry, entity="world/map/floor", map_entity=None, z=h2,
-                              opacity=0.6)
+        if fusion is not None:  # a recording with a 2D LiDAR: its floor-level map registered to the slice
+            f = fusion["floor"]
+            hv.log_occupancy_grid(rec, f.data, f.geometry, entity="world/map/floor", map_entity=None, z=h2,
+                                  opacity=0.6)
         hv.log_room_labels(rec, seg.labels, g.geometry)
         if graph.number_of_nodes():
             hv.log_room_graph(rec, map_figures.graph_for_plot(graph), geometry=g.geometry, z=2.9)
@@ -331,11 +334,12 @@ def record_map(path: Path, run2, run3, grids, fusion, seg, graph, doors, pts2, p
                       voxel=0.1, static=True, radius=0.015)
         hv.log_points(rec, "world/map/ceiling", m3[~low], color_by_height=True, z_range=(0.0, 2.8),
                       voxel=0.1, static=True, radius=0.015)
-        m2 = run2.map_points
-        hv.log_points(rec, "world/map/points2d", np.column_stack([m2, np.full(len(m2), h2)]), colors=(214, 39, 40),
-                      radius=0.02, static=True)
         hv.log_path(rec, "estimate", run3.trajectory.poses)
-        hv.log_path(rec, "2d", run2.trajectory.poses, z=h2)
+        if run2 is not None:
+            m2 = run2.map_points
+            hv.log_points(rec, "world/map/points2d", np.column_stack([m2, np.full(len(m2), h2)]),
+                          colors=(214, 39, 40), radius=0.02, static=True)
+            hv.log_path(rec, "2d", run2.trajectory.poses, z=h2)
         hv.log_map2d_path(rec, "estimate", run3.trajectory, g.geometry)
         hv.log_trajectory(rec, run3.trajectory, name="estimate")
         for k, (p2, p3) in enumerate(zip(pts2, pts3, strict=True), start=1):

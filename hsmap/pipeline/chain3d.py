@@ -1,0 +1,491 @@
+"""The paper's chain on a recording with a 3D LiDAR only (``hsmap map INPUT --out DIR`` without 2D scans).
+
+Stages, each a :class:`hsmap.pipeline.cache.FolderCache` folder under ``DIR/.stages/`` as in
+:mod:`hsmap.pipeline.chain`:
+
+1. ``slam3d``: 6-DOF HS-SLAM on the clouds alone (no 2D prior, no odometry), or the poses of a given trajectory
+   interpolated at each cloud's stamp (:func:`given_poses`);
+2. ``voxels``: the 3D occupancy map, free space carved along every ray from the sensor
+   (:func:`hsmap.occupancy3d.carve_sweeps`, at ``grids.voxel``);
+3. ``grids``: the floor under each sensor pose (:func:`hsmap.occupancy3d.floor_under_path`; several floor levels),
+   the map levelled to it, the floor-level band ``grids.floor_band`` and the slice ``grids.slice`` in heights above
+   the local floor: each band's occupancy grid (map_server) and the free space segmented
+   (:func:`hsmap.maps3d.segmentation_free`: observed free, or seen through);
+4. ``rooms``: doors, rooms and the room/door graph of both bands.
+
+Outputs (the 2D+3D chain's where they make sense): ``trajectory3d.tum``, ``map3d.bt`` (OctoMap), ``map3d.ply``,
+``floor.*`` (the floor-level band) and ``slice.*``, ``floor_levels.json``, the slice's ``rooms.png``,
+``doors.json``, ``topology.*``, ``segmentation.png`` and the same with the prefix ``floor_``,
+``door_points.json``, ``figures/``, ``summary.html``, ``map.rrd``, ``metrics.json`` (last). The 2D chain's
+``trajectory2d.tum``, ``map2d.ply``, ``overlay.png`` and its ``slam2d`` and ``fusion`` stages have no input here:
+:data:`SKIPPED` says why, and ``metrics.json``, ``summary.html`` and the command say so.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..config import to_dict
+from ..datasets.frames import Dataset
+from ..deskew import deskew_frame
+from ..errors import InputError
+from ..geometry import pose_to_matrix
+from ..grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid, write_label_image, write_map
+from ..io import (
+    atomic_path,
+    prepare_output_dir,
+    staged_outputs,
+    sweep_stale_temporaries,
+    to_plain,
+    write_json,
+    write_text,
+)
+from ..mapping import voxel_downsample
+from ..maps3d import Map3D, band_grid, segmentation_free
+from ..occupancy3d import carve_sweeps, floor_field, floor_under_path, level_map, sweep_bounds, write_octomap
+from ..segmentation import Segmentation, points_in_doors
+from ..topology import room_graph, write_topology
+from ..trajectory import Trajectory, write_tum
+from .cache import FolderCache, description_digest
+from .chain import (
+    _grid_arrays,
+    _grid_from,
+    _read_metrics,
+    _rooms_stage,
+    _segmentation_record,
+    _slam_summary,
+    _Stages,
+    _write_ply,
+)
+from .config import ChainConfig
+from .runs import cached_slam, dataset_fingerprint
+
+__all__ = ["map_recording_3d", "given_poses", "GivenPoses", "OUTPUTS", "SKIPPED"]
+
+#: What :func:`map_recording_3d` writes (besides ``figures/`` and ``.stages/``).
+OUTPUTS = ("trajectory3d.tum", "map3d.bt", "map3d.ply", "floor.pgm", "floor.yaml", "floor.png", "slice.pgm",
+           "slice.yaml", "slice.png", "floor_levels.json", "rooms.png", "doors.json", "topology.json",
+           "topology.graphml", "segmentation.png", "floor_rooms.png", "floor_doors.json", "floor_topology.json",
+           "floor_topology.graphml", "floor_segmentation.png", "door_points.json", "summary.html", "map.rrd",
+           "metrics.json")
+
+#: The 2D+3D chain's stages and outputs a 3D-only recording has no input for, and why.
+SKIPPED = {
+    "slam2d": "no 2D LiDAR: no 2D HS-SLAM run",
+    "fusion": "no 2D map to register to the slice",
+    "trajectory2d.tum": "no 2D LiDAR: no 2D trajectory",
+    "map2d.ply": "no 2D LiDAR: no 2D point map",
+    "overlay.png": "no 2D map to overlay on the slice",
+}
+
+
+@dataclass
+class GivenPoses:
+    """The 6-DOF poses of a trajectory file in place of the HS-SLAM run (the fields :class:`SlamRun` gives the
+    chain)."""
+
+    trajectory: Trajectory
+    key: str
+    metrics: dict
+    cached: bool = True
+    map_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+
+
+def given_poses(dataset: Dataset, trajectory: Trajectory, source: str, max_dt: float) -> GivenPoses:
+    """The poses of ``trajectory`` interpolated at the clouds' stamps (:meth:`Trajectory.interpolate`); clouds
+    without a pose are left out.
+
+    Raises
+    ------
+    InputError
+        No cloud's stamp has a pose.
+    """
+    stamps = np.asarray(dataset.stamps, dtype=float)
+    poses, ok = trajectory.as_6dof().interpolate(stamps, max_dt)
+    if not ok.any():
+        raise InputError(f"{source}: no pose at any of the {len(stamps)} clouds' stamps ({stamps[0]:.3f}-"
+                         f"{stamps[-1]:.3f} s); the trajectory spans {trajectory.stamps[0]:.3f}-"
+                         f"{trajectory.stamps[-1]:.3f} s")
+    traj = Trajectory(stamps[ok], poses[ok])
+    digest = hashlib.sha256(np.ascontiguousarray(traj.poses).tobytes() + traj.stamps.tobytes()).hexdigest()
+    metrics = {"frames": int(ok.sum()), "poses_from": source, "clouds_without_pose": int((~ok).sum())}
+    key = description_digest({"dataset": dataset_fingerprint(dataset), "poses": digest})
+    return GivenPoses(traj, key, metrics)
+
+
+# --- the stages ---------------------------------------------------------------------------------------------
+
+def _sweeps(ds: Dataset, traj: Trajectory, voxel: float, deskew: bool) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """Each posed cloud as (world points thinned to ``voxel``, the sensor's world position)."""
+    poses, found = traj.as_6dof().at(np.asarray(ds.stamps, dtype=float), max_dt=1e-3)
+    for f, pose, ok in zip(ds.frames(), poses, found, strict=True):
+        if not ok or f.cloud3d is None:
+            continue
+        f = deskew_frame(f, prior=traj)[0] if deskew else f
+        T = pose_to_matrix(pose) @ pose_to_matrix(f.extrinsic3d)
+        pts = voxel_downsample(np.asarray(f.cloud3d, dtype=float), voxel)
+        yield pts @ T[:3, :3].T + T[:3, 3], T[:3, 3].copy()
+
+
+def _voxels_stage(ds: Dataset, traj: Trajectory, cfg: ChainConfig, stages: _Stages):
+    g, deskew = cfg.grids, cfg.slam3d.deskew
+
+    def compute(folder: Path) -> None:
+        bar = stages.bar("voxels", 2 * len(ds), "cloud")
+        lo, hi = sweep_bounds(_counted(_sweeps(ds, traj, g.voxel, deskew), bar), g.max_range)
+        sensors: list[np.ndarray] = []
+        m = carve_sweeps(_counted(_sweeps(ds, traj, g.voxel, deskew), bar, sensors), lo, hi, resolution=g.voxel,
+                         max_range=g.max_range, source="the posed clouds")
+        bar.close()
+        np.savez_compressed(folder / "voxels.npz", state=m.state, origin=m.origin, resolution=m.resolution,
+                            sensors=np.asarray(sensors, dtype=float).reshape(-1, 3))
+
+    def load(folder: Path) -> tuple[Map3D, np.ndarray]:
+        with np.load(folder / "voxels.npz") as z:
+            return Map3D(z["state"], z["origin"], float(z["resolution"]), "the posed clouds"), z["sensors"]
+
+    return compute, load
+
+
+def _counted(items, bar, sensors: list | None = None):
+    """The sweeps, counted on ``bar``; their sensor positions appended to ``sensors``."""
+    for item in items:
+        yield item
+        bar.update(1)
+        if sensors is not None:
+            sensors.append(item[1])
+
+
+def levelled_bands(m: Map3D, positions: np.ndarray, cfg: ChainConfig) -> dict:
+    """The floor under each position, and per band (``floor``, ``slice``) its occupancy grid and the grid
+    segmented (free: :func:`hsmap.maps3d.segmentation_free` of the map levelled to the floor)."""
+    g = cfg.grids
+    floors = floor_under_path(m, positions, radius=g.floor_radius, depth=g.floor_depth)
+    level = level_map(m, floor_field(m, positions, floors))
+    out: dict[str, Any] = {"floors": floors}
+    passage = 2.0 * cfg.segmentation.min_door_half_width
+    for name, (lo, hi) in (("floor", g.floor_band), ("slice", g.slice)):
+        grid = band_grid(level, lo, hi, floor=0.0)
+        free = segmentation_free(level, lo, hi, floor=0.0, min_passage=passage)
+        data = np.where(free, FREE, np.where(grid.occupied, OCCUPIED, UNKNOWN)).astype(np.int8)
+        out[name] = grid
+        out[f"{name}_segmented"] = OccupancyGrid(data, grid.geometry)
+    return out
+
+
+def _grids_stage(m: Map3D, positions: np.ndarray, cfg: ChainConfig):
+    names = ("floor", "slice", "floor_segmented", "slice_segmented")
+
+    def compute(folder: Path) -> None:
+        bands = levelled_bands(m, positions, cfg)
+        arrays = {}
+        for name in names:
+            arrays |= _grid_arrays(name, bands[name])
+        np.savez(folder / "grids.npz", floors=bands["floors"], **arrays)
+
+    def load(folder: Path) -> dict:
+        with np.load(folder / "grids.npz") as z:
+            return {"floors": z["floors"]} | {name: _grid_from(z, name) for name in names}
+
+    return compute, load
+
+
+# --- the whole chain ----------------------------------------------------------------------------------------
+
+def _run_slam(ds3: Dataset, cfg: ChainConfig, seed: int, poses: GivenPoses | None, root: Path, stages: _Stages,
+              progress: bool | None):
+    t = time.perf_counter()
+    if poses is not None:
+        run = poses
+    else:
+        run = cached_slam(ds3, cfg.slam3d, seed, cache_dir=root / "slam", progress=progress)
+    stages.done("slam3d", run.cached, time.perf_counter() - t, stages.bar("slam3d", 1) if run.cached else None)
+    return run
+
+
+def _stage(cache: FolderCache, stages: _Stages, name: str, description: dict, compute_load) -> tuple[Any, str]:
+    t = time.perf_counter()
+    bar = stages.bar(name, 1) if name != "voxels" else None
+    got = cache.get(name, description, *compute_load)
+    stages.done(name, got.cached, time.perf_counter() - t, bar)
+    return got.value, got.key
+
+
+def map_recording_3d(dataset: Dataset, out: str | Path, *, config: ChainConfig | None = None, seed: int = 0,
+                     poses: GivenPoses | None = None, recording: bool = True, progress: bool | None = None) -> dict:
+    """Run the paper's chain on a 3D-only recording and write its outputs into ``out`` (module docstring).
+
+    Parameters
+    ----------
+    dataset : Dataset
+        A recording with 3D clouds (its 2D scans, if any, are not used).
+    out : path
+        Output folder (created); ``out/.stages/`` keeps the stages for the next run.
+    config : ChainConfig, optional
+        ``slam3d``, ``grids`` (``voxel``, ``max_range``, ``floor_band``, ``slice``, ``floor_radius``,
+        ``floor_depth``, the doors' boxes) and ``segmentation``; ``slam2d`` is not used.
+    seed : int
+        The seed of the HS-SLAM run.
+    poses : GivenPoses, optional
+        Poses in place of the HS-SLAM run (:func:`given_poses`).
+    recording : bool
+        Write ``map.rrd``.
+    progress : bool or None
+        Progress bars (None: on a terminal only).
+
+    Returns
+    -------
+    dict
+        What ``metrics.json`` holds.
+    """
+    t_start = time.perf_counter()
+    cfg = config or ChainConfig()
+    out = prepare_output_dir(out)
+    sweep_stale_temporaries(out, OUTPUTS)
+    ds3 = dataset.driven_by("cloud")
+    stages, root = _Stages(progress), out / ".stages"
+    cache = FolderCache(root)
+    run = _run_slam(ds3, cfg, int(seed), poses, root, stages, progress)
+    g = cfg.grids
+    (vox, positions), vkey = _stage(cache, stages, "voxels", {"slam": run.key, "voxel": g.voxel, "max_range": g.max_range,
+                                                  "deskew": cfg.slam3d.deskew},
+                       _voxels_stage(ds3, run.trajectory, cfg, stages))
+    grids, gkey = _stage(cache, stages, "grids", {"voxels": vkey, "grids": to_dict(g),
+                                                  "segmentation": to_dict(cfg.segmentation)},
+                         _grids_stage(vox, positions, cfg))
+    segmented = {"slice": grids["slice_segmented"], "floor": grids["floor_segmented"]}
+    segs, rkey = _stage(cache, stages, "rooms", {"grids": gkey, "segmentation": to_dict(cfg.segmentation)},
+                        _rooms_stage(segmented, cfg.segmentation))
+    final_key = description_digest({"stages": [run.key, vkey, gkey, rkey], "recording": bool(recording),
+                                    "doors": [g.door_depth, g.door_margin]})
+    previous = _read_metrics(out / "metrics.json")
+    if previous is not None and previous.get("key") == final_key and all(
+            (out / n).is_file() for n in OUTPUTS if recording or n != "map.rrd"):
+        previous["stages"] = stages.info | {"outputs": {"unchanged": True, "seconds": 0.0}}
+        write_json(out / "metrics.json", previous)
+        return previous
+    t = time.perf_counter()
+    bar = stages.bar("outputs", 6)
+    ctx = _Context(dataset, ds3, run, vox, grids, segs, positions, cfg, recording)
+    with staged_outputs(out, last="metrics.json", folders=True) as stage:
+        metrics = _write_outputs(stage, ctx, bar)
+        stages.done("outputs", False, time.perf_counter() - t, bar)
+        metrics |= {"stages": stages.info, "key": final_key,
+                    "seconds_total": round(time.perf_counter() - t_start, 3)}
+        write_json(stage / "metrics.json", metrics)
+    if not recording:
+        (out / "map.rrd").unlink(missing_ok=True)
+    return metrics
+
+
+# --- the outputs ----------------------------------------------------------------------------------------------
+
+@dataclass
+class _Context:
+    """What the outputs are written from."""
+
+    dataset: Dataset
+    ds3: Dataset
+    run: Any
+    voxels: Map3D
+    grids: dict
+    segs: dict
+    positions: np.ndarray
+    config: ChainConfig
+    recording: bool
+
+
+def _write_maps(out: Path, c: _Context) -> dict:
+    from PIL import Image
+
+    write_tum(out / "trajectory3d.tum", c.run.trajectory)
+    nodes = write_octomap(c.voxels, out / "map3d.bt")
+    pts = np.asarray(c.run.map_points, dtype=float).reshape(-1, 3)
+    _write_ply(out / "map3d.ply", pts if len(pts) else c.voxels.centres())
+    for name in ("floor", "slice"):
+        write_map(out / f"{name}.yaml", c.grids[name])
+        with atomic_path(out / f"{name}.png") as tmp:
+            Image.fromarray(c.grids[name].to_image()).save(tmp, format="PNG")
+    floors = c.grids["floors"]
+    write_json(out / "floor_levels.json", {
+        "frame": "world z of the floor under each sensor pose, metres", "stamps": c.run.trajectory.stamps.tolist(),
+        "sensor_z": np.round(c.positions[:, 2], 4).tolist(), "floor_z": np.round(floors, 4).tolist()})
+    return {"octomap_nodes": nodes, "resolution": c.voxels.resolution, "shape": list(c.voxels.shape),
+            "origin": c.voxels.origin.tolist(), "voxels": c.voxels.counts(),
+            "floor_z": {"min": float(floors.min()), "median": float(np.median(floors)), "max": float(floors.max())},
+            "sensor_above_floor_median": float(np.median(c.positions[:, 2] - floors))}
+
+
+def _write_rooms(out: Path, c: _Context) -> tuple[dict, dict]:
+    from PIL import Image
+
+    from ..viz.colors import label_overlay
+
+    graphs, records = {}, {}
+    for name, prefix in (("slice", ""), ("floor", "floor_")):
+        seg: Segmentation = c.segs[name]
+        g = c.grids[f"{name}_segmented"]
+        graphs[name] = room_graph(seg)
+        write_label_image(out / f"{prefix}rooms.png", seg.labels)
+        write_json(out / f"{prefix}doors.json", {
+            "map": f"{name}.yaml", "frame": "map (world x, y in metres; map_server origin convention)",
+            "resolution": g.geometry.resolution, "origin": list(g.geometry.origin),
+            "doors": [d.as_dict() for d in seg.doors]})
+        write_topology(graphs[name], out, stem=f"{prefix}topology")
+        with atomic_path(out / f"{prefix}segmentation.png") as tmp:
+            Image.fromarray(label_overlay(seg.labels, g.free, doors=seg.doors)).save(tmp, format="PNG")
+        records[name] = _segmentation_record(seg, graphs[name])
+    return graphs, records
+
+
+def _door_points(out: Path, c: _Context, map_points: np.ndarray) -> list:
+    g = c.config.grids
+    doors = c.segs["slice"].doors
+    pts = points_in_doors(map_points, doors, depth=g.door_depth, margin=g.door_margin)
+    write_json(out / "door_points.json", {
+        "frame": "map (world x, y, z in metres)", "depth": g.door_depth, "margin": g.door_margin,
+        "doors": [{"door": f"D{k}", "centre": [float(v) for v in d.centre], "points2d": [],
+                   "points3d": np.round(p, 4).tolist()} for k, (d, p) in enumerate(zip(doors, pts, strict=True), 1)]})
+    return pts
+
+
+def _write_outputs(out: Path, c: _Context, bar) -> dict:
+    voxels = _write_maps(out, c)
+    bar.update(1)
+    graphs, records = _write_rooms(out, c)
+    bar.update(1)
+    pts = np.asarray(c.run.map_points, dtype=float).reshape(-1, 3)
+    map_points = pts if len(pts) else c.voxels.centres()
+    pts3 = _door_points(out, c, map_points)
+    bar.update(1)
+    figs = _figures(out / "figures", c, graphs)
+    bar.update(1)
+    info = c.ds3.describe()
+    g = c.config.grids
+    metrics: dict[str, Any] = {
+        "input": str(c.dataset.path), "input_info": {"clouds": info},
+        "warnings": list(dict.fromkeys(info.get("warnings", []))),
+        "recording": "3D LiDAR only",
+        "slam3d": _slam_summary(c.run) if not isinstance(c.run, GivenPoses) else c.run.metrics,
+        "voxels": voxels,
+        "grids": {name: {"shape": list(c.grids[name].geometry.shape), "resolution": c.grids[name].geometry.resolution,
+                         "origin": list(c.grids[name].geometry.origin),
+                         "occupied_cells": int(c.grids[name].occupied.sum()),
+                         "free_m2": float(c.grids[name].free.sum() * c.grids[name].geometry.resolution ** 2),
+                         "band_above_floor": list(g.floor_band if name == "floor" else g.slice)}
+                  for name in ("floor", "slice")},
+        "slice": records["slice"], "floor": records["floor"],
+        "door_points": [{"door": f"D{k}", "points3d": len(p)} for k, p in enumerate(pts3, 1)],
+        "skipped": dict(SKIPPED), "figures": figs,
+    }
+    write_text(out / "summary.html", _summary_html(metrics))
+    bar.update(1)
+    if c.recording:
+        from ..viz.replay import record_map
+
+        run = c.run if len(pts) else _WithMap(c.run.trajectory, map_points)
+        record_map(out / "map.rrd", None, run, {"slice": c.grids["slice_segmented"]}, None, c.segs["slice"],
+                   graphs["slice"], c.segs["slice"].doors, [np.zeros((0, 2))] * len(pts3), pts3, 0.0)
+    bar.update(1)
+    return to_plain(metrics)
+
+
+@dataclass
+class _WithMap:
+    trajectory: Trajectory
+    map_points: np.ndarray
+
+
+def _figures(figdir: Path, c: _Context, graphs: dict) -> dict:
+    import matplotlib.pyplot as plt
+
+    from ..viz import figures, map_figures
+
+    figdir.mkdir(exist_ok=True)
+    names: dict[str, str] = {}
+
+    def save(fig, name: str, caption: str) -> None:
+        with atomic_path(figdir / f"{name}.png") as tmp:
+            fig.savefig(tmp, dpi=100, format="png", bbox_inches="tight")
+        plt.close(fig)
+        names[name] = caption
+
+    g, grids, segs = c.config.grids, c.grids, c.segs
+    ax = figures.plot_trajectories({"6-DOF": c.run.trajectory}, title="the sensor's path")
+    save(ax.figure, "trajectories", "The sensor's path (6-DOF HS-SLAM, or the poses given).")
+    fig, ax = figures.new_figure(1, 1, size=(10, 3.5))
+    d = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(c.positions[:, :2], axis=0), axis=1))]
+    ax.plot(d, c.positions[:, 2], label="sensor")
+    ax.plot(d, grids["floors"], label="floor found below it")
+    ax.set(xlabel="distance along the path (m)", ylabel="z (m)", title="the floor under the path")
+    ax.legend()
+    save(fig, "floor_levels", "The sensor's height and the floor found below it along the path (floor_levels.json).")
+    fig, axes = figures.new_figure(1, 2, size=(14, 5))
+    for ax, name, band in ((axes[0], "floor", g.floor_band), (axes[1], "slice", g.slice)):
+        figures.plot_grid(grids[name].data, grids[name].geometry, ax=ax,
+                          title=f"{band[0]:g}-{band[1]:g} m above the floor")
+    save(fig, "grids", "The floor-level band and the slice of the 3D map (Nav2 maps: floor.yaml, slice.yaml).")
+    s = segs["slice"]
+    ax = map_figures.segmentation_figure(grids["slice_segmented"], s, graphs["slice"],
+                                         title=f"{s.n_rooms} rooms, {len(s.doors)} doors on the slice, and the "
+                                         "room/door graph")
+    save(ax.figure, "rooms", "Rooms, doors (red) and the room/door graph of the slice (Figs. 12 and 16).")
+    fig = map_figures.segmentation_comparison_figure(
+        [(grids[f"{n}_segmented"], segs[n], f"{n}: {segs[n].n_rooms} rooms, {len(segs[n].doors)} doors")
+         for n in ("floor", "slice")], title="one segmentation, two bands of the 3D map")
+    save(fig, "comparison", "The same segmentation on the floor-level band and on the slice (Fig. 18).")
+    return names
+
+
+def _summary_html(m: dict) -> str:
+    import html
+
+    esc = html.escape
+
+    def rows(d: dict) -> str:
+        return "".join(f"<tr><th>{esc(str(k))}</th><td>{esc(str(v))}</td></tr>" for k, v in d.items())
+
+    s3, v = m["slam3d"], m["voxels"]
+    run = (f"poses from {s3['poses_from']} ({s3['frames']} clouds)" if "poses_from" in s3 else
+           f"{s3['frames']} clouds, {s3['keyframes']} keyframes, {s3['loops_closed']} loops closed, "
+           f"{s3['seconds_total']:.1f} s; no 2D prior, no odometry")
+    numbers = {
+        "input": f"{m['input']} (3D LiDAR only)",
+        "6-DOF HS-SLAM": run,
+        "3D map": f"{v['shape'][0]} x {v['shape'][1]} x {v['shape'][2]} voxels of {v['resolution']:g} m: "
+                  f"{v['voxels']['occupied']} occupied, {v['voxels']['free']} free (map3d.bt, {v['octomap_nodes']} "
+                  "OctoMap nodes)",
+        "floor under the path": f"z {v['floor_z']['min']:.2f} to {v['floor_z']['max']:.2f} m (median "
+                                f"{v['floor_z']['median']:.2f} m), sensor {v['sensor_above_floor_median']:.2f} m "
+                                "above it (median)",
+        "slice": f"{m['slice']['rooms']} rooms, {m['slice']['doors']} doors; graph {m['slice']['graph']}",
+        "floor-level band": f"{m['floor']['rooms']} rooms, {m['floor']['doors']} doors; graph {m['floor']['graph']}",
+    }
+    skipped = "".join(f"<li><code>{esc(k)}</code>: {esc(r)}</li>" for k, r in m["skipped"].items())
+    warn = "".join(f"<li>{esc(w)}</li>" for w in m["warnings"])
+    figs = "".join(f'<figure><img src="figures/{esc(n)}.png" alt="{esc(n)}"><figcaption>{esc(c)}</figcaption>'
+                   "</figure>" for n, c in m["figures"].items())
+    files = ", ".join(f'<a href="{esc(f)}">{esc(f)}</a>' for f in OUTPUTS if f != "summary.html")
+    return f"""<!doctype html>
+<html lang="en"><head><meta charset="utf-8"><title>hsmap map: {esc(Path(m['input']).name)}</title>
+<style>body{{font-family:sans-serif;max-width:1100px;margin:2em auto;padding:0 1em}}
+table{{border-collapse:collapse}}th,td{{text-align:left;padding:.25em .8em;border-bottom:1px solid #ddd;vertical-align:top}}
+img{{max-width:100%}}figure{{margin:1.5em 0}}.warn{{color:#a40}}</style></head><body>
+<h1>{esc(Path(m['input']).name)}: the paper's chain, 3D LiDAR only</h1>
+<table>{rows(numbers)}</table>
+<h2>Skipped (no 2D LiDAR)</h2><ul>{skipped}</ul>
+{f'<h2 class="warn">Warnings</h2><ul class="warn">{warn}</ul>' if warn else ''}
+{figs}
+<h2>Files</h2><p>{files}. Open the 3D map with <code>octovis map3d.bt</code>, the recording with
+<code>rerun map.rrd</code>; load a map in Nav2 with
+<code>ros2 run nav2_map_server map_server --ros-args -p yaml_filename:=slice.yaml</code>.</p>
+</body></html>
+"""
+

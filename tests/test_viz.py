@@ -314,6 +314,18 @@ def _png_size(path):
         return im.size
 
 
+def test_paths_named_alike_get_distinct_colours():
+    t = np.linspace(0, 1, 10)
+    path = Trajectory(t, np.column_stack([t, t, t]))
+    names = ["2D HS-SLAM", "6-DOF HS-SLAM", "odometry", "a", "b", "c", "d"]
+    ax = figures.plot_trajectories(dict.fromkeys(names, path))
+    lines = {line.get_label(): line.get_color() for line in ax.get_lines()}
+    colours = [tuple(np.round(lines[n], 3)) for n in names]
+    assert len(set(colours)) == len(names)
+    assert figures.series_colors(names)["odometry"] == figures.SERIES_COLORS["odometry"]
+    assert figures.series_colors(names)["2D HS-SLAM"] == figures.SERIES_COLORS["slam"]
+
+
 def test_figures_render_in_world_metres(tmp_path):
     geo, occ, lab, g = two_rooms()
     t = np.linspace(0, 2 * np.pi, 50)
@@ -321,7 +333,7 @@ def test_figures_render_in_world_metres(tmp_path):
     odo = truth.poses + [0.2, 0.1, 0.0]
     ax = figures.plot_trajectories({"odometry": odo, "HS-SLAM": truth}, groundtruth=truth, title="paths")
     assert [line.get_label() for line in ax.get_lines() if not line.get_label().startswith("_")] == [
-        "ground truth", "odometry", "HS-SLAM"]
+        "ground truth", "odometry", "HS-SLAM", "start", "end (in the path's colour)"]
     ax.figure.savefig(tmp_path / "paths.png")
 
     ax = figures.plot_labels(lab, geo, base=occ, names={1: "office"})

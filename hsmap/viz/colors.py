@@ -6,7 +6,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
-    "ROOM_PALETTE", "label_colors", "label_color", "label_overlay", "SERIES_COLORS", "VIEWER_SERIES_COLORS",
+    "ROOM_PALETTE", "label_colors", "label_color", "label_overlay", "SERIES_COLORS", "SPARE_COLORS", "VIEWER_SERIES_COLORS",
     "height_colors",
 ]
 
@@ -28,6 +28,9 @@ SERIES_COLORS = {
     "odometry": (214, 39, 40),
     "other": (44, 160, 44),
 }
+
+#: Colours for further curves once those of :data:`SERIES_COLORS` are taken.
+SPARE_COLORS = [(255, 127, 14), (148, 103, 189), (140, 86, 75), (227, 119, 194), (23, 190, 207)]
 
 #: The same curves in the rerun viewer, whose background is dark and whose maps are white: colours that stand
 #: apart on both (the figures' dark-grey ground truth disappears on the viewer's black).

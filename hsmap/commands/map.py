@@ -91,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
     m = map_recording(dataset, out, seed=args.seed, slam2d=slam2d, slam3d=slam3d, segmentation=seg,
                       z_range=grids.slice, resolution=grids.resolution, slice_bins=grids.slice_bins,
                       door_depth=grids.door_depth, door_margin=grids.door_margin,
-                      recording=not args.no_recording, progress=progress)
+                      recording=not args.no_recording, progress=progress, configuration=_configuration(args))
     if not args.quiet:
         import sys
 
@@ -111,3 +111,11 @@ def run(args: argparse.Namespace) -> int:
         ]
         sys.stderr.write("\n".join(lines) + "\n")
     return 0
+
+
+def _configuration(args: argparse.Namespace) -> str | None:
+    """Where the run's settings came from, for the summary: the ``--config`` file and the flags over it."""
+    flags = [f"{flag} {value}" for flag, value in (("--slice", args.slice), ("--resolution", args.resolution),
+                                                    ("--method", args.method)) if value is not None]
+    said = ([f"--config {args.config}"] if args.config else []) + flags
+    return ", ".join(said) or None

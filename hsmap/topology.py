@@ -18,7 +18,7 @@ import numpy as np
 
 from .io import atomic_path, write_json, write_text
 
-__all__ = ["room_graph", "topology_listing", "write_topology", "graph_to_json", "read_topology_json"]
+__all__ = ["room_graph", "topology_listing", "topology_line", "write_topology", "graph_to_json", "read_topology_json"]
 
 
 def room_graph(segmentation) -> nx.Graph:
@@ -78,6 +78,29 @@ def topology_listing(g: nx.Graph) -> str:
         else:
             lines.append("  " + ", ".join(c))
     return "\n".join(lines) + "\n"
+
+
+def topology_line(g: nx.Graph) -> str:
+    """The graph in one line: each connected part as its chain of rooms and doors (``R1 - D1 - R2``, a room
+    first) where it is one, else as its doors' links (``R1 -D1- R2``) and its rooms without a door
+    (``R5 (no door)``); the parts joined by ``"; "``."""
+    parts = []
+    for c in sorted((sorted(c, key=_node_key) for c in nx.connected_components(g)), key=lambda c: _node_key(c[0])):
+        sub = g.subgraph(c)
+        ends = [n for n in c if sub.degree(n) <= 1]
+        if len(c) > 1 and nx.is_tree(sub) and len(ends) == 2 and max(d for _, d in sub.degree()) <= 2:
+            ends = sorted(ends, key=lambda n: (g.nodes[n].get("kind") != "room", _node_key(n)))  # a room first
+            parts.append(" - ".join(nx.shortest_path(sub, *ends)))
+            continue
+        links = []
+        for n in c:
+            rooms = sorted(sub.neighbors(n), key=_node_key)
+            if g.nodes[n].get("kind") == "door":
+                links.append((f"{rooms[0]} -{n}- " + " & ".join(rooms[1:])).rstrip() if rooms else f"{n} (no room)")
+            elif not rooms:
+                links.append(f"{n} (no door)")
+        parts.append(", ".join(links))
+    return "; ".join(parts)
 
 
 def graph_to_json(g: nx.Graph) -> dict:

@@ -14,6 +14,7 @@ import contextlib
 import io
 import json
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -400,3 +401,24 @@ def test_map_bad_config_file_is_one_line(tiny_bag, tmp_path, text, message):
     cfg.write_text(text)
     code, err = run_cli("map", str(tiny_bag.path), "--out", str(tmp_path / "o"), "--quiet", "--config", str(cfg))
     assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_summary_says_the_configuration_the_graph_and_offsets_with_units():
+    from hsmap.pipeline.chain import _summary_html
+
+    slam = {"frames": 10, "keyframes": 3, "loops_closed": 0, "seconds_total": 1.0, "prior": {}}
+    seg = {"rooms": 3, "doors": 2, "method": "paper", "door_list": [], "graph": "R1 -D1- R2, R2 -D2- R3, R1 -D3- R3"}
+    m = {"input": "x.mcap", "configuration": "--config my.yaml, --slice 1.2,1.3", "slam2d": slam, "slam3d": slam,
+         "fusion": {"x": 0.0, "y": 0.0, "yaw_deg": 0.0, "overlap": 0.5},
+         "grids": {"z_range": [1.2, 1.3], "slice": {"resolution": 0.05}}, "slice": seg, "floor": seg,
+         "input_info": {"clouds": {"extrinsics": {
+             "3d": {"value": [-0.1, 0.0, 1.63621, 0.0, -1e-17, 3.14159265], "source": "tf"},
+             "2d": {"value": [0.15, 0.0, 0.0], "source": "tf"}}}},
+         "warnings": [], "figures": {}}
+    html = _summary_html(Path("."), m)
+    assert "--config my.yaml, --slice 1.2,1.3; slice 1.2-1.3 m, 0.05 m cells, paper door method" in html
+    assert "graph R1 -D1- R2, R2 -D2- R3, R1 -D3- R3" in html
+    assert "x -0.100 m, y 0.000 m, z 1.636 m, roll 0.00 deg, pitch 0.00 deg, yaw 180.00 deg from tf" in html
+    assert "x 0.150 m, y 0.000 m, yaw 0.00 deg from tf" in html
+    m["configuration"] = None
+    assert "the defaults; slice 1.2-1.3 m" in _summary_html(Path("."), m)

@@ -232,6 +232,17 @@ def test_index_escapes_errors_and_shows_states():
     assert (row.key, row.ours, row.paper, row.reference, row.unit) == ("a", 1, None, None, "")
 
 
+def test_metric_values_are_rounded_to_their_unit():
+    assert format_value(0.0123456, "m") == "0.012" and format_value(12.3456789, "m") == "12.346"
+    assert format_value(0.00012, "m") == "0.00012"  # small, not shown as zero
+    assert format_value(-1e-17, "deg") == "0.00" and format_value(0.31234, "deg") == "0.31"
+    assert format_value([0.123456, 1.5], "m") == "[0.123, 1.500]"
+    assert format_value(0.0123456) == "0.01235" and format_value(3, "m") == "3"
+    page = render_index([{"name": "01-a", "status": "ok", "metrics": {
+        "metrics": {"err_m": 0.0234567}, "units": {"err_m": "m"}, "headline": ["err_m"]}}], {"final": True})
+    assert "0.023 m" in page and "0.02346" not in page
+
+
 # --- the study notebooks' conventions --------------------------------------------------------------------
 
 

@@ -12,7 +12,14 @@ from PIL import Image
 
 from hsmap.grid import read_label_image, write_map
 from hsmap.segmentation import segment_rooms
-from hsmap.topology import graph_to_json, read_topology_json, room_graph, topology_listing, write_topology
+from hsmap.topology import (
+    graph_to_json,
+    read_topology_json,
+    room_graph,
+    topology_line,
+    topology_listing,
+    write_topology,
+)
 
 
 @pytest.fixture(scope="module")
@@ -114,3 +121,20 @@ def test_cli_segment_bad_input(tmp_path, capsys):
     fails(tmp_path / "m.yaml", match="gone.pgm")
     fails(tmp_path / "nothere.pgm", match="no such")
     assert not (tmp_path / "o" / "rooms.png").exists()
+
+
+def test_topology_line_names_every_part_and_door():
+    g = nx.Graph()
+    for r in ("R1", "R2", "R3", "R4", "R5"):
+        g.add_node(r, kind="room")
+    for d, rooms in (("D1", ("R1", "R2")), ("D2", ("R2", "R3")), ("D3", ("R3", "R1")), ("D4", ("R4",))):
+        g.add_node(d, kind="door")
+        g.add_edges_from((d, r) for r in rooms)
+    line = topology_line(g)
+    # a loop of three rooms is no chain: its doors' links; a door on one room; a room alone
+    assert line == "R1 -D1- R2, R2 -D2- R3, R1 -D3- R3; R4 - D4; R5 (no door)", line
+
+
+def test_topology_line_of_a_chain(two_rooms_seg):
+    line = topology_line(room_graph(two_rooms_seg))
+    assert re.fullmatch(r"R\d+ - D\d+ - R\d+ - D\d+ - R\d+", line), line

@@ -314,6 +314,18 @@ def _png_size(path):
         return im.size
 
 
+def test_paths_named_alike_get_distinct_colours():
+    t = np.linspace(0, 1, 10)
+    path = Trajectory(t, np.column_stack([t, t, t]))
+    names = ["2D HS-SLAM", "6-DOF HS-SLAM", "odometry", "a", "b", "c", "d"]
+    ax = figures.plot_trajectories(dict.fromkeys(names, path))
+    lines = {line.get_label(): line.get_color() for line in ax.get_lines()}
+    colours = [tuple(np.round(lines[n], 3)) for n in names]
+    assert len(set(colours)) == len(names)
+    assert figures.series_colors(names)["odometry"] == figures.SERIES_COLORS["odometry"]
+    assert figures.series_colors(names)["2D HS-SLAM"] == figures.SERIES_COLORS["slam"]
+
+
 def test_figures_render_in_world_metres(tmp_path):
     geo, occ, lab, g = two_rooms()
     t = np.linspace(0, 2 * np.pi, 50)
@@ -321,7 +333,7 @@ def test_figures_render_in_world_metres(tmp_path):
     odo = truth.poses + [0.2, 0.1, 0.0]
     ax = figures.plot_trajectories({"odometry": odo, "HS-SLAM": truth}, groundtruth=truth, title="paths")
     assert [line.get_label() for line in ax.get_lines() if not line.get_label().startswith("_")] == [
-        "ground truth", "odometry", "HS-SLAM"]
+        "ground truth", "odometry", "HS-SLAM", "start", "end (in the path's colour)"]
     ax.figure.savefig(tmp_path / "paths.png")
 
     ax = figures.plot_labels(lab, geo, base=occ, names={1: "office"})
@@ -439,3 +451,25 @@ def test_map2d_robots_in_one_call_log_what_one_per_time_logs(tmp_path):
     assert rows["columns"] <= cols["columns"] | {"log_tick", "log_time"}
     with pytest.raises(ShapeError, match="as many"):
         hr.log_map2d_robots(None, poses, geo, np.arange(3), stamps)
+
+
+def test_segmentation_picture_draws_doors_apart_from_walls_and_a_key():
+    from _worlds import two_rooms as two_rooms_grid
+
+    from hsmap.segmentation import segment_rooms
+    from hsmap.viz.colors import DOOR_COLOR, ROOM_PALETTE, WALL_GREY, segmentation_picture
+
+    grid = two_rooms_grid()
+    seg = segment_rooms(grid)
+    assert seg.doors
+    pic = segmentation_picture(seg.labels, grid.free, seg.doors, grid.geometry)
+    H, W = seg.labels.shape
+    assert pic.shape[0] > H and pic.shape[1] >= W  # the key below the map
+    door = np.all(pic[:H, :W] == DOOR_COLOR, axis=-1)
+    assert door.sum() >= 2 * seg.doors[0].width / grid.geometry.resolution
+    assert tuple(DOOR_COLOR) not in {tuple(c) for c in ROOM_PALETTE} and DOOR_COLOR != (WALL_GREY,) * 3
+    key = pic[H:]
+    for colour in (DOOR_COLOR, label_color(1), label_color(seg.n_rooms)):
+        assert np.all(key == colour, axis=-1).sum() > 50  # a swatch of each
+    plain = segmentation_picture(seg.labels, grid.free, seg.doors, grid.geometry, legend=False)
+    assert plain.shape[:2] == (H, W)

@@ -105,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
     m = map_recording(dataset, out, seed=args.seed, slam2d=slam2d, slam3d=slam3d, segmentation=seg,
                       z_range=grids.slice, resolution=grids.resolution, slice_bins=grids.slice_bins,
                       door_depth=grids.door_depth, door_margin=grids.door_margin,
-                      recording=not args.no_recording, progress=progress)
+                      recording=not args.no_recording, progress=progress, configuration=_configuration(args))
     if not args.quiet:
         _report_2d(m, out, args.no_recording)
     return 0
@@ -174,3 +174,11 @@ def _report_2d(m: dict, out, no_recording: bool) -> None:
         f"topology.json, map2d.ply, map3d.ply{'' if no_recording else ', map.rrd'}",
     ]
     sys.stderr.write("\n".join(lines) + "\n")
+
+
+def _configuration(args: argparse.Namespace) -> str | None:
+    """Where the run's settings came from, for the summary: the ``--config`` file and the flags over it."""
+    flags = [f"{flag} {value}" for flag, value in (("--slice", args.slice), ("--resolution", args.resolution),
+                                                    ("--method", args.method)) if value is not None]
+    said = ([f"--config {args.config}"] if args.config else []) + flags
+    return ", ".join(said) or None

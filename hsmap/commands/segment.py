@@ -14,7 +14,7 @@ the sensor saw through (observed free at another height, nothing occupied within
 of rays, less passages narrower than the narrowest door (2 x min_door_half_width: cracks in walls the sensor
 partly missed); its occupied cells stay walls. Writes into --out: rooms.png (16-bit room labels, 0 = no room, same
 size as the map), doors.json, topology.json, topology.graphml, topology.txt (readable listing), segmentation.png
-(coloured overlay) and segmentation_config.yaml (the effective configuration); --steps adds steps.png, a panel
+(coloured overlay, doors magenta, with a key) and segmentation_config.yaml (the effective configuration); --steps adds steps.png, a panel
 per step of the algorithm.
 """
 
@@ -194,7 +194,7 @@ def run(args: argparse.Namespace) -> int:
     )
     from ..segmentation import SegmentationConfig, check_scale, segment_rooms
     from ..topology import room_graph, topology_listing, write_topology
-    from ..viz.colors import label_overlay
+    from ..viz.colors import segmentation_picture
 
     if args.resolution is not None and not (args.resolution > 0 and args.resolution < float("inf")):
         raise InputError(f"--resolution must be a finite number > 0 of metres per pixel, got {args.resolution}")
@@ -245,7 +245,7 @@ def run(args: argparse.Namespace) -> int:
         })
         write_topology(g, stage)
         with atomic_path(stage / "segmentation.png") as tmp:
-            Image.fromarray(label_overlay(seg.labels, grid.free, doors=seg.doors)).save(tmp, format="PNG")
+            Image.fromarray(segmentation_picture(seg.labels, grid.free, seg.doors, grid.geometry)).save(tmp, format="PNG")
         dump_config(cfg, stage / "segmentation_config.yaml")
         if band is not None:
             write_map(stage / "grid.yaml", band_map)

@@ -64,7 +64,7 @@ from ..io import (
 from ..mapping import voxel_downsample
 from ..segmentation import Door, Segmentation, SegmentationConfig, points_in_doors, segment_rooms
 from ..slam import SlamConfig
-from ..topology import room_graph, topology_listing, write_topology
+from ..topology import room_graph, topology_line, write_topology
 from ..trajectory import Trajectory, write_tum
 from .cache import FolderCache, description_digest
 from .runs import cached_slam
@@ -238,6 +238,7 @@ def map_recording(
     door_margin: float = 0.15,
     recording: bool = True,
     progress: bool | None = None,
+    configuration: str | None = None,
 ) -> dict:
     """Run the paper's chain on one recording and write its outputs into ``out`` (see the module docstring).
 
@@ -265,6 +266,8 @@ def map_recording(
         Write ``map.rrd``.
     progress : bool or None
         Progress bars (None: on a terminal only).
+    configuration : str, optional
+        Where the settings came from (a ``--config`` file, flags), said in the summary; None: the defaults.
 
     Returns
     -------
@@ -333,7 +336,7 @@ def map_recording(
 
     # the outputs: rewritten unless every stage and the output options are unchanged and the folder complete
     options = {"door_depth": float(door_depth), "door_margin": float(door_margin), "recording": bool(recording),
-               "z_range": list(z)}
+               "z_range": list(z), "configuration": configuration}
     final_key = description_digest({"slam": [run2.key, run3.key], "stages": keys, "options": options})
     previous = _read_metrics(out / "metrics.json")
     complete = all((out / name).is_file() for name in OUTPUTS if recording or name != "map.rrd")
@@ -349,7 +352,7 @@ def map_recording(
     # previous run's outputs as they were, and the stages' caches in .stages/ for the next run
     with staged_outputs(out, last="metrics.json", folders=True) as stage:
         metrics = _write_outputs(stage, dataset, ds2, ds3, run2, run3, grids, fusion, segs, z, door_depth,
-                                 door_margin, recording, bar)
+                                 door_margin, recording, bar, configuration)
         stages.done("outputs", False, time.perf_counter() - t, bar)
         metrics["stages"] = stages.info
         metrics["key"] = final_key
@@ -378,18 +381,18 @@ def _slam_summary(run) -> dict:
 
 def _segmentation_record(seg: Segmentation, graph) -> dict:
 
-    return {"rooms": seg.n_rooms, "doors": len(seg.doors),
+    return {"rooms": seg.n_rooms, "doors": len(seg.doors), "method": seg.config.method,
             "room_areas_m2": {f"R{r.label}": round(r.area, 3) for r in seg.rooms()},
             "door_list": [d.as_dict() for d in seg.doors],
-            "graph": topology_listing(graph).strip().splitlines()[-1].strip() if graph.number_of_nodes() else ""}
+            "graph": topology_line(graph)}
 
 
 def _write_outputs(out: Path, dataset: Dataset, ds2: Dataset, ds3: Dataset, run2, run3, grids: dict, fusion: dict,
                    segs: dict, z: tuple[float, float], door_depth: float, door_margin: float, recording: bool,
-                   bar) -> dict:
+                   bar, configuration: str | None = None) -> dict:
     from PIL import Image
 
-    from ..viz.colors import label_overlay
+    from ..viz.colors import segmentation_picture
 
     # trajectories, maps for Nav2, pictures of them
     write_tum(out / "trajectory2d.tum", run2.trajectory)
@@ -417,7 +420,7 @@ def _write_outputs(out: Path, dataset: Dataset, ds2: Dataset, ds3: Dataset, run2
             "doors": [d.as_dict() for d in seg.doors]})
         write_topology(graphs[name], out, stem=f"{prefix}topology")
         with atomic_path(out / f"{prefix}segmentation.png") as tmp:
-            Image.fromarray(label_overlay(seg.labels, g.free, doors=seg.doors)).save(tmp, format="PNG")
+            Image.fromarray(segmentation_picture(seg.labels, g.free, seg.doors, g.geometry)).save(tmp, format="PNG")
         records[name] = _segmentation_record(seg, graphs[name])
     bar.update(1)
 
@@ -446,6 +449,7 @@ def _write_outputs(out: Path, dataset: Dataset, ds2: Dataset, ds3: Dataset, run2
     fus = fusion["summary"]
     metrics: dict[str, Any] = {
         "input": str(dataset.path),
+        "configuration": configuration,
         "input_info": {"scans": info_scan, "clouds": info_cloud},
         "warnings": warnings_,
         "slam2d": _slam_summary(run2),
@@ -531,6 +535,14 @@ def _figures(figdir: Path, ds2, run2, run3, grids, fusion, segs, graphs, doors, 
     return names
 
 
+def _offset_text(value) -> str:
+    """A sensor's pose in the base frame, (x, y, yaw) or (x, y, z, roll, pitch, yaw), with its units."""
+    v = [float(x) for x in value]
+    names = ("x", "y", "yaw") if len(v) == 3 else ("x", "y", "z", "roll", "pitch", "yaw")
+    return ", ".join(f"{n} {round(float(np.degrees(x)), 2) + 0.0:.2f} deg" if n in ("roll", "pitch", "yaw")
+                     else f"{n} {round(x, 3) + 0.0:.3f} m" for n, x in zip(names, v, strict=False))
+
+
 def _summary_html(out: Path, m: dict) -> str:
     esc = html.escape
 
@@ -539,8 +551,11 @@ def _summary_html(out: Path, m: dict) -> str:
 
     s2, s3, fus = m["slam2d"], m["slam3d"], m["fusion"]
     prior = s3.get("prior") or {}
+    z, grid = m["grids"]["z_range"], m["grids"]["slice"]
     numbers = {
         "input": m["input"],
+        "configuration": f"{m.get('configuration') or 'the defaults'}; slice {z[0]:g}-{z[1]:g} m, "
+                         f"{grid['resolution']:g} m cells, {m['slice']['method']} door method",
         "2D HS-SLAM": f"{s2['frames']} scans, {s2['keyframes']} keyframes, {s2['loops_closed']} loops closed, "
                       f"{s2['seconds_total']:.1f} s",
         "6-DOF HS-SLAM": f"{s3['frames']} clouds, {s3['keyframes']} keyframes, {s3['loops_closed']} loops closed, "
@@ -553,7 +568,7 @@ def _summary_html(out: Path, m: dict) -> str:
         "doors (slice)": "; ".join(f"D{k} at ({d['centre'][0]:.2f}, {d['centre'][1]:.2f}) m, {d['width']:.2f} m wide"
                                    for k, d in enumerate(m["slice"]["door_list"], 1)) or "none",
     }
-    offsets = {f"{k} LiDAR offset": f"{[round(v, 4) for v in e['value']]} from {e['source']}"
+    offsets = {f"{k} LiDAR offset": f"{_offset_text(e['value'])} from {e['source']}"
                for k, e in m["input_info"]["clouds"]["extrinsics"].items()}
     warn = "".join(f"<li>{esc(w)}</li>" for w in m["warnings"])
     figs = "".join(f'<figure><img src="figures/{esc(n)}.png" alt="{esc(n)}"><figcaption>{esc(c)}</figcaption>'

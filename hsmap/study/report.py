@@ -93,8 +93,20 @@ def _notebook_file_stem() -> str | None:
     return Path(vsc).stem if isinstance(vsc, str) and vsc.endswith(".ipynb") else None
 
 
-def format_value(v: Any) -> str:
-    """A short human reading of a metric value: 4 significant digits for floats, ``-`` for missing."""
+#: Decimals of a float in a unit where its digits beyond stop meaning anything (a millimetre, a hundredth of a
+#: degree, a tenth of a square metre): the rest get 4 significant digits.
+UNIT_DECIMALS = {"m": 3, "cm": 1, "mm": 1, "deg": 2, "m2": 1, "s": 1, "ms": 1}
+
+
+def format_value(v: Any, unit: str | None = None) -> str:
+    """A short human reading of a metric value: a float in a unit of :data:`UNIT_DECIMALS` to those decimals
+    (one that rounds to 0 but is not three decades below that, with 2 significant digits), others to 4
+    significant digits; ``-`` for missing."""
+    if isinstance(v, float) and math.isfinite(v) and unit in UNIT_DECIMALS and abs(v) < 1e7:
+        k = UNIT_DECIMALS[unit]
+        if round(v, k) == 0 and abs(v) >= 10.0 ** -(k + 3):
+            return f"{v:.2g}"
+        return f"{round(v, k) + 0.0:.{k}f}"
     if v is None:
         return "-"
     if isinstance(v, bool):
@@ -108,9 +120,9 @@ def format_value(v: Any) -> str:
             return f"{v:.3e}"
         return f"{v:.4g}"
     if hasattr(v, "item") and getattr(v, "ndim", 1) == 0:  # numpy scalar
-        return format_value(v.item())
+        return format_value(v.item(), unit)
     if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(format_value(x) for x in v) + "]"
+        return "[" + ", ".join(format_value(x, unit) for x in v) + "]"
     return str(v)
 
 
@@ -208,8 +220,8 @@ class MetricsTable:
         head = ["metric", "ours", "paper"] + (["reference"] if has_ref else []) + ["unit"]
         body = []
         for r in rows:
-            ref = [f"{format_value(r.reference)} ({r.source})" if r.reference is not None else "-"] if has_ref else []
-            body.append([r.key, format_value(r.ours), format_value(r.paper), *ref, r.unit])
+            ref = [f"{format_value(r.reference, r.unit)} ({r.source})" if r.reference is not None else "-"] if has_ref else []
+            body.append([r.key, format_value(r.ours, r.unit), format_value(r.paper, r.unit), *ref, r.unit])
         return head, body
 
     def __repr__(self) -> str:
@@ -510,12 +522,13 @@ def _headline_html(metrics: Mapping[str, Any] | None, notes: str | None = None) 
     for r in rows:
         unit = f" {html.escape(r.unit)}" if r.unit else ""
         cells = f"<td class='label' title='{html.escape(r.key)}'>{html.escape(r.label)}</td>"
-        cells += f"<td>{html.escape(format_value(r.ours))}{unit}</td>"
+        cells += f"<td>{html.escape(format_value(r.ours, r.unit))}{unit}</td>"
         if has_paper:
-            cells += f"<td>{html.escape(format_value(r.paper))}{unit if r.paper is not None else ''}</td>"
+            cells += f"<td>{html.escape(format_value(r.paper, r.unit))}{unit if r.paper is not None else ''}</td>"
         if has_ref:
             src = f" <span class='source'>{html.escape(r.source)}</span>" if r.reference is not None else ""
-            cells += f"<td>{html.escape(format_value(r.reference))}{unit if r.reference is not None else ''}{src}</td>"
+            cells += (f"<td>{html.escape(format_value(r.reference, r.unit))}"
+                      f"{unit if r.reference is not None else ''}{src}</td>")
         body += f"<tr>{cells}</tr>"
     note = f"<div class='small'>{html.escape(notes)}</div>" if notes else ""
     return f"<table class='headline'>{head}{body}</table>{note}"

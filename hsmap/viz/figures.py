@@ -22,12 +22,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InputError, ShapeError
 from ..grid import GridGeometry
-from .colors import SERIES_COLORS, label_color, label_colors
+from .colors import SERIES_COLORS, SPARE_COLORS, label_color, label_colors
 from .occupancy import occupancy_to_image
 
 __all__ = [
     "new_figure",
     "plot_trajectories",
+    "series_colors",
     "plot_errors",
     "plot_points2d",
     "plot_grid",
@@ -85,6 +86,25 @@ def _world_axes(ax: Axes, title: str | None) -> None:
         ax.set_title(title)
 
 
+def series_colors(names: Sequence[str]) -> dict[str, tuple[int, int, int]]:
+    """One distinct RGB colour per curve name: a name that says what it is ("HS-SLAM" -> ``slam``, "wheel
+    odometry" -> ``odometry``) takes that colour of :data:`SERIES_COLORS` unless an earlier name took it; every
+    other name takes the next colour not in use (the spare ``other``, then :data:`SPARE_COLORS`, cycled)."""
+    palette = ["slam", "odometry", "other"]
+    out: dict[str, tuple[int, int, int]] = {}
+    used: set[tuple[int, int, int]] = set()
+    for name in names:
+        key = next((p for p in palette if p in name.lower()), None)
+        if key is not None and SERIES_COLORS[key] not in used:
+            out[name] = SERIES_COLORS[key]
+            used.add(out[name])
+    spare = [SERIES_COLORS[p] for p in palette] + list(SPARE_COLORS)
+    free = [c for c in spare if c not in used]
+    for k, name in enumerate(n for n in names if n not in out):
+        out[name] = free[k] if k < len(free) else spare[k % len(spare)]
+    return out
+
+
 def plot_trajectories(
     trajectories: Mapping[str, Any],
     *,
@@ -104,31 +124,31 @@ def plot_trajectories(
     groundtruth : Trajectory or array, optional
         Drawn first, as a wide grey band under the paths.
     markers : bool
-        Mark the start (circle) and end (square) of each path.
+        Mark the start (a black circle: the ground truth's, else the first path's) and the end of each path (a
+        square in its colour), both named in the legend.
     """
     ax = _ax(ax)
     colors = dict(colors or {})
-    palette = ["slam", "odometry", "other"]
+    picked = series_colors(list(trajectories))
     if groundtruth is not None:
         g = _xy(groundtruth, "groundtruth")
         # a wide grey band underneath, so that the paths drawn over it stay readable and it stays visible
         ax.plot(g[:, 0], g[:, 1], "-", color="0.6", lw=linewidth * 3.0, alpha=0.55, solid_capstyle="round",
                 label="ground truth", zorder=3)
-        if markers:
-            ax.plot(*g[0], "o", color="k", ms=6, zorder=5)
-    used: set[str] = set()
+    start = g[0] if groundtruth is not None and len(g) else None
+    ends = 0
     for name, traj in trajectories.items():
         xy = _xy(traj, name)
-        key = name.lower()
-        # by name ("HS-SLAM" -> slam, "wheel odometry" -> odometry), else the first palette colour not used yet
-        key = next((p for p in palette if p in key), key)
-        free = [p for p in palette if p not in used] or palette
-        key = key if key in SERIES_COLORS else free[0]
-        used.add(key)
-        c = colors.get(name) or SERIES_COLORS[key]
+        c = colors.get(name) or picked[name]
         ax.plot(xy[:, 0], xy[:, 1], "-", color=_rgb(c), lw=linewidth, label=name, zorder=4)
         if markers and len(xy):
             ax.plot(*xy[-1], "s", color=_rgb(c), ms=5, zorder=5)
+            ends += 1
+            start = xy[0] if start is None else start
+    if markers and start is not None:
+        ax.plot(*start, "o", color="k", ms=6, zorder=5, label="start")
+    if ends:
+        ax.plot([], [], "s", color="0.45", ms=5, label="end (in the path's colour)")
     _world_axes(ax, title)
     ax.legend(loc="best", fontsize=9)
     ax.grid(True, lw=0.3, alpha=0.5)

@@ -48,6 +48,7 @@ __all__ = [
     "staged_outputs",
     "sweep_stale_temporaries",
     "prepare_output_dir",
+    "resolved",
     "folder_lock",
     "write_failure_reason",
     "write_json",
@@ -384,6 +385,9 @@ def prepare_output_dir(path: str | os.PathLike, what: str = "output folder", *, 
         filesystem, permissions), with the reason.
     """
     path = Path(path)
+    resolved(path, what)
+    if path.is_symlink() and not path.exists():
+        raise InputError(f"{what} {path}: a broken symbolic link (to {os.readlink(path)}), not a folder")
     if path.exists() and not path.is_dir():
         raise InputError(f"{what} {path}: exists and is not a folder")
     probe_in = path
@@ -546,16 +550,27 @@ def staged_outputs(out: str | os.PathLike, *, last: str | None = None, folders: 
         os.close(fd)
 
 
+def resolved(path: str | os.PathLike, what: str | None = None) -> Path:
+    """``path`` made absolute, its links followed (``Path.resolve``); a link that leads back to itself is an
+    :class:`InputError` naming it (``what``: how to name it, e.g. the flag ``--out``)."""
+    try:
+        return Path(path).resolve()
+    except (RuntimeError, OSError) as exc:  # Python < 3.13 raises RuntimeError on a loop, later ones OSError
+        name = f"{what} {path}" if what else str(path)
+        why = "a symbolic link loop" if isinstance(exc, RuntimeError) or exc.errno == errno.ELOOP else _why(exc)
+        raise InputError(f"{name}: cannot follow the path ({why})") from None
+
+
 def refuse_overwriting_input(out: str | os.PathLike, inputs: Iterable[str | os.PathLike | None],
                              outputs: Iterable[str], flag: str = "--out") -> None:
     """OutputError naming ``flag`` when writing ``outputs`` (file names) into folder ``out`` would replace or
     mix with an input: ``out`` is an input folder, or an input file is one of the outputs' paths."""
-    target = Path(out).resolve()
+    target = resolved(out, flag)
     names = set(outputs)
     for given in inputs:
         if given is None:
             continue
-        p = Path(given).resolve()
+        p = resolved(given)
         if p == target or (p.parent == target and p.name in names):
             raise OutputError(f"{flag} {out}: would write over the input {given}; choose another output folder")
 

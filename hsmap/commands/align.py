@@ -8,6 +8,8 @@ every translation that makes the maps overlap (both ways), refined by Harmony-IC
 Writes into --out: alignment.json (the MAP2D -> MAP3D transform, overlap, residual, the search's candidates and
 which part of each map the other covers), overlay.png (both maps in MAP3D's frame: structure seen by both dark,
 by MAP2D only red, by MAP3D only blue) and the aligned grids (map2d_aligned.yaml/.pgm, map3d_band.yaml/.pgm).
+A match the search cannot tell from another pose in either direction (the best pose more than 2 m away scores at
+least 0.9 of the found one's, the rule of HS-SLAM's far loop closures) is refused: exit status 2, nothing written.
 """
 
 from __future__ import annotations
@@ -56,11 +58,50 @@ def _points_grid(path, resolution: float):
 def _read_2d(path: str, resolution: float | None):
     from pathlib import Path
 
+    from ..errors import InputError
     from ..grid import read_map
 
+    if Path(path).suffix.lower() in (".bt", ".ot"):
+        raise InputError(f"MAP2D {path}: an OctoMap 3D map; MAP2D takes a 2D map (map_server YAML, PNG/PGM image, "
+                         ".ply/.pcd points): give the 3D map as MAP3D")
     if Path(path).suffix.lower() in (".ply", ".pcd"):
         return _points_grid(path, 0.05 if resolution is None else resolution)
     return read_map(path, resolution), None
+
+
+def _map_files(path: str) -> list[str]:
+    """A map's file and, for a map_server YAML, the image it names (both are inputs an output must not replace)."""
+    from pathlib import Path
+
+    from ..limits import load_yaml
+
+    files = [path]
+    p = Path(path)
+    if p.suffix.lower() in (".yaml", ".yml") and p.is_file():
+        try:
+            meta = load_yaml(p.read_text(encoding="utf-8"))
+        except Exception:  # noqa: BLE001 - the map's reader names what is wrong with it
+            return files
+        if isinstance(meta, dict) and isinstance(meta.get("image"), str):
+            files.append(str(p.parent / meta["image"]))
+    return files
+
+
+def _check_unique(candidates: list[dict], map2d: str, map3d: str) -> None:
+    """Refuse a match the search cannot tell from another pose: in both directions the best pose elsewhere (more
+    than the search's separation away) scores at least ``LoopClosureConfig.far_ambiguity`` (0.9) of the found
+    pose's score, the rule HS-SLAM's far loop closures use. Then the maps show no common place, or MAP2D holds too
+    little structure to place it (a blob fits any wall)."""
+    from ..errors import DegenerateInputError
+    from ..loopclosure import LoopClosureConfig
+
+    limit = LoopClosureConfig().far_ambiguity
+    amb = [float(c["ambiguity"]) for c in candidates]
+    if min(amb) >= limit:
+        raise DegenerateInputError(
+            f"{map2d} onto {map3d}: no unique match (the best pose elsewhere scores {amb[0]:.2f} of the found one's "
+            f"with MAP2D searched in MAP3D and {amb[1]:.2f} the other way; a match needs one under {limit:g}): the "
+            "maps may not show the same place, or MAP2D holds too little structure to place it")
 
 
 def _covered(grid, other_geo, T) -> dict:
@@ -89,7 +130,14 @@ def run(args: argparse.Namespace) -> int:
     from ..errors import InputError
     from ..fusion import FusionConfig, GlobalSearch, global_align, resample_grid
     from ..grid import read_map, write_map
-    from ..io import atomic_path, prepare_output_dir, staged_outputs, sweep_stale_temporaries, write_json
+    from ..io import (
+        atomic_path,
+        prepare_output_dir,
+        refuse_overwriting_input,
+        staged_outputs,
+        sweep_stale_temporaries,
+        write_json,
+    )
     from ..maps3d import band_grid, floor_height, read_map3d
     from .inputs import parse_vector
 
@@ -97,9 +145,12 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--resolution must be a finite number > 0 of metres, got {args.resolution}")
     if args.floor is not None and not math.isfinite(args.floor):
         raise InputError(f"--floor must be a finite height in metres, got {args.floor}")
+    if args.seed < 0:
+        raise InputError(f"--seed must be >= 0, got {args.seed}")
     lo, hi = parse_vector(args.band, 2, "--band")
     if not lo < hi:
         raise InputError(f"--band must be LO,HI with LO < HI, got {args.band!r}")
+    refuse_overwriting_input(args.out, [*_map_files(args.map2d), *_map_files(args.map3d)], OUTPUTS)
     out = prepare_output_dir(args.out, "--out", create=False)
     map2d, points2d = _read_2d(args.map2d, args.resolution)
     band = None
@@ -113,6 +164,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = FusionConfig()
     al, candidates = global_align(map2d, target, floor_points=points2d, config=cfg, search=GlobalSearch(),
                                   rng=args.seed)
+    _check_unique(candidates, args.map2d, args.map3d)
     T = al.transformation
     reg = al.registration
     result = {

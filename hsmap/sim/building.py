@@ -25,13 +25,13 @@ from ..config import to_dict
 from ..datasets.simulated import FORMAT, FORMAT_VERSION
 from ..errors import ScenarioError
 from ..grid import write_label_image
-from ..io import sweep_stale_temporaries, write_json, write_text
+from ..io import write_json, write_text
 from ..trajectory import Trajectory, write_tum
 from .explore import Exploration, ExploreConfig, plan_exploration
 from .floorplan import FloorPlan, FloorPlanWorld, FloorPlanWorldConfig, build_world
 from .robot import Motion, OdometryConfig, RobotConfig, simulate_motion
 from .sensors import Lidar2DConfig, Lidar3DConfig
-from .writer import open_dataset_folder, write_sensor_frames
+from .writer import staged_dataset_folder, write_sensor_frames
 
 __all__ = ["BuildingRunConfig", "BuildingRun", "simulate_building", "building_motion", "write_route_files",
            "write_dataset_yaml"]
@@ -100,7 +100,8 @@ def simulate_building(plan: FloorPlan, out: str | os.PathLike, *, seed: int = 0,
     plan : FloorPlan
         From :func:`hsmap.sim.floorplan.read_floor_plan`.
     out : path
-        The dataset folder (created; a previous dataset in it is replaced, ``dataset.yaml`` removed first).
+        The dataset folder (created). The dataset is written into a staging folder inside it and replaces a
+        previous dataset there when complete; a failed or interrupted run leaves that as it was.
     seed : int
         Seeds the furniture, the odometry's slip and the range noise.
     config : BuildingRunConfig, optional
@@ -116,9 +117,7 @@ def simulate_building(plan: FloorPlan, out: str | os.PathLike, *, seed: int = 0,
     seed = int(seed)
     if seed < 0:
         raise ScenarioError(f"seed must be >= 0, got {seed}")
-    out = open_dataset_folder(out)
-    sweep_stale_temporaries(out)
-    sweep_stale_temporaries(out / "clouds3d")
+    final = Path(out)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
 
@@ -133,18 +132,19 @@ def simulate_building(plan: FloorPlan, out: str | os.PathLike, *, seed: int = 0,
     motion = building_motion(route, cfg, seed, max_frames)
     timings["motion"] = time.perf_counter() - t
 
-    write_sensor_frames(out, world, motion, cfg.lidar2d, cfg.lidar3d, seed, timings)
-    write_route_files(out, motion, plan.rooms, plan.geometry, plan.n_rooms,
-                      "the ground truth's rooms, in its own pixel grid")
-    run = BuildingRun(out, fw, route, motion, timings)
-    write_json(out / "building.json", {"world": fw.describe(), "route": route.as_dict(),
-                                       "furniture": [p.as_dict() for p in fw.furniture]})
-    timings["total"] = time.perf_counter() - t0
-    write_dataset_yaml(out, plan.name, f"floor-plan world of {plan.name} ({plan.files.get('plain', '')})", seed,
-                       motion, cfg, {"rooms.png": "ground-truth room labels (16-bit)",
-                                     "doors.json": "no doors (a floor plan draws none)",
-                                     "building.json": "the world (boxes, furniture) and the route (goals, "
-                                                      "unreachable rooms)"})
+    with staged_dataset_folder(final) as out:
+        write_sensor_frames(out, world, motion, cfg.lidar2d, cfg.lidar3d, seed, timings)
+        write_route_files(out, motion, plan.rooms, plan.geometry, plan.n_rooms,
+                          "the ground truth's rooms, in its own pixel grid")
+        run = BuildingRun(final, fw, route, motion, timings)
+        write_json(out / "building.json", {"world": fw.describe(), "route": route.as_dict(),
+                                           "furniture": [p.as_dict() for p in fw.furniture]})
+        timings["total"] = time.perf_counter() - t0
+        write_dataset_yaml(out, plan.name, f"floor-plan world of {plan.name} ({plan.files.get('plain', '')})",
+                           seed, motion, cfg, {"rooms.png": "ground-truth room labels (16-bit)",
+                                               "doors.json": "no doors (a floor plan draws none)",
+                                               "building.json": "the world (boxes, furniture) and the route "
+                                                                "(goals, unreachable rooms)"})
     return run
 
 

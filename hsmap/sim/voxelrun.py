@@ -21,14 +21,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..errors import ScenarioError
-from ..io import sweep_stale_temporaries, write_json
+from ..io import write_json
 from ..maps3d import read_map3d
 from .building import BuildingRunConfig, building_motion, write_dataset_yaml, write_route_files
 from .robot import Motion, OdometryConfig, RobotConfig
 from .route3d import Route3D, Route3DConfig, plan_route3d
 from .sensors import Lidar2DConfig, Lidar3DConfig
 from .voxelworld import VoxelWorld
-from .writer import open_dataset_folder, write_sensor_frames
+from .writer import staged_dataset_folder, write_sensor_frames
 
 __all__ = ["WorldRunConfig", "WorldRun", "simulate_world", "load_voxel_world"]
 
@@ -86,7 +86,8 @@ def simulate_world(world: VoxelWorld | str | os.PathLike, out: str | os.PathLike
     world : VoxelWorld or path
         The world, or a 3D map file (:func:`load_voxel_world`).
     out : path
-        The dataset folder (created; a previous dataset in it is replaced, ``dataset.yaml`` removed first).
+        The dataset folder (created). The dataset is written into a staging folder inside it and replaces a
+        previous dataset there when complete; a failed or interrupted run leaves that as it was.
     seed : int
         Seeds the odometry's slip and the range noise.
     config : WorldRunConfig, optional
@@ -109,9 +110,7 @@ def simulate_world(world: VoxelWorld | str | os.PathLike, out: str | os.PathLike
     if not isinstance(world, VoxelWorld):
         world = load_voxel_world(world)
     timings["world"] = time.perf_counter() - t0
-    out = open_dataset_folder(out)
-    sweep_stale_temporaries(out)
-    sweep_stale_temporaries(out / "clouds3d")
+    final = Path(out)
 
     t = time.perf_counter()
     route = plan_route3d(world, cfg.route, lidar3d=cfg.lidar3d, footprint=cfg.robot.radius)
@@ -121,18 +120,20 @@ def simulate_world(world: VoxelWorld | str | os.PathLike, out: str | os.PathLike
     motion = building_motion(route.route, bcfg, seed, max_frames)
     timings["motion"] = time.perf_counter() - t
 
-    write_sensor_frames(out, world, motion, cfg.lidar2d, cfg.lidar3d, seed, timings)
-    write_route_files(out, motion, route.rooms, route.geometry, int(route.rooms.max(initial=0)),
-                      f"the rooms hsmap.segmentation finds in the source map's {cfg.route.rooms_band[0]:g}-"
-                      f"{cfg.route.rooms_band[1]:g} m band (the route's goals), not a hand-drawn ground truth")
-    run = WorldRun(out, world, route, motion, timings)
-    timings["total"] = time.perf_counter() - t0
-    write_json(out / "world.json", {k: v for k, v in run.as_dict().items() if k != "path"})
-    write_dataset_yaml(out, Path(world.source).stem,
-                       f"voxel world of the 3D map {world.source} (floor surface at z = 0, "
-                       f"{world.floor:+.3f} m in the map's frame; the map's x, y)", seed, motion, cfg,
-                       {"rooms.png": "the rooms of the source map's slice (16-bit labels; not a hand-drawn ground "
-                                     "truth)",
-                        "doors.json": "no doors (the map draws none)",
-                        "world.json": "the voxel world, the route (goals, rooms entered, unreachable rooms), timings"})
+    with staged_dataset_folder(final) as out:
+        write_sensor_frames(out, world, motion, cfg.lidar2d, cfg.lidar3d, seed, timings)
+        write_route_files(out, motion, route.rooms, route.geometry, int(route.rooms.max(initial=0)),
+                          f"the rooms hsmap.segmentation finds in the source map's {cfg.route.rooms_band[0]:g}-"
+                          f"{cfg.route.rooms_band[1]:g} m band (the route's goals), not a hand-drawn ground truth")
+        run = WorldRun(final, world, route, motion, timings)
+        timings["total"] = time.perf_counter() - t0
+        write_json(out / "world.json", {k: v for k, v in run.as_dict().items() if k != "path"})
+        write_dataset_yaml(out, Path(world.source).stem,
+                           f"voxel world of the 3D map {world.source} (floor surface at z = 0, "
+                           f"{world.floor:+.3f} m in the map's frame; the map's x, y)", seed, motion, cfg,
+                           {"rooms.png": "the rooms of the source map's slice (16-bit labels; not a hand-drawn "
+                                         "ground truth)",
+                            "doors.json": "no doors (the map draws none)",
+                            "world.json": "the voxel world, the route (goals, rooms entered, unreachable rooms), "
+                                          "timings"})
     return run

@@ -17,12 +17,14 @@ Every file is written atomically; identical scenario and seed give byte-identica
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import io
 import os
 import shutil
 import time
 import zipfile
+from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -161,14 +163,7 @@ def simulate(scenario: Scenario | str | os.PathLike, out: str | os.PathLike, see
     if seed < 0:
         raise ScenarioError(f"seed must be >= 0, got {seed}")
     final = Path(out)
-    if final.exists() and not final.is_dir():
-        raise DatasetError(f"{final}: exists and is not a folder")
-    final.mkdir(parents=True, exist_ok=True)
-    sweep_stale_temporaries(final, [*FILE_DESCRIPTIONS, "figures"])  # left by a killed run
-    # written into a staging folder inside ``final``, moved into place when complete (dataset.yaml last): an
-    # interrupted run leaves the previous dataset as it was
-    names = [name.rstrip("/") for name in FILE_DESCRIPTIONS] + ["figures"]
-    with staged_outputs(final, last="dataset.yaml", folders=True, replaces=names) as stage:
+    with staged_dataset_folder(final) as stage:
         summary = _write_dataset(scn, stage, seed, max_frames=max_frames, label_resolution=label_resolution,
                                  batch_frames=batch_frames, compresslevel=compresslevel, t_start=t_start)
     return dataclasses.replace(summary, path=final)
@@ -178,7 +173,7 @@ def _write_dataset(scn: Scenario, out: Path, seed: int, *, max_frames: int | Non
                    batch_frames: int, compresslevel: int, t_start: float) -> SimulationSummary:
     """Write the dataset folder of :func:`simulate` into the empty folder ``out``."""
 
-    out = open_dataset_folder(out)
+    out = Path(out)
     timings: dict[str, float] = {}
 
     t = time.perf_counter()
@@ -450,12 +445,28 @@ z = 0. The robot base frame lies on the floor (x forward, y left). Poses are (x,
 """
 
 
-def open_dataset_folder(out: str | Path) -> Path:
-    """Create the dataset folder ``out`` (a file there is a :class:`DatasetError`) and mark it incomplete by
-    removing its ``dataset.yaml``, which the writer puts back last."""
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise DatasetError(f"{out}: exists and is not a folder")
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "dataset.yaml").unlink(missing_ok=True)  # incomplete from now on
-    return out
+DATASET_OUTPUTS = [name.rstrip("/") for name in FILE_DESCRIPTIONS] + ["figures", "world.json", "building.json"]
+"""Every file and folder a simulator writes into a dataset folder (a rerun of another kind leaves none of an
+earlier run's beside its own)."""
+
+
+@contextlib.contextmanager
+def staged_dataset_folder(out: str | os.PathLike) -> Iterator[Path]:
+    """Yield an empty staging folder inside the dataset folder ``out`` (created; a file there is a
+    :class:`DatasetError`); when the ``with`` block ends without an error, its files replace those of the dataset
+    there, ``dataset.yaml`` last (:func:`hsmap.io.staged_outputs`). A failed or interrupted run leaves a previous
+    dataset as it was, and a folder it created empty is removed."""
+    final = Path(out)
+    if final.exists() and not final.is_dir():
+        raise DatasetError(f"{final}: exists and is not a folder")
+    created = not final.exists()
+    final.mkdir(parents=True, exist_ok=True)
+    sweep_stale_temporaries(final, DATASET_OUTPUTS)  # left by a killed run
+    try:
+        with staged_outputs(final, last="dataset.yaml", folders=True, replaces=DATASET_OUTPUTS) as stage:
+            yield stage
+    except BaseException:
+        if created:
+            with contextlib.suppress(OSError):
+                final.rmdir()  # only when empty
+        raise

@@ -146,9 +146,16 @@ def fetch(
     chosen = _choose(names)
     dest = Path(dest) if dest is not None else fetch_dir()
     mirror = mirror if mirror is not None else (os.environ.get(MIRROR_ENV) or None)
-    if mirror is not None and not re.match(r"^(https?|ftp)://", mirror):
-        raise InputError(f"mirror must be an http(s):// or ftp:// URL, got {mirror!r}")
-    dest.mkdir(parents=True, exist_ok=True)
+    if mirror is not None and not re.match(r"^https?://", mirror):
+        raise InputError(f"mirror must be an http:// or https:// URL, got {mirror!r}")
+    if dest.exists() and not dest.is_dir():
+        raise InputError(f"dest {dest}: exists and is not a folder")
+    # what this call creates, removed again when nothing of it is stored (a refused or failed download)
+    created = [p for p in (dest, *(dest / ds.folder for ds in chosen)) if not p.exists()]
+    try:
+        dest.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"dest {dest}: cannot create the folder ({exc.strerror or exc})") from None
     logger = pooch.get_logger()
     level = logger.level
     logger.setLevel("WARNING")  # pooch says "Downloading file ..." for every file; we say it once per dataset
@@ -159,9 +166,24 @@ def fetch(
                 results.append(_fetch_one(ds, dest, mirror, timeout, log, pooch))
     except Timeout:
         raise DatasetError(f"{dest}: another 'hsmap data fetch' holds {dest / '.fetch.lock'}") from None
+    except BaseException:
+        _remove_if_empty(created[::-1], dest / ".fetch.lock" if dest in created else None)
+        raise
     finally:
         logger.setLevel(level)
     return results
+
+
+def _remove_if_empty(folders: list[Path], lock: Path | None) -> None:
+    """Remove the folders (innermost first) that hold nothing; ``lock``, this call's own lock file in a folder it
+    created, goes first."""
+    if lock is not None:
+        lock.unlink(missing_ok=True)
+    for folder in folders:
+        try:
+            folder.rmdir()
+        except OSError:  # not empty, or already gone
+            pass
 
 
 def _fetch_one(ds: PublicDataset, dest: Path, mirror: str | None, timeout: float,

@@ -7,8 +7,8 @@ hall, ``$HSMAP_DATASETS/balm``: ``full0.pcd`` .. ``full176.pcd`` and ``alidarPos
   order and a ``times.txt`` of the reference stamps), so that HS-SLAM and the peers read the same clouds;
 - :func:`score_track`: one scoring for every odometry or SLAM on the sweeps (:class:`TrackScore`);
 - :func:`run_hs_slam`: HS-SLAM 6-DOF with the command line's defaults (``hsmap slam FOLDER --dof 6``);
-- :func:`posed_voxel_map`, :func:`slice_rooms`: the posed sweeps as a voxel map, its floor under the trajectory,
-  a height band of it and the band's rooms.
+- :func:`posed_points`, :func:`posed_voxel_map`, :func:`floor_under`, :func:`slice_rooms`: the posed sweeps as a
+  voxel map (free along the rays), the floor under the walked trajectory, a height band above it and its rooms.
 
 Scoring (:func:`score_track`):
 
@@ -280,24 +280,40 @@ def run_hs_slam(folder: str | os.PathLike, *, seed: int = 1, config=None, max_sw
                      float(res.cpu_seconds), res.metrics())
 
 
-def posed_points(sweeps, trajectory: Trajectory, *, voxel: float = 0.1) -> NDArray[np.float64]:
-    """The sweeps placed at the trajectory's poses (one pose a sweep, in order), thinned to one point a ``voxel``
-    (the first point to land in it)."""
-    from ..geometry import transform_points
+def _voxel_keys(points: NDArray[np.float64], voxel: float) -> NDArray[np.int64]:
+    """One int64 per point naming its voxel (21 bits an axis: +-1e6 voxels)."""
+    k = np.floor(points / voxel).astype(np.int64) + (1 << 20)
+    if (k < 0).any() or (k >= 1 << 21).any():
+        raise InputError(f"points more than {(1 << 20) * voxel:g} m from the origin: too far for {voxel:g} m voxels")
+    return (k[:, 0] << 42) | (k[:, 1] << 21) | k[:, 2]
 
+
+def posed_points(sweeps, trajectory: Trajectory, *, voxel: float = 0.1, min_range: float | None = None,
+                 max_range: float | None = None) -> NDArray[np.float64]:
+    """The sweeps placed at the trajectory's poses (one pose a sweep, in order), each cut to the ranges HS-SLAM
+    uses (default :class:`hsmap.slam.SlamConfig`'s ``min_range`` and ``max_range``), thinned to one point a
+    ``voxel`` (the first point to land in it)."""
+    from ..geometry import transform_points
+    from ..slam import SlamConfig
+
+    cfg = SlamConfig()
+    lo = cfg.min_range if min_range is None else float(min_range)
+    hi = cfg.max_range if max_range is None else float(max_range)
     poses = pose_to_matrix(trajectory.as_6dof().poses)
     sweeps = list(sweeps)
     if len(sweeps) != len(poses):
         raise InputError(f"{len(sweeps)} sweeps but {len(poses)} poses: give one pose a sweep")
     keys, pts = [], []
     for T, s in zip(poses, sweeps, strict=True):
-        p = transform_points(T, np.asarray(s, dtype=float))
-        k = np.floor(p / voxel).astype(np.int64)
-        _, first = np.unique(k, axis=0, return_index=True)
+        s = np.asarray(s, dtype=float)
+        r = np.linalg.norm(s, axis=1)
+        p = transform_points(T, s[(r >= lo) & (r <= hi)])
+        k = _voxel_keys(p, voxel)
+        _, first = np.unique(k, return_index=True)
         keys.append(k[first])
         pts.append(p[first])
-    k, p = np.vstack(keys), np.vstack(pts)
-    _, first = np.unique(k, axis=0, return_index=True)
+    k, p = np.concatenate(keys), np.vstack(pts)
+    _, first = np.unique(k, return_index=True)
     return p[np.sort(first)]
 
 

@@ -14,6 +14,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+import matplotlib.ticker
 import numpy as np
 from matplotlib.figure import Figure
 
@@ -42,11 +43,11 @@ def _method_colors(names: Sequence[str]) -> dict[str, str]:
 
 
 def tracks_figure(reference: Any, tracks: Mapping[str, tuple[Any, int | None]], *, title: str | None = None,
-                  margin: float = 5.0) -> Figure:
+                  margin: float | None = None) -> Figure:
     """Every method's track from above over the reference's: ``tracks`` maps a name to (its poses (N, >= 2) after
     alignment onto the reference, the index into them from which it lost track or None). The view is the
-    reference's extent plus ``margin`` metres, so a lost track leaves it rather than shrinking the others; a
-    lost track's first lost pose is marked with a cross."""
+    reference's extent plus ``margin`` metres (default a fifth of the extent, at least 1 m), so a lost track leaves
+    it rather than shrinking the others; a lost track's first lost pose is marked with a cross."""
     ref = np.asarray(reference, dtype=float)
     if ref.ndim != 2 or ref.shape[1] < 2 or len(ref) == 0:
         raise InputError(f"reference must be poses (N, >= 2), got shape {ref.shape}")
@@ -63,6 +64,8 @@ def tracks_figure(reference: Any, tracks: Mapping[str, tuple[Any, int | None]], 
         ax.plot(p[:, 0], p[:, 1], "-", color=colors[name], lw=1.8 if hs else 1.1, label=name, zorder=4 if hs else 3)
         if lost is not None and 0 <= lost < len(p):
             ax.plot(*p[lost, :2], "x", color=colors[name], ms=9, mew=2.0, zorder=6)
+    if margin is None:
+        margin = max(1.0, 0.2 * float(np.ptp(ref[:, :2], axis=0).max()))
     lo, hi = ref[:, :2].min(axis=0) - margin, ref[:, :2].max(axis=0) + margin
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
@@ -88,6 +91,7 @@ def dof_errors_figure(series: Mapping[str, tuple[Any, Any]], *, xlabel: str = "s
     fig, axes = new_figure(2, 3, size=(14.0, 6.5))
     axes = np.asarray(axes).ravel()
     colors = _method_colors(list(series))
+    largest = np.zeros(6)
     for name, (x, e) in series.items():
         e = np.asarray(e, dtype=float)
         xs = np.asarray(x, dtype=float).reshape(-1)
@@ -96,9 +100,13 @@ def dof_errors_figure(series: Mapping[str, tuple[Any, Any]], *, xlabel: str = "s
         hs = "hs-slam" in name.lower()
         for i, (ax, (_, unit)) in enumerate(zip(axes, _DOF_UNITS, strict=True)):
             v = e[:, i] if unit == "m" else np.degrees(e[:, i])
+            largest[i] = max(largest[i], float(np.abs(v).max(initial=0.0)))
             ax.plot(xs, v, "-", color=colors[name], lw=1.6 if hs else 0.9, label=name, zorder=4 if hs else 3)
-    for ax, (dof, unit) in zip(axes, _DOF_UNITS, strict=True):
+    for ax, big, (dof, unit) in zip(axes, largest, _DOF_UNITS, strict=True):
         ax.set_yscale("symlog", linthresh=lin[dof])
+        top = lin[dof] * 10.0 ** max(0.0, np.ceil(np.log10(max(big, 1e-12) / lin[dof])))  # a decade of linthresh
+        ax.set_ylim(-top, top)
+        ax.yaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda v, _: f"{v:g}"))
         ax.axhline(0, color="k", lw=0.5)
         ax.set_ylabel(f"{dof} error [{unit}]")
         ax.set_xlabel(xlabel)

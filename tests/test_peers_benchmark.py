@@ -113,3 +113,163 @@ def test_mrpt_config_changes_only_the_named_settings(bench, tmp_path):
     lines = text.splitlines()
     assert "rawlog_file=keep" in lines and "rawlog_file=/in.rawlog" in lines and "logOutput_dir=/out" in lines
     assert "LOG_FREQUENCY=0" in lines and "SAVE_3D_SCENE=0" in lines and "insertionLinDistance=1.2" in lines
+
+
+# -- the 3D peers on real sweeps (benchmarks/peers3d.py, hsmap.study.real_sweeps, hsmap.study.peers3d) -------------
+def _route(n=40, seed=3):
+    """A 6-DOF route: a smooth walk with turns and a little roll and pitch, one pose a second."""
+    rng = np.random.default_rng(seed)
+    s = np.linspace(0.0, 1.0, n)
+    poses = np.column_stack([8 * np.cos(3 * s), 5 * np.sin(4 * s), 0.2 * s, 0.05 * np.sin(9 * s),
+                             0.04 * np.cos(7 * s), 3 * s]) + rng.normal(0, 1e-3, (n, 6))
+    from hsmap.trajectory import Trajectory
+
+    return Trajectory(1630577758.5 + 0.5 * np.arange(n), poses)
+
+
+def _moved(traj, pose):
+    """``traj`` with every pose seen from another world frame (``pose`` of it in the reference's)."""
+    from hsmap.geometry import matrix_to_pose, pose_to_matrix
+    from hsmap.trajectory import Trajectory
+
+    return Trajectory(traj.stamps, matrix_to_pose(pose_to_matrix(pose) @ pose_to_matrix(traj.poses)))
+
+
+def test_scoring_a_moved_copy_of_the_reference_is_exact():
+    from hsmap.study.real_sweeps import score_track
+
+    ref = _route()
+    s = score_track(_moved(ref, np.array([3.0, -2.0, 0.5, 0.1, -0.2, 1.0])), ref).summary
+    assert s["ate_rmse_m"] < 1e-9 and s["ate_rotation_max_deg"] < 1e-6
+    assert max(s["max_abs_error"].values()) < 1e-6 and max(s["max_abs_error_from_start"].values()) < 1e-6
+    assert s["lost_track_from_sweep"] is None and s["poses"] == s["reference_sweeps"] == len(ref)
+
+
+def test_scoring_finds_the_sweep_where_a_track_is_lost_and_its_jump():
+    from hsmap.study.real_sweeps import score_track
+    from hsmap.trajectory import Trajectory
+
+    ref = _route()
+    est = ref.poses.copy()
+    est[25:, 1] += 1.5  # a 1.5 m jump from sweep 25 on
+    est[12:, 5] += np.radians(2.0)  # 2 deg of yaw from sweep 12 on, about the first sweep's origin
+    s = score_track(Trajectory(ref.stamps, est), ref).summary
+    assert s["lost_track_from_sweep"] == 25
+    assert s["worst_step"]["translation_at_sweep"] == 25 and s["worst_step"]["translation_m"] > 1.4
+    assert s["worst_step"]["rotation_at_sweep"] == 12 and s["worst_step"]["rotation_deg"] == pytest.approx(2.0, abs=0.01)
+    assert s["max_abs_error_from_start"]["yaw_deg"] == pytest.approx(2.0, abs=0.05)
+    assert 0.3 < s["ate_rmse_m"] < 1.5 and s["ate_max_m"] >= s["ate_rmse_m"]
+
+
+def test_scoring_takes_an_estimate_of_some_sweeps_and_names_them():
+    from hsmap.study.real_sweeps import score_track
+    from hsmap.trajectory import Trajectory
+
+    ref = _route()
+    part = Trajectory(ref.stamps[10:30], ref.poses[10:30])
+    s = score_track(part, ref)
+    assert list(s.sweeps) == list(range(10, 30)) and s.summary["poses"] == 20
+    from hsmap.errors import InputError
+
+    with pytest.raises(InputError, match="no reference stamp"):
+        score_track(Trajectory(ref.stamps + 0.25, ref.poses), ref)
+
+
+def _balm_like(folder, n=12):
+    """A folder laid out as BALM's: fullN.pcd (tiny clouds) and alidarPose.csv with the stamps in the last cell."""
+    from hsmap.geometry import pose_to_matrix
+
+    ref = _route(n)
+    folder.mkdir()
+    for i in range(n):
+        pts = np.random.default_rng(i).normal(0, 3, (20, 3)).astype(np.float32)
+        head = (f"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH {len(pts)}\nHEIGHT 1\n"
+                f"VIEWPOINT 0 0 0 1 0 0 0\nPOINTS {len(pts)}\nDATA ascii\n")
+        (folder / f"full{i}.pcd").write_text(head + "".join(f"{x} {y} {z}\n" for x, y, z in pts))
+    M = pose_to_matrix(ref.poses)
+    M[:, 3, 3] = ref.stamps
+    (folder / "alidarPose.csv").write_text("".join(",".join(f"{v:.6f}" for v in row) + ",\n"
+                                                   for m in M for row in m))
+    return ref
+
+
+def test_sweeps_are_taken_in_natural_order_with_the_reference_stamps(tmp_path):
+    from hsmap.study import real_sweeps as rs
+
+    ref = _balm_like(tmp_path / "balm")
+    files = rs.sweep_files(tmp_path / "balm")
+    assert [f.name for f in files][:3] == ["full0.pcd", "full1.pcd", "full2.pcd"] and files[10].name == "full10.pcd"
+    back = rs.read_reference(tmp_path / "balm")
+    np.testing.assert_allclose(back.stamps, ref.stamps, atol=1e-6)
+    np.testing.assert_allclose(back.poses, ref.poses, atol=1e-5)
+    assert rs.balm_folder(tmp_path) == tmp_path / "balm"
+    folder = rs.sweep_folder(tmp_path / "balm", tmp_path / "sweeps", max_sweeps=11)
+    frames = list(rs.open_sweeps(folder).frames(clouds=True))
+    assert len(frames) == 11
+    np.testing.assert_allclose([f.stamp for f in frames], ref.stamps[:11], atol=1e-6)
+    from hsmap.datasets.clouds import read_points
+
+    np.testing.assert_allclose(frames[10].cloud3d, read_points(files[10]))
+
+
+def test_a_damaged_pose_file_is_refused_naming_the_line(tmp_path):
+    from hsmap.errors import DataFormatError
+    from hsmap.study import real_sweeps as rs
+
+    _balm_like(tmp_path / "balm", n=3)
+    p = tmp_path / "balm" / "alidarPose.csv"
+    lines = p.read_text().splitlines()
+    lines[5] = "1,2,x,4,"
+    p.write_text("\n".join(lines) + "\n")
+    with pytest.raises(DataFormatError, match=r"alidarPose.csv:6: expected 4 comma-separated numbers"):
+        rs.read_reference(tmp_path / "balm")
+    p.write_text("\n".join(lines[:4] + lines[6:9]) + "\n")
+    with pytest.raises(DataFormatError, match="not a whole number of 4x4 poses"):
+        rs.read_reference(tmp_path / "balm")
+    assert rs.balm_folder(tmp_path / "nowhere") is None
+
+
+def test_a_missing_3d_peer_is_reported_not_dropped(monkeypatch):
+    with benchmark_modules("peers3d") as (p3,):
+        monkeypatch.setitem(sys.modules, "small_gicp", None)  # as if not installed
+        r = p3.guarded(p3.run_peer_entry, "small_gicp", "defaults", [np.zeros((5, 3))], np.zeros(1), _route())
+        assert r["status"] == "not installed" and "small_gicp" in r["reason"]
+        out = {"runs": {"small_gicp": {"defaults": r}}}
+        assert "| small_gicp | defaults | not installed: " in p3.table(out)
+
+
+def test_seed_summary_gives_mean_spread_and_worst():
+    with benchmark_modules("peers3d") as (p3,):
+        rows = {f"seed{i}": {"status": "ok", "ate_rmse_m": a, "ate_max_m": 2 * a, "cpu_per_sweep_mean_s": 1.0,
+                             "wall_per_sweep_median_s": 1.0, "lost_track_from_sweep": lost}
+                for i, (a, lost) in enumerate([(0.1, None), (0.3, 40), (0.2, 7)])}
+        rows["seed9"] = {"status": "failed", "reason": "x"}
+        s = p3.seed_summary(rows)
+        assert s["seeds_ok"] == 3 and s["seeds"] == 4
+        assert s["ate_rmse_m"] == pytest.approx({"mean": 0.2, "spread": 0.2, "worst": 0.3})
+        assert s["lost_track_runs"] == 2 and s["lost_track_earliest_sweep"] == 7
+
+
+@pytest.fixture
+def balm():
+    from hsmap.study.real_sweeps import balm_folder, missing_balm_reason
+
+    folder = balm_folder()
+    if folder is None:
+        pytest.skip(missing_balm_reason())
+    return folder
+
+
+def test_the_first_real_sweeps_are_scored_within_centimetres_by_a_peer(balm, tmp_path):
+    pytest.importorskip("small_gicp")
+    from hsmap.geometry import matrix_to_pose
+    from hsmap.study.peers3d import run_peer
+    from hsmap.study.real_sweeps import open_sweeps, read_reference, score_track, sweep_folder
+    from hsmap.trajectory import Trajectory
+
+    frames = list(open_sweeps(sweep_folder(balm, tmp_path / "s", max_sweeps=5)).frames(clouds=True))
+    r = run_peer("small_gicp", "defaults", [f.cloud3d for f in frames])
+    s = score_track(Trajectory([f.stamp for f in frames], matrix_to_pose(r.poses)), read_reference(balm)).summary
+    assert s["poses"] == 5 and s["reference_sweeps"] == 177
+    assert s["ate_rmse_m"] < 0.02 and s["lost_track_from_sweep"] is None
+    assert r.timing()["cpu_per_sweep_mean_s"] > 0

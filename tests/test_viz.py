@@ -473,3 +473,22 @@ def test_segmentation_picture_draws_doors_apart_from_walls_and_a_key():
         assert np.all(key == colour, axis=-1).sum() > 50  # a swatch of each
     plain = segmentation_picture(seg.labels, grid.free, seg.doors, grid.geometry, legend=False)
     assert plain.shape[:2] == (H, W)
+
+
+def test_real_sweep_figures_draw_each_method_and_refuse_bad_shapes():
+    from hsmap.viz.benchmark_figures import dof_errors_figure, tracks_figure
+
+    ref = np.column_stack([np.linspace(0, 10, 20), np.linspace(0, 5, 20), np.zeros((20, 4))])
+    lost = ref.copy()
+    lost[12:, 0] += 40.0
+    fig = tracks_figure(ref, {"HS-SLAM 6-DOF": (ref, None), "kiss_icp defaults": (lost, 12)})
+    ax = fig.axes[0]
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == ["reference", "HS-SLAM 6-DOF", "kiss_icp defaults"]
+    assert ax.get_xlim()[1] == pytest.approx(12.0)  # the reference's extent and a fifth of it, not the lost track's
+    fig = dof_errors_figure({"HS-SLAM 6-DOF": (np.arange(20), np.zeros((20, 6))),
+                             "x": (np.arange(20), np.ones((20, 6)))})
+    assert len([a for a in fig.axes if a.get_visible()]) == 6
+    with pytest.raises(InputError, match="errors \\(N, 6\\)"):
+        dof_errors_figure({"a": (np.arange(3), np.zeros((3, 3)))})
+    with pytest.raises(InputError, match="poses"):
+        tracks_figure(np.zeros(3), {})

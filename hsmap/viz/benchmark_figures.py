@@ -1,6 +1,7 @@
 """Figures of the public benchmarks (notebook 08): our relations errors on the Freiburg logs beside the
 published methods, and our per-map room-segmentation scores beside Bormann et al.'s methods; and of the building
-benchmark (notebook 09): floor level vs slice per building, one page per building.
+benchmark (notebook 09): floor level vs slice per building, one page per building; and of the real sweeps (notebook
+11): every method's aligned track over the reference and its per-DOF errors over time.
 
 Inputs are the plain rows of :mod:`hsmap.study.benchmarks` and the published numbers of ``hsmap/study/published.yaml``
 (:func:`hsmap.study.benchmarks.published_references`); drawn with the object API, like :mod:`hsmap.viz.figures`.
@@ -13,6 +14,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+import matplotlib.ticker
 import numpy as np
 from matplotlib.figure import Figure
 
@@ -22,7 +24,97 @@ from ..trajectory import read_tum
 from .figures import new_figure
 
 __all__ = ["relations_figure", "relations_dt_figure", "precision_recall_figure", "buildings_gain_figure",
-           "building_page_figure"]
+           "building_page_figure", "tracks_figure", "dof_errors_figure"]
+
+#: Line colours of the methods on the real sweeps, in order (matplotlib's tab10 less its blue, which is HS-SLAM's).
+_METHOD_COLORS = ["#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#17becf"]
+_DOF_UNITS = (("x", "m"), ("y", "m"), ("z", "m"), ("roll", "deg"), ("pitch", "deg"), ("yaw", "deg"))
+
+
+def _method_colors(names: Sequence[str]) -> dict[str, str]:
+    out, k = {}, 0
+    for n in names:
+        if "hs-slam" in n.lower():
+            out[n] = "#1f77b4"
+        else:
+            out[n] = _METHOD_COLORS[k % len(_METHOD_COLORS)]
+            k += 1
+    return out
+
+
+def tracks_figure(reference: Any, tracks: Mapping[str, tuple[Any, int | None]], *, title: str | None = None,
+                  margin: float | None = None) -> Figure:
+    """Every method's track from above over the reference's: ``tracks`` maps a name to (its poses (N, >= 2) after
+    alignment onto the reference, the index into them from which it lost track or None). The view is the
+    reference's extent plus ``margin`` metres (default a fifth of the extent, at least 1 m), so a lost track leaves
+    it rather than shrinking the others; a lost track's first lost pose is marked with a cross."""
+    ref = np.asarray(reference, dtype=float)
+    if ref.ndim != 2 or ref.shape[1] < 2 or len(ref) == 0:
+        raise InputError(f"reference must be poses (N, >= 2), got shape {ref.shape}")
+    fig, ax = new_figure(1, 1, size=(9.0, 7.5))
+    ax.plot(ref[:, 0], ref[:, 1], "-", color="0.6", lw=5.0, alpha=0.55, solid_capstyle="round", label="reference",
+            zorder=2)
+    ax.plot(*ref[0, :2], "o", color="k", ms=6, zorder=5)
+    colors = _method_colors(list(tracks))
+    for name, (poses, lost) in tracks.items():
+        p = np.asarray(poses, dtype=float)
+        if p.ndim != 2 or p.shape[1] < 2:
+            raise InputError(f"tracks[{name!r}] must be poses (N, >= 2), got shape {p.shape}")
+        hs = "hs-slam" in name.lower()
+        ax.plot(p[:, 0], p[:, 1], "-", color=colors[name], lw=1.8 if hs else 1.1, label=name, zorder=4 if hs else 3)
+        if lost is not None and 0 <= lost < len(p):
+            ax.plot(*p[lost, :2], "x", color=colors[name], ms=9, mew=2.0, zorder=6)
+    if margin is None:
+        margin = max(1.0, 0.2 * float(np.ptp(ref[:, :2], axis=0).max()))
+    lo, hi = ref[:, :2].min(axis=0) - margin, ref[:, :2].max(axis=0) + margin
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.grid(True, lw=0.3, alpha=0.5)
+    ax.legend(loc="best", fontsize=8)
+    if title:
+        ax.set_title(title)
+    return fig
+
+
+def dof_errors_figure(series: Mapping[str, tuple[Any, Any]], *, xlabel: str = "sweep", title: str | None = None,
+                      linear: Mapping[str, float] | None = None) -> Figure:
+    """Per-DOF errors over time of several methods: ``series`` maps a name to (abscissa (N,), errors (N, 6): x, y,
+    z in metres, roll, pitch, yaw in radians). One panel per DOF; the axes are symmetric-logarithmic beyond
+    ``linear`` (per DOF name, default 0.05 m and 1 deg), so that centimetres and a lost track's metres both
+    show."""
+    if not series:
+        raise InputError("dof_errors_figure needs at least one method")
+    lin = {"x": 0.05, "y": 0.05, "z": 0.05, "roll": 1.0, "pitch": 1.0, "yaw": 1.0, **dict(linear or {})}
+    fig, axes = new_figure(2, 3, size=(14.0, 6.5))
+    axes = np.asarray(axes).ravel()
+    colors = _method_colors(list(series))
+    largest = np.zeros(6)
+    for name, (x, e) in series.items():
+        e = np.asarray(e, dtype=float)
+        xs = np.asarray(x, dtype=float).reshape(-1)
+        if e.ndim != 2 or e.shape[1] != 6 or len(xs) != len(e):
+            raise InputError(f"series[{name!r}] must be (x (N,), errors (N, 6)), got {xs.shape} and {e.shape}")
+        hs = "hs-slam" in name.lower()
+        for i, (ax, (_, unit)) in enumerate(zip(axes, _DOF_UNITS, strict=True)):
+            v = e[:, i] if unit == "m" else np.degrees(e[:, i])
+            largest[i] = max(largest[i], float(np.abs(v).max(initial=0.0)))
+            ax.plot(xs, v, "-", color=colors[name], lw=1.6 if hs else 0.9, label=name, zorder=4 if hs else 3)
+    for ax, big, (dof, unit) in zip(axes, largest, _DOF_UNITS, strict=True):
+        ax.set_yscale("symlog", linthresh=lin[dof])
+        top = lin[dof] * 10.0 ** max(0.0, np.ceil(np.log10(max(big, 1e-12) / lin[dof])))  # a decade of linthresh
+        ax.set_ylim(-top, top)
+        ax.yaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda v, _: f"{v:g}"))
+        ax.axhline(0, color="k", lw=0.5)
+        ax.set_ylabel(f"{dof} error [{unit}]")
+        ax.set_xlabel(xlabel)
+        ax.grid(True, lw=0.3, alpha=0.5)
+    axes[0].legend(fontsize=7, loc="best")
+    if title:
+        fig.suptitle(title)
+    return fig
 
 
 def relations_figure(rows: Sequence[Mapping[str, Any]], published: Sequence[Mapping[str, Any]], *,

@@ -4,8 +4,10 @@ nbconvert, rerun rrd verify) into a temporary reports folder; and the convention
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -195,6 +197,20 @@ def test_discover_and_select(tmp_path):
     assert select(specs, None) == specs
     with pytest.raises(InputError, match="01-a, 02-b, 10-c-d"):
         select(specs, ["zz"])
+
+
+def test_every_notebook_the_reproduce_help_names_exists():
+    from hsmap.cli import build_parser
+    from hsmap.study import discovery
+
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    only = next(a for a in sub.choices["reproduce"]._actions if "--only" in a.option_strings)
+    examples = re.findall(r"'([^']+)'", only.help)
+    per_notebook = re.findall(r"notebooks:.*\n +(\S+):", discovery.load_parameters_file.__doc__)
+    assert len(examples) == 3 and per_notebook
+    specs = discover(REPO / "notebooks")
+    for name in [*examples, *per_notebook]:
+        assert select(specs, [name]), name
 
 
 def test_parameters_file(tmp_path):

@@ -23,7 +23,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true",
                         help="small inputs for a smoke run (passes quick=True to every notebook)")
     parser.add_argument("--only", nargs="+", action="extend", metavar="NAME",
-                        help="run only these notebooks (full name '03-slam-6dof', short name 'slam-6dof' or "
+                        help="run only these notebooks (full name '03-hs-slam-6dof', short name 'hs-slam-6dof' or "
                              "number '3'); the index keeps the others' last results")
     parser.add_argument("--jobs", "-j", type=int, default=1, metavar="N",
                         help="notebooks run at once, each in its own process (default 1)")

@@ -377,7 +377,7 @@ def _slam_summary(run) -> dict:
 def _segmentation_record(seg: Segmentation, graph) -> dict:
 
     return {"rooms": seg.n_rooms, "doors": len(seg.doors),
-            "room_areas_m2": {f"R{r.label}": round(r.area, 3) for r in seg.rooms()},
+            "room_areas_m2": {f"R{r.label}": round(r.area, 3) for r in seg.rooms},
             "door_list": [d.as_dict() for d in seg.doors],
             "graph": topology_listing(graph).strip().splitlines()[-1].strip() if graph.number_of_nodes() else ""}
 

@@ -130,6 +130,7 @@ def _list(notebooks_dir, only) -> int:
 
 def run(args: argparse.Namespace) -> int:
     from ..io import prepare_output_dir
+    from ..progress import reporting
     from ..study.batch import run_notebooks
     from ..study.discovery import load_parameters_file, parse_value
 
@@ -149,10 +150,12 @@ def run(args: argparse.Namespace) -> int:
     for key, value in args.parameter:
         common[key] = parse_value(value)
 
-    result = run_notebooks(
-        notebooks_dir, args.out, only=args.only, quick=args.quick, jobs=args.jobs, parameters=common,
-        notebook_parameters=per, timeout=args.timeout, verify_recordings=not args.no_verify, log=log,
-    )
+    # a line when each notebook starts and ends, and a heartbeat (which notebooks, which cell, how long) between
+    with reporting(log):
+        result = run_notebooks(
+            notebooks_dir, args.out, only=args.only, quick=args.quick, jobs=args.jobs, parameters=common,
+            notebook_parameters=per, timeout=args.timeout, verify_recordings=not args.no_verify, log=log,
+        )
     from ..study.report import format_duration
 
     n = len(result.runs)

@@ -67,11 +67,13 @@ class Heartbeat:
             self._last = self.clock()
             self.log(line)
 
-    def stage(self, name: str, detail: str = "") -> None:
-        """A stage starts: say so (``NAME: started``, with ``detail`` after a comma) and time it."""
+    def stage(self, name: str, detail: str = "", *, announce: bool = True) -> None:
+        """A stage starts: say so (``NAME: started``, with ``detail`` after a comma; ``announce=False``: only the
+        heartbeats name it) and time it."""
         with self._lock:
             self._stage, self._stage_started = name, self.clock()
-            self.say(f"{name}: started" + (f", {detail}" if detail else ""))
+            if announce:
+                self.say(f"{name}: started" + (f", {detail}" if detail else ""))
 
     def status(self) -> str:
         """What is being done and how far: the stage and its time, the innermost open loop or the caller's status,
@@ -157,11 +159,11 @@ def reporting(log: Callable[[str], None], *, interval: float = DEFAULT_INTERVAL,
             _active.remove(hb)
 
 
-def stage(name: str, detail: str = "") -> None:
-    """Mark the start of a stage (a line when a caller is :func:`reporting`, else nothing)."""
+def stage(name: str, detail: str = "", *, announce: bool = True) -> None:
+    """Mark the start of a stage (a line when a caller is :func:`reporting` and ``announce``, else nothing)."""
     hb = _current()
     if hb is not None:
-        hb.stage(name, detail)
+        hb.stage(name, detail, announce=announce)
 
 
 def say(line: str) -> None:

@@ -31,6 +31,15 @@ def test_a_stage_start_is_a_line_at_once(clock):
     assert lines == ["slam3d: started, 6-DOF HS-SLAM on 1777 clouds"]
 
 
+def test_a_stage_not_announced_is_named_by_the_heartbeat_only(clock):
+    lines = []
+    hb = progress.Heartbeat(lines.append, interval=60, clock=clock)
+    hb.stage("read", announce=False)
+    assert lines == []
+    clock.now += 60
+    assert hb.tick() and lines == ["read: still running, 1 min 00 s (in all 1 min 00 s)"]
+
+
 def test_the_heartbeat_comes_after_interval_seconds_without_a_line_and_says_how_far(clock):
     lines = []
     with progress.reporting(lines.append, interval=60, clock=clock, beat=False) as hb:

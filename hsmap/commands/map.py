@@ -95,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
     progress = False if args.quiet else None
     # a line when each stage starts and a heartbeat while it runs, on any output (a terminal, a log, CI)
     with reporting(_log_line) if not args.quiet else contextlib.nullcontext():
-        stage("read", str(args.input))
+        stage("read", announce=False)  # a heartbeat names it when reading takes long; bad input stays one line
         dataset = open_input(args, progress=progress)
         if isinstance(dataset, CarmenDataset):
             raise DatasetError(f"{args.input}: a CARMEN log has 2D scans only; hsmap map needs 2D scans and 3D "

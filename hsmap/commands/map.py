@@ -10,8 +10,9 @@ the offsets and their sources, warnings, every stage's numbers); map.rrd, one re
 A line says when each stage starts and, while it runs, a line at least every 30 s says how far it is, on any
 output (not with --quiet); on a terminal each stage shows a progress bar too. Every stage is kept in
 --out/.stages/: run again with the same inputs and the stages are read back ("unchanged"); change a flag and only
-the stages after it run again. --out is checked before the long work starts (a folder, or creatable, and
-writable). The outputs are written into a hidden staging folder inside --out and moved into place together when all of them are complete (metrics.json last), so a
+the stages after it run again. --out is checked before
+the long work starts (a folder, or creatable, and writable). The outputs are written into a hidden staging
+folder inside --out and moved into place together when all of them are complete (metrics.json last), so a
 failed or interrupted run leaves the previous run's outputs as they were, and the stages it finished for the next.
 """
 
@@ -53,6 +54,16 @@ MAP_OUTPUTS = ("summary.html", "metrics.json", "slice.yaml", "slice.pgm", "floor
                "doors.json", "topology.json", "map2d.ply", "map3d.ply", "map.rrd")
 
 
+def run(args: argparse.Namespace) -> int:
+    import contextlib
+
+    from ..progress import reporting
+
+    # a line when each stage starts and a heartbeat while it runs, on any output (a terminal, a log, CI)
+    with reporting(_log_line) if not args.quiet else contextlib.nullcontext():
+        return _run(args)
+
+
 def _log_line(line: str) -> None:
     """A progress line on stderr, at once, above any progress bar."""
     import sys
@@ -63,15 +74,14 @@ def _log_line(line: str) -> None:
     sys.stderr.flush()
 
 
-def run(args: argparse.Namespace) -> int:
-    import contextlib
+def _run(args: argparse.Namespace) -> int:
     import dataclasses
 
     from ..datasets.carmen import CarmenDataset
     from ..errors import DatasetError, InputError
     from ..io import prepare_output_dir, refuse_overwriting_input
     from ..pipeline import load_chain_config, map_recording
-    from ..progress import reporting, stage
+    from ..progress import stage
     from .inputs import open_input, parse_vector, slam_overrides
 
     if args.seed < 0:
@@ -93,22 +103,19 @@ def run(args: argparse.Namespace) -> int:
     out = prepare_output_dir(args.out, "--out", create=False)
     slam2d, slam3d = slam_overrides(cfg.slam2d, args, deskew=True), slam_overrides(cfg.slam3d, args, deskew=True)
     progress = False if args.quiet else None
-    # a line when each stage starts and a heartbeat while it runs, on any output (a terminal, a log, CI)
-    with reporting(_log_line) if not args.quiet else contextlib.nullcontext():
-        stage("read", announce=False)  # a heartbeat names it when reading takes long; bad input stays one line
-        dataset = open_input(args, progress=progress)
-        if isinstance(dataset, CarmenDataset):
-            raise DatasetError(f"{args.input}: a CARMEN log has 2D scans only; hsmap map needs 2D scans and 3D "
-                               "clouds")
-        for sensor in ("scan", "cloud"):
-            try:
-                dataset.driven_by(sensor)
-            except DatasetError as exc:
-                raise DatasetError(f"hsmap map needs 2D scans and 3D clouds: {exc}") from None
-        m = map_recording(dataset, out, seed=args.seed, slam2d=slam2d, slam3d=slam3d, segmentation=seg,
-                          z_range=grids.slice, resolution=grids.resolution, slice_bins=grids.slice_bins,
-                          door_depth=grids.door_depth, door_margin=grids.door_margin,
-                          recording=not args.no_recording, progress=progress)
+    stage("read", announce=False)  # a heartbeat names it when reading takes long; bad input stays one line
+    dataset = open_input(args, progress=progress)
+    if isinstance(dataset, CarmenDataset):
+        raise DatasetError(f"{args.input}: a CARMEN log has 2D scans only; hsmap map needs 2D scans and 3D clouds")
+    for sensor in ("scan", "cloud"):
+        try:
+            dataset.driven_by(sensor)
+        except DatasetError as exc:
+            raise DatasetError(f"hsmap map needs 2D scans and 3D clouds: {exc}") from None
+    m = map_recording(dataset, out, seed=args.seed, slam2d=slam2d, slam3d=slam3d, segmentation=seg,
+                      z_range=grids.slice, resolution=grids.resolution, slice_bins=grids.slice_bins,
+                      door_depth=grids.door_depth, door_margin=grids.door_margin,
+                      recording=not args.no_recording, progress=progress)
     if not args.quiet:
         import sys
 

@@ -1,8 +1,8 @@
 """Run the study: every notebooks/NN-name.ipynb executed by papermill into reports/ (executed notebook,
 HTML report, figures, metrics.json, rerun recordings) and reports/index.html listing them all with their
-headline numbers beside the paper's. It prints a line when each notebook starts and ends and, in between, at least
-every 30 s which notebooks run, at which cell, for how long. A failing notebook does not stop the others; the command exits 1 when
-any notebook failed. A notebook's previous report is replaced only by a complete new one (an interrupted run
+headline numbers beside the paper's. It prints a line when each notebook starts and ends and, in between, at
+least every 30 s which notebooks run, at which cell, for how long. A failing notebook does not stop the others;
+the command exits 1 when any notebook failed. A notebook's previous report is replaced only by a complete new one (an interrupted run
 leaves it as it was), and two batches into the same folder keep each other's entries in the index.
 
 First the public data the notebooks read (the Freiburg logs, Bormann's maps, the OctoMap map: ``hsmap data

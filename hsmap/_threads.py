@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import inspect
 import os
 import threading
 import warnings
@@ -118,7 +119,16 @@ def threads_limited(fn: F) -> F:
         with using_threads(threads):
             return fn(*args, **kwargs)
 
+    wrapper.__signature__ = _with_threads_keyword(inspect.signature(fn))  # type: ignore[attr-defined]
     return wrapper  # type: ignore[return-value]
+
+
+def _with_threads_keyword(signature: inspect.Signature) -> inspect.Signature:
+    """``signature`` with the keyword-only ``threads`` that :func:`threads_limited` adds (before any ``**kwargs``)."""
+    params = list(signature.parameters.values())
+    threads = inspect.Parameter("threads", inspect.Parameter.KEYWORD_ONLY, default=None, annotation="int | None")
+    at = next((i for i, p in enumerate(params) if p.kind is inspect.Parameter.VAR_KEYWORD), len(params))
+    return signature.replace(parameters=[*params[:at], threads, *params[at:]])
 
 
 def helper_pool(workers: int) -> ThreadPoolExecutor:

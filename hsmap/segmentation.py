@@ -61,6 +61,7 @@ below) precision is 0.98 plain and furnished (area-weighted 0.96) at the same re
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -282,17 +283,28 @@ class Segmentation:
     def n_rooms(self) -> int:
         return int(self.labels.max(initial=0))
 
+    @property
     def rooms(self) -> list[Room]:
-        """Area and centroid of every room, in label order."""
+        """Area and centroid of every room, in label order (a list, as :attr:`doors`)."""
         n = self.n_rooms
         if n == 0:
-            return []
+            return RoomList()
         idx = np.arange(1, n + 1)
         counts = np.bincount(self.labels.ravel(), minlength=n + 1)[1:]
         com = np.asarray(ndi.center_of_mass(np.ones_like(self.labels), self.labels, idx), dtype=float)
         xy = self.geometry.pixel_to_world(com.reshape(-1, 2))
         a = self.geometry.resolution**2
-        return [Room(int(i), float(c * a), xy[k]) for k, (i, c) in enumerate(zip(idx, counts, strict=True))]
+        return RoomList(Room(int(i), float(c * a), xy[k]) for k, (i, c) in enumerate(zip(idx, counts, strict=True)))
+
+
+class RoomList(list):
+    """The list :attr:`Segmentation.rooms` returns. Calling it (``seg.rooms()``, from when ``rooms`` was a method)
+    returns the list itself with a :class:`DeprecationWarning`."""
+
+    def __call__(self) -> RoomList:
+        warnings.warn("Segmentation.rooms is a list: write seg.rooms, not seg.rooms()", DeprecationWarning,
+                      stacklevel=2)
+        return self
 
 
 # ----------------------------------------------------------------------------------------------------------

@@ -30,7 +30,7 @@ def room_graph(segmentation) -> nx.Graph:
         Rooms without doors are isolated nodes; doors whose rooms are unknown are left out.
     """
     g = nx.Graph(resolution=float(segmentation.geometry.resolution))
-    rooms = {r.label: r for r in segmentation.rooms()}
+    rooms = {r.label: r for r in segmentation.rooms}
     for lab, r in rooms.items():
         g.add_node(f"R{lab}", kind="room", label=int(lab), x=float(r.centroid[0]), y=float(r.centroid[1]),
                    area=float(r.area))

@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import re
 import warnings
 from pathlib import Path
 
@@ -48,8 +49,14 @@ def recording(tmp_path_factory):
                               lidar3d=Lidar3DConfig(channels=32, columns=512))
     out = folder / "out"
     # scans 0.25 s apart, each cloud 0.1 s after one and 0.15 s before the next: interpolating the 2D poses at
-    # the clouds needs a sync tolerance of 0.15 s (a 40 Hz 2D LiDAR: 0.025 s, within the default 0.1 s)
-    code, err = run_cli("map", str(bag.path), "--out", str(out), "--sync-tolerance", "0.2", "--quiet")
+    # the clouds needs a sync tolerance of 0.15 s (a 40 Hz 2D LiDAR: 0.025 s, within the default 0.1 s).
+    # Its stdout and stderr go to a file, as in `hsmap map BAG > log 2>&1`: no terminal, no progress bars.
+    log = folder / "map.log"
+    with (open(log, "w", encoding="utf-8") as f, contextlib.redirect_stdout(f), contextlib.redirect_stderr(f),
+          warnings.catch_warnings()):
+        warnings.simplefilter("always")
+        code = main(["map", str(bag.path), "--out", str(out), "--sync-tolerance", "0.2"])
+    err = log.read_text(encoding="utf-8")
     assert code == 0, err
     return bag, out, err
 
@@ -64,7 +71,7 @@ def _errors(est, ref, alignment=Alignment.NONE):
 
 def test_map_of_a_robot_recording(recording):
     bag, out, err = recording
-    assert err == ""  # no warning: TF gives both offsets
+    assert "warning" not in err  # TF gives both offsets
     m = json.loads((out / "metrics.json").read_text())
     # what was read: one frame per scan for the 2D run, one per cloud for the 6-DOF run, the offsets from TF
     info = m["input_info"]
@@ -130,6 +137,17 @@ def test_map_of_a_robot_recording(recording):
         for e in ("/world/map/occupancy", "/world/map/points3d", "/world/map/points2d", "/map/occupancy",
                   "/map/rooms", "/graph"):
             assert e in entities, e
+
+
+def test_map_into_a_log_file_says_when_each_stage_starts_and_ends(recording):
+    _, out, log = recording
+    lines = log.splitlines()
+    starts = [line.split(":")[0] for line in lines if line.split(", ")[0].endswith(": started")]
+    assert starts == ["slam2d", "slam3d", "grids", "fusion", "rooms", "outputs"], log
+    for name in starts:
+        assert any(re.fullmatch(rf"{name}: done in \d+\.\d s", line) for line in lines), (name, log)
+    assert "\r" not in log  # no progress bar drawn into a file
+    assert f"wrote {out}/summary.html" in log
 
 
 def test_map_again_skips_unchanged_stages(recording):

@@ -69,7 +69,7 @@ def test_ring_corridor_with_rooms_behind_wide_openings(opening):
     openings = np.array([[9, 4], [14, 9], [9, 14], [4, 9]], float)
     assert len(seg.doors) == 4 and np.all(_match_doors(seg, openings) < 0.15)
     assert all(abs(d.width - opening) < 0.15 and set(d.rooms) & corridor for d in seg.doors)
-    areas = sorted(r.area for r in seg.rooms())
+    areas = sorted(r.area for r in seg.rooms)
     assert areas[-1] == pytest.approx(58.5, rel=0.05)  # the corridor (40 m of 2 m, the corners, the gaps)
     assert areas[:4] == pytest.approx([4 * 14 - 3.4] * 4, rel=0.05)
 
@@ -85,7 +85,7 @@ def test_room_at_the_end_of_a_narrow_corridor(corridor):
     assert abs(d.centre[0] - 8.0) < 0.15 and abs(d.centre[1] - 2.5) < 0.1 and abs(d.width - 0.9) < 0.1
     # a narrowing of the 1.2 m corridor is a door; the mouth of the 0.9 m one is an opening in the room's wall
     assert d.kind == ("opening" if corridor == 0.9 else "door")
-    areas = {r.label: r.area for r in seg.rooms()}
+    areas = {r.label: r.area for r in seg.rooms}
     assert areas[_region_at(seg, (4.0, 2.5))] == pytest.approx(8 * corridor, rel=0.05)
 
 
@@ -120,7 +120,7 @@ def _two_rooms_checks(seg, furniture_area=0.0):
     assert len({a, b, c}) == 3 and min(a, b, c) > 0
     pairs = sorted(tuple(sorted(d.rooms)) for d in seg.doors)
     assert pairs == sorted([tuple(sorted((a, c))), tuple(sorted((b, c)))])
-    areas = {r.label: r.area for r in seg.rooms()}
+    areas = {r.label: r.area for r in seg.rooms}
     assert areas[a] == pytest.approx(5.8 * 4.8 - furniture_area, rel=0.05)
     assert areas[c] == pytest.approx(2.3 * 1.45, rel=0.15)
 

@@ -4,8 +4,10 @@ nbconvert, rerun rrd verify) into a temporary reports folder; and the convention
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -154,6 +156,28 @@ def test_only_runs_the_chosen_and_keeps_the_others_last_results(tmp_path):
     assert "(from an earlier run)" in page and "complete: all 1 notebooks ok" in page
 
 
+def test_a_batch_says_when_a_notebook_starts_and_which_cell_runs(tmp_path):
+    from hsmap import progress
+
+    nbdir = tmp_path / "notebooks"
+    nbdir.mkdir()
+    nb = read_nb(DATA / "03-second.ipynb")
+    nb["cells"].insert(2, {"cell_type": "code", "id": "sleeps", "metadata": {}, "execution_count": None, "outputs": [],
+                           "source": "import time\n\ntime.sleep(4)"})
+    (nbdir / "07-slow.ipynb").write_text(json.dumps(nb), encoding="utf-8")
+    lines = []
+    with progress.reporting(lines.append, interval=0.5):
+        result = run_notebooks(nbdir, tmp_path / "reports", log=lines.append, verify_recordings=False)
+    assert result.ok, lines
+    assert lines[0] == "notebooks: started, 1 to run, 1 at a time"
+    assert lines[1] == "[1/1] 07-slow: started"
+    assert lines[-1].startswith("[1/1] 07-slow: ok in ")
+    beats = lines[2:-1]
+    assert beats and all(b.startswith("notebooks: running 07-slow (") and "0 of 1 notebooks done" in b for b in beats)
+    # the sleeping cell (after the parameters and the injected parameters), from the notebook papermill saves
+    assert any("(cell 3/4, " in b for b in beats), "\n".join(beats)
+
+
 def test_list_prints_parameters(capsys):
     assert main(["reproduce", "--notebooks", str(DATA), "--list"]) == 0
     out = capsys.readouterr().out
@@ -195,6 +219,20 @@ def test_discover_and_select(tmp_path):
     assert select(specs, None) == specs
     with pytest.raises(InputError, match="01-a, 02-b, 10-c-d"):
         select(specs, ["zz"])
+
+
+def test_every_notebook_the_reproduce_help_names_exists():
+    from hsmap.cli import build_parser
+    from hsmap.study import discovery
+
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    only = next(a for a in sub.choices["reproduce"]._actions if "--only" in a.option_strings)
+    examples = re.findall(r"'([^']+)'", only.help)
+    per_notebook = re.findall(r"notebooks:.*\n +(\S+):", discovery.load_parameters_file.__doc__)
+    assert len(examples) == 3 and per_notebook
+    specs = discover(REPO / "notebooks")
+    for name in [*examples, *per_notebook]:
+        assert select(specs, [name]), name
 
 
 def test_parameters_file(tmp_path):

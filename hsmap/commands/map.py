@@ -13,8 +13,10 @@ OctoMap), the floor found under the sensor's path (several floor levels), the fl
 heights above that floor, rooms, doors and graphs of both; the 2D-only outputs (trajectory2d.tum, map2d.ply,
 overlay.png) are skipped, and the output says so.
 
-Every stage shows a progress bar and is kept in --out/.stages/: run again with the same inputs and the stages
-are read back ("unchanged"); change a flag and only the stages after it run again. --out is checked before
+A line says when each stage starts and, while it runs, a line at least every 30 s says how far it is, on any
+output (not with --quiet); on a terminal each stage shows a progress bar too. Every stage is kept in
+--out/.stages/: run again with the same inputs and the stages are read back ("unchanged"); change a flag and only
+the stages after it run again. --out is checked before
 the long work starts (a folder, or creatable, and writable). The outputs are written into a hidden staging
 folder inside --out and moved into place together when all of them are complete (metrics.json last), so a
 failed or interrupted run leaves the previous run's outputs as they were, and the stages it finished for the next.
@@ -62,12 +64,33 @@ MAP_OUTPUTS = ("summary.html", "metrics.json", "slice.yaml", "slice.pgm", "floor
 
 
 def run(args: argparse.Namespace) -> int:
+    import contextlib
+
+    from ..progress import reporting
+
+    # a line when each stage starts and a heartbeat while it runs, on any output (a terminal, a log, CI)
+    with reporting(_log_line) if not args.quiet else contextlib.nullcontext():
+        return _run(args)
+
+
+def _log_line(line: str) -> None:
+    """A progress line on stderr, at once, above any progress bar."""
+    import sys
+
+    from tqdm.auto import tqdm
+
+    tqdm.write(line, file=sys.stderr)
+    sys.stderr.flush()
+
+
+def _run(args: argparse.Namespace) -> int:
     import dataclasses
 
     from ..datasets.carmen import CarmenDataset
     from ..errors import DatasetError, InputError
     from ..io import prepare_output_dir, refuse_overwriting_input
     from ..pipeline import load_chain_config, map_recording
+    from ..progress import stage
     from .inputs import open_input, parse_vector, slam_overrides
 
     if args.seed < 0:
@@ -89,6 +112,7 @@ def run(args: argparse.Namespace) -> int:
     out = prepare_output_dir(args.out, "--out", create=False)
     slam2d, slam3d = slam_overrides(cfg.slam2d, args, deskew=True), slam_overrides(cfg.slam3d, args, deskew=True)
     progress = False if args.quiet else None
+    stage("read", announce=False)  # a heartbeat names it when reading takes long; bad input stays one line
     dataset = open_input(args, progress=progress)
     if isinstance(dataset, CarmenDataset):
         raise DatasetError(f"{args.input}: a CARMEN log has 2D scans only; hsmap map needs 3D clouds")

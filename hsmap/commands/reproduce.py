@@ -1,7 +1,8 @@
 """Run the study: every notebooks/NN-name.ipynb executed by papermill into reports/ (executed notebook,
 HTML report, figures, metrics.json, rerun recordings) and reports/index.html listing them all with their
-headline numbers beside the paper's. A failing notebook does not stop the others; the command exits 1 when
-any notebook failed. A notebook's previous report is replaced only by a complete new one (an interrupted run
+headline numbers beside the paper's. It prints a line when each notebook starts and ends and, in between, at
+least every 30 s which notebooks run, at which cell, for how long. A failing notebook does not stop the others;
+the command exits 1 when any notebook failed. A notebook's previous report is replaced only by a complete new one (an interrupted run
 leaves it as it was), and two batches into the same folder keep each other's entries in the index.
 
 First the public data the notebooks read (the Freiburg logs, Bormann's maps, the OctoMap map: ``hsmap data
@@ -23,7 +24,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true",
                         help="small inputs for a smoke run (passes quick=True to every notebook)")
     parser.add_argument("--only", nargs="+", action="extend", metavar="NAME",
-                        help="run only these notebooks (full name '03-slam-6dof', short name 'slam-6dof' or "
+                        help="run only these notebooks (full name '03-hs-slam-6dof', short name 'hs-slam-6dof' or "
                              "number '3'); the index keeps the others' last results")
     parser.add_argument("--jobs", "-j", type=int, default=1, metavar="N",
                         help="notebooks run at once, each in its own process (default 1)")
@@ -130,6 +131,7 @@ def _list(notebooks_dir, only) -> int:
 
 def run(args: argparse.Namespace) -> int:
     from ..io import prepare_output_dir
+    from ..progress import reporting
     from ..study.batch import run_notebooks
     from ..study.discovery import load_parameters_file, parse_value
 
@@ -149,10 +151,12 @@ def run(args: argparse.Namespace) -> int:
     for key, value in args.parameter:
         common[key] = parse_value(value)
 
-    result = run_notebooks(
-        notebooks_dir, args.out, only=args.only, quick=args.quick, jobs=args.jobs, parameters=common,
-        notebook_parameters=per, timeout=args.timeout, verify_recordings=not args.no_verify, log=log,
-    )
+    # a line when each notebook starts and ends, and a heartbeat (which notebooks, which cell, how long) between
+    with reporting(log):
+        result = run_notebooks(
+            notebooks_dir, args.out, only=args.only, quick=args.quick, jobs=args.jobs, parameters=common,
+            notebook_parameters=per, timeout=args.timeout, verify_recordings=not args.no_verify, log=log,
+        )
     from ..study.report import format_duration
 
     n = len(result.runs)

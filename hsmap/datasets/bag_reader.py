@@ -139,11 +139,11 @@ class BagReader:
         fast = {id(c) for c in scan_c + odom_c if c.digest in fast}
         checked: set = set()  # scan geometries found sound
         bad_odom = 0
-        from tqdm.auto import tqdm
+        from ..progress import bar as progress_bar
 
         total = sum(int(c.msgcount) for c in scan_c + cloud_c + odom_c)
-        bar = tqdm(total=total, unit="msg", desc=f"reading {Path(self.path).name}", leave=False,
-                   disable=None if progress is None else not progress, mininterval=0.5)
+        bar = progress_bar(total, unit="msg", desc=f"reading {Path(self.path).name}", progress=progress, leave=False,
+                           mininterval=0.5)
         for c, _, raw in self.messages(scan_c + cloud_c + odom_c):
             bar.update(1)
             is_scan = id(c) in scan_ids

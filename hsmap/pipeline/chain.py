@@ -44,6 +44,7 @@ from typing import Any
 
 import numpy as np
 
+from .. import progress as _progress
 from ..config import to_dict
 from ..datasets.frames import Dataset, Frame
 from ..deskew import deskew_frame
@@ -89,14 +90,15 @@ class _Stages:
         self.progress = progress
         self.info: dict[str, dict] = {}
 
-    def bar(self, name: str, total: int | None = None, unit: str = "step"):
-        from tqdm.auto import tqdm
+    def start(self, name: str, detail: str = "") -> None:
+        _progress.stage(name, detail)  # a line for a caller that reports progress, else nothing
 
-        return tqdm(total=total, unit=unit, desc=f"{name:<7s}", disable=None if self.progress is None else
-                    not self.progress, leave=True)
+    def bar(self, name: str, total: int | None = None, unit: str = "step"):
+        return _progress.bar(total, unit=unit, desc=f"{name:<7s}", progress=self.progress, leave=True)
 
     def done(self, name: str, cached: bool, seconds: float, bar=None) -> None:
         self.info[name] = {"unchanged": bool(cached), "seconds": round(float(seconds), 3)}
+        _progress.say(f"{name}: " + ("unchanged, read back" if cached else f"done in {seconds:.1f} s"))
         if bar is not None:
             if cached:
                 bar.set_postfix_str("unchanged, skipped")
@@ -296,6 +298,7 @@ def map_recording(
     # 1-2: the two HS-SLAM runs (in this folder)
     t = time.perf_counter()
     init2 = _start_pose(ds2)
+    stages.start("slam2d", f"3-DOF HS-SLAM on {len(ds2)} scans")
     run2 = cached_slam(ds2, slam2d, seed, initial_pose=init2, cache_dir=root / "slam", progress=progress)
     stages.done("slam2d", run2.cached, time.perf_counter() - t,
                 stages.bar("slam2d", 1) if run2.cached else None)
@@ -305,6 +308,7 @@ def map_recording(
     p0, ok = prior.interpolate([first], slam3d.sync_tolerance)
     p0 = p0[0] if ok[0] else prior.at([first], max_dt=np.inf)[0][0]
     init3 = np.array([p0[0], p0[1], 0.0, 0.0, 0.0, p0[2]])
+    stages.start("slam3d", f"6-DOF HS-SLAM on {len(ds3)} clouds")
     run3 = cached_slam(ds3, slam3d, seed, prior=prior, initial_pose=init3, cache_dir=root / "slam",
                        progress=progress)
     stages.done("slam3d", run3.cached, time.perf_counter() - t,
@@ -313,6 +317,7 @@ def map_recording(
     # 3-5: grids, their registration and overlay, rooms and doors
     params = {"z_range": list(z), "resolution": float(resolution), "slice_bins": int(slice_bins), "seed": int(seed)}
     t = time.perf_counter()
+    stages.start("grids", "floor grid and the 3D map's slice")
     compute, load = _grids_stage(ds2, ds3, run2.trajectory, run3.trajectory, z, float(resolution), int(slice_bins),
                                  stages, slam3d.deskew)
     got = cache.get("grids", {"slam": [run2.key, run3.key], "params": params}, compute, load)
@@ -320,6 +325,7 @@ def map_recording(
     stages.done("grids", got.cached, time.perf_counter() - t, stages.bar("grids", 1) if got.cached else None)
 
     t = time.perf_counter()
+    stages.start("fusion", "floor grid registered to the slice")
     bar = stages.bar("fusion", 1)
     compute, load = _fusion_stage(grids, int(seed))
     got = cache.get("fusion", {"grids": keys["grids"], "seed": int(seed)}, compute, load)
@@ -327,6 +333,7 @@ def map_recording(
     stages.done("fusion", got.cached, time.perf_counter() - t, bar)
 
     t = time.perf_counter()
+    stages.start("rooms", "doors, rooms and graph of both grids")
     bar = stages.bar("rooms", 1)
 
     compute, load = _rooms_stage(grids, seg_cfg)
@@ -346,6 +353,7 @@ def map_recording(
         write_json(out / "metrics.json", previous)
         return previous
     t = time.perf_counter()
+    stages.start("outputs", f"maps, figures, summary into {out}")
     bar = stages.bar("outputs", 6)
     # every output is written into a staging folder inside ``out`` and moved into place when all are complete
     # (metrics.json, the marker of a complete folder, last): a failure or an interrupt on the way leaves the
@@ -382,7 +390,7 @@ def _slam_summary(run) -> dict:
 def _segmentation_record(seg: Segmentation, graph) -> dict:
 
     return {"rooms": seg.n_rooms, "doors": len(seg.doors), "method": seg.config.method,
-            "room_areas_m2": {f"R{r.label}": round(r.area, 3) for r in seg.rooms()},
+            "room_areas_m2": {f"R{r.label}": round(r.area, 3) for r in seg.rooms},
             "door_list": [d.as_dict() for d in seg.doors],
             "graph": topology_line(graph)}
 

@@ -20,6 +20,7 @@ from ..datasets.frames import Dataset, Frame
 from ..errors import EmptyInputError, HsmapWarning, InputError, UnusableFrameError
 from ..io import write_json, write_ply_points
 from ..mapping import VoxelMap
+from ..progress import bar as progress_bar
 from ..trajectory import Trajectory, write_tum
 from .config import SlamConfig
 from .tracker import FrameResult, HsSlam
@@ -173,7 +174,8 @@ def run_slam(
     max_frames : int, optional
         Stop after this many frames.
     progress : bool or None
-        Show a progress bar; None shows it only on a terminal.
+        Show a progress bar; None shows it only on a terminal. A caller that is :func:`hsmap.progress.reporting`
+        gets heartbeat lines with the frame count whatever this says.
     on_frame : callable, optional
         Called after each frame with (frame, result, slam), e.g. to log to rerun.
     strict : bool
@@ -194,8 +196,6 @@ def run_slam(
     UnusableFrameError
         With ``strict``, the first unusable frame; without, when no frame at all is usable.
     """
-    from tqdm.auto import tqdm
-
     slam = HsSlam(config, rng=rng, initial_pose=initial_pose, prior=prior,
                   odometry=getattr(dataset, "odometry", None) if isinstance(dataset, Dataset) else None)
     prior_info: dict = {}
@@ -209,8 +209,7 @@ def run_slam(
     if max_frames is not None:
         total = min(total, max_frames) if total is not None else max_frames
     t0, c0 = time.perf_counter(), cpu_seconds()  # the helper process's CPU too
-    bar = tqdm(total=total, unit="scan", disable=None if progress is None else not progress,
-               desc=f"HS-SLAM {slam.config.dof}-DOF")
+    bar = progress_bar(total, unit="scan" if dof == 3 else "cloud", desc=f"HS-SLAM {dof}-DOF", progress=progress)
     source = str(getattr(dataset, "path", "") or getattr(dataset, "name", "") or "the input")
     skipped: list[dict] = []
     n_read = 0

@@ -46,7 +46,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from .. import __version__
+from .. import __version__, progress
 from ..errors import ConfigError, InputError
 from ..io import folder_lock, prepare_output_dir, sweep_stale_temporaries, write_json, write_text
 from .discovery import (
@@ -60,6 +60,7 @@ from .discovery import (
 )
 from .execute import (
     KERNEL_NAME,
+    cell_progress,
     environ,
     execute_notebook,
     kernel_env,
@@ -240,7 +241,8 @@ def run_notebooks(
     timeout : float, optional
         Per-cell time limit in seconds.
     log : callable, optional
-        Receives one line per finished notebook.
+        Receives one line when each notebook starts and one when it ends. Under
+        :func:`hsmap.progress.reporting`, the heartbeat says which notebooks run, at which cell, for how long.
 
     Returns
     -------
@@ -321,7 +323,26 @@ def run_notebooks(
     sweep_stale_temporaries(out, ["index.html", "index.json", *(s.name for s in specs)])
     write_index(final=False)
 
+    running: dict[str, float] = {}  # notebook -> when it started (monotonic seconds)
+
+    def notebook_started(name: str) -> None:
+        if name in running or name in runs:
+            return
+        running[name] = time.monotonic()
+        if log is not None:
+            log(f"[{len(runs) + len(running)}/{len(chosen)}] {name}: started")
+
+    def status() -> str:
+        now = time.monotonic()
+        parts = []
+        for name, since in running.items():
+            cells = cell_progress(out, name)
+            where = f"cell {min(cells[0] + 1, cells[1])}/{cells[1]}, " if cells and cells[1] else ""
+            parts.append(f"{name} ({where}{progress.format_seconds(now - since)})")
+        return f"running {', '.join(parts) or 'nothing'}; {len(runs)} of {len(chosen)} notebooks done"
+
     def finished(run: NotebookRun) -> None:
+        running.pop(run.name, None)
         runs[run.name] = entries[run.name] = run
         write_index(final=False)
         if log is not None:
@@ -332,9 +353,11 @@ def run_notebooks(
                 msg += f"\n    warning: {w}"
             log(msg)
 
+    progress.stage("notebooks", f"{len(chosen)} to run, {jobs} at a time")
     try:
-        _run_all(order, out, common, per_nb, quick, jobs, timeout, verify_recordings, versions, entries,
-                 started, finished, write_index)
+        with progress.describing(status):
+            _run_all(order, out, common, per_nb, quick, jobs, timeout, verify_recordings, versions, entries,
+                     started, finished, write_index, on_start=notebook_started)
     except KeyboardInterrupt:
         for s in chosen:
             if s.name not in runs:
@@ -373,7 +396,7 @@ def _absolute_paths(params: dict[str, Any]) -> dict[str, Any]:
 
 
 def _run_all(order, out, common, per_nb, quick, jobs, timeout, verify_recordings, versions, entries, started,
-             finished, write_index) -> None:
+             finished, write_index, on_start) -> None:
     with tempfile.TemporaryDirectory(prefix="hsmap-kernel-") as kdir:
         write_kernelspec(kdir)
         jupyter_path = os.pathsep.join([kdir] + [p for p in [os.environ.get("JUPYTER_PATH")] if p])
@@ -387,6 +410,7 @@ def _run_all(order, out, common, per_nb, quick, jobs, timeout, verify_recordings
             with marking_interrupts():
                 for t in tasks:
                     entries[t[0].name].status = "running"
+                    on_start(t[0].name)
                     write_index(final=False)
                     finished(NotebookRun.from_dict(_worker(*t)))
         else:
@@ -397,6 +421,7 @@ def _run_all(order, out, common, per_nb, quick, jobs, timeout, verify_recordings
                 futures = {pool.submit(_worker, *t): t for t in tasks}
                 for t in tasks[: min(jobs, len(tasks))]:
                     entries[t[0].name].status = "running"
+                    on_start(t[0].name)
                 write_index(final=False)
                 for fut in cf.as_completed(futures):
                     s, params = futures[fut][0], futures[fut][2]
@@ -410,6 +435,7 @@ def _run_all(order, out, common, per_nb, quick, jobs, timeout, verify_recordings
                     waiting = [futures[f][0].name for f in futures if not f.done()]
                     for name in waiting[: jobs]:
                         entries[name].status = "running"
+                        on_start(name)
             except BaseException:
                 stop_workers(pool)
                 raise

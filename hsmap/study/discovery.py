@@ -125,7 +125,7 @@ def load_parameters_file(path: str | os.PathLike) -> tuple[dict[str, Any], dict[
         parameters:            # every notebook
           seed: 1
         notebooks:             # one notebook (full name, short name or number)
-          03-slam-6dof: {n_scans: 60}
+          03-hs-slam-6dof: {every: 4}
 
     Returns (common parameters, per-notebook parameters keyed by selector).
     """

@@ -37,6 +37,28 @@ def _staging_prefix(name: str) -> str:
     return f"{STAGING_PREFIX}{name}-"
 
 
+def cell_progress(out_dir: str | os.PathLike, name: str) -> tuple[int, int] | None:
+    """How far notebook ``name`` running into ``out_dir`` is: (code cells finished, code cells), read from the
+    executed notebook papermill saves into its staging folder at each cell's start and end; None before the first
+    save or while a save is half written."""
+    def mtime(p: Path) -> float:
+        try:
+            return p.stat().st_mtime
+        except OSError:
+            return 0.0
+
+    candidates = sorted(Path(out_dir).glob(f"{_staging_prefix(name)}*/{name}.ipynb"), key=mtime)
+    if not candidates:
+        return None
+    try:
+        nb = json.loads(candidates[-1].read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    code = [c for c in nb.get("cells", []) if isinstance(c, dict) and c.get("cell_type") == "code"]
+    done = sum(1 for c in code if (c.get("metadata", {}).get("papermill") or {}).get("status") == "completed")
+    return done, len(code)
+
+
 def _publish(stage: Path, out_dir: Path, name: str) -> None:
     """Replace the notebook's report in ``out_dir`` (``NAME/``, ``NAME.ipynb``, ``NAME.html``) by the complete
     one in ``stage``, under the reports folder's lock (a concurrent batch publishing the same notebook waits).

@@ -37,7 +37,7 @@ from threadpoolctl import threadpool_info, threadpool_limits
 
 import hsmap
 import hsmap._blas as blas
-from hsmap.registration import harmony_icp
+from hsmap.registration.icp import harmony_icp
 from hsmap.slam import SlamConfig, run_slam
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

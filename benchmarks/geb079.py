@@ -1,6 +1,6 @@
 """OctoMap's geb079 (a real 3D map of Freiburg building 079) through ``hsmap segment`` and ``hsmap align``.
 
-1. Reading: ``hsmap.maps3d.read_map3d`` on ``$HSMAP_DATASETS/octomap/geb079.bt`` (median of ``--repeats``, numba
+1. Reading: ``hsmap.maps.maps3d.read_map3d`` on ``$HSMAP_DATASETS/octomap/geb079.bt`` (median of ``--repeats``, numba
    kernels loaded by a first call), the grid's size and voxel counts, the floor found.
 2. ``hsmap segment geb079.bt --band LO,HI`` for the slice (1.7-1.8 m) and the floor band (0.1-0.35 m): the
    command's wall time in a fresh process (median and worst of ``--repeats``), rooms, doors, cells.
@@ -52,7 +52,7 @@ def main() -> None:
     ap.add_argument("--out", default=str(REPO / "reports" / "benchmarks" / "geb079.json"))
     args = ap.parse_args()
 
-    from hsmap.maps3d import floor_height, read_map3d
+    from hsmap.maps.maps3d import floor_height, read_map3d
     from hsmap.study.paths import datasets_dir
 
     root = datasets_dir()

@@ -39,9 +39,9 @@ from _report import finish, machine  # noqa: E402  (benchmarks/_report.py)
 
 import hsmap  # noqa: E402
 from hsmap.config import to_dict  # noqa: E402
-from hsmap.fitness import score  # noqa: E402
 from hsmap.geometry import matrix_to_pose, relative, wrap_angle  # noqa: E402
-from hsmap.registration import (  # noqa: E402
+from hsmap.registration.fitness import score  # noqa: E402
+from hsmap.registration.icp import (  # noqa: E402
     RegistrationConfig,
     RegistrationTarget,
     _default_bounds,

@@ -138,7 +138,7 @@ def short_relations_by_source(name: str, frames: list, stamps: np.ndarray, odome
 
     Which source the relations agree with says what they were made from.
     """
-    from hsmap.registration import RegistrationConfig, RegistrationTarget, refine_icp
+    from hsmap.registration.icp import RegistrationConfig, RegistrationTarget, refine_icp
 
     keep = np.flatnonzero(np.abs(rel.t_j - rel.t_i) <= 10.0)
     errs: dict[str, list] = {"odometry": [], "scans_alone": [], "trajectory": []}

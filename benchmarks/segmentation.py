@@ -41,9 +41,9 @@ from _report import finish, machine  # noqa: E402  (benchmarks/_report.py)
 
 import hsmap  # noqa: E402
 from hsmap.config import to_dict  # noqa: E402
-from hsmap.grid import FREE, OCCUPIED, OccupancyGrid, read_image_gray  # noqa: E402
 from hsmap.io import atomic_path  # noqa: E402
-from hsmap.segmentation import SegmentationConfig, segment_rooms  # noqa: E402
+from hsmap.maps.grid import FREE, OCCUPIED, OccupancyGrid, read_image_gray  # noqa: E402
+from hsmap.rooms.segmentation import SegmentationConfig, segment_rooms  # noqa: E402
 from hsmap.study.benchmarks import BORMANN_BUILDINGS, room_segmentation_benchmark, summarise_segmentation  # noqa: E402
 from hsmap.study.paths import datasets_dir  # noqa: E402
 

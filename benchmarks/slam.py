@@ -103,7 +103,7 @@ def freiburg_run(name: str, datasets: str, seed: int, max_frames: int | None, lo
         "frames_retried": m["frames_retried"],
         "odometry_model": m["odometry_model"],
         "relations": _relations(res.trajectory, rel, skip_unmatched=max_frames is not None),
-        # the same run before the smoothing with the odometry (hsmap.smoothing): the graph's trajectory
+        # the same run before the smoothing with the odometry (hsmap.slam.smoothing): the graph's trajectory
         "unsmoothed_relations": _relations(res.unsmoothed, rel, skip_unmatched=max_frames is not None)
         if res.unsmoothed is not None else None,
         "smoothing": m["smoothing"],

@@ -84,7 +84,7 @@ def building_run(*, name: str, maps: str, sim_seed: int, slam_seed: int, threads
     est = pose_errors(res.trajectory, truth)
     xy = np.hypot(est.errors[:, 0], est.errors[:, 1])
     odo = pose_errors(odometry, truth)
-    # the same run before the smoothing with the odometry (hsmap.smoothing): the graph's trajectory
+    # the same run before the smoothing with the odometry (hsmap.slam.smoothing): the graph's trajectory
     raw = pose_errors(res.unsmoothed, truth) if res.unsmoothed is not None else est
     xy_raw = np.hypot(raw.errors[:, 0], raw.errors[:, 1])
     m = res.metrics()

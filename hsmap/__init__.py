@@ -11,8 +11,8 @@ __version__ = "0.1.0"
 
 from . import errors, geometry  # noqa: E402  (after __version__, which submodules import)
 from .errors import HsmapError  # noqa: E402
-from .harmony import HarmonyConfig, harmony_search  # noqa: E402
-from .registration import RegistrationConfig, RegistrationResult, RegistrationTarget, harmony_icp  # noqa: E402
+from .registration.harmony import HarmonyConfig, harmony_search  # noqa: E402
+from .registration.icp import RegistrationConfig, RegistrationResult, RegistrationTarget, harmony_icp  # noqa: E402
 
 __all__ = [
     "__version__",

@@ -2,8 +2,8 @@
 
 hsmap's linear algebra is small (N x 3 by 3 x 3 products, 6 x 6 solves): it gains nothing from BLAS threads, and
 when other processes keep the cores busy (notebooks run in parallel, CI) OpenBLAS's spinning threads make such
-products many times slower. So :func:`harmony_icp <hsmap.registration.harmony_icp>`,
-:func:`~hsmap.registration.estimate_normals` and :func:`~hsmap.slam.run_slam` run under :func:`limited_blas`:
+products many times slower. So :func:`harmony_icp <hsmap.registration.icp.harmony_icp>`,
+:func:`~hsmap.registration.icp.estimate_normals` and :func:`~hsmap.slam.run_slam` run under :func:`limited_blas`:
 BLAS on ``$HSMAP_BLAS_THREADS`` threads (default 1) for the call, the host's own setting restored when the
 outermost limited call returns. Importing hsmap changes nothing in the host process; the ``hsmap`` command and
 the notebook kernels of ``hsmap reproduce`` (hsmap's own processes) run wholly under the limit.

@@ -137,7 +137,7 @@ def _score_batch_field(new, f_new, pts, flat, shape, origin, inv_res, tau, weigh
 def hs_chunk_field(memory, fun, pick, consider, adjust_u, step, rand, par, bw, lo, hi, span, history, state,
                    global_best, patience, convergence_tol, min_improvement,
                    pts, flat, shape, origin, inv_res, tau, weight):  # pragma: no cover - JIT
-    """hsmap.harmony._run_chunk with the two-term field fitness compiled (same arithmetic, same order); each
+    """hsmap.registration.harmony._run_chunk with the two-term field fitness compiled (same arithmetic, same order); each
     round's batch is scored in parallel (:func:`_score_batch_field`)."""
     hms, dim = memory.shape
     nchunk, batch, _ = pick.shape
@@ -664,7 +664,7 @@ def refine_on_field_3d(src, T, index, npts, nnrm, origin, res, schedule, per_sta
 
 
 # ---------------------------------------------------------------------------------------- nearest neighbours
-# Exact nearest neighbours within a distance bound on a dense voxel grid (hsmap.neighbours). No fastmath: the
+# Exact nearest neighbours within a distance bound on a dense voxel grid (hsmap.registration.neighbours). No fastmath: the
 # squared distances are summed in the order scipy's cKDTree sums them, so the distances are the same bit for bit;
 # of points at exactly the same distance, the lowest row is the answer.
 
@@ -681,7 +681,7 @@ def grid_build(points, origin, inv_cell, dims):  # pragma: no cover - JIT
     for k in range(d):
         ncell *= dims[k]
     lin = np.empty(n, np.int64)
-    start = np.zeros(ncell + 1, np.int32)  # rows fit: hsmap.neighbours refuses 2**31 points
+    start = np.zeros(ncell + 1, np.int32)  # rows fit: hsmap.registration.neighbours refuses 2**31 points
     for i in range(n):
         c = 0
         for k in range(d):
@@ -780,7 +780,7 @@ def grid_nearest(sp, order, start, origin, inv_cell, dims, q, bound, hint, out_d
 @nb.njit(cache=True, nogil=True)
 def voxel_accumulate(pts, nrm, voxel, bias, table, ukeys, sums, counts, fpts, fnrm, m):  # pragma: no cover - JIT
     """Add the finite points (N, d) and their normals to a running voxel reduction: ``m`` voxels so far, numbered in
-    the order they first appear, each with its key (:func:`hsmap.mapping.voxel_keys`: the indices
+    the order they first appear, each with its key (:func:`hsmap.maps.mapping.voxel_keys`: the indices
     floor(p / voxel) + bias, 21 bits each), the sum of its points in input order, their count, and its first point
     and normal; ``table`` (a power of two, slot -> voxel number) hashes the keys. The arrays must hold m + N voxels
     and ``table`` twice as many. Returns (the new m, -1), or (m, row) for the first point beyond the keys' 21 bits."""

@@ -269,7 +269,7 @@ def refine_sweep(points: ArrayLike, times: ArrayLike, target, pose: ArrayLike, *
         The deskewed points in the base frame.
     times : array_like of shape (N,)
         Each point's time in seconds from the stamp.
-    target : hsmap.registration.RegistrationTarget
+    target : hsmap.registration.icp.RegistrationTarget
         The map (3D, with normals).
     pose : array_like of shape (6,)
         The registered pose at the stamp.

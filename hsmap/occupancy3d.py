@@ -1,15 +1,15 @@
 """3D occupancy maps made from sweeps at known poses, the floor under the sensor's path, and OctoMap ``.bt`` files.
 
-:func:`sweep_bounds` and :func:`carve_sweeps` turn posed sweeps into a :class:`hsmap.maps3d.Map3D`: each point's
+:func:`sweep_bounds` and :func:`carve_sweeps` turn posed sweeps into a :class:`hsmap.maps.maps3d.Map3D`: each point's
 voxel is occupied and the voxels on its ray from the sensor are free (a 3D digital differential analyser,
 Amanatides and Woo); a voxel hit by any sweep stays occupied. Rays longer than ``max_range`` are cut there and
-only carve free space. The dense grid is bounded (:data:`hsmap.maps3d.MAX_CELLS` and the memory available).
+only carve free space. The dense grid is bounded (:data:`hsmap.maps.maps3d.MAX_CELLS` and the memory available).
 
 :func:`floor_under_path` finds the floor below each sensor pose: the horizontal surface of occupied voxels seen
 most often around the pose within a range of depths below it, so that a building with several floor levels has
 the floor each pose stands over, and a ceiling is never taken. :func:`level_map` shifts every voxel column by
 the floor of the nearest pose, so that heights in the levelled map are heights above the local floor and the
-bands of :mod:`hsmap.maps3d` (``floor=0``) follow the floor from level to level.
+bands of :mod:`hsmap.maps.maps3d` (``floor=0``) follow the floor from level to level.
 
 :func:`write_octomap` encodes a map as OctoMap's binary tree (``.bt``: free and occupied leaves, uniform
 octants merged), which octomap-python reads back and writes out, so that octovis and RViz open it.
@@ -28,7 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .errors import EmptyInputError, InputError, OutputError, ShapeError
 from .limits import check_allocation
-from .maps3d import FREE, MAX_CELLS, OCCUPIED, UNKNOWN, Map3D
+from .maps.maps3d import FREE, MAX_CELLS, OCCUPIED, UNKNOWN, Map3D
 
 __all__ = [
     "sweep_bounds",

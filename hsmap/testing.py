@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .geometry import pose_to_matrix, transform_points
-from .harmony import as_rng
+from .registration.harmony import as_rng
 
 __all__ = ["two_rooms_octree", "room_segments", "raycast_2d", "scan_points_2d", "room_boxes_3d", "room_cloud_3d", "room_scan_sequence",
            "write_scan_bag"]

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hsmap.grid import FREE, OCCUPIED, UNKNOWN, GridGeometry, OccupancyGrid
+from hsmap.maps.grid import FREE, OCCUPIED, UNKNOWN, GridGeometry, OccupancyGrid
 
 # (x0, y0, x1, y1, thickness)
 TWO_ROOMS_WALLS = [

@@ -1,4 +1,4 @@
-"""hsmap align and hsmap.fusion.global_align: two maps of one building registered with no initial guess."""
+"""hsmap align and hsmap.maps.fusion.global_align: two maps of one building registered with no initial guess."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from hsmap.cli import main
-from hsmap.fusion import GlobalSearch, global_align
 from hsmap.geometry import pose_to_matrix
-from hsmap.grid import OCCUPIED, UNKNOWN, GridGeometry, OccupancyGrid, write_map
+from hsmap.maps.fusion import GlobalSearch, global_align
+from hsmap.maps.grid import OCCUPIED, UNKNOWN, GridGeometry, OccupancyGrid, write_map
 from hsmap.testing import office_segments
 
 RES = 0.05

@@ -149,12 +149,12 @@ def _map_png(folder: Path) -> Path:
 def test_segment_resolution_out_of_range(tmp_path, capsys, monkeypatch, res):
     """Before: 1e-9 was still running after 11 minutes (time grew as 1/resolution); 1e-3 gave 0 rooms silently.
     Now the scale is checked before any segmentation work starts (and segment_rooms checks it too)."""
-    import hsmap.segmentation
+    import hsmap.rooms.segmentation
     from hsmap.errors import InputError
-    from hsmap.grid import read_map
+    from hsmap.maps.grid import read_map
 
-    real = hsmap.segmentation.segment_rooms
-    monkeypatch.setattr(hsmap.segmentation, "segment_rooms", lambda *a, **k: pytest.fail("segmentation started"))
+    real = hsmap.rooms.segmentation.segment_rooms
+    monkeypatch.setattr(hsmap.rooms.segmentation, "segment_rooms", lambda *a, **k: pytest.fail("segmentation started"))
     assert main(["segment", str(_map_png(tmp_path)), "--out", str(tmp_path / "o"), "--resolution", res]) == 2
     line = one_line(capsys.readouterr().err)
     assert line.startswith(f"--resolution: at resolution {float(res):g} m/pixel the map's free space covers only")

@@ -298,7 +298,7 @@ def _room(spacing, rng=None):
 
 def test_refine_sweep_finds_the_planar_motion_the_deskewing_missed():
     from hsmap.deskew import refine_sweep
-    from hsmap.registration import RegistrationTarget
+    from hsmap.registration.icp import RegistrationTarget
 
     target = RegistrationTarget(*_room(0.1)[:1], normals=_room(0.1)[1])
     rng = np.random.default_rng(3)
@@ -322,7 +322,7 @@ def test_refine_sweep_finds_the_planar_motion_the_deskewing_missed():
 
 
 def test_timed_points_are_the_frames_points_with_their_mean_times():
-    from hsmap.mapping import voxel_downsample_with
+    from hsmap.maps.mapping import voxel_downsample_with
     from hsmap.slam.frames import frame_points, timed_cloud_points
 
     rng = np.random.default_rng(1)

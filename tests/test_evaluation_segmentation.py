@@ -8,7 +8,7 @@ from PIL import Image
 
 from hsmap.errors import EmptyInputError, ShapeError
 from hsmap.evaluation import ground_truth_rooms, segmentation_scores
-from hsmap.grid import write_label_image
+from hsmap.maps.grid import write_label_image
 
 
 def _gt_two_rooms():
@@ -142,7 +142,7 @@ def test_cli_evaluate_segmentation(tmp_path, capsys):
 
 @pytest.mark.datasets
 def test_benchmark_ground_truth_room_counts(datasets_dir):
-    from hsmap.grid import read_image_gray
+    from hsmap.maps.grid import read_image_gray
 
     folder = datasets_dir / "ipa_room_segmentation"
     for name, n in (("Freiburg52_scan", 10), ("lab_c_scan", 17), ("lab_ipa", 10)):

@@ -157,7 +157,7 @@ def test_huge_map_images_are_refused_before_decoding(tmp_path, monkeypatch, side
 def test_an_occupancy_grid_too_large_for_the_memory_is_refused():
     """Before: ``hsmap map --resolution 0.0001`` allocated 22 GiB and was killed with nothing on stderr."""
     from hsmap.errors import InputError
-    from hsmap.grid import grid_from_scans
+    from hsmap.maps.grid import grid_from_scans
 
     scan = np.array([[30.0, 0.0], [0.0, 30.0], [-30.0, 0.0]])
     with pytest.raises(InputError, match=r"occupancy grid at 1e-05 m per cell \(the resolution\) needs .* GiB"):
@@ -169,7 +169,7 @@ def test_memory_errors_are_one_line(tmp_path, monkeypatch):
     def boom(*a, **k):
         raise MemoryError()
 
-    monkeypatch.setattr("hsmap.grid.read_map", boom)
+    monkeypatch.setattr("hsmap.maps.grid.read_map", boom)
     png = png_header_only(tmp_path / "m.png", 10, 10)
     code, err = run_cli("segment", png, "--out", tmp_path / "o")
     assert code == 2 and error_line(err).startswith("segment: out of memory ("), err

@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 
 from hsmap.errors import InputError
-from hsmap.fitness import DistanceField, KDTreeLookup, field_bounds, score, transform_batch
 from hsmap.geometry import pose_to_matrix, transform_points
+from hsmap.registration.fitness import DistanceField, KDTreeLookup, field_bounds, score, transform_batch
 
 
 @pytest.mark.parametrize("dim, res, tau", [(2, 0.02, 0.1), (2, 0.05, 0.5), (3, 0.1, 0.4)])
@@ -145,8 +145,8 @@ def test_a_field_within_a_box_answers_as_the_whole_one_there(rng, dim):
 @pytest.mark.parametrize("dim", [2, 3])
 @pytest.mark.parametrize("variant", ["classic", "ihs", "global-best"])
 def test_compiled_harmony_rounds_match_the_python_loop(rng, dim, variant):
-    from hsmap.fitness import FieldObjective
-    from hsmap.harmony import HarmonyConfig, harmony_search
+    from hsmap.registration.fitness import FieldObjective
+    from hsmap.registration.harmony import HarmonyConfig, harmony_search
 
     tgt = rng.uniform(0, 4, (600, dim))
     src = tgt[rng.choice(600, 150, replace=False)] - 0.2
@@ -170,8 +170,8 @@ def test_parallel_fitness_is_the_same_for_any_number_of_threads(rng, dim):
     the same search, bit for bit, on one thread and on two: each harmony is summed by one thread."""
     from hsmap import _kernels
     from hsmap._threads import using_threads
-    from hsmap.fitness import FieldObjective
-    from hsmap.harmony import HarmonyConfig, harmony_search
+    from hsmap.registration.fitness import FieldObjective
+    from hsmap.registration.harmony import HarmonyConfig, harmony_search
 
     tgt = rng.uniform(0, 4, (3000, dim))
     src = tgt[rng.choice(3000, 1200, replace=False)] - 0.2
@@ -197,7 +197,7 @@ def test_a_3d_field_splatted_in_slabs_is_the_same_for_any_number_of_threads(rng)
     """A large 3D splat is split into slabs along x between the compute threads: the same field, bit for bit,
     built at once and grown, on one thread and on two; and the same as splatting point by point."""
     from hsmap._threads import using_threads
-    from hsmap.fitness import PARALLEL_MIN_SPLAT
+    from hsmap.registration.fitness import PARALLEL_MIN_SPLAT
 
     pts = rng.uniform(0, 3, (6000, 3))
     fields = {}
@@ -263,8 +263,8 @@ def test_3d_field_keeps_each_nodes_nearest_point(rng):
 _SCORES = """
 import sys
 import numpy as np
-from hsmap.fitness import DistanceField, FieldObjective
-from hsmap.harmony import HarmonyConfig, harmony_search
+from hsmap.registration.fitness import DistanceField, FieldObjective
+from hsmap.registration.harmony import HarmonyConfig, harmony_search
 rng = np.random.default_rng(0)
 out = []
 for dim in (2, 3):

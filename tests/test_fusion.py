@@ -1,4 +1,4 @@
-"""2D/3D map alignment (hsmap.fusion): a known offset between the floor map and the slice of a simulated world
+"""2D/3D map alignment (hsmap.maps.fusion): a known offset between the floor map and the slice of a simulated world
 is recovered; the slice sees over furniture the floor map sees; bad input raises HsmapError."""
 
 from __future__ import annotations
@@ -8,7 +8,8 @@ import pytest
 
 from hsmap.datasets.simulated import SimulatedDataset
 from hsmap.errors import ConfigError, EmptyInputError, HsmapError, InputError, ShapeError
-from hsmap.fusion import (
+from hsmap.geometry import compose, invert, matrix_to_pose, pose_to_matrix
+from hsmap.maps.fusion import (
     FusionConfig,
     align_maps,
     common_grids,
@@ -22,8 +23,15 @@ from hsmap.fusion import (
     slice_scan,
     slice_scans,
 )
-from hsmap.geometry import compose, invert, matrix_to_pose, pose_to_matrix
-from hsmap.grid import FREE, OCCUPIED, UNKNOWN, GridGeometry, OccupancyGrid, grid_from_scans, scans_to_points
+from hsmap.maps.grid import (
+    FREE,
+    OCCUPIED,
+    UNKNOWN,
+    GridGeometry,
+    OccupancyGrid,
+    grid_from_scans,
+    scans_to_points,
+)
 
 pytest.importorskip("open3d")
 
@@ -237,7 +245,7 @@ def _grid(occupied: bool = True) -> OccupancyGrid:
 
 def test_bad_input_raises_hsmap_errors(world):
     ds, floor, sl = world
-    with pytest.raises(InputError, match="floor must be an hsmap.grid.OccupancyGrid"):
+    with pytest.raises(InputError, match="floor must be an hsmap.maps.grid.OccupancyGrid"):
         align_maps(np.zeros((10, 10)), sl)
     with pytest.raises(InputError, match="slice_"):
         align_maps(floor, "map.pgm")

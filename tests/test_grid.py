@@ -5,7 +5,7 @@ from PIL import Image
 from scipy import ndimage as ndi
 
 from hsmap.errors import DataFormatError, DatasetError, EmptyInputError, HsmapError, InputError, ShapeError
-from hsmap.grid import (
+from hsmap.maps.grid import (
     FREE,
     OCCUPIED,
     UNKNOWN,
@@ -183,7 +183,7 @@ def test_grid_from_scans_square_room():
 def test_grids_of_scan_prefixes_in_one_pass():
     """The growing map of a recording: each prefix's grid equals grid_from_scans of those scans alone."""
     from hsmap.datasets.frames import LaserScan2D
-    from hsmap.grid import grids_from_scan_prefixes
+    from hsmap.maps.grid import grids_from_scan_prefixes
 
     poses = np.array([[0.0, 0.0, 0.0], [0.7, -0.4, 1.0], [-0.8, 0.6, -2.0], [0.3, 0.3, 2.5]])
     ranges, angles = _square_room_scans(poses)
@@ -224,7 +224,7 @@ def test_grid_from_scans_bad_input():
 
 def test_scans_to_points_with_one_or_per_scan_extrinsics():
     from hsmap.datasets.frames import LaserScan2D
-    from hsmap.grid import scans_to_points
+    from hsmap.maps.grid import scans_to_points
 
     scan = LaserScan2D(np.array([1.0, np.nan, 2.0, 50.0]), np.array([0.0, 0.5, np.pi / 2, 1.0]), 0.1, 10.0)
     poses = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, np.pi / 2]])
@@ -263,7 +263,7 @@ def test_grid_from_point_slice(rng):
 
 
 def test_resample_labels_onto_another_grid():
-    from hsmap.grid import GridGeometry, resample_labels
+    from hsmap.maps.grid import GridGeometry, resample_labels
 
     src = GridGeometry((4, 6), 0.5, (1.0, 2.0))  # x 1..4, y 2..4
     lab = np.arange(24, dtype=np.int32).reshape(4, 6)

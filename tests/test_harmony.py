@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from hsmap.errors import ConfigError, InputError, ShapeError
-from hsmap.harmony import HarmonyConfig, StopReason, Variant, harmony_search
+from hsmap.registration.harmony import HarmonyConfig, StopReason, Variant, harmony_search
 
 
 def sphere(X):

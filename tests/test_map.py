@@ -183,7 +183,7 @@ def test_map_failing_midway_keeps_the_stages_done_and_the_previous_outputs(recor
     import shutil
 
     import hsmap.pipeline.chain
-    import hsmap.segmentation
+    import hsmap.rooms.segmentation
 
     bag, done, _ = recording
     out = tmp_path / "out"
@@ -191,7 +191,7 @@ def test_map_failing_midway_keeps_the_stages_done_and_the_previous_outputs(recor
     shutil.rmtree(out / ".stages" / "rooms")  # the rooms stage runs again (and without map.rrd, so do the outputs)
     before = _outputs(out)
     if where == "rooms":  # the rooms stage fails in its second map
-        real, calls = hsmap.segmentation.segment_rooms, []
+        real, calls = hsmap.rooms.segmentation.segment_rooms, []
 
         def segment_rooms(*a, **k):
             calls.append(1)

@@ -99,7 +99,7 @@ def mapped(recording):
 
 
 def test_map_of_a_3d_only_recording_writes_the_slice_its_rooms_and_an_octomap(mapped):
-    from hsmap.maps3d import read_map3d
+    from hsmap.maps.maps3d import read_map3d
 
     out, _ = mapped
     for name in ("slice.pgm", "slice.yaml", "floor.pgm", "floor.yaml", "rooms.png", "doors.json", "topology.json",

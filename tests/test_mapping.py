@@ -1,10 +1,10 @@
-"""hsmap.mapping: the voxel map and the two voxel thinnings (first point per voxel, voxel centroids)."""
+"""hsmap.maps.mapping: the voxel map and the two voxel thinnings (first point per voxel, voxel centroids)."""
 
 import numpy as np
 import pytest
 
 from hsmap.errors import InputError, ShapeError
-from hsmap.mapping import VoxelMap, first_per_voxel, voxel_downsample
+from hsmap.maps.mapping import VoxelMap, first_per_voxel, voxel_downsample
 
 
 def test_first_per_voxel_keeps_raw_points_in_input_order():
@@ -69,7 +69,7 @@ def test_voxel_map_is_the_sorted_reduction_of_its_points(dim, average):
     """The map's compiled hash-table insertion against the plain numpy reduction it replaced (np.unique on the
     voxel keys, bincount sums in input order): the same keys, points and normals bit for bit, over batches that
     fall in new voxels and in voxels already held."""
-    from hsmap.mapping import voxel_keys
+    from hsmap.maps.mapping import voxel_keys
 
     rng = np.random.default_rng(dim)
     batches = [rng.uniform(-3, 3, (4000, dim)) for _ in range(3)]
@@ -99,7 +99,7 @@ def test_voxel_map_is_the_sorted_reduction_of_its_points(dim, average):
 def test_a_keyframe_map_within_a_radius_crops_as_the_whole_map():
     """keyframe_voxel_map(within=(c, r)) keeps only the points within r of c; its crops within r less two voxel
     diagonals are the whole map's, bit for bit (every voxel they reach is whole)."""
-    from hsmap.loopclosure import Keyframe, keyframe_voxel_map
+    from hsmap.slam.loopclosure import Keyframe, keyframe_voxel_map
 
     rng = np.random.default_rng(0)
     kfs = [Keyframe(i, float(i), rng.uniform(-8, 8, (3000, 3)), rng.normal(size=(3000, 3))) for i in range(6)]

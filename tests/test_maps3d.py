@@ -1,4 +1,4 @@
-"""hsmap.maps3d: OctoMap and point maps as dense voxel grids, the floor, height bands."""
+"""hsmap.maps.maps3d: OctoMap and point maps as dense voxel grids, the floor, height bands."""
 
 from __future__ import annotations
 
@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from hsmap.errors import DataFormatError, DatasetError, EmptyInputError, HsmapError, InputError
-from hsmap.grid import FREE as G_FREE
-from hsmap.grid import OCCUPIED as G_OCCUPIED
-from hsmap.grid import UNKNOWN as G_UNKNOWN
-from hsmap.maps3d import FREE, OCCUPIED, UNKNOWN, Map3D, band_grid, floor_height, read_map3d
+from hsmap.maps.grid import FREE as G_FREE
+from hsmap.maps.grid import OCCUPIED as G_OCCUPIED
+from hsmap.maps.grid import UNKNOWN as G_UNKNOWN
+from hsmap.maps.maps3d import FREE, OCCUPIED, UNKNOWN, Map3D, band_grid, floor_height, read_map3d
 
 octomap = pytest.importorskip("octomap", reason="octomap-python is not installed")
 

@@ -1,4 +1,4 @@
-"""hsmap.neighbours: exact bounded nearest neighbours on a voxel grid, the KD-tree's answers bit for bit."""
+"""hsmap.registration.neighbours: exact bounded nearest neighbours on a voxel grid, the KD-tree's answers bit for bit."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from scipy.spatial import cKDTree
 
 from hsmap._threads import using_threads
 from hsmap.errors import InputError, ShapeError
-from hsmap.neighbours import NeighbourGrid, grid_fits
+from hsmap.registration.neighbours import NeighbourGrid, grid_fits
 
 PROFILE = dict(deadline=None, derandomize=True, database=None, max_examples=60)
 
@@ -96,7 +96,7 @@ def test_bad_input_names_what_was_expected():
 def test_a_target_that_does_not_fit_a_grid_answers_from_its_tree():
     """RegistrationTarget.nearest: a grid where the target fits one, the KD-tree where it does not (a sparse
     cloud over a large box) or the bound is many cells wide; the same answers either way."""
-    from hsmap.registration import RegistrationConfig, RegistrationTarget
+    from hsmap.registration.icp import RegistrationConfig, RegistrationTarget
 
     rng = np.random.default_rng(5)
     dense = rng.uniform(-3, 3, (4000, 3))

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from hsmap.errors import EmptyInputError, InputError
-from hsmap.maps3d import FREE, OCCUPIED, Map3D, read_map3d
+from hsmap.maps.maps3d import FREE, OCCUPIED, Map3D, read_map3d
 from hsmap.occupancy3d import (
     carve_sweeps,
     floor_field,

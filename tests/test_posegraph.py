@@ -5,7 +5,7 @@ import pytest
 
 from hsmap.errors import InputError, ShapeError
 from hsmap.geometry import compose, relative, wrap_angle
-from hsmap.posegraph import SOLVERS, EdgeKind, PoseGraph, information_with_floor
+from hsmap.slam.posegraph import SOLVERS, EdgeKind, PoseGraph, information_with_floor
 
 INFO2 = np.diag([1e4, 1e4, 1e3])  # 1 cm, 1.8 deg
 INFO3 = np.diag([1e4, 1e4, 1e4, 1e3, 1e3, 1e3])

@@ -270,7 +270,7 @@ def yaml_value(good):
 @settings(max_examples=100, **PROFILE)
 @given(data=st.data())
 def test_map_yaml_and_images_read_back_or_name_the_file(data):
-    from hsmap.grid import FREE, OCCUPIED, read_map
+    from hsmap.maps.grid import FREE, OCCUPIED, read_map
 
     folder = tmpdir()
     image, img, readable = data.draw(map_image(folder))
@@ -509,8 +509,8 @@ def _config_values(cls):
 @given(which=st.sampled_from(["slam", "segmentation", "registration"]), data=st.data())
 def test_config_yaml_loads_or_names_the_file_and_key(which, data):
     from hsmap.config import load_config, to_dict
-    from hsmap.registration import RegistrationConfig
-    from hsmap.segmentation import SegmentationConfig
+    from hsmap.registration.icp import RegistrationConfig
+    from hsmap.rooms.segmentation import SegmentationConfig
     from hsmap.slam import SlamConfig
 
     cls = {"slam": SlamConfig, "segmentation": SegmentationConfig, "registration": RegistrationConfig}[which]
@@ -600,8 +600,8 @@ def test_harmony_icp_answers_or_names_the_argument(d, data):
     (a cloud that cannot be registered, e.g. one whose points coincide, is an error, not a success at
     inlier_ratio 1.0)."""
     from hsmap import harmony_icp
-    from hsmap.harmony import HarmonyConfig
-    from hsmap.registration import RegistrationConfig, spans_its_space
+    from hsmap.registration.harmony import HarmonyConfig
+    from hsmap.registration.icp import RegistrationConfig, spans_its_space
 
     dof = 3 if d == 2 else 6
     src, tgt = data.draw(cloud(d)), data.draw(cloud(d))
@@ -690,7 +690,7 @@ def test_hostile_config_files_load_or_give_one_short_line(which, data):
     """Random keys (names, text, numbers, null), types, nesting, aliases and sizes: a configuration or an
     HsmapError naming the file in at most 1000 characters, never another exception."""
     from hsmap.config import load_config
-    from hsmap.segmentation import SegmentationConfig
+    from hsmap.rooms.segmentation import SegmentationConfig
     from hsmap.slam import SlamConfig
 
     cls = {"slam": SlamConfig, "segmentation": SegmentationConfig}[which]
@@ -708,7 +708,7 @@ def test_hostile_map_yamls_read_or_give_one_short_line(data):
     """As above for map_server YAMLs: the good keys replaced, nested or aliased at random, random keys added."""
     from PIL import Image
 
-    from hsmap.grid import read_map
+    from hsmap.maps.grid import read_map
 
     folder = tmpdir()
     Image.fromarray(np.full((8, 8), 255, np.uint8)).save(folder / "map.png")

@@ -11,7 +11,7 @@ from _worlds import two_rooms
 
 import hsmap
 import hsmap.datasets
-from hsmap.segmentation import segment_rooms
+from hsmap.rooms.segmentation import segment_rooms
 from hsmap.slam.run import run_slam
 
 

@@ -6,7 +6,7 @@ import pytest
 import hsmap
 from hsmap.errors import ConfigError, EmptyInputError, InputError, ShapeError
 from hsmap.geometry import relative, transform_points, wrap_angle
-from hsmap.registration import RegistrationConfig, RegistrationTarget, harmony_icp
+from hsmap.registration.icp import RegistrationConfig, RegistrationTarget, harmony_icp
 from hsmap.testing import raycast_2d, room_cloud_3d, room_segments, scan_points_2d, sensor_cloud
 
 SEGMENTS = room_segments()
@@ -233,7 +233,7 @@ def test_backend_and_refinement_are_enums_that_dump_as_strings():
     import yaml
 
     from hsmap.config import from_dict, to_dict
-    from hsmap.registration import Backend, Refinement
+    from hsmap.registration.icp import Backend, Refinement
 
     cfg = RegistrationConfig(backend="kdtree", refinement="none")
     assert cfg.backend is Backend.KDTREE and cfg.refinement is Refinement.NONE
@@ -268,7 +268,7 @@ def test_robust_kernel_and_refine_seeds():
 def test_refine_reach_keeps_the_refinement_within_the_search_resolution():
     """The refinement's pose is kept when it stays within ``refine_reach`` of the search's, whatever the truncated
     cost says; with a reach of 0 the cost alone decides (then the search's pose may stand)."""
-    from hsmap.registration import refine_icp
+    from hsmap.registration.icp import refine_icp
 
     p0 = np.array([4.0, 3.0, 0.0])
     src, tgt, truth = scan_pair_2d(p0, p0 + [0.3, -0.2, 0.2], seed=8)
@@ -292,9 +292,9 @@ def test_refine_reach_keeps_the_refinement_within_the_search_resolution():
 def test_3d_refinement_on_a_nearest_point_field():
     """A 3D target whose field keeps nearest points (normals given): refine_icp takes its correspondences from
     the field, then polishes on exact ones, and lands where the exact refinement lands."""
-    from hsmap.fitness import DistanceField
     from hsmap.geometry import pose_to_matrix
-    from hsmap.registration import estimate_normals, refine_icp
+    from hsmap.registration.fitness import DistanceField
+    from hsmap.registration.icp import estimate_normals, refine_icp
 
     tgt = room_cloud_3d(8000, noise=0.0, rng=3)
     truth = np.array([0.05, -0.04, 0.02, 0.01, -0.01, 0.03])
@@ -319,7 +319,7 @@ def test_a_split_kdtree_query_answers_as_one_query(n, k):
     from scipy.spatial import cKDTree
 
     from hsmap._threads import using_threads
-    from hsmap.neighbours import tree_query
+    from hsmap.registration.neighbours import tree_query
 
     rng = np.random.default_rng(n)
     tree = cKDTree(rng.uniform(-5, 5, (3000, 3)))
@@ -336,7 +336,7 @@ def test_constrained_axes_and_drop_degenerate_keep_what_the_scene_constrains():
     """A corridor along a 30 deg axis: its axis holds 1 % of the information across it, below the 5 % ratio, so
     only the across direction is constrained and drop_degenerate removes the axis (cross terms with the yaw too);
     a room keeps both directions; an information without any keeps none."""
-    from hsmap.information import constrained_axes, drop_degenerate
+    from hsmap.registration.information import constrained_axes, drop_degenerate
 
     a = np.deg2rad(30.0)
     along, across = np.array([np.cos(a), np.sin(a)]), np.array([-np.sin(a), np.cos(a)])
@@ -358,7 +358,7 @@ def test_constrained_axes_and_drop_degenerate_keep_what_the_scene_constrains():
 
 
 def test_orient_normals_face_the_viewpoint():
-    from hsmap.normals import orient_normals
+    from hsmap.registration.normals import orient_normals
 
     rng = np.random.default_rng(0)
     pts = rng.uniform(-5, 5, (50, 2))

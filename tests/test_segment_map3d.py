@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from hsmap.cli import main
-from hsmap.grid import read_label_image, read_map
-from hsmap.maps3d import FREE, OCCUPIED, UNKNOWN, Map3D, read_map3d, seen_through
+from hsmap.maps.grid import read_label_image, read_map
+from hsmap.maps.maps3d import FREE, OCCUPIED, UNKNOWN, Map3D, read_map3d, seen_through
 from hsmap.testing import two_rooms_octree
 
 octomap = pytest.importorskip("octomap", reason="octomap-python is not installed")
@@ -114,7 +114,7 @@ def test_seen_through_cells():
 
 
 def test_segmentation_free_closes_cracks_not_doors():
-    from hsmap.maps3d import segmentation_free
+    from hsmap.maps.maps3d import segmentation_free
 
     # two 2 x 2 m rooms of 0.1 m voxels, a floor, a wall between them with a 0.1 m crack and a 0.9 m door
     state = np.full((41, 20, 4), FREE, np.uint8)

@@ -14,8 +14,8 @@ from _worlds import (
 
 from hsmap.config import from_dict
 from hsmap.errors import ConfigError, EmptyInputError, InputError, ShapeError
-from hsmap.grid import FREE, GridGeometry, OccupancyGrid, grid_from_scans
-from hsmap.segmentation import Door, SegmentationConfig, points_in_doors, segment_rooms
+from hsmap.maps.grid import FREE, GridGeometry, OccupancyGrid, grid_from_scans
+from hsmap.rooms.segmentation import Door, SegmentationConfig, points_in_doors, segment_rooms
 
 TRUE_DOORS = np.array([c for c, _, _ in TWO_ROOMS_DOORS])
 
@@ -253,7 +253,7 @@ def test_points_in_doors(rng):
 @pytest.mark.datasets
 def test_benchmark_map(datasets_dir):
     from hsmap.evaluation import segmentation_scores
-    from hsmap.grid import read_image_gray, read_map
+    from hsmap.maps.grid import read_image_gray, read_map
 
     folder = datasets_dir / "ipa_room_segmentation"
     gt = read_image_gray(folder / "Freiburg52_scan_gt_segmentation.png")

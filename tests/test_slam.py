@@ -134,7 +134,7 @@ def test_a_slipped_odometry_does_not_pull_the_fused_pose():
 
 def assert_wheel_edges_measure_the_odometry(slam, frames):
     """Each wheel edge measures the raw odometry's motion between its two keyframes' frames (less the bias)."""
-    from hsmap.posegraph import EdgeKind
+    from hsmap.slam.posegraph import EdgeKind
 
     odom = {f.index: f.odometry for f in frames}
     for e in slam.graph.edges:
@@ -151,7 +151,7 @@ def assert_wheel_edges_measure_the_odometry(slam, frames):
 def test_wheel_odometry_is_an_edge_of_its_own_between_keyframes():
     """2D with odometry: one wheel edge beside each tracking edge, measuring the odometry's motion between the two
     keyframes' frames; off with ``odometry_edges=False`` (the tracking edges then hold the fused information)."""
-    from hsmap.posegraph import EdgeKind
+    from hsmap.slam.posegraph import EdgeKind
 
     frames = make_noisy_odometry_frames(np.deg2rad(0.05), n=60)
     slam = HsSlam(SlamConfig(), rng=1)
@@ -307,7 +307,7 @@ def test_slam_6dof_in_a_room():
 def test_the_number_of_threads_changes_nothing(monkeypatch):
     """6-DOF HS-SLAM on one thread and on two, every KD-tree query split between the threads: the same
     trajectory, bit for bit (the parallel harmony batches: tests/test_fitness.py)."""
-    from hsmap import neighbours
+    from hsmap.registration.icp import neighbours
 
     monkeypatch.setattr(neighbours, "TREE_PARALLEL_MIN_QUERIES", 1)
     frames, _ = _room_frames_3d(6)
@@ -452,7 +452,7 @@ def test_keyframe_spacing_defaults_by_dof_and_a_set_value_wins():
 
 def test_one_search_box_knob_the_tracking_registration_config():
     from hsmap.config import from_dict
-    from hsmap.registration import RegistrationConfig
+    from hsmap.registration.icp import RegistrationConfig
 
     cfg = SlamConfig(dof=3)
     assert cfg.registration.translation_range == 0.4  # the tracking box, not harmony_icp's 1.5 m default
@@ -573,7 +573,7 @@ def test_6dof_keeps_the_height_where_the_scene_says_nothing_about_it():
     z. The height follows the prediction (the 2D prior's planar motion), and every tracking edge of the pose
     graph keeps some information in every direction: an edge with none in z would leave the graph free to move
     whole stretches of a building up or down when a loop closes."""
-    from hsmap.posegraph import EdgeKind
+    from hsmap.slam.posegraph import EdgeKind
 
     rng = np.random.default_rng(3)
     frames, truth = [], []
@@ -602,7 +602,7 @@ def test_a_retried_registration_stays_in_the_box_it_searched(monkeypatch):
     kept within the prediction's box, so the odometry, not the slide, carries the pose along the corridor. A
     retry that left its box stands at the box's edge only if that aligns the scan better than the prediction
     itself: the edge is no pose the scan chose."""
-    from hsmap.registration import RegistrationTarget, harmony_icp
+    from hsmap.registration.icp import RegistrationTarget, harmony_icp
     from hsmap.slam import frame_points
     from hsmap.slam import verify as slam_module
 
@@ -648,7 +648,7 @@ def test_a_retried_registration_stays_in_the_box_it_searched(monkeypatch):
 def _corridor_scan(cfg):
     """A scan from the middle of a 1.6 m corridor along x (its pose, the origin), its points and the walls as a
     registration target."""
-    from hsmap.registration import RegistrationTarget
+    from hsmap.registration.icp import RegistrationTarget
     from hsmap.slam import frame_points
 
     walls = np.array([((-20.0, y), (20.0, y)) for y in (-0.8, 0.8)])
@@ -667,7 +667,7 @@ def test_a_prior_s_prediction_stands_against_a_retry_that_slid_beyond_its_gate(m
     prediction's gate: with a prior the prediction stands unless the slide aligns the scan clearly better; with
     wheel odometry the slide stands."""
     from hsmap.geometry import pose_to_matrix
-    from hsmap.registration import harmony_icp
+    from hsmap.registration.icp import harmony_icp
     from hsmap.slam import verify as slam_module
 
     cfg = SlamConfig()
@@ -720,7 +720,7 @@ def test_a_prior_s_prediction_is_overruled_only_with_the_wheels_consent(monkeypa
 
 
 def _registration_at(scan, target, cfg):
-    from hsmap.registration import harmony_icp
+    from hsmap.registration.icp import harmony_icp
 
     return harmony_icp(scan, target, initial_guesses=[[0.0, 0.0, 0.0]], config=cfg.registration, rng=1)
 
@@ -786,7 +786,7 @@ def test_a_registration_that_explains_little_of_its_scan_cannot_veto_the_predict
     the 60 % it needs to overrule the prediction. It cannot veto it either: the prediction's pose is confirmed, so
     it can become a keyframe and extend the map. Where the registration explains most of its scan and the
     prediction's pose aligns it worse, the prediction stays unconfirmed (no keyframe) as before."""
-    from hsmap.registration import RegistrationTarget, harmony_icp
+    from hsmap.registration.icp import RegistrationTarget, harmony_icp
     from hsmap.slam import frame_points
     from hsmap.slam import verify as slam_module
 
@@ -828,7 +828,7 @@ def test_a_registration_that_explains_little_of_its_scan_stays_within_the_learne
     odometry as this run has learned it allows, is retried around the prediction when it explains less than
     ``STRICT_MIN_MATCHED`` of its scan (a scan entering an unmapped room); a registration explaining most of its
     scan stands."""
-    from hsmap.registration import RegistrationTarget, harmony_icp
+    from hsmap.registration.icp import RegistrationTarget, harmony_icp
     from hsmap.slam import frame_points
     from hsmap.slam import verify as slam_module
 
@@ -865,7 +865,7 @@ def test_a_registration_that_explains_little_of_its_scan_stays_within_the_learne
 def test_a_run_seeded_by_a_2d_run_keeps_its_keyframes_on_the_floor():
     """Seeded by a 2D run (a robot on one floor), every keyframe but the first gets a unary edge holding its
     height, roll and pitch to the first pose's, and none on x, y, yaw; a run without a prior gets none."""
-    from hsmap.posegraph import EdgeKind
+    from hsmap.slam.posegraph import EdgeKind
     from hsmap.slam.tracker import FLOOR_SIGMA
 
     frames, truth = _room_frames_3d(6)
@@ -889,7 +889,7 @@ def test_a_run_seeded_by_a_2d_run_keeps_its_keyframes_on_the_floor():
 
 def test_level_floor_off_adds_no_floor_edges():
     """``level_floor: false`` (ramps, several floors): a run seeded by a 2D run holds no keyframe to the floor."""
-    from hsmap.posegraph import EdgeKind
+    from hsmap.slam.posegraph import EdgeKind
 
     frames, truth = _room_frames_3d(6)
     truth = np.asarray(truth)

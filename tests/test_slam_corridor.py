@@ -58,7 +58,7 @@ def test_points_sampled_more_sparsely_than_their_normals_say_are_flagged_and_tur
     """A wall facing the laser is sampled every r * dtheta; one seen at a grazing angle, sparser by 1 / cos; a
     point whose nearest neighbour lies many times further than its normal and range say (a far point whose
     normal came from both walls of a corridor) is flagged, a grazing wall's far points are not."""
-    from hsmap.registration import estimate_normals
+    from hsmap.registration.icp import estimate_normals
     from hsmap.slam import SlamConfig, frame_points, grazing_where_sparse, sampled_as_its_normal_says
 
     cfg = SlamConfig()

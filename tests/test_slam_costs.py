@@ -86,7 +86,7 @@ def test_intel_run_stays_within_its_cost_budget(intel_run, tmp_path):
 def test_graph_optimisation_reports_its_rounds_and_iterations(solver):
     import numpy as np
 
-    from hsmap.posegraph import EdgeKind, PoseGraph
+    from hsmap.slam.posegraph import EdgeKind, PoseGraph
 
     g = PoseGraph(3, solver=solver)
     for x in range(4):

@@ -9,10 +9,10 @@ import pytest
 from hsmap.datasets.frames import Frame, LaserScan2D
 from hsmap.errors import HsmapWarning
 from hsmap.geometry import compose, relative, wrap_angle
-from hsmap.loopclosure import Keyframe, LoopCandidate, LoopCloser, LoopClosureConfig
-from hsmap.posegraph import PoseGraph
-from hsmap.registration import estimate_normals, orient_normals
+from hsmap.registration.icp import estimate_normals, orient_normals
 from hsmap.slam import SlamConfig, run_slam, write_slam_outputs
+from hsmap.slam.loopclosure import Keyframe, LoopCandidate, LoopCloser, LoopClosureConfig
+from hsmap.slam.posegraph import PoseGraph
 from hsmap.testing import raycast_2d
 
 pytestmark = pytest.mark.slow
@@ -219,7 +219,7 @@ def test_same_side_check_only_for_closures_that_move_the_graph(monkeypatch):
     """The sides are counted only for a match that moves the graph by more than the registration's inlier
     distance: a slide by a wall's thickness moves it further, and a match that agrees with the graph is left to
     the other checks (a laser's scan of thin clutter, seen from both sides, would fail the count)."""
-    import hsmap.loopclosure as lc
+    import hsmap.slam.loopclosure as lc
 
     calls = []
     real = lc.same_side_share
@@ -247,7 +247,7 @@ def _office_scan(pose, seed=0):
 
 
 def test_correlative_match_finds_a_pose_far_from_the_guess_and_flags_a_corridor():
-    from hsmap.loopclosure import correlative_match_2d
+    from hsmap.slam.loopclosure import correlative_match_2d
 
     anchor, newest = np.array([2.0, 2.0, 0.3]), np.array([3.0, 2.5, 1.0])
     true = relative(anchor, newest)
@@ -279,7 +279,7 @@ def test_coarse_peaks_are_the_full_correlations_and_the_same_for_any_thread_coun
     from scipy import fft
 
     from hsmap._threads import using_threads
-    from hsmap.loopclosure import _coarse_peaks, _likelihood_field, correlative_match_2d
+    from hsmap.slam.loopclosure import _coarse_peaks, _likelihood_field, correlative_match_2d
 
     src, tgt = _office_scan(np.array([3.0, 2.5, 1.0])), _office_scan(np.array([2.0, 2.0, 0.3]), 1)
     rc, centre, half, sep_c, peaks = 0.8, np.array([1.0, 0.5]), 6.0, 3, 8
@@ -314,7 +314,7 @@ def test_coarse_peaks_are_the_full_correlations_and_the_same_for_any_thread_coun
 
 
 def test_unique_cells_is_numpys_unique_rows():
-    from hsmap.loopclosure import _unique_cells
+    from hsmap.slam.loopclosure import _unique_cells
 
     rng = np.random.default_rng(3)
     for lo, hi in ((-5, 5), (-300, -200), (0, 2000)):

@@ -8,7 +8,7 @@ import pytest
 
 from hsmap.datasets.frames import Frame
 from hsmap.geometry import compose, pose_to_matrix
-from hsmap.registration import RegistrationResult
+from hsmap.registration.icp import RegistrationResult
 from hsmap.slam import SlamConfig
 from hsmap.slam.odometry import OdometryModel
 

@@ -1,4 +1,4 @@
-"""The trajectory smoothed with the wheel odometry (hsmap.smoothing): the noise levels measured from the data, the
+"""The trajectory smoothed with the wheel odometry (hsmap.slam.smoothing): the noise levels measured from the data, the
 poses' white noise taken out, a slipped wheel and a jumped frame told apart."""
 
 import numpy as np
@@ -6,7 +6,7 @@ import pytest
 
 from hsmap.errors import ShapeError
 from hsmap.geometry import compose, relative
-from hsmap.smoothing import MIN_FRAMES, identify_noise, smooth_with_odometry, three_cornered_hat
+from hsmap.slam.smoothing import MIN_FRAMES, identify_noise, smooth_with_odometry, three_cornered_hat
 
 # one-frame sigmas (x, y m, yaw rad) of fr-clinic's three sources, as the hat measured them (seed 1): the SLAM
 # poses' white noise, the odometry's motion, the scan matched against the previous scan

@@ -10,7 +10,7 @@ import pytest
 import yaml
 
 from hsmap.errors import HsmapError, InputError, ShapeError
-from hsmap.grid import OCCUPIED
+from hsmap.maps.grid import OCCUPIED
 from hsmap.sim.catalog import resolve_scenario
 
 pytest.importorskip("open3d")
@@ -91,16 +91,16 @@ def test_bad_options(generated, monkeypatch):
 
 @pytest.fixture(scope="module")
 def aligned(maps):
-    from hsmap.fusion import align_maps
+    from hsmap.maps.fusion import align_maps
 
     m = maps[0]
     return align_maps(m.floor, m.slice, floor_points=m.floor_points, slice_points=m.slice_points, rng=0)
 
 
 def test_map_figures_draw(maps, aligned, tmp_path):
-    from hsmap.fusion import common_grids
-    from hsmap.segmentation import SegmentationConfig, points_in_doors, segment_rooms
-    from hsmap.topology import room_graph
+    from hsmap.maps.fusion import common_grids
+    from hsmap.rooms.segmentation import SegmentationConfig, points_in_doors, segment_rooms
+    from hsmap.rooms.topology import room_graph
     from hsmap.viz import map_figures
 
     m, res = maps[0], aligned

@@ -10,7 +10,7 @@ from hsmap.study import real3d
 
 @pytest.fixture(scope="module")
 def geb079():
-    from hsmap.maps3d import read_map3d
+    from hsmap.maps.maps3d import read_map3d
 
     p = real3d.map_path()
     if p is None:

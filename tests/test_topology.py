@@ -10,9 +10,9 @@ import yaml
 from _worlds import two_rooms
 from PIL import Image
 
-from hsmap.grid import read_label_image, write_map
-from hsmap.segmentation import segment_rooms
-from hsmap.topology import (
+from hsmap.maps.grid import read_label_image, write_map
+from hsmap.rooms.segmentation import segment_rooms
+from hsmap.rooms.topology import (
     graph_to_json,
     read_topology_json,
     room_graph,

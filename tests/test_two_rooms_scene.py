@@ -11,9 +11,9 @@ import pytest
 
 from hsmap.datasets.frames import LaserScan2D
 from hsmap.evaluation import segmentation_scores
-from hsmap.fusion import resample_grid
-from hsmap.grid import grid_from_scans
-from hsmap.segmentation import SegmentationConfig, segment_rooms
+from hsmap.maps.fusion import resample_grid
+from hsmap.maps.grid import grid_from_scans
+from hsmap.rooms.segmentation import SegmentationConfig, segment_rooms
 from hsmap.sim import Lidar2DConfig, load_scenario, motion_for, resolve_scenario
 from hsmap.sim.layout import door_records, rasterize_rooms
 

@@ -10,7 +10,7 @@ import pytest
 from hsmap.datasets import Frame, LaserScan2D
 from hsmap.errors import DataFormatError, InputError, ShapeError
 from hsmap.geometry import quaternion_to_matrix
-from hsmap.grid import GridGeometry
+from hsmap.maps.grid import GridGeometry
 from hsmap.trajectory import Trajectory
 from hsmap.viz import figures
 from hsmap.viz import rerun as hr
@@ -456,7 +456,7 @@ def test_map2d_robots_in_one_call_log_what_one_per_time_logs(tmp_path):
 def test_segmentation_picture_draws_doors_apart_from_walls_and_a_key():
     from _worlds import two_rooms as two_rooms_grid
 
-    from hsmap.segmentation import segment_rooms
+    from hsmap.rooms.segmentation import segment_rooms
     from hsmap.viz.colors import DOOR_COLOR, ROOM_PALETTE, WALL_GREY, segmentation_picture
 
     grid = two_rooms_grid()

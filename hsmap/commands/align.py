@@ -4,7 +4,7 @@ MAP2D is a map_server YAML (with its image), a map image (PNG/PGM; >= 250 free, 
 default 0.05), or a 2D point map (.ply/.pcd, e.g. the map.ply of ``hsmap slam --dof 3``: its points are the
 occupied cells). MAP3D is an OctoMap .bt/.ot or a .ply/.pcd point map, cut at --band LO,HI metres above its floor
 (as ``hsmap segment MAP3D --band``), or a 2D map like MAP2D. The search is exhaustive over every rotation and
-every translation that makes the maps overlap (both ways), refined by Harmony-ICP (``hsmap.fusion.global_align``).
+every translation that makes the maps overlap (both ways), refined by Harmony-ICP (``hsmap.maps.fusion.global_align``).
 Writes into --out: alignment.json (the MAP2D -> MAP3D transform, overlap, residual, the search's candidates and
 which part of each map the other covers), overlay.png (both maps in MAP3D's frame: structure seen by both dark,
 by MAP2D only red, by MAP3D only blue) and the aligned grids (map2d_aligned.yaml/.pgm, map3d_band.yaml/.pgm).
@@ -43,7 +43,7 @@ def _points_grid(path, resolution: float):
 
     from ..datasets.clouds import read_points
     from ..errors import EmptyInputError
-    from ..grid import OCCUPIED, UNKNOWN, GridGeometry, OccupancyGrid
+    from ..maps.grid import OCCUPIED, UNKNOWN, GridGeometry, OccupancyGrid
 
     pts = read_points(path)[:, :2]
     if len(pts) < 3:
@@ -59,7 +59,7 @@ def _read_2d(path: str, resolution: float | None):
     from pathlib import Path
 
     from ..errors import InputError
-    from ..grid import read_map
+    from ..maps.grid import read_map
 
     if Path(path).suffix.lower() in (".bt", ".ot"):
         raise InputError(f"MAP2D {path}: an OctoMap 3D map; MAP2D takes a 2D map (map_server YAML, PNG/PGM image, "
@@ -93,7 +93,7 @@ def _check_unique(candidates: list[dict], map2d: str, map3d: str) -> None:
     pose's score, the rule HS-SLAM's far loop closures use. Then the maps show no common place, or MAP2D holds too
     little structure to place it (a blob fits any wall)."""
     from ..errors import DegenerateInputError
-    from ..loopclosure import LoopClosureConfig
+    from ..slam.loopclosure import LoopClosureConfig
 
     limit = LoopClosureConfig().far_ambiguity
     amb = [float(c["ambiguity"]) for c in candidates]
@@ -107,7 +107,7 @@ def _check_unique(candidates: list[dict], map2d: str, map3d: str) -> None:
 def _covered(grid, other_geo, T) -> dict:
     """Which part of ``grid``'s occupied cells lie inside the box of ``other_geo`` after moving by ``T``."""
 
-    from ..fusion import occupied_points
+    from ..maps.fusion import occupied_points
 
     pts = occupied_points(grid)
     moved = pts @ T[:2, :2].T + T[:2, 2]
@@ -128,8 +128,6 @@ def run(args: argparse.Namespace) -> int:
     from PIL import Image
 
     from ..errors import InputError
-    from ..fusion import FusionConfig, GlobalSearch, global_align, resample_grid
-    from ..grid import read_map, write_map
     from ..io import (
         atomic_path,
         prepare_output_dir,
@@ -138,7 +136,9 @@ def run(args: argparse.Namespace) -> int:
         sweep_stale_temporaries,
         write_json,
     )
-    from ..maps3d import band_grid, floor_height, read_map3d
+    from ..maps.fusion import FusionConfig, GlobalSearch, global_align, resample_grid
+    from ..maps.grid import read_map, write_map
+    from ..maps.maps3d import band_grid, floor_height, read_map3d
     from .inputs import parse_vector
 
     if args.resolution is not None and not (math.isfinite(args.resolution) and args.resolution > 0):

@@ -14,7 +14,7 @@ HELP = "every setting with its default and meaning (hsmap config show [SECTION])
 def sections() -> dict[str, object]:
     """The configuration sections: name -> the default configuration (a dataclass instance)."""
     from ..pipeline.config import GridsConfig
-    from ..segmentation import SegmentationConfig
+    from ..rooms.segmentation import SegmentationConfig
     from ..sim.robot import OdometryConfig, RobotConfig
     from ..sim.sensors import Lidar2DConfig, Lidar3DConfig
     from ..slam import SlamConfig

@@ -60,7 +60,7 @@ def _trajectory(args: argparse.Namespace) -> dict:
 
 def _segmentation(args: argparse.Namespace) -> dict:
     from ..evaluation.segmentation import segmentation_scores
-    from ..grid import read_image_gray, read_label_image
+    from ..maps.grid import read_image_gray, read_label_image
 
     labels = read_label_image(args.rooms)
     gt = read_image_gray(args.groundtruth)

@@ -10,7 +10,7 @@ with its free space, else map3d.ply or map.ply with free space carved from the s
 trajectory) cut at --band above the floor found under the path (the floor under the nearest sensor pose: several
 floor levels). The free space segmented is the band's observed free cells and its unknown cells whose column
 the sensor saw through (observed free at another height, nothing occupied within 0.3 m of the band: no wall there;
-``hsmap.maps3d.seen_through``), so that a room seen through its door from a corridor is one space and not a fan
+``hsmap.maps.maps3d.seen_through``), so that a room seen through its door from a corridor is one space and not a fan
 of rays, less passages narrower than the narrowest door (2 x min_door_half_width: cracks in walls the sensor
 partly missed); its occupied cells stay walls. Writes into --out: rooms.png (16-bit room labels, 0 = no room, same
 size as the map), doors.json, topology.json, topology.graphml, topology.txt (readable listing), segmentation.png
@@ -80,7 +80,7 @@ def _run_folder_map(folder, resolution: float | None):
 
     from ..errors import DatasetError, InputError
     from ..geometry import pose_to_matrix
-    from ..maps3d import read_map3d
+    from ..maps.maps3d import read_map3d
     from ..trajectory import read_tum
 
     folder = Path(folder)
@@ -108,7 +108,7 @@ def _map_and_floor(args):
     import numpy as np
 
     from ..errors import InputError
-    from ..maps3d import floor_height, read_map3d
+    from ..maps.maps3d import floor_height, read_map3d
     from ..occupancy3d import floor_field, floor_under_path, level_map
     from ..pipeline.config import GridsConfig
 
@@ -140,8 +140,8 @@ def _band_grid(args: argparse.Namespace, min_passage: float):
     import numpy as np
 
     from ..errors import InputError
-    from ..grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
-    from ..maps3d import band_grid, band_layers, seen_through, segmentation_free
+    from ..maps.grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
+    from ..maps.maps3d import band_grid, band_layers, seen_through, segmentation_free
     from .inputs import parse_vector
 
     if args.band is None:
@@ -183,7 +183,6 @@ def run(args: argparse.Namespace) -> int:
 
     from ..config import dump_config, load_config
     from ..errors import EmptyInputError, HsmapWarning, InputError
-    from ..grid import read_map, write_label_image, write_map
     from ..io import (
         atomic_path,
         prepare_output_dir,
@@ -192,8 +191,9 @@ def run(args: argparse.Namespace) -> int:
         sweep_stale_temporaries,
         write_json,
     )
-    from ..segmentation import SegmentationConfig, check_scale, segment_rooms
-    from ..topology import room_graph, topology_listing, write_topology
+    from ..maps.grid import read_map, write_label_image, write_map
+    from ..rooms.segmentation import SegmentationConfig, check_scale, segment_rooms
+    from ..rooms.topology import room_graph, topology_listing, write_topology
     from ..viz.colors import segmentation_picture
 
     if args.resolution is not None and not (args.resolution > 0 and args.resolution < float("inf")):

@@ -18,8 +18,8 @@ import yaml
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import DataFormatError, DatasetError, InputError
-from ..grid import GridGeometry
 from ..limits import load_yaml, quote
+from ..maps.grid import GridGeometry
 from ..trajectory import Trajectory, read_tum
 from .frames import Dataset, Frame, LaserScan2D
 

@@ -8,11 +8,11 @@ a simulator folder) goes through the paper's pipeline, stage by stage:
 2. ``slam3d``: 6-DOF HS-SLAM on the 3D clouds (one frame per cloud), seeded by the 2D poses interpolated at
    each cloud's stamp (:meth:`hsmap.trajectory.Trajectory.interpolate`) and started at the 2D pose of the first
    cloud;
-3. ``grids``: the floor-level occupancy grid (every scan at its 2D pose, :func:`hsmap.grid.grid_from_scans`)
-   and the grid of the 3D map's slice ``z_range`` (every cloud at its 6-DOF pose, :func:`hsmap.fusion.slice_scans`);
-4. ``fusion``: the floor grid registered to the slice and overlaid (:func:`hsmap.fusion.align_maps`);
+3. ``grids``: the floor-level occupancy grid (every scan at its 2D pose, :func:`hsmap.maps.grid.grid_from_scans`)
+   and the grid of the 3D map's slice ``z_range`` (every cloud at its 6-DOF pose, :func:`hsmap.maps.fusion.slice_scans`);
+4. ``fusion``: the floor grid registered to the slice and overlaid (:func:`hsmap.maps.fusion.align_maps`);
 5. ``rooms``: doors, rooms and the room/door graph of the slice and, for the paper's Figure 18 comparison, of
-   the floor grid (:func:`hsmap.segmentation.segment_rooms`, :func:`hsmap.topology.room_graph`).
+   the floor grid (:func:`hsmap.rooms.segmentation.segment_rooms`, :func:`hsmap.rooms.topology.room_graph`).
 
 A recording with a 3D LiDAR only goes through :func:`hsmap.pipeline.chain3d.map_recording_3d` instead.
 
@@ -50,8 +50,6 @@ from ..datasets.frames import Dataset, Frame
 from ..deskew import deskew_frame
 from ..deskew2d import deskew_scan_frame
 from ..errors import InputError
-from ..fusion import align_maps, slice_scans
-from ..grid import GridGeometry, OccupancyGrid, grid_from_scans, scans_to_points, write_label_image, write_map
 from ..io import (
     atomic_path,
     prepare_output_dir,
@@ -62,10 +60,19 @@ from ..io import (
     write_ply_points,
     write_text,
 )
-from ..mapping import voxel_downsample
-from ..segmentation import Door, Segmentation, SegmentationConfig, points_in_doors, segment_rooms
+from ..maps.fusion import align_maps, slice_scans
+from ..maps.grid import (
+    GridGeometry,
+    OccupancyGrid,
+    grid_from_scans,
+    scans_to_points,
+    write_label_image,
+    write_map,
+)
+from ..maps.mapping import voxel_downsample
+from ..rooms.segmentation import Door, Segmentation, SegmentationConfig, points_in_doors, segment_rooms
+from ..rooms.topology import room_graph, topology_line, write_topology
 from ..slam import SlamConfig
-from ..topology import room_graph, topology_line, write_topology
 from ..trajectory import Trajectory, write_tum
 from .cache import FolderCache, description_digest
 from .runs import cached_slam
@@ -263,7 +270,7 @@ def map_recording(
     slice_bins : int
         Azimuth bins of the virtual slice scans.
     door_depth, door_margin : float
-        The box around each door whose map points are the door's (:func:`hsmap.segmentation.points_in_doors`).
+        The box around each door whose map points are the door's (:func:`hsmap.rooms.segmentation.points_in_doors`).
     recording : bool
         Write ``map.rrd``.
     progress : bool or None
@@ -411,7 +418,7 @@ def _write_outputs(out: Path, dataset: Dataset, ds2: Dataset, ds3: Dataset, run2
         with atomic_path(out / f"{name}.png") as tmp:
             Image.fromarray(g.to_image()).save(tmp, format="PNG")
     with atomic_path(out / "overlay.png") as tmp:
-        from ..fusion import overlay_image
+        from ..maps.fusion import overlay_image
 
         Image.fromarray(overlay_image(fusion["floor"], fusion["slice"])).save(tmp, format="PNG")
     bar.update(1)

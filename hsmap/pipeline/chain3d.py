@@ -10,7 +10,7 @@ Stages, each a :class:`hsmap.pipeline.cache.FolderCache` folder under ``DIR/.sta
 3. ``grids``: the floor under each sensor pose (:func:`hsmap.occupancy3d.floor_under_path`; several floor levels),
    the map levelled to it, the floor-level band ``grids.floor_band`` and the slice ``grids.slice`` in heights above
    the local floor: each band's occupancy grid (map_server) and the free space segmented
-   (:func:`hsmap.maps3d.segmentation_free`: observed free, or seen through);
+   (:func:`hsmap.maps.maps3d.segmentation_free`: observed free, or seen through);
 4. ``rooms``: doors, rooms and the room/door graph of both bands.
 
 Outputs (the 2D+3D chain's where they make sense): ``trajectory3d.tum``, ``map3d.bt`` (OctoMap), ``map3d.ply``,
@@ -37,7 +37,6 @@ from ..datasets.frames import Dataset
 from ..deskew import deskew_frame
 from ..errors import InputError
 from ..geometry import pose_to_matrix
-from ..grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid, write_label_image, write_map
 from ..io import (
     atomic_path,
     prepare_output_dir,
@@ -47,11 +46,12 @@ from ..io import (
     write_json,
     write_text,
 )
-from ..mapping import voxel_downsample
-from ..maps3d import Map3D, band_grid, segmentation_free
+from ..maps.grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid, write_label_image, write_map
+from ..maps.mapping import voxel_downsample
+from ..maps.maps3d import Map3D, band_grid, segmentation_free
 from ..occupancy3d import carve_sweeps, floor_field, floor_under_path, level_map, sweep_bounds, write_octomap
-from ..segmentation import Segmentation, points_in_doors
-from ..topology import room_graph, write_topology
+from ..rooms.segmentation import Segmentation, points_in_doors
+from ..rooms.topology import room_graph, write_topology
 from ..trajectory import Trajectory, write_tum
 from .cache import FolderCache, description_digest
 from .chain import (
@@ -165,7 +165,7 @@ def _counted(items, bar, sensors: list | None = None):
 
 def levelled_bands(m: Map3D, positions: np.ndarray, cfg: ChainConfig) -> dict:
     """The floor under each position, and per band (``floor``, ``slice``) its occupancy grid and the grid
-    segmented (free: :func:`hsmap.maps3d.segmentation_free` of the map levelled to the floor)."""
+    segmented (free: :func:`hsmap.maps.maps3d.segmentation_free` of the map levelled to the floor)."""
     g = cfg.grids
     floors = floor_under_path(m, positions, radius=g.floor_radius, depth=g.floor_depth)
     level = level_map(m, floor_field(m, positions, floors))

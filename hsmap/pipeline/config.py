@@ -10,7 +10,7 @@ import numpy as np
 
 from ..config import from_dict, read_yaml
 from ..errors import ConfigError
-from ..segmentation import SegmentationConfig
+from ..rooms.segmentation import SegmentationConfig
 from ..slam import SlamConfig
 
 __all__ = ["ChainConfig", "GridsConfig", "load_chain_config"]
@@ -29,7 +29,7 @@ class GridsConfig:
     slice_bins : int
         Azimuth bins of the virtual scans the slice is made of.
     door_depth, door_margin : float
-        The box around each door whose map points are the door's (:func:`hsmap.segmentation.points_in_doors`).
+        The box around each door whose map points are the door's (:func:`hsmap.rooms.segmentation.points_in_doors`).
     voxel : float
         3D-only recordings: the edge of the 3D occupancy map's voxels (``map3d.bt``), which is also the cell of
         its band grids.

@@ -24,8 +24,8 @@ from .. import __version__
 from ..config import to_dict
 from ..datasets.simulated import FORMAT, FORMAT_VERSION
 from ..errors import ScenarioError
-from ..grid import write_label_image
 from ..io import write_json, write_text
+from ..maps.grid import write_label_image
 from ..trajectory import Trajectory, write_tum
 from .explore import Exploration, ExploreConfig, plan_exploration
 from .floorplan import FloorPlan, FloorPlanWorld, FloorPlanWorldConfig, build_world

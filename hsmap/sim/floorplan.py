@@ -23,7 +23,7 @@ way the benchmark reads them (8-bit gray, pixels >= 250 free):
 Pixels become boxes through one rectangle cover per mask (runs of each row, merged down the rows while they
 repeat), so that the mesh of the largest building (office_i, 82 m x 103 m) stays small and ray casting fast.
 The world frame: x to the right, y up the image, metres, the lower-left corner of the image at (0, 0)
-(:class:`hsmap.grid.GridGeometry` does every pixel <-> world conversion).
+(:class:`hsmap.maps.grid.GridGeometry` does every pixel <-> world conversion).
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ from scipy import ndimage as ndi
 
 from ..errors import ConfigError, DataFormatError, DatasetError
 from ..evaluation.segmentation import ground_truth_rooms
-from ..grid import IMAGE_FREE_MIN, GridGeometry, read_image_gray
+from ..maps.grid import IMAGE_FREE_MIN, GridGeometry, read_image_gray
 from .world import World
 
 __all__ = ["FloorPlan", "FloorPlanWorldConfig", "FurniturePiece", "FloorPlanWorld", "read_floor_plan",

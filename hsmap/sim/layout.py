@@ -19,8 +19,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import ConfigError
-from ..grid import GridGeometry
 from ..limits import check_allocation
+from ..maps.grid import GridGeometry
 from .model import Door, Furniture, Scenario
 from .shapes import box_corners, box_sdf, make_box, points_in_polygon
 

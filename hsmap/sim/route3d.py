@@ -18,8 +18,8 @@ exploration (:func:`hsmap.sim.explore.plan_exploration`) and plans with it:
    the robot turns: every place within it must see the map. A blind column is no obstacle: the footprint's
    clearance is measured from the untraversable columns;
 3. rooms: the map's own rooms in its ``rooms_band`` (the paper's 1.7-1.8 m slice), as ``hsmap segment MAP3D
-   --band`` finds them (:func:`hsmap.maps3d.band_grid` with :func:`hsmap.maps3d.segmentation_free`'s free
-   space, segmented by :func:`hsmap.segmentation.segment_rooms`);
+   --band`` finds them (:func:`hsmap.maps.maps3d.band_grid` with :func:`hsmap.maps.maps3d.segmentation_free`'s free
+   space, segmented by :func:`hsmap.rooms.segmentation.segment_rooms`);
 4. planning grid: ``subdivision`` pixels per voxel edge, so the robot's centre may lie between voxel centres
    (a doorway an even number of voxels wide has its middle on a voxel face); the footprint keeps the robot's
    radius (``footprint``) clear of every untraversable column's faces;
@@ -43,9 +43,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import ConfigError, EmptyInputError
-from ..grid import FREE, OCCUPIED, UNKNOWN, GridGeometry, OccupancyGrid
-from ..maps3d import Map3D, band_grid, segmentation_free
-from ..segmentation import SegmentationConfig, segment_rooms
+from ..maps.grid import FREE, OCCUPIED, UNKNOWN, GridGeometry, OccupancyGrid
+from ..maps.maps3d import Map3D, band_grid, segmentation_free
+from ..rooms.segmentation import SegmentationConfig, segment_rooms
 from .explore import Exploration, ExploreConfig, plan_exploration
 from .robot import RobotConfig
 from .sensors import Lidar3DConfig
@@ -195,8 +195,8 @@ def _image(columns: NDArray) -> NDArray:
 
 
 def band_image(world: VoxelWorld, lo: float, hi: float) -> tuple[OccupancyGrid, OccupancyGrid]:
-    """A height band (metres above the floor) as :func:`hsmap.maps3d.band_grid` makes it, and the grid
-    ``hsmap segment MAP3D --band`` segments (:func:`hsmap.maps3d.segmentation_free`'s free space)."""
+    """A height band (metres above the floor) as :func:`hsmap.maps.maps3d.band_grid` makes it, and the grid
+    ``hsmap segment MAP3D --band`` segments (:func:`hsmap.maps.maps3d.segmentation_free`'s free space)."""
 
     m = Map3D(world.state, world.origin, world.resolution, world.source)
     grid = band_grid(m, lo, hi, floor=0.0)

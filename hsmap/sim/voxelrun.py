@@ -1,7 +1,7 @@
 """A simulated run through a real 3D map: the robot, both LiDARs and drifting odometry in a voxel world.
 
 :func:`simulate_world` is :func:`hsmap.sim.simulate_building` for a 3D occupancy map (an OctoMap ``.bt``/``.ot``
-or a point map, read by :func:`hsmap.maps3d.read_map3d`): the world is the map's voxels
+or a point map, read by :func:`hsmap.maps.maps3d.read_map3d`): the world is the map's voxels
 (:class:`hsmap.sim.voxelworld.VoxelWorld`, the floor's surface at z = 0), the route goes through the known free
 space into every room of the map's slice the robot's footprint (its radius) fits in
 (:func:`hsmap.sim.route3d.plan_route3d`), and the robot, its odometry, both LiDARs and the writer are the
@@ -22,7 +22,7 @@ from pathlib import Path
 
 from ..errors import ScenarioError
 from ..io import write_json
-from ..maps3d import read_map3d
+from ..maps.maps3d import read_map3d
 from .building import BuildingRunConfig, building_motion, write_dataset_yaml, write_route_files
 from .robot import Motion, OdometryConfig, RobotConfig
 from .route3d import Route3D, Route3DConfig, plan_route3d
@@ -72,7 +72,7 @@ class WorldRun:
 
 
 def load_voxel_world(path: str | os.PathLike, floor: float | None = None) -> VoxelWorld:
-    """Read a 3D map (:func:`hsmap.maps3d.read_map3d`) as a voxel world, its floor's surface at z = 0."""
+    """Read a 3D map (:func:`hsmap.maps.maps3d.read_map3d`) as a voxel world, its floor's surface at z = 0."""
 
     return VoxelWorld.from_map(read_map3d(path), floor)
 
@@ -123,7 +123,7 @@ def simulate_world(world: VoxelWorld | str | os.PathLike, out: str | os.PathLike
     with staged_dataset_folder(final) as out:
         write_sensor_frames(out, world, motion, cfg.lidar2d, cfg.lidar3d, seed, timings)
         write_route_files(out, motion, route.rooms, route.geometry, int(route.rooms.max(initial=0)),
-                          f"the rooms hsmap.segmentation finds in the source map's {cfg.route.rooms_band[0]:g}-"
+                          f"the rooms hsmap.rooms.segmentation finds in the source map's {cfg.route.rooms_band[0]:g}-"
                           f"{cfg.route.rooms_band[1]:g} m band (the route's goals), not a hand-drawn ground truth")
         run = WorldRun(final, world, route, motion, timings)
         timings["total"] = time.perf_counter() - t0

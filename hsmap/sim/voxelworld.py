@@ -1,6 +1,6 @@
 """A world of voxels: both LiDARs ray-cast into a dense trinary voxel map (a real 3D map, e.g. an OctoMap).
 
-:class:`VoxelWorld` holds the map's states (unknown, free, occupied; :mod:`hsmap.maps3d`) as a dense
+:class:`VoxelWorld` holds the map's states (unknown, free, occupied; :mod:`hsmap.maps.maps3d`) as a dense
 (nx, ny, nz) array and casts rays through it with a 3D digital differential analyser (Amanatides and Woo): each
 ray walks voxel by voxel from its origin and
 
@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InputError, ShapeError
-from ..maps3d import floor_height
+from ..maps.maps3d import floor_height
 from .world import World
 
 __all__ = ["VoxelWorld", "cast_voxels", "ground_surface", "UNKNOWN", "FREE", "OCCUPIED"]
@@ -120,7 +120,7 @@ def cast_voxels(state: NDArray[np.uint8], origin: ArrayLike, resolution: float,
 def ground_surface(state: NDArray[np.uint8], origin: ArrayLike, resolution: float, floor: float) -> float:
     """The height the robot's wheels stand on, in the map's frame: the top face of the floor's voxels.
 
-    From the layer holding ``floor`` (a height in the floor or on its top face, :func:`hsmap.maps3d.floor_height`;
+    From the layer holding ``floor`` (a height in the floor or on its top face, :func:`hsmap.maps.maps3d.floor_height`;
     a face counts for the layer below it), the layers
     above it count as floor while each holds at least half as many occupied voxels as the one below (a floor
     several voxels thick); the surface is the top of the last.
@@ -172,8 +172,8 @@ class VoxelWorld(World):
 
     @classmethod
     def from_map(cls, m, floor: float | None = None) -> VoxelWorld:
-        """The world of a :class:`hsmap.maps3d.Map3D`, its floor at z = 0 (``floor`` in the map's frame;
-        default :func:`hsmap.maps3d.floor_height`)."""
+        """The world of a :class:`hsmap.maps.maps3d.Map3D`, its floor at z = 0 (``floor`` in the map's frame;
+        default :func:`hsmap.maps.maps3d.floor_height`)."""
 
         f = floor_height(m) if floor is None else float(floor)
         return cls(m.state, m.origin, m.resolution, ground_surface(m.state, m.origin, m.resolution, f),

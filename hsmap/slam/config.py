@@ -9,10 +9,10 @@ import numpy as np
 
 from ..config import from_dict
 from ..errors import ConfigError
-from ..harmony import HarmonyConfig
-from ..loopclosure import LoopClosureConfig
-from ..posegraph import SOLVERS
-from ..registration import RegistrationConfig
+from ..registration.harmony import HarmonyConfig
+from ..registration.icp import RegistrationConfig
+from .loopclosure import LoopClosureConfig
+from .posegraph import SOLVERS
 
 __all__ = ["SlamConfig", "KeyframeGraphConfig"]
 
@@ -62,7 +62,7 @@ class KeyframeGraphConfig:
         Otherwise the graph is optimised at least this often (keyframes) while edges are pending, and at the end.
     solver : str
         How the graph is optimised: ``incremental`` (iSAM2, updating what the new edges touch) or ``batch``
-        (Levenberg-Marquardt on the whole graph each time); :class:`hsmap.posegraph.PoseGraph`.
+        (Levenberg-Marquardt on the whole graph each time); :class:`hsmap.slam.posegraph.PoseGraph`.
     """
 
     pair_edges: int = 4
@@ -145,7 +145,7 @@ class SlamConfig:
         As ``odometry_sigma``, for the motion of a prior trajectory (a 6-DOF run seeded by a 2D run).
     degenerate_ratio : float
         Translation directions with less than this fraction of the best constrained one's information count as
-        unconstrained (:func:`hsmap.registration.drop_degenerate`): the prediction carries the pose along them.
+        unconstrained (:func:`hsmap.registration.icp.drop_degenerate`): the prediction carries the pose along them.
     verify_sigmas : float
         A registration further than this many sigmas from the prediction is retried around the prediction.
     loop_closure : LoopClosureConfig
@@ -154,7 +154,7 @@ class SlamConfig:
         When the keyframe graph gains edges, searches for loops and is optimised.
     smoothing : bool
         2D runs with wheel odometry: the final trajectory is smoothed with the odometry
-        (:func:`hsmap.smoothing.smooth_with_odometry`); the map stays the graph's.
+        (:func:`hsmap.slam.smoothing.smooth_with_odometry`); the map stays the graph's.
     deskew : bool
         Clouds with per-point times (6-DOF, :mod:`hsmap.deskew`) and 2D scans with beam times (3-DOF,
         :mod:`hsmap.deskew2d`) are moved to their stamps before use.

@@ -14,9 +14,9 @@ class Costs:
     Attributes
     ----------
     registrations : int
-        Harmony-ICP registrations (:func:`hsmap.registration.harmony_icp`): tracking, its retries, loop searches.
+        Harmony-ICP registrations (:func:`hsmap.registration.icp.harmony_icp`): tracking, its retries, loop searches.
     refinements : int
-        Local refinements outside them (:func:`hsmap.registration.refine_icp`): pair edges, the smoothing's
+        Local refinements outside them (:func:`hsmap.registration.icp.refine_icp`): pair edges, the smoothing's
         scan-to-scan matches.
     harmony_evaluations : int
         Candidate poses the registrations' Harmony Searches scored.

@@ -10,7 +10,7 @@ from scipy.spatial import cKDTree
 from ..datasets.frames import Frame
 from ..errors import UnusableFrameError
 from ..geometry import pose_to_matrix, transform_points
-from ..mapping import voxel_downsample, voxel_downsample_with
+from ..maps.mapping import voxel_downsample, voxel_downsample_with
 
 __all__ = ["frame_points", "timed_cloud_points", "unusable_reason", "sampled_as_its_normal_says", "grazing_where_sparse",
            "SAMPLING_SLACK"]

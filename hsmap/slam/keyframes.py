@@ -12,25 +12,25 @@ from scipy.spatial import cKDTree
 
 from ..datasets.frames import Frame
 from ..errors import HsmapWarning
-from ..fitness import DistanceField
 from ..geometry import compose, pose_to_matrix, relative, transform_points, wrap_angle
-from ..information import drop_degenerate
-from ..loopclosure import Keyframe, LoopCloser, keyframe_voxel_map
-from ..mapping import VoxelMap, voxel_downsample
-from ..normals import estimate_normals, load_3d_estimator, orient_normals
-from ..posegraph import EdgeKind, PoseGraph, information_with_floor
-from ..registration import (
+from ..maps.mapping import VoxelMap, voxel_downsample
+from ..registration.fitness import DistanceField
+from ..registration.icp import (
     Refinement,
     RegistrationConfig,
     RegistrationTarget,
     alignment_information,
     refine_icp,
 )
+from ..registration.information import drop_degenerate
+from ..registration.normals import estimate_normals, load_3d_estimator, orient_normals
 from ..trajectory import Trajectory
 from .config import SlamConfig
 from .costs import Costs
 from .frames import frame_points, grazing_where_sparse
+from .loopclosure import Keyframe, LoopCloser, keyframe_voxel_map
 from .odometry import OdometryModel
+from .posegraph import EdgeKind, PoseGraph, information_with_floor
 
 __all__ = ["KeyframeGraph", "pair_match"]
 

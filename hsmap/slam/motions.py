@@ -13,7 +13,7 @@ from .._helper_process import HelperProcessError, helper_process
 from .._threads import current_threads
 from ..datasets.frames import Frame
 from ..geometry import relative
-from ..registration import RegistrationTarget
+from ..registration.icp import RegistrationTarget
 from .config import SlamConfig
 from .costs import Costs
 from .keyframes import pair_match

@@ -12,8 +12,8 @@ from numpy.typing import NDArray
 from ..datasets.frames import Frame
 from ..errors import HsmapWarning
 from ..geometry import body_covariance_2d, compose, compose_with_covariance_2d, relative, wrap_angle
-from ..information import constrained_axes
-from ..registration import RegistrationResult
+from ..registration.icp import RegistrationResult
+from ..registration.information import constrained_axes
 from .config import SlamConfig
 from .verify import slip_weight
 

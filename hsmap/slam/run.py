@@ -19,7 +19,7 @@ from ..config import dump_config, to_dict
 from ..datasets.frames import Dataset, Frame
 from ..errors import EmptyInputError, HsmapWarning, InputError, UnusableFrameError
 from ..io import write_json, write_ply_points
-from ..mapping import VoxelMap
+from ..maps.mapping import VoxelMap
 from ..progress import bar as progress_bar
 from ..trajectory import Trajectory, write_tum
 from .config import SlamConfig

@@ -15,19 +15,19 @@ from ..deskew import deskew_frame, refine_sweep
 from ..deskew2d import deskew_scan_frame
 from ..errors import InputError, UnusableFrameError
 from ..geometry import compose, pose_to_matrix, relative, wrap_angle
-from ..harmony import as_rng
-from ..loopclosure import Keyframe
-from ..mapping import VoxelMap
-from ..posegraph import EdgeKind, PoseGraph
-from ..registration import RegistrationResult, RegistrationTarget, harmony_icp, spans_its_space
-from ..smoothing import SmoothingResult, smooth_with_odometry
+from ..maps.mapping import VoxelMap
+from ..registration.harmony import as_rng
+from ..registration.icp import RegistrationResult, RegistrationTarget, harmony_icp, spans_its_space
 from ..trajectory import Trajectory
 from .config import SlamConfig
 from .costs import Costs
 from .frames import frame_points, timed_cloud_points, unusable_reason
 from .keyframes import KeyframeGraph
+from .loopclosure import Keyframe
 from .motions import FrameMotions
 from .odometry import OdometryModel
+from .posegraph import EdgeKind, PoseGraph
+from .smoothing import SmoothingResult, smooth_with_odometry
 from .verify import Prediction, Verifier
 
 __all__ = ["HsSlam", "FrameResult", "mean_pose", "FLOOR_SIGMA"]

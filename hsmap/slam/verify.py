@@ -10,11 +10,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..geometry import compose, pose_to_matrix, relative, transform_points, wrap_angle
-from ..information import drop_degenerate
-from ..posegraph import information_with_floor
-from ..registration import RegistrationResult, RegistrationTarget, harmony_icp
+from ..registration.icp import RegistrationResult, RegistrationTarget, harmony_icp
+from ..registration.information import drop_degenerate
 from .config import SlamConfig
 from .costs import Costs
+from .posegraph import information_with_floor
 
 __all__ = ["Verifier", "residuals", "within_box", "truncated_residual", "matched_share", "at_least_as_good",
            "slip_weight", "STRICT_SIGMAS", "STRICT_MIN_POINTS", "STRICT_MIN_MATCHED"]

@@ -24,8 +24,8 @@ from ..datasets.open import open_dataset
 from ..datasets.relations import read_relations
 from ..errors import ConfigError, InputError
 from ..evaluation import relations_error, segmentation_scores
-from ..grid import read_image_gray
-from ..segmentation import SegmentationConfig, segment_rooms
+from ..maps.grid import read_image_gray
+from ..rooms.segmentation import SegmentationConfig, segment_rooms
 from ..slam import SlamConfig
 from .runs import SlamRun, cached_slam
 

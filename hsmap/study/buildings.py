@@ -30,8 +30,8 @@ import numpy as np
 from ..datasets.simulated import SimulatedDataset
 from ..errors import DatasetError
 from ..evaluation import pose_errors, segmentation_scores
-from ..grid import IMAGE_FREE_MIN, read_image_gray, read_label_image, read_map, resample_labels
 from ..io import write_json, write_text
+from ..maps.grid import IMAGE_FREE_MIN, read_image_gray, read_label_image, read_map, resample_labels
 from ..pipeline.chain import map_recording
 from ..sim.building import BuildingRunConfig, simulate_building
 from ..sim.floorplan import floor_plan_files, list_floor_plans, read_floor_plan

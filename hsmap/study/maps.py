@@ -12,8 +12,8 @@ simulated run shared by notebooks 04-07 (computed once, then cached).
    default, the paper's claim; both started at the first ground-truth pose so that their maps share the world
    frame of the ground truth, its rooms, doors and labels);
 2. the maps made from them: the 2D and 3D HS-SLAM point maps, the floor-level occupancy grid (every 2D scan at
-   its 2D HS-SLAM pose, :func:`hsmap.grid.grid_from_scans`) and the grid of the 3D map's slice at 1.7-1.8 m
-   (every 3D cloud at its 6-DOF HS-SLAM pose, :func:`hsmap.fusion.slice_scans`), with the points behind both.
+   its 2D HS-SLAM pose, :func:`hsmap.maps.grid.grid_from_scans`) and the grid of the 3D map's slice at 1.7-1.8 m
+   (every 3D cloud at its 6-DOF HS-SLAM pose, :func:`hsmap.maps.fusion.slice_scans`), with the points behind both.
 
 The maps are a folder of :class:`hsmap.pipeline.cache.FolderCache` under ``data/generated/maps/`` (``maps.npz``),
 keyed on the dataset, the SLAM runs' keys, the grid parameters and the code; the SLAM runs are the cached runs
@@ -48,13 +48,13 @@ from ..datasets.open import open_dataset
 from ..datasets.simulated import SimulatedDataset
 from ..errors import InputError
 from ..evaluation import segmentation_scores
-from ..fusion import resample_grid, slice_scans
 from ..geometry import pose_to_matrix, transform_points
-from ..grid import GridGeometry, OccupancyGrid, ScanGridConfig, grid_from_scans, scans_to_points
 from ..io import write_json
-from ..mapping import VoxelMap, first_per_voxel, voxel_downsample
+from ..maps.fusion import resample_grid, slice_scans
+from ..maps.grid import GridGeometry, OccupancyGrid, ScanGridConfig, grid_from_scans, scans_to_points
+from ..maps.mapping import VoxelMap, first_per_voxel, voxel_downsample
 from ..pipeline.cache import FolderCache, description_digest, slug
-from ..segmentation import segment_rooms
+from ..rooms.segmentation import segment_rooms
 from ..slam import SlamConfig, frame_points
 from ..trajectory import Trajectory
 from .datasets import simulated_dataset
@@ -185,14 +185,14 @@ def scan_grid(
     config: ScanGridConfig | None = None,
     max_dt: float = 1e-3,
 ) -> OccupancyGrid:
-    """Occupancy grid of ``dataset``'s 2D scans placed at ``trajectory``'s poses (:func:`hsmap.grid.grid_from_scans`).
+    """Occupancy grid of ``dataset``'s 2D scans placed at ``trajectory``'s poses (:func:`hsmap.maps.grid.grid_from_scans`).
 
     Each scan is placed at its robot pose composed with its own 2D extrinsic. With the odometry this is the
     odometry-only map of the paper's Figures 2 and 8 (walls smeared thick by the drift).
 
     Returns
     -------
-    hsmap.grid.OccupancyGrid
+    hsmap.maps.grid.OccupancyGrid
     """
     if int(every) < 1:
         raise InputError(f"every must be >= 1, got {every}")
@@ -266,7 +266,7 @@ class TwoLidarMaps:
     floor_points, slice_points : ndarray of shape (K, 2)
         The points behind the two grids (scan end points; virtual slice-scan end points), one per 2 cm cell.
     slice_scans : list of ndarray of shape (K_i, 2)
-        The virtual slice scans (:func:`hsmap.fusion.slice_scans`), each in its virtual sensor's frame.
+        The virtual slice scans (:func:`hsmap.maps.fusion.slice_scans`), each in its virtual sensor's frame.
     slice_poses : ndarray of shape (S, 3)
         World (x, y, yaw) of each slice scan's virtual sensor: ``grid_from_scans(slice_scans, poses)`` rebuilds
         the slice grid in any frame.
@@ -622,7 +622,7 @@ def door_errors(doors: Iterable[Any], true_doors: Iterable[Mapping[str, Any]] | 
 
     Parameters
     ----------
-    doors : iterable of hsmap.segmentation.Door
+    doors : iterable of hsmap.rooms.segmentation.Door
     true_doors : iterable of mapping, or None
     """
     if true_doors is None:
@@ -640,7 +640,7 @@ class MapSegmentations:
     Attributes
     ----------
     segmentations : dict
-        ``"floor"`` and ``"slice"``: :class:`hsmap.segmentation.Segmentation`.
+        ``"floor"`` and ``"slice"``: :class:`hsmap.rooms.segmentation.Segmentation`.
     scores : dict or None
         The same keys: :class:`hsmap.evaluation.segmentation.SegmentationScores` against the world's rooms;
         None without ground truth.
@@ -673,7 +673,7 @@ def segment_maps(maps: TwoLidarMaps, config: Any = None, *,
     Parameters
     ----------
     maps : TwoLidarMaps
-    config : hsmap.segmentation.SegmentationConfig, optional
+    config : hsmap.rooms.segmentation.SegmentationConfig, optional
     log : callable or None
         Receives one line per map.
     """
@@ -710,7 +710,7 @@ def true_room_names(segmentation: Any, truth: tuple | None) -> dict[int, str]:
 
     Parameters
     ----------
-    segmentation : hsmap.segmentation.Segmentation
+    segmentation : hsmap.rooms.segmentation.Segmentation
     truth : tuple or None
         (label image, its GridGeometry, label -> name), as :meth:`TwoLidarMaps.true_rooms`.
     """

@@ -1,14 +1,14 @@
 """Notebook 10's steps: a real building in 3D (OctoMap's Freiburg building 079 floor).
 
 - :func:`band_rooms`: the rooms, doors and room/door graph of a height band of a 3D map (the grid of
-  :func:`hsmap.maps3d.band_grid` with the free space :func:`hsmap.maps3d.segmentation_free` gives it,
-  segmented by :func:`hsmap.segmentation.segment_rooms` with the defaults, as ``hsmap segment MAP3D --band
+  :func:`hsmap.maps.maps3d.band_grid` with the free space :func:`hsmap.maps.maps3d.segmentation_free` gives it,
+  segmented by :func:`hsmap.rooms.segmentation.segment_rooms` with the defaults, as ``hsmap segment MAP3D --band
   LO,HI`` does): the paper's Table 2 row and Figure 18 for a real building;
 - :func:`world_runs`: the simulated robot in the real voxel world (:func:`hsmap.sim.voxelrun.simulate_world`),
   the paper's whole chain on each run (:func:`hsmap.pipeline.chain.map_recording`) and the 6-DOF trajectory's
   per-DOF errors (:func:`hsmap.evaluation.trajectory.pose_errors`, the paper's Table 1) over several seeds;
 - :func:`overlay_2d_map`: a 2D HS-SLAM map (the Freiburg fr079 log's) registered onto a band of the 3D map with
-  no initial guess (:func:`hsmap.fusion.global_align`, as ``hsmap align`` does): the paper's Figure 13 across
+  no initial guess (:func:`hsmap.maps.fusion.global_align`, as ``hsmap align`` does): the paper's Figure 13 across
   two real sensors.
 """
 
@@ -23,14 +23,14 @@ import numpy as np
 from ..datasets.open import open_dataset
 from ..errors import EmptyInputError
 from ..evaluation.trajectory import pose_errors
-from ..fusion import global_align, occupied_points
-from ..grid import FREE, OCCUPIED, UNKNOWN, GridGeometry, OccupancyGrid
 from ..io import write_json
-from ..maps3d import band_grid, segmentation_free
+from ..maps.fusion import global_align, occupied_points
+from ..maps.grid import FREE, OCCUPIED, UNKNOWN, GridGeometry, OccupancyGrid
+from ..maps.maps3d import band_grid, segmentation_free
 from ..pipeline.chain import map_recording
-from ..segmentation import SegmentationConfig, segment_rooms
+from ..rooms.segmentation import SegmentationConfig, segment_rooms
+from ..rooms.topology import room_graph
 from ..sim.voxelrun import load_voxel_world, simulate_world
-from ..topology import room_graph
 from ..trajectory import read_tum
 from .paths import datasets_dir, generated_dir
 
@@ -61,7 +61,7 @@ class BandRooms:
     grid : OccupancyGrid
         The band as the map knows it (free only where observed free in the band).
     segmented : OccupancyGrid
-        The grid that was segmented: ``grid`` with :func:`hsmap.maps3d.segmentation_free`'s free space.
+        The grid that was segmented: ``grid`` with :func:`hsmap.maps.maps3d.segmentation_free`'s free space.
     segmentation : Segmentation
     graph : networkx.Graph
         The room/door graph.
@@ -89,10 +89,10 @@ def band_rooms(m, band: tuple[float, float], *, floor: float | None = None, conf
 
     Parameters
     ----------
-    m : hsmap.maps3d.Map3D
+    m : hsmap.maps.maps3d.Map3D
     band : (float, float)
     floor : float, optional
-        The floor's height in the map's frame (default :func:`hsmap.maps3d.floor_height`).
+        The floor's height in the map's frame (default :func:`hsmap.maps.maps3d.floor_height`).
     config : SegmentationConfig, optional
     """
 
@@ -130,7 +130,7 @@ def world_runs(map_file: str | Path, seeds, *, max_frames: int | None = None, ro
     Parameters
     ----------
     map_file : path
-        The 3D map (:func:`hsmap.maps3d.read_map3d`).
+        The 3D map (:func:`hsmap.maps.maps3d.read_map3d`).
     seeds : iterable of int
     max_frames : int, optional
         A short route (quick runs).
@@ -201,7 +201,7 @@ def points_grid(points, resolution: float = 0.05):
 
 def overlay_2d_map(points2d, m, band: tuple[float, float] = (1.7, 1.8), *, seed: int = 1,
                    resolution: float = 0.05) -> dict:
-    """Register a 2D point map (N, 2) onto a 3D map's band with no initial guess (:func:`hsmap.fusion.global_align`).
+    """Register a 2D point map (N, 2) onto a 3D map's band with no initial guess (:func:`hsmap.maps.fusion.global_align`).
 
     Returns
     -------

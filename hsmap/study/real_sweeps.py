@@ -320,12 +320,12 @@ def posed_points(sweeps, trajectory: Trajectory, *, voxel: float = 0.1, min_rang
 def posed_voxel_map(points: NDArray[np.float64], trajectory: Trajectory, *, resolution: float = 0.1):
     """A voxel map of posed points (:func:`posed_points`) as ``hsmap segment MAP.ply`` reads a point map with the
     sensor's positions: every point's voxel occupied, the voxels on the segment from each point's nearest sensor
-    position to it free (:func:`hsmap.maps3d.read_map3d`)."""
+    position to it free (:func:`hsmap.maps.maps3d.read_map3d`)."""
     import tempfile
 
     import open3d as o3d
 
-    from ..maps3d import read_map3d
+    from ..maps.maps3d import read_map3d
 
     with tempfile.TemporaryDirectory(prefix="hsmap-sweeps-") as tmp:
         path = Path(tmp) / "map.ply"
@@ -338,7 +338,7 @@ def floor_under(m, positions: NDArray[np.float64], *, radius: float = 1.0, depth
     """The floor under a walked trajectory: for each position, the voxel layer with the most occupied voxels within
     ``radius`` metres around it and up to ``depth`` metres below it; the median of those layers' top faces. A hall
     with two floor levels gets the one walked on most; its ceiling is never below the sensor."""
-    from ..maps3d import OCCUPIED
+    from ..maps.maps3d import OCCUPIED
 
     occ = m.state == OCCUPIED
     r = int(np.ceil(radius / m.resolution))

@@ -19,7 +19,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from ..errors import InputError
-from ..grid import read_label_image, read_map
+from ..maps.grid import read_label_image, read_map
 from ..trajectory import read_tum
 from .figures import new_figure
 

@@ -114,7 +114,7 @@ def label_overlay(labels: ArrayLike, free: ArrayLike, door_lines: ArrayLike | No
 def segmentation_picture(labels: ArrayLike, free: ArrayLike, doors=(), geometry=None,
                          legend: bool = True) -> NDArray[np.uint8]:
     """(H', W', 3) uint8 picture of a segmentation: :func:`label_overlay` with each door's line drawn between its
-    end points in :data:`DOOR_COLOR` (given the map's ``geometry``: an :class:`hsmap.grid.GridGeometry`) and,
+    end points in :data:`DOOR_COLOR` (given the map's ``geometry``: an :class:`hsmap.maps.grid.GridGeometry`) and,
     with ``legend``, a key below the map (a swatch per room R1, R2, ..., the doors, the walls and the free space
     in no room). The map keeps its pixels (one per cell, row 0 at the top); the picture is widened where the
     key needs it."""

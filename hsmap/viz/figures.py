@@ -6,7 +6,7 @@ global state, so they work the same in a notebook, a script and a test. Every ``
 an ``ax`` it is given (or a new figure when ``ax`` is None) and returns the ``ax``; save with
 ``study.savefig(ax.figure, "name")`` or ``fig.savefig(path)``.
 
-World coordinates are (x, y[, z]) in metres; images are placed with :meth:`hsmap.grid.GridGeometry.extent`,
+World coordinates are (x, y[, z]) in metres; images are placed with :meth:`hsmap.maps.grid.GridGeometry.extent`,
 so a grid and the points drawn over it line up exactly.
 """
 
@@ -21,7 +21,7 @@ from matplotlib.figure import Figure
 from numpy.typing import ArrayLike, NDArray
 
 from ..errors import InputError, ShapeError
-from ..grid import GridGeometry
+from ..maps.grid import GridGeometry
 from .colors import SERIES_COLORS, SPARE_COLORS, label_color, label_colors
 from .occupancy import occupancy_to_image
 
@@ -237,7 +237,7 @@ def plot_points2d(
 
 def _check_image(img: NDArray[Any], geometry: GridGeometry, what: str) -> None:
     if not isinstance(geometry, GridGeometry):
-        raise InputError(f"geometry must be an hsmap.grid.GridGeometry, got {type(geometry).__name__}")
+        raise InputError(f"geometry must be an hsmap.maps.grid.GridGeometry, got {type(geometry).__name__}")
     if img.shape[:2] != geometry.shape:
         raise ShapeError(f"{what} has shape {img.shape[:2]} but its GridGeometry says {geometry.shape}")
 

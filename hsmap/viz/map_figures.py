@@ -2,7 +2,7 @@
 (Figs. 10, 11, 14), the room/door graph over the labels (Figs. 12, 16), the doors cut out of the point maps
 (Fig. 15) and the occluded vs non-occluded segmentations (Fig. 18); plus rerun logging of an overlay.
 
-Everything is drawn in world metres (images placed by :class:`hsmap.grid.GridGeometry`), with the object API
+Everything is drawn in world metres (images placed by :class:`hsmap.maps.grid.GridGeometry`), with the object API
 of matplotlib (no pyplot state), like :mod:`hsmap.viz.figures`, whose ``plot_*`` helpers it uses.
 """
 
@@ -19,8 +19,8 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage as ndi
 
 from ..errors import InputError, ShapeError
-from ..fusion import OVERLAY_COLORS, overlap_scores, overlay_image
-from ..grid import GridGeometry, OccupancyGrid
+from ..maps.fusion import OVERLAY_COLORS, overlap_scores, overlay_image
+from ..maps.grid import GridGeometry, OccupancyGrid
 from . import figures
 
 __all__ = [
@@ -41,7 +41,7 @@ def _rgb01(c: Sequence[int]) -> tuple[float, float, float]:
 
 def _check_grid(g: Any, name: str) -> OccupancyGrid:
     if not isinstance(g, OccupancyGrid):
-        raise InputError(f"{name} must be an hsmap.grid.OccupancyGrid, got {type(g).__name__}")
+        raise InputError(f"{name} must be an hsmap.maps.grid.OccupancyGrid, got {type(g).__name__}")
     return g
 
 
@@ -62,7 +62,7 @@ def _zoom_to(ax: Axes, mask: NDArray[np.bool_], geometry: GridGeometry, margin: 
 
 def plot_overlay(floor: OccupancyGrid, slice_: OccupancyGrid, *, ax: Axes | None = None, tolerance: float = 0.10,
                  title: str | None = None, legend: bool = True) -> Axes:
-    """Two grids on one geometry overlaid (:func:`hsmap.fusion.overlay_image`): structure seen by both dark,
+    """Two grids on one geometry overlaid (:func:`hsmap.maps.fusion.overlay_image`): structure seen by both dark,
     by the floor map only red, by the slice only blue, free white, unknown light grey."""
 
     _check_grid(floor, "floor")
@@ -87,9 +87,9 @@ def overlap_figure(floor: OccupancyGrid, slice_: OccupancyGrid, alignment: Any,
     ----------
     floor, slice_ : OccupancyGrid
         The two maps, each in its own frame.
-    alignment : hsmap.fusion.MapAlignment
+    alignment : hsmap.maps.fusion.MapAlignment
     before : (OccupancyGrid, OccupancyGrid), optional
-        The two maps on one grid without the registration (:func:`hsmap.fusion.common_grids`).
+        The two maps on one grid without the registration (:func:`hsmap.maps.fusion.common_grids`).
     """
     n = 4 if before is not None else 3
     fig, axes = figures.new_figure(2, 2, size=(15, 9.5)) if n == 4 else figures.new_figure(1, 3, size=(20, 5.2))
@@ -218,7 +218,7 @@ def voronoi_steps_figure(grid: OccupancyGrid, segmentation, *, title: str | None
 
 
 def graph_for_plot(graph: Any) -> Any:
-    """A copy of a :func:`hsmap.topology.room_graph` graph whose nodes also carry ``centroid`` (x, y), the
+    """A copy of a :func:`hsmap.rooms.topology.room_graph` graph whose nodes also carry ``centroid`` (x, y), the
     attribute :func:`hsmap.viz.figures.plot_graph` and :func:`hsmap.viz.rerun.log_room_graph` read."""
     if not hasattr(graph, "nodes"):
         raise InputError(f"expected a networkx graph, got {type(graph).__name__}")
@@ -262,7 +262,7 @@ def door_clouds_figure(doors: Sequence[Any], clouds3d: Sequence[NDArray], clouds
     ----------
     doors : sequence of Door
     clouds3d : sequence of ndarray of shape (K_i, 3)
-        Per door (:func:`hsmap.segmentation.points_in_doors` on the 3D map).
+        Per door (:func:`hsmap.rooms.segmentation.points_in_doors` on the 3D map).
     clouds2d : sequence of ndarray of shape (L_i, 2), optional
         Per door, from the 2D map.
     """
@@ -355,7 +355,7 @@ def segmentation_comparison_figure(panels: Sequence[tuple[OccupancyGrid | None, 
 
 def log_overlay(rec: Any, rgb: ArrayLike, geometry: GridGeometry, *, entity: str = "world/map/overlay",
                 map_entity: str | None = "map/overlay", z: float = 0.01, opacity: float = 0.9) -> None:
-    """Log an (H, W, 3) overlay picture (:func:`hsmap.fusion.overlay_image`) as a coloured quad in the 3D world
+    """Log an (H, W, 3) overlay picture (:func:`hsmap.maps.fusion.overlay_image`) as a coloured quad in the 3D world
     placed by ``geometry`` (:func:`hsmap.viz.rerun.log_rgba_grid`) and as an ``Image`` in the 2D map view
     (static)."""
     import rerun as rr

@@ -13,8 +13,8 @@ import numpy as np
 from ..datasets.frames import Dataset, Frame
 from ..errors import InputError
 from ..geometry import pose_to_matrix, transform_points
-from ..grid import grid_from_scans, grids_from_scan_prefixes
-from ..mapping import first_per_voxel
+from ..maps.grid import grid_from_scans, grids_from_scan_prefixes
+from ..maps.mapping import first_per_voxel
 from ..slam import SlamConfig, frame_points
 from ..trajectory import Trajectory, nearest_index
 from . import map_figures
@@ -166,7 +166,7 @@ def record_slam_run(
     ----------
     every : int
         Log every n-th frame's pose and scan (the map still gets every keyframe).
-    grid : hsmap.grid.OccupancyGrid, optional
+    grid : hsmap.maps.grid.OccupancyGrid, optional
         The run's final occupancy grid (3-DOF runs). Its geometry is the 2D map view's frame: the grid of the
         keyframes' scans so far is logged ``grid_updates`` times over the run (the map grows in both views,
         the final one at the last frame), with the robot, its scan and the paths over it.
@@ -179,7 +179,7 @@ def record_slam_run(
     dict
         ``frames`` logged, ``map_blocks``, ``map_points`` logged, ``grid_updates`` logged.
     """
-    from ..viz import rerun as hv
+    from . import rerun as hv
 
     if int(every) < 1:
         raise InputError(f"every must be >= 1, got {every}")

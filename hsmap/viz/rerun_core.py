@@ -48,7 +48,7 @@ from numpy.typing import ArrayLike, NDArray  # noqa: E402
 from ..errors import HsmapError, InputError, OutputError, ShapeError  # noqa: E402
 from ..geometry import euler_to_matrix, matrix_to_quaternion  # noqa: E402
 from ..io import locked_temporary, publish_file, write_failure_reason  # noqa: E402
-from ..mapping import first_per_voxel  # noqa: E402
+from ..maps.mapping import first_per_voxel  # noqa: E402
 from .colors import VIEWER_SERIES_COLORS, height_colors  # noqa: E402
 
 __all__ = ["RERUN_VERSION", "Recording", "open_recording", "default_blueprint", "eye_for_bounds", "grid_bounds", "log_legend", "series_legend", "set_frame_time", "pose_transform", "log_robot_pose", "log_sensor_rig", "log_scan2d", "log_cloud", "log_frame", "log_points", "log_path", "log_trajectory"]

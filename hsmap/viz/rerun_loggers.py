@@ -12,7 +12,7 @@ import rerun as rr  # noqa: E402
 from numpy.typing import ArrayLike, NDArray  # noqa: E402
 
 from ..errors import InputError  # noqa: E402
-from ..mapping import first_per_voxel  # noqa: E402
+from ..maps.mapping import first_per_voxel  # noqa: E402
 from .colors import height_colors  # noqa: E402
 from .rerun_core import (  # noqa: E402
     _UNIX_TIME_THRESHOLD,

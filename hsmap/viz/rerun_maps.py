@@ -13,7 +13,7 @@ import rerun as rr  # noqa: E402
 from numpy.typing import ArrayLike, NDArray  # noqa: E402
 
 from ..errors import InputError, ShapeError  # noqa: E402
-from ..grid import GridGeometry  # noqa: E402
+from ..maps.grid import GridGeometry  # noqa: E402
 from .colors import ROOM_PALETTE, VIEWER_SERIES_COLORS, label_color, label_colors  # noqa: E402
 from .occupancy import _ros_to_image, occupancy_to_ros  # noqa: E402
 from .rerun_core import (  # noqa: E402
@@ -35,7 +35,7 @@ __all__ = ["log_rgba_grid", "log_map2d_robot", "log_map2d_robots", "log_map2d_po
 
 def _check_geometry(geometry: GridGeometry, shape: tuple[int, ...], what: str) -> None:
     if not isinstance(geometry, GridGeometry):
-        raise InputError(f"geometry must be an hsmap.grid.GridGeometry, got {type(geometry).__name__}")
+        raise InputError(f"geometry must be an hsmap.maps.grid.GridGeometry, got {type(geometry).__name__}")
     if tuple(shape[:2]) != geometry.shape:
         raise ShapeError(f"{what} has shape {tuple(shape[:2])} but its GridGeometry says {geometry.shape}")
 

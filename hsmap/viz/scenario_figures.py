@@ -19,8 +19,8 @@ from numpy.typing import ArrayLike
 
 from ..datasets.simulated import SimulatedDataset
 from ..geometry import transform_points
-from ..grid import scans_to_points
 from ..io import atomic_path
+from ..maps.grid import scans_to_points
 from ..sim import layout
 from ..sim.robot import plan_legs, sample_legs
 from ..sim.scenario import Scenario, load_scenario

@@ -1,4 +1,4 @@
-"""The steps of :func:`hsmap.segmentation.segment_rooms` on pixel grids: the skeleton's graph and its filters,
+"""The steps of :func:`hsmap.rooms.segmentation.segment_rooms` on pixel grids: the skeleton's graph and its filters,
 the free space's width along a line, obstacle corners and the wall-gap lines between them, the door candidates
 (the paper's band, critical points), merging regions across narrowings and small ones into their neighbours.
 Images are (row, col)."""
@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage as ndi
 
-from ._seg_kernels import (
+from ._kernels import (
     basis_points,
     chord_median,
     edt,

@@ -16,13 +16,13 @@ from pathlib import Path
 import networkx as nx
 import numpy as np
 
-from .io import atomic_path, write_json, write_text
+from ..io import atomic_path, write_json, write_text
 
 __all__ = ["room_graph", "topology_listing", "topology_line", "write_topology", "graph_to_json", "read_topology_json"]
 
 
 def room_graph(segmentation) -> nx.Graph:
-    """Room/door graph of a :class:`hsmap.segmentation.Segmentation`.
+    """Room/door graph of a :class:`hsmap.rooms.segmentation.Segmentation`.
 
     Returns
     -------

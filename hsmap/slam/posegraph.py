@@ -3,7 +3,7 @@
 Nodes are keyframe poses (pose vectors: (x, y, yaw) or (x, y, z, roll, pitch, yaw)); edges are relative-pose
 measurements ``z_ij`` (the pose of node j in the frame of node i) with an information matrix for a small motion
 ``xi = (translation, rotation)`` of node j in its own frame: ``T_i^-1 T_j = Z_ij exp(xi)``. That is the body-frame
-convention of :attr:`hsmap.registration.RegistrationResult.information`, so a registration's information goes
+convention of :attr:`hsmap.registration.icp.RegistrationResult.information`, so a registration's information goes
 into an edge as it is.
 
 Edges are of five kinds: ``odometry`` (consecutive keyframes, from tracking), ``wheel`` (consecutive keyframes,
@@ -32,8 +32,8 @@ from scipy import sparse
 from scipy.sparse import csgraph
 from scipy.stats import chi2
 
-from .errors import HsmapError, InputError, ShapeError
-from .geometry import euler_to_matrix, matrix_to_euler, relative, wrap_angle
+from ..errors import HsmapError, InputError, ShapeError
+from ..geometry import euler_to_matrix, matrix_to_euler, relative, wrap_angle
 
 __all__ = ["EdgeKind", "Edge", "PoseGraph", "OptimizationResult", "OptimizationError", "information_with_floor",
            "SOLVERS"]

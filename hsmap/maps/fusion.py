@@ -15,12 +15,12 @@ cells seen by both maps, by the floor map only and by the slice only.
 The slice itself comes from the 3D clouds placed at their poses (:func:`slice_grid`): for every cloud, the
 points between ``z_min`` and ``z_max`` are reduced to a *virtual 2D scan* at the slice height (the nearest
 such point in each azimuth bin, seen from the 3D sensor) and these scans are rasterised like 2D LiDAR scans
-(:func:`hsmap.grid.grid_from_scans`): occupied at the points, free along the way. (Free space from floor
+(:func:`hsmap.maps.grid.grid_from_scans`): occupied at the points, free along the way. (Free space from floor
 points does not work for a 3D LiDAR 1.6 m up with a 22.5 deg downward field of view: it sees no floor within
 3.9 m of the robot.)
 
 Coordinates: world (x, y[, z]) in metres, z up, the floor at z = 0; grids convert through
-:class:`hsmap.grid.GridGeometry` only.
+:class:`hsmap.maps.grid.GridGeometry` only.
 """
 
 from __future__ import annotations
@@ -32,12 +32,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage as ndi
 
-from .errors import ConfigError, EmptyInputError, InputError, ShapeError
-from .geometry import matrix_to_pose, pose_to_matrix
+from ..errors import ConfigError, EmptyInputError, InputError, ShapeError
+from ..geometry import matrix_to_pose, pose_to_matrix
+from ..registration.harmony import HarmonyConfig
+from ..registration.icp import RegistrationConfig, RegistrationResult, harmony_icp
+from ..slam.loopclosure import correlative_match_2d
 from .grid import UNKNOWN, GridGeometry, OccupancyGrid, grid_from_scans
-from .harmony import HarmonyConfig
-from .loopclosure import correlative_match_2d
-from .registration import RegistrationConfig, RegistrationResult, harmony_icp
 
 __all__ = [
     "FusionConfig",
@@ -114,7 +114,7 @@ class FusionConfig:
         if not (np.isfinite(self.tolerance) and self.tolerance >= 0):
             raise ConfigError(f"fusion.tolerance must be >= 0 metres, got {self.tolerance}")
         if isinstance(self.registration, dict):
-            from .config import from_dict
+            from ..config import from_dict
 
             self.registration = from_dict(RegistrationConfig, self.registration, "fusion.registration")
         if not isinstance(self.registration, RegistrationConfig):
@@ -172,7 +172,7 @@ def slice_scan(points: ArrayLike, sensor_pose: ArrayLike, *, z_min: float = 1.7,
         (bins without a point in the slice are left out), with a row of NaN where two consecutive end points
         are more than twice the scan's median spacing apart in azimuth: nothing was seen at the slice height
         between them (a 3D LiDAR with few channels crosses the slice only at some distances), and
-        :func:`hsmap.grid.grid_from_scans` then takes the free area back to the sensor there (a beam without a
+        :func:`hsmap.maps.grid.grid_from_scans` then takes the free area back to the sensor there (a beam without a
         return) instead of across the unseen part.
     pose : ndarray of shape (3,)
         World (x, y, yaw) of that virtual sensor.
@@ -279,7 +279,7 @@ def slice_grid(
     """Occupancy grid of the slice ``[z_min, z_max)`` of a 3D map made of clouds at known poses.
 
     Each frame's cloud becomes a virtual 2D scan at the slice height (:func:`slice_scans`) and the scans are
-    rasterised by :func:`hsmap.grid.grid_from_scans`: occupied where the slice has points, free along the
+    rasterised by :func:`hsmap.maps.grid.grid_from_scans`: occupied where the slice has points, free along the
     sight lines at that height, unknown elsewhere.
 
     Parameters
@@ -315,7 +315,7 @@ def slice_grid(
 def occupied_points(grid: OccupancyGrid) -> NDArray[np.float64]:
     """World (x, y) of the centres of the occupied cells of ``grid``: (K, 2)."""
     if not isinstance(grid, OccupancyGrid):
-        raise InputError(f"expected an hsmap.grid.OccupancyGrid, got {type(grid).__name__}")
+        raise InputError(f"expected an hsmap.maps.grid.OccupancyGrid, got {type(grid).__name__}")
     rc = np.argwhere(grid.occupied)
     return grid.geometry.pixel_to_world(rc)
 
@@ -542,7 +542,7 @@ def align_maps(
     Parameters
     ----------
     floor : OccupancyGrid
-        The 2D LiDAR's map (e.g. :func:`hsmap.grid.grid_from_scans` at the 2D SLAM poses), in its own frame.
+        The 2D LiDAR's map (e.g. :func:`hsmap.maps.grid.grid_from_scans` at the 2D SLAM poses), in its own frame.
     slice_ : OccupancyGrid
         The 3D map's slice (e.g. :func:`slice_grid` at the 3D SLAM poses), in the 3D map's frame.
     floor_points, slice_points : ndarray of shape (N, 2), optional
@@ -569,7 +569,7 @@ def align_maps(
     cfg = config or FusionConfig()
     for name, g in (("floor", floor), ("slice_", slice_)):
         if not isinstance(g, OccupancyGrid):
-            raise InputError(f"{name} must be an hsmap.grid.OccupancyGrid, got {type(g).__name__}")
+            raise InputError(f"{name} must be an hsmap.maps.grid.OccupancyGrid, got {type(g).__name__}")
     src = _as_points2(floor_points, "floor_points")
     dst = _as_points2(slice_points, "slice_points")
     if src is None:
@@ -631,7 +631,7 @@ def _correlative_candidate(src: NDArray[np.float64], dst: NDArray[np.float64], s
                            ) -> tuple[NDArray[np.float64], float, float]:
     """The pose (x, y, yaw) of ``src`` in ``dst``'s frame best explaining ``src`` by ``dst`` over every rotation
     and every translation that makes the two overlap; with its score and ambiguity
-    (:func:`hsmap.loopclosure.correlative_match_2d`)."""
+    (:func:`hsmap.slam.loopclosure.correlative_match_2d`)."""
 
     centre = src.mean(axis=0)
     s = src - centre

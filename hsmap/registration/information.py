@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from .errors import InputError
+from ..errors import InputError
 
 __all__ = ["adjoint", "constrained_axes", "drop_degenerate", "safe_inverse"]
 

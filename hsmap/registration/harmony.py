@@ -35,8 +35,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .errors import ConfigError, InputError, ShapeError
-from .limits import quote
+from ..errors import ConfigError, InputError, ShapeError
+from ..limits import quote
 
 #: Most rows of a harmony memory (``memory_size``) or of one batch of new harmonies (``batch_size``).
 MAX_HARMONIES = 100_000
@@ -262,7 +262,7 @@ def harmony_search(
     memory, fun = np.ascontiguousarray(memory[order]), np.ascontiguousarray(fun[order])
     variant = Variant(cfg.variant)
     batch = cfg.batch_size
-    runner = getattr(objective, "run_chunk", None)  # a compiled fast path (see hsmap.fitness.FieldObjective)
+    runner = getattr(objective, "run_chunk", None)  # a compiled fast path (see hsmap.registration.fitness.FieldObjective)
     history = np.empty(cfg.max_iterations + 1)
     history[0] = fun[0]
     state = np.zeros(3, dtype=np.int64)  # rounds done in the last chunk, rounds without improvement, stop code

@@ -1,7 +1,7 @@
 """Harmony-ICP: scan registration by Harmony Search (the paper's Algorithm 1), in 2D (3-DOF) and 3D (6-DOF).
 
 :func:`harmony_icp` searches the pose vector (x, y, yaw) for (N, 2) clouds or (x, y, z, roll, pitch, yaw) for
-(N, 3) clouds that minimises the two-term fitness of :mod:`hsmap.fitness`, with the harmony memory seeded by
+(N, 3) clouds that minimises the two-term fitness of :mod:`hsmap.registration.fitness`, with the harmony memory seeded by
 optional initial guesses and the rest drawn inside the bounds. No initial guess is needed: with none, the search
 is centred on the identity. An optional local refinement (point-to-plane or point-to-point ICP, trimmed at the
 fitness threshold) polishes the best harmony.
@@ -22,14 +22,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
-from ._blas import blas_limited
-from ._threads import threads_limited
-from .errors import ConfigError, DegenerateInputError, EmptyInputError, InputError, ShapeError
+from .._blas import blas_limited
+from .._threads import threads_limited
+from ..errors import ConfigError, DegenerateInputError, EmptyInputError, InputError, ShapeError
+from ..geometry import dof_of_dim, matrix_to_pose, pose_to_matrix, relative, transform_points, wrap_angle
+from ..maps.mapping import voxel_downsample
 from .fitness import DistanceField, FieldObjective, KDTreeLookup, field_bounds, score
-from .geometry import dof_of_dim, matrix_to_pose, pose_to_matrix, relative, transform_points, wrap_angle
 from .harmony import HarmonyConfig, HarmonyResult, as_rng, harmony_search
 from .information import adjoint, constrained_axes, drop_degenerate, safe_inverse
-from .mapping import voxel_downsample
 from .neighbours import NeighbourGrid, grid_fits, tree_query
 from .normals import estimate_normals, orient_normals
 
@@ -87,7 +87,7 @@ class RegistrationConfig:
     fine_threshold : float or None
         Metres. If set, a second Harmony Search stage around the best harmony uses this truncation.
     inlier_weight : float
-        Weight ``w`` of the inlier-count term (see :mod:`hsmap.fitness`).
+        Weight ``w`` of the inlier-count term (see :mod:`hsmap.registration.fitness`).
     backend : Backend
         ``Backend.FIELD`` (distance field, fast) or ``Backend.KDTREE`` (exact); the strings ``"field"`` and
         ``"kdtree"`` are accepted.
@@ -179,7 +179,7 @@ class RegistrationConfig:
             raise ConfigError(f"registration.refinement must be one of {[r.value for r in Refinement]}, "
                               f"got {self.refinement!r}") from None
         if isinstance(self.harmony, dict):
-            from .config import from_dict
+            from ..config import from_dict
 
             self.harmony = from_dict(HarmonyConfig, self.harmony, "registration.harmony")
 
@@ -285,7 +285,7 @@ def spans_its_space(points: NDArray[np.float64], rank: int | None = None) -> boo
     A cloud that does not span its space has no unique registration: it can slide or turn without changing its
     fit (:func:`harmony_icp` raises :class:`~hsmap.errors.DegenerateInputError` for one).
     """
-    from . import _kernels  # numba: compiled on first use
+    from .. import _kernels  # numba: compiled on first use
     pts = np.ascontiguousarray(points, dtype=float)
     d = pts.shape[1]
     rank = d if rank is None else rank
@@ -311,7 +311,7 @@ class RegistrationTarget:
         Distance fields already built for given truncations (e.g. a map's field grown scan by scan).
     field_within : array_like of shape (2, d), optional
         [lower, upper] corners of the box that the registrations' transformed source points stay in: the fields
-        built here cover only that box (:func:`hsmap.fitness.field_bounds`), and answer as whole ones there.
+        built here cover only that box (:func:`hsmap.registration.fitness.field_bounds`), and answer as whole ones there.
     """
 
     def __init__(self, points: ArrayLike, config: RegistrationConfig | None = None, *,
@@ -363,7 +363,7 @@ class RegistrationTarget:
 
     def prepare(self) -> NeighbourGrid | bool:
         """Build the neighbour grid of :meth:`nearest` now rather than on the first query (False: the target
-        does not fit one, :func:`hsmap.neighbours.grid_fits`)."""
+        does not fit one, :func:`hsmap.registration.neighbours.grid_fits`)."""
         if self._grid is None:
             cell = 2.0 * self.config.threshold
             self._grid = NeighbourGrid(self.points, cell) if grid_fits(self.points, cell) else False
@@ -375,7 +375,7 @@ class RegistrationTarget:
         ``len(self.points)`` where none is; cKDTree's answer, bit for bit, except that of points at exactly the
         same distance the lowest row is the answer wherever it comes from.
 
-        Answered by a :class:`hsmap.neighbours.NeighbourGrid` of cells twice the configured ``threshold`` (the
+        Answered by a :class:`hsmap.registration.neighbours.NeighbourGrid` of cells twice the configured ``threshold`` (the
         refinement's trimming distances) where the target fits one and ``bound`` is at most two cells, else by
         the KD-tree; large queries are split between the compute threads either way. ``hint`` (N,): rows near
         the points (a previous answer), which speed the grid's search and change no answer.
@@ -469,7 +469,7 @@ def refine_icp(
     point-to-point takes the closed-form SVD (Kabsch) step. ``hint`` (N,): target rows near the source points at
     a pose close to ``pose`` (:meth:`RegistrationTarget.nearest`), which speed the first search.
     """
-    from . import _kernels  # numba: compiled on first use
+    from .. import _kernels  # numba: compiled on first use
 
     dim = source.shape[1]
     schedule = _trim_schedule(start_distance or max_distance, max_distance)
@@ -580,7 +580,7 @@ def alignment_information(source: NDArray[np.float64], target: RegistrationTarge
 def _information_and_cost(source, target, pose, threshold, robust_kernel=0.0, min_sigma=1e-3, match=None):
     """:func:`alignment_information` and :func:`alignment_cost` (point-to-plane) from one correspondence search
     (``match``: :func:`_match`'s at ``pose``, when already made)."""
-    from . import _kernels  # numba: compiled on first use
+    from .. import _kernels  # numba: compiled on first use
 
     dim = source.shape[1]
     dof = dof_of_dim(dim)

@@ -6,7 +6,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
-from ._blas import blas_limited
+from .._blas import blas_limited
 
 __all__ = ["estimate_normals", "orient_normals", "load_3d_estimator"]
 
@@ -16,7 +16,7 @@ def orient_normals(points: NDArray[np.float64], normals: NDArray[np.float64],
     """``normals`` turned to face ``viewpoint`` (default: the origin), the sensor that saw ``points``.
 
     A surface is seen from one side: a sensor-facing normal says which, so that a match can tell a wall's face
-    from the face behind it, seen from the next room (:func:`hsmap.loopclosure.same_side_share`). Only the signs
+    from the face behind it, seen from the next room (:func:`hsmap.slam.loopclosure.same_side_share`). Only the signs
     change, which no point-to-plane residual or information sees.
     """
     pts = np.asarray(points, dtype=float)

@@ -20,10 +20,10 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .errors import DataFormatError, DatasetError, EmptyInputError, HsmapWarning, InputError, ShapeError
-from .geometry import compose, pose_to_matrix, transform_points
-from .io import atomic_path, write_text
-from .limits import check_allocation, load_yaml, quote
+from ..errors import DataFormatError, DatasetError, EmptyInputError, HsmapWarning, InputError, ShapeError
+from ..geometry import compose, pose_to_matrix, transform_points
+from ..io import atomic_path, write_text
+from ..limits import check_allocation, load_yaml, quote
 
 __all__ = [
     "GridGeometry",

@@ -1,6 +1,6 @@
 """Door detection and room segmentation of 2D occupancy grids (the paper's Algorithm 2, and a refinement).
 
-Pipeline (images in (row, col), world coordinates through :class:`hsmap.grid.GridGeometry`):
+Pipeline (images in (row, col), world coordinates through :class:`hsmap.maps.grid.GridGeometry`):
 
 1. binary free-space image, median filtered (by default the filter may clear free speckle but never erase
    an occupied pixel: a plain 3x3 median erases walls one pixel thick); occupied blobs smaller than
@@ -68,13 +68,15 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage as ndi
 
-from ._seg_kernels import (
+from ..errors import ConfigError, EmptyInputError, InputError, ShapeError
+from ..maps.grid import GridGeometry, OccupancyGrid
+from ._kernels import (
     corner_wedges,
     edt,
     label_max,
     thin,
 )
-from ._seg_steps import (
+from ._steps import (
     EIGHT,
     FOUR,
     OFFSETS,
@@ -97,8 +99,6 @@ from ._seg_steps import (
     skeleton_graph,
     wall_gap_lines,
 )
-from .errors import ConfigError, EmptyInputError, InputError, ShapeError
-from .grid import GridGeometry, OccupancyGrid
 
 __all__ = [
     "SegmentationConfig",

@@ -12,7 +12,7 @@ Like KISS-ICP's voxel hash, the grid holds the points themselves, sorted by cell
 answer is exact: every cell that can hold a point within the bound is searched. The cells are a dense array over
 the points' bounding box, so the grid is for local maps and scans, not for a whole building at a fine cell:
 :func:`grid_fits` says whether a point set fits, and callers fall back to the KD-tree where it does not
-(:meth:`hsmap.registration.RegistrationTarget.nearest`).
+(:meth:`hsmap.registration.icp.RegistrationTarget.nearest`).
 """
 
 from __future__ import annotations
@@ -21,8 +21,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
-from ._threads import current_threads, helper_pool
-from .errors import InputError, ShapeError
+from .._threads import current_threads, helper_pool
+from ..errors import InputError, ShapeError
 
 __all__ = ["NeighbourGrid", "grid_fits", "tree_query", "MAX_CELLS", "MAX_CELLS_PER_POINT"]
 
@@ -39,7 +39,7 @@ PARALLEL_MIN_QUERIES = 2000
 
 def _grid_shape(points: NDArray[np.float64], cell: float) -> tuple[NDArray[np.float64], NDArray[np.int64], float]:
     """(origin, cells per axis, total cells) of a grid of side ``cell`` over the points' bounding box."""
-    from . import _kernels  # numba: compiled on first use
+    from .. import _kernels  # numba: compiled on first use
 
     if len(points) == 0:
         return np.zeros(points.shape[1]), np.ones(points.shape[1], dtype=np.int64), 1.0
@@ -76,7 +76,7 @@ class NeighbourGrid:
 
     def __init__(self, points: ArrayLike, cell: float) -> None:
 
-        from . import _kernels  # numba: compiled on first use
+        from .. import _kernels  # numba: compiled on first use
         pts = np.ascontiguousarray(points, dtype=np.float64)
         if pts.ndim != 2 or pts.shape[1] not in (2, 3):
             raise ShapeError(f"grid points must have shape (M, 2) or (M, 3), got {pts.shape}")

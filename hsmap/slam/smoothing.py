@@ -37,9 +37,9 @@ import scipy.sparse.linalg as spla
 from numpy.typing import ArrayLike, NDArray
 from scipy.stats import chi2
 
-from .errors import ShapeError
-from .geometry import compose, invert, pose_to_matrix, relative, wrap_angle
-from .information import adjoint
+from ..errors import ShapeError
+from ..geometry import compose, invert, pose_to_matrix, relative, wrap_angle
+from ..registration.information import adjoint
 
 __all__ = ["SmoothingResult", "three_cornered_hat", "identify_noise", "vote", "smooth_with_odometry"]
 

@@ -3,7 +3,7 @@
 A :class:`Map3D` holds one state per voxel at the map's finest resolution: ``UNKNOWN`` (never observed),
 ``FREE`` (observed empty) or ``OCCUPIED``. OctoMap leaves larger than the finest resolution are expanded into
 the voxels they cover. :func:`floor_height` finds the floor as the lowest large horizontal layer of occupied
-voxels; :func:`band_grid` turns the voxels in a height band above it into a 2D :class:`~hsmap.grid.OccupancyGrid`
+voxels; :func:`band_grid` turns the voxels in a height band above it into a 2D :class:`~hsmap.maps.grid.OccupancyGrid`
 that is free only where the map observed free space.
 
 Voxel (i, j, k) spans ``origin + [i, j, k] * resolution`` to ``origin + [i + 1, j + 1, k + 1] * resolution``
@@ -20,8 +20,8 @@ import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .datasets.clouds import read_points
-from .errors import DataFormatError, DatasetError, EmptyInputError, InputError, ShapeError
+from ..datasets.clouds import read_points
+from ..errors import DataFormatError, DatasetError, EmptyInputError, InputError, ShapeError
 from .grid import FREE as G_FREE
 from .grid import OCCUPIED as G_OCCUPIED
 from .grid import UNKNOWN as G_UNKNOWN
@@ -266,7 +266,7 @@ def _octomap_leaves(path: Path) -> tuple[NDArray[np.float64], NDArray[np.int64],
     try:
         import octomap
     except ImportError:  # pragma: no cover - a dependency
-        from .errors import DependencyError
+        from ..errors import DependencyError
 
         raise DependencyError(f"{path}: reading OctoMap files needs octomap-python (pip install "
                               "octomap-python)") from None
@@ -488,7 +488,7 @@ def band_grid(m: Map3D, lo: float, hi: float, *, floor: float | None = None):
 
     Returns
     -------
-    hsmap.grid.OccupancyGrid
+    hsmap.maps.grid.OccupancyGrid
         Shape (ny, nx) with row 0 at the largest y; origin the map's (x, y) min corner.
     """
 

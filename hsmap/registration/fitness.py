@@ -26,9 +26,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
-from ._threads import current_threads, helper_pool, start_threading_layer
-from .errors import InputError
-from .geometry import euler_to_matrix
+from .._threads import current_threads, helper_pool, start_threading_layer
+from ..errors import InputError
+from ..geometry import euler_to_matrix
 from .neighbours import tree_query
 
 __all__ = ["DistanceField", "KDTreeLookup", "FieldObjective", "transform_batch", "Fitness", "score", "field_bounds"]
@@ -100,7 +100,7 @@ class DistanceField:
     normals : ndarray of shape (M, d), optional
         Unit normals of the points. The field then also keeps, per node, the nearest point and its normal:
         correspondences for a point-to-line (point-to-plane) refinement at the cost of one look-up
-        (:func:`hsmap.registration.refine_icp`). 2D: :attr:`nearest`, (nx, ny, 4) float32 (x, y, nx, ny), NaN
+        (:func:`hsmap.registration.icp.refine_icp`). 2D: :attr:`nearest`, (nx, ny, 4) float32 (x, y, nx, ny), NaN
         where none is within the band; 3D: :attr:`nearest_index`, (nx, ny, nz) int32 rows of
         :attr:`nearest_points` and :attr:`nearest_normals` (-1 where none), a quarter of the memory.
     recycle : DistanceField, optional
@@ -185,7 +185,7 @@ class DistanceField:
         Each node within the truncation band of a point takes the exact distance from its centre to the point if
         that is smaller (cheaper than a Euclidean distance transform when only short distances matter).
         """
-        from . import _kernels  # numba: compiled on first use
+        from .. import _kernels  # numba: compiled on first use
 
         pts = np.ascontiguousarray(points, dtype=float)
         if len(pts) == 0:
@@ -234,7 +234,7 @@ class DistanceField:
 
     def score_batch(self, poses: NDArray[np.float64], points: NDArray[np.float64]) -> tuple[NDArray, NDArray]:
         """Mean truncated distance (B,) and inlier ratio (B,) of ``points`` moved by each of the B ``poses``."""
-        from . import _kernels  # numba: compiled on first use
+        from .. import _kernels  # numba: compiled on first use
 
         start_threading_layer()
         poses = np.ascontiguousarray(poses, dtype=np.float64)
@@ -270,7 +270,7 @@ class DistanceField:
 
 class KDTreeLookup:
     """Exact truncated nearest-neighbour distances with scipy's cKDTree (``workers``: query threads, scipy's
-    meaning; None: hsmap's compute threads for large queries, :func:`hsmap.neighbours.tree_query`)."""
+    meaning; None: hsmap's compute threads for large queries, :func:`hsmap.registration.neighbours.tree_query`)."""
 
     def __init__(self, points: ArrayLike, truncation: float, workers: int | None = 1) -> None:
         if not truncation > 0:
@@ -296,7 +296,7 @@ class KDTreeLookup:
 
 class FieldObjective:
     """The two-term fitness of poses for ``source`` against a :class:`DistanceField`, as a Harmony Search
-    objective with a compiled fast path: :func:`hsmap.harmony.harmony_search` runs whole chunks of improvisation
+    objective with a compiled fast path: :func:`hsmap.registration.harmony.harmony_search` runs whole chunks of improvisation
     rounds in one call (:meth:`run_chunk`), with the same arithmetic as the Python loop.
     """
 
@@ -310,7 +310,7 @@ class FieldObjective:
 
     def run_chunk(self, *args) -> None:
 
-        from . import _kernels  # numba: compiled on first use
+        from .. import _kernels  # numba: compiled on first use
         start_threading_layer()
         f = self.field
         _kernels.hs_chunk_field(*args, self.source, f._flat, f._pshape, f.origin, 1.0 / f.resolution,

@@ -7,7 +7,7 @@ submaps that may overlap it are loop-closure candidates: a submap qualifies when
 its keyframes lies within ``max_distance`` of the new keyframe's estimate, widened by the search window.
 
 The search window grows with the uncertainty of the two places' relative pose, measured by the length of the
-shortest path between them in the pose graph (:meth:`hsmap.posegraph.PoseGraph.path_distances`): the window's
+shortest path between them in the pose graph (:meth:`hsmap.slam.posegraph.PoseGraph.path_distances`): the window's
 half-width is ``window_translation + window_growth * path`` (and the same for the rotation), up to a maximum
 (Cartographer searches 7 m x 7 m x 30 deg). Harmony-ICP needs no initial guess inside that window, which is what
 closing a loop needs; a wide window seeds the harmony memory with a grid of guesses over it.
@@ -26,20 +26,20 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._threads import current_threads, helper_pool
-from .errors import ConfigError
-from .geometry import compose, pose_to_matrix, relative, transform_points, wrap_angle
-from .harmony import HarmonyConfig
-from .information import safe_inverse
-from .mapping import VoxelMap
-from .posegraph import PoseGraph, information_with_floor
-from .registration import (
+from .._threads import current_threads, helper_pool
+from ..errors import ConfigError
+from ..geometry import compose, pose_to_matrix, relative, transform_points, wrap_angle
+from ..maps.mapping import VoxelMap
+from ..registration.harmony import HarmonyConfig
+from ..registration.icp import (
     RegistrationConfig,
     RegistrationResult,
     RegistrationTarget,
     drop_degenerate,
     harmony_icp,
 )
+from ..registration.information import safe_inverse
+from .posegraph import PoseGraph, information_with_floor
 
 __all__ = ["LoopClosureConfig", "Keyframe", "LoopCandidate", "LoopClosure", "LoopCloser", "correlative_match_2d",
            "same_side_share"]
@@ -88,7 +88,7 @@ class LoopClosureConfig:
         direction at most these.
     degenerate_ratio : float
         Directions with less than this fraction of the best one's information count as unconstrained
-        (:func:`hsmap.registration.drop_degenerate`).
+        (:func:`hsmap.registration.icp.drop_degenerate`).
     edge_sigma_translation, edge_sigma_rotation : float
         Floors added to the covariance of every edge: registration information counts every point as independent.
     registration : RegistrationConfig
@@ -153,7 +153,7 @@ class LoopClosureConfig:
 
     def __post_init__(self) -> None:
         if isinstance(self.registration, dict):
-            from .config import from_dict
+            from ..config import from_dict
 
             self.registration = from_dict(RegistrationConfig, self.registration, "slam.loop_closure.registration")
         for name in ("max_distance", "window_translation", "window_growth", "max_window_translation",
@@ -216,7 +216,7 @@ def same_side_share(source: NDArray[np.float64], origins: NDArray[np.float64], t
     their own side.
 
     ``origins`` holds each source point's sensor position (source frame); ``target``'s normals face the sensors
-    that saw them (:func:`hsmap.registration.orient_normals`). A wall's face matched to the face behind it, seen
+    that saw them (:func:`hsmap.registration.icp.orient_normals`). A wall's face matched to the face behind it, seen
     from the next room, is matched from the wrong side: a match that slides a scan by a wall's thickness
     explains as much of it as the true one (in simulated offices with a 180 deg laser, ten of ten such false
     closures matched 60-94 % of their scans, 0-54 % from the right side; the 41 true ones lost 0-17 points in
@@ -446,7 +446,7 @@ class LoopCloser:
     map_voxel : float
         Voxel size at which submaps thin their points.
     map_average : bool
-        Submaps keep each voxel's mean point (:class:`hsmap.mapping.VoxelMap`), like the tracking map.
+        Submaps keep each voxel's mean point (:class:`hsmap.maps.mapping.VoxelMap`), like the tracking map.
     """
 
     def __init__(self, config: LoopClosureConfig, dof: int, map_voxel: float, cache_size: int = 48, *,
@@ -657,7 +657,7 @@ class LoopCloser:
         """Match the recent path against the far candidates' map, exhaustively, then refine with Harmony-ICP and
         check; the match (not yet an edge) to the old keyframe nearest to it, or None.
 
-        ``path`` holds the graph distances from ``newest`` (:meth:`hsmap.posegraph.PoseGraph.path_distances`).
+        ``path`` holds the graph distances from ``newest`` (:meth:`hsmap.slam.posegraph.PoseGraph.path_distances`).
         """
         cfg = self.config
         if not candidates:

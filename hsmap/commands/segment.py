@@ -221,7 +221,9 @@ def run(args: argparse.Namespace) -> int:
     try:
         check_scale(grid.free, grid.geometry.resolution, cfg)
     except EmptyInputError as exc:
-        raise EmptyInputError(f"{args.map}: {exc}") from None
+        hint = ("; a point map holds occupied points only: segment its run's folder (hsmap segment DIR) to carve "
+                "the free space along the trajectory") if Path(args.map).suffix.lower() in (".ply", ".pcd") else ""
+        raise EmptyInputError(f"{args.map}: {exc}{hint}") from None
     except InputError as exc:
         src = "--resolution" if args.resolution is not None else (
             f"{args.map}: 'resolution'" if Path(args.map).suffix.lower() in (".yaml", ".yml")

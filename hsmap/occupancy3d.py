@@ -229,9 +229,6 @@ def floor_under_path(m: Map3D, positions: ArrayLike, *, radius: float, depth: tu
     if not (np.isfinite(radius) and radius > 0 and np.isfinite(lo_d) and np.isfinite(hi_d) and 0 <= lo_d < hi_d):
         raise InputError(f"floor search: radius must be > 0 and depth two metres 0 <= near < far, got {radius}, "
                          f"{depth}")
-    occ = m.state == OCCUPIED
-    surface = occ.copy()
-    surface[:, :, :-1] &= ~occ[:, :, 1:]
     res, o = m.resolution, m.origin
     r = int(np.ceil(radius / res))
     off = np.arange(-r, r + 1)
@@ -248,7 +245,9 @@ def floor_under_path(m: Map3D, positions: ArrayLike, *, radius: float, depth: tu
         if a0 >= a1 or b0 >= b1 or z0 >= z1:
             continue
         d = disc[a0 - i0:a1 - i0, b0 - j0:b1 - j0]
-        counts = surface[a0:a1, b0:b1, z0:z1][d].sum(axis=0)
+        occ = m.state[a0:a1, b0:b1, z0:z1 + 1][d] == OCCUPIED  # (columns, layers + the one above)
+        above = occ[:, 1:] if occ.shape[1] > z1 - z0 else np.pad(occ[:, 1:], ((0, 0), (0, 1)))
+        counts = (occ[:, :z1 - z0] & ~above).sum(axis=0)
         if counts.max(initial=0) > 0:
             floors[k] = o[2] + (z0 + int(np.argmax(counts)) + 0.5) * res
     found = np.flatnonzero(np.isfinite(floors))

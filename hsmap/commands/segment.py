@@ -129,8 +129,8 @@ def _map_and_floor(args):
     floors = floor_under_path(m, positions, radius=g.floor_radius, depth=g.floor_depth)
     info = {"map3d": name, "floor": float(np.median(floors)), "floor_found": [float(floors.min()), float(floors.max())],
             "floor_source": f"under the path ({len(floors)} sensor poses; the band follows the floor under the "
-                            "nearest pose)"}
-    return level_map(m, floor_field(m, positions, floors)), 0.0, info
+                            f"nearest pose, or the column's own within {g.floor_reach:g} m of it)"}
+    return level_map(m, floor_field(m, positions, floors, reach=g.floor_reach)), 0.0, info
 
 
 def _band_grid(args: argparse.Namespace, min_passage: float):

@@ -229,9 +229,6 @@ def floor_under_path(m: Map3D, positions: ArrayLike, *, radius: float, depth: tu
     if not (np.isfinite(radius) and radius > 0 and np.isfinite(lo_d) and np.isfinite(hi_d) and 0 <= lo_d < hi_d):
         raise InputError(f"floor search: radius must be > 0 and depth two metres 0 <= near < far, got {radius}, "
                          f"{depth}")
-    occ = m.state == OCCUPIED
-    surface = occ.copy()
-    surface[:, :, :-1] &= ~occ[:, :, 1:]
     res, o = m.resolution, m.origin
     r = int(np.ceil(radius / res))
     off = np.arange(-r, r + 1)
@@ -248,7 +245,9 @@ def floor_under_path(m: Map3D, positions: ArrayLike, *, radius: float, depth: tu
         if a0 >= a1 or b0 >= b1 or z0 >= z1:
             continue
         d = disc[a0 - i0:a1 - i0, b0 - j0:b1 - j0]
-        counts = surface[a0:a1, b0:b1, z0:z1][d].sum(axis=0)
+        occ = m.state[a0:a1, b0:b1, z0:z1 + 1][d] == OCCUPIED  # (columns, layers + the one above)
+        above = occ[:, 1:] if occ.shape[1] > z1 - z0 else np.pad(occ[:, 1:], ((0, 0), (0, 1)))
+        counts = (occ[:, :z1 - z0] & ~above).sum(axis=0)
         if counts.max(initial=0) > 0:
             floors[k] = o[2] + (z0 + int(np.argmax(counts)) + 0.5) * res
     found = np.flatnonzero(np.isfinite(floors))
@@ -259,8 +258,10 @@ def floor_under_path(m: Map3D, positions: ArrayLike, *, radius: float, depth: tu
     return floors[nearest]
 
 
-def floor_field(m: Map3D, positions: ArrayLike, floors: ArrayLike) -> NDArray[np.float64]:
-    """The floor's height under every voxel column: that of the position nearest to it in (x, y).
+def floor_field(m: Map3D, positions: ArrayLike, floors: ArrayLike, *, reach: float = 0.0) -> NDArray[np.float64]:
+    """The floor's height under every voxel column: that of the position nearest to it in (x, y), or, with
+    ``reach`` > 0, the column's own upward-facing occupied surface nearest to that height within ``reach`` metres
+    above or below it (a step or a ramp between floor levels, which the nearest position's floor misses).
 
     Returns
     -------
@@ -272,12 +273,35 @@ def floor_field(m: Map3D, positions: ArrayLike, floors: ArrayLike) -> NDArray[np
     f = np.asarray(floors, dtype=float).reshape(-1)
     if len(pos) != len(f) or len(pos) == 0:
         raise ShapeError(f"positions and floors must be as many and not none, got {len(pos)} and {len(f)}")
+    if not (np.isfinite(reach) and reach >= 0):
+        raise InputError(f"reach must be a number of metres >= 0, got {reach}")
     nx, ny, _ = m.shape
     xs = m.origin[0] + (np.arange(nx) + 0.5) * m.resolution
     ys = m.origin[1] + (np.arange(ny) + 0.5) * m.resolution
     gx, gy = np.meshgrid(xs, ys, indexing="ij")
     _, near = cKDTree(pos[:, :2]).query(np.column_stack([gx.ravel(), gy.ravel()]))
-    return f[near].reshape(nx, ny)
+    field = f[near].reshape(nx, ny)
+    return _nearest_surface(m, field, reach) if reach > 0 else field
+
+
+def _nearest_surface(m: Map3D, field: NDArray[np.float64], reach: float) -> NDArray[np.float64]:
+    """Per column, the centre of the upward-facing occupied voxel nearest to ``field`` within ``reach`` metres
+    (ties: the lower); ``field`` where the column has none."""
+    nz = m.shape[2]
+    res = m.resolution
+    at = np.floor((field - m.origin[2]) / res).astype(np.int64)
+    best = np.full(field.shape, np.iinfo(np.int64).max)
+    out = field.copy()
+    r = int(np.floor(reach / res))
+    for off in sorted(range(-r, r + 1), key=lambda k: (abs(k), k)):
+        k = at + off
+        ok = (k >= 0) & (k < nz)
+        here = np.take_along_axis(m.state, np.clip(k, 0, nz - 1)[:, :, None], axis=2)[:, :, 0] == OCCUPIED
+        up = np.take_along_axis(m.state, np.clip(k + 1, 0, nz - 1)[:, :, None], axis=2)[:, :, 0] == OCCUPIED
+        surface = ok & here & ((k + 1 >= nz) | ~up) & (best == np.iinfo(np.int64).max)
+        best[surface] = abs(off)
+        out[surface] = m.origin[2] + (k[surface] + 0.5) * res
+    return out
 
 
 def level_map(m: Map3D, floor: NDArray[np.float64], *, below: float = 0.5) -> Map3D:

@@ -306,7 +306,6 @@ def tiny_bag(tmp_path_factory):
     (["--cloud-rate", "10"], "--cloud-rate do not apply to a ROS bag"),
     (["--scan-topic", "/front"], "--scan-topic /front: no such topic (2D scans); the bag has: /odom"),
     (["--scan-topic", "/odom"], "--scan-topic /odom: the topic is nav_msgs/msg/Odometry, expected"),
-    (["--scan-topic", ""], "hsmap map needs 2D scans and 3D clouds: "),
 ])
 def test_map_bad_input_is_one_line_naming_the_flag(tiny_bag, tmp_path, args, message):
     bag = tiny_bag

@@ -201,3 +201,11 @@ def test_map_of_a_3d_only_recording_again_reads_every_stage_back(mapped, recordi
     stages = json.loads((out / "metrics.json").read_text())["stages"]
     assert set(stages) == {"slam3d", "voxels", "grids", "rooms", "outputs"}
     assert all(s["unchanged"] for s in stages.values()), stages
+
+
+def test_segment_of_a_bare_point_map_without_free_space_points_to_the_run_folder(mapped, tmp_path):
+    out, _ = mapped
+    code, err = run_cli("segment", str(out / "map3d.ply"), "--out", str(tmp_path / "seg"), "--band", "1.7,1.8",
+                        "--resolution", "0.1")
+    assert code == 2 and "no free pixel" in err and "segment its run's folder (hsmap segment DIR)" in err
+    assert len(err.strip().splitlines()) == 1

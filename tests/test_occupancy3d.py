@@ -111,3 +111,15 @@ def test_levelled_map_puts_each_columns_floor_at_zero():
         i, j, _ = m.index_of([[x, 1.5, 0.0]])[0]
         assert lev.state[i, j, z0] == OCCUPIED
         assert lev.state[i, j, z0 + 5] == FREE  # 0.5 m above the local floor
+
+
+def test_floor_field_takes_a_columns_own_floor_within_reach_of_the_nearest_poses():
+    """One pose in the low room: the raised room's columns get its floor only with a reach over the step."""
+    m, pos = _two_levels()
+    floors = floor_under_path(m, pos[:1], radius=1.5, depth=(0.2, 3.0))
+    i, j, _ = m.index_of([[7.0, 1.5, 0.0]])[0]
+    assert floor_field(m, pos[:1], floors)[i, j] == pytest.approx(floors[0])
+    assert floor_field(m, pos[:1], floors, reach=0.7)[i, j] == pytest.approx(0.6, abs=RES)
+    assert floor_field(m, pos[:1], floors, reach=0.3)[i, j] == pytest.approx(floors[0])  # out of reach
+    i, j, _ = m.index_of([[1.0, 1.5, 0.0]])[0]
+    assert floor_field(m, pos[:1], floors, reach=0.7)[i, j] == pytest.approx(0.0, abs=RES)

@@ -129,8 +129,8 @@ def _map_and_floor(args):
     floors = floor_under_path(m, positions, radius=g.floor_radius, depth=g.floor_depth)
     info = {"map3d": name, "floor": float(np.median(floors)), "floor_found": [float(floors.min()), float(floors.max())],
             "floor_source": f"under the path ({len(floors)} sensor poses; the band follows the floor under the "
-                            "nearest pose)"}
-    return level_map(m, floor_field(m, positions, floors)), 0.0, info
+                            f"nearest pose, or the column's own within {g.floor_reach:g} m of it)"}
+    return level_map(m, floor_field(m, positions, floors, reach=g.floor_reach)), 0.0, info
 
 
 def _band_grid(args: argparse.Namespace, min_passage: float):
@@ -221,7 +221,9 @@ def run(args: argparse.Namespace) -> int:
     try:
         check_scale(grid.free, grid.geometry.resolution, cfg)
     except EmptyInputError as exc:
-        raise EmptyInputError(f"{args.map}: {exc}") from None
+        hint = ("; a point map holds occupied points only: segment its run's folder (hsmap segment DIR) to carve "
+                "the free space along the trajectory") if Path(args.map).suffix.lower() in (".ply", ".pcd") else ""
+        raise EmptyInputError(f"{args.map}: {exc}{hint}") from None
     except InputError as exc:
         src = "--resolution" if args.resolution is not None else (
             f"{args.map}: 'resolution'" if Path(args.map).suffix.lower() in (".yaml", ".yml")

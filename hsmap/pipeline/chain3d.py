@@ -168,7 +168,7 @@ def levelled_bands(m: Map3D, positions: np.ndarray, cfg: ChainConfig) -> dict:
     segmented (free: :func:`hsmap.maps.maps3d.segmentation_free` of the map levelled to the floor)."""
     g = cfg.grids
     floors = floor_under_path(m, positions, radius=g.floor_radius, depth=g.floor_depth)
-    level = level_map(m, floor_field(m, positions, floors))
+    level = level_map(m, floor_field(m, positions, floors, reach=g.floor_reach))
     out: dict[str, Any] = {"floors": floors}
     passage = 2.0 * cfg.segmentation.min_door_half_width
     for name, (lo, hi) in (("floor", g.floor_band), ("slice", g.slice)):

@@ -42,6 +42,9 @@ class GridsConfig:
         3D-only recordings: metres around each sensor pose in which the floor below it is looked for.
     floor_depth : tuple of 2 floats
         3D-only recordings: metres below the sensor (nearest, farthest) where the floor may lie.
+    floor_reach : float
+        3D-only recordings: metres above or below the nearest pose's floor in which a map column's own floor
+        surface is taken instead (steps and ramps between floor levels; under a table top's height).
     """
 
     resolution: float = 0.05
@@ -54,6 +57,7 @@ class GridsConfig:
     floor_band: tuple[float, float] = (0.3, 0.4)
     floor_radius: float = 4.0
     floor_depth: tuple[float, float] = (0.2, 3.0)
+    floor_reach: float = 0.5
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.resolution) and self.resolution > 0):
@@ -62,9 +66,9 @@ class GridsConfig:
         if z.shape != (2,) or not np.all(np.isfinite(z)) or not z[0] < z[1]:
             raise ConfigError(f"grids.slice must be two heights low < high (metres), got {self.slice!r}")
         self.slice = (float(z[0]), float(z[1]))
-        for name in ("voxel", "max_range", "floor_radius"):
+        for name in ("voxel", "max_range", "floor_radius", "floor_reach"):
             v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
+            if not (isinstance(v, (int, float)) and np.isfinite(v) and (v > 0 or name == "floor_reach" and v == 0)):
                 raise ConfigError(f"grids.{name} must be a number of metres > 0, got {v!r}")
         for name, low in (("floor_band", -np.inf), ("floor_depth", 0.0)):
             z = np.asarray(getattr(self, name), dtype=float)

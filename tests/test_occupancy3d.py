@@ -7,7 +7,7 @@ import pytest
 
 from hsmap.errors import EmptyInputError, InputError
 from hsmap.maps.maps3d import FREE, OCCUPIED, Map3D, read_map3d
-from hsmap.occupancy3d import (
+from hsmap.maps.occupancy3d import (
     carve_sweeps,
     floor_field,
     floor_under_path,

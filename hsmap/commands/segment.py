@@ -109,7 +109,7 @@ def _map_and_floor(args):
 
     from ..errors import InputError
     from ..maps.maps3d import floor_height, read_map3d
-    from ..occupancy3d import floor_field, floor_under_path, level_map
+    from ..maps.occupancy3d import floor_field, floor_under_path, level_map
     from ..pipeline.config import GridsConfig
 
     if not Path(args.map).is_dir():

@@ -6,8 +6,8 @@ Stages, each a :class:`hsmap.pipeline.cache.FolderCache` folder under ``DIR/.sta
 1. ``slam3d``: 6-DOF HS-SLAM on the clouds alone (no 2D prior, no odometry), or the poses of a given trajectory
    interpolated at each cloud's stamp (:func:`given_poses`);
 2. ``voxels``: the 3D occupancy map, free space carved along every ray from the sensor
-   (:func:`hsmap.occupancy3d.carve_sweeps`, at ``grids.voxel``);
-3. ``grids``: the floor under each sensor pose (:func:`hsmap.occupancy3d.floor_under_path`; several floor levels),
+   (:func:`hsmap.maps.occupancy3d.carve_sweeps`, at ``grids.voxel``);
+3. ``grids``: the floor under each sensor pose (:func:`hsmap.maps.occupancy3d.floor_under_path`; several floor levels),
    the map levelled to it, the floor-level band ``grids.floor_band`` and the slice ``grids.slice`` in heights above
    the local floor: each band's occupancy grid (map_server) and the free space segmented
    (:func:`hsmap.maps.maps3d.segmentation_free`: observed free, or seen through);
@@ -49,7 +49,14 @@ from ..io import (
 from ..maps.grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid, write_label_image, write_map
 from ..maps.mapping import voxel_downsample
 from ..maps.maps3d import Map3D, band_grid, segmentation_free
-from ..occupancy3d import carve_sweeps, floor_field, floor_under_path, level_map, sweep_bounds, write_octomap
+from ..maps.occupancy3d import (
+    carve_sweeps,
+    floor_field,
+    floor_under_path,
+    level_map,
+    sweep_bounds,
+    write_octomap,
+)
 from ..rooms.segmentation import Segmentation, points_in_doors
 from ..rooms.topology import room_graph, write_topology
 from ..trajectory import Trajectory, write_tum

@@ -26,9 +26,9 @@ import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .errors import EmptyInputError, InputError, OutputError, ShapeError
-from .limits import check_allocation
-from .maps.maps3d import FREE, MAX_CELLS, OCCUPIED, UNKNOWN, Map3D
+from ..errors import EmptyInputError, InputError, OutputError, ShapeError
+from ..limits import check_allocation
+from .maps3d import FREE, MAX_CELLS, OCCUPIED, UNKNOWN, Map3D
 
 __all__ = [
     "sweep_bounds",
@@ -447,7 +447,7 @@ def write_octomap(m: Map3D, path: str | os.PathLike) -> int:
     """
     import octomap
 
-    from .io import atomic_path
+    from ..io import atomic_path
 
     path = Path(path)
     data = _octomap_bytes(m)

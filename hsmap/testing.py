@@ -12,6 +12,9 @@
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -19,7 +22,7 @@ from .geometry import pose_to_matrix, transform_points
 from .registration.harmony import as_rng
 
 __all__ = ["two_rooms_octree", "room_segments", "raycast_2d", "scan_points_2d", "room_boxes_3d", "room_cloud_3d", "room_scan_sequence",
-           "write_scan_bag"]
+           "ScanBagConfig", "write_scan_bag"]
 
 
 def _box_segments(cx: float, cy: float, w: float, h: float, yaw: float = 0.0) -> NDArray[np.float64]:
@@ -215,6 +218,85 @@ def room_scan_sequence(n: int = 40, step: float = 0.05, *, beams: int = 541, fov
     return np.asarray(ranges), np.asarray(angles), poses
 
 
+@dataclass(frozen=True)
+class ScanBagConfig:
+    """How :func:`write_scan_bag` writes: the scans' range fields, the bag's format, its topics and TF.
+
+    Attributes
+    ----------
+    range_min, range_max : float
+        The LaserScan range fields of every message.
+    time_increment : float
+        The LaserScan ``time_increment`` of every message, seconds between beams.
+    ros2 : bool
+        Write a ROS2 (sqlite3) bag instead of a ROS1 one.
+    scan_topic, cloud_topic : str
+        Where the scans and the clouds go.
+    tf : bool
+        Write the sensors' (identity) offsets on ``/tf_static``.
+    """
+
+    range_min: float = 0.05
+    range_max: float = 10.0
+    time_increment: float = 0.0
+    ros2: bool = False
+    scan_topic: str = "/scan"
+    cloud_topic: str = "/points"
+    tf: bool = True
+
+
+class _ScanBagMessages:
+    """The messages of :func:`write_scan_bag` in a ROS1 or ROS2 type store."""
+
+    def __init__(self, ros2: bool) -> None:
+        from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+        self.ros2 = ros2
+        self.ts = get_typestore(Stores.ROS2_HUMBLE if ros2 else Stores.ROS1_NOETIC)
+        if not ros2 and "tf2_msgs/msg/TFMessage" not in self.ts.types:
+            self.ts.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms",
+                                                "tf2_msgs/msg/TFMessage"))
+        self.T = self.ts.types
+
+    def serialize(self, msg, msgtype: str):
+        return self.ts.serialize_cdr(msg, msgtype) if self.ros2 else self.ts.serialize_ros1(msg, msgtype)
+
+    def header(self, t: float, frame: str, seq: int):
+        T = self.T
+        sec = int(math.floor(t))
+        stamp = T["builtin_interfaces/msg/Time"](sec=sec, nanosec=min(int(round((t - sec) * 1e9)), 999_999_999))
+        if self.ros2:
+            return T["std_msgs/msg/Header"](stamp=stamp, frame_id=frame)
+        return T["std_msgs/msg/Header"](seq=seq, stamp=stamp, frame_id=frame)
+
+    def cloud(self, t: float, seq: int, pts: NDArray[np.float64]):
+        T = self.T
+        PF = T["sensor_msgs/msg/PointField"]
+        data = np.ascontiguousarray(np.asarray(pts, dtype="<f4").reshape(-1, 3))
+        fields = [PF(name=n, offset=4 * i, datatype=7, count=1) for i, n in enumerate("xyz")]
+        return T["sensor_msgs/msg/PointCloud2"](
+            header=self.header(t, "lidar", seq), height=1, width=len(data), fields=fields, is_bigendian=False,
+            point_step=12, row_step=12 * len(data), data=np.frombuffer(data.tobytes(), dtype=np.uint8),
+            is_dense=False)
+
+    def identity(self, t: float, child: str):
+        T = self.T
+        V, Q = T["geometry_msgs/msg/Vector3"], T["geometry_msgs/msg/Quaternion"]
+        tr = T["geometry_msgs/msg/Transform"](translation=V(x=0.0, y=0.0, z=0.0), rotation=Q(x=0.0, y=0.0, z=0.0,
+                                                                                              w=1.0))
+        return T["geometry_msgs/msg/TransformStamped"](header=self.header(t, "base_link", 0), child_frame_id=child,
+                                                      transform=tr)
+
+    def scan(self, t: float, seq: int, ranges: NDArray[np.float32], angle_min: float, angle_increment: float,
+             cfg: ScanBagConfig):
+        return self.T["sensor_msgs/msg/LaserScan"](
+            header=self.header(t, "laser", seq), angle_min=float(angle_min),
+            angle_max=float(angle_min + angle_increment * (len(ranges) - 1)),
+            angle_increment=float(angle_increment), time_increment=float(cfg.time_increment), scan_time=0.1,
+            range_min=float(cfg.range_min), range_max=float(cfg.range_max), ranges=ranges,
+            intensities=np.zeros(0, dtype=np.float32))
+
+
 def write_scan_bag(
     path,
     ranges: NDArray[np.float64],
@@ -222,14 +304,9 @@ def write_scan_bag(
     *,
     angle_min: float,
     angle_increment: float,
-    range_min: float = 0.05,
-    range_max: float = 10.0,
     clouds: list[NDArray[np.float64]] | None = None,
-    ros2: bool = False,
-    scan_topic: str = "/scan",
-    cloud_topic: str = "/points",
-    tf: bool = True,
-    time_increment: float = 0.0,
+    config: ScanBagConfig | None = None,
+    **settings,
 ):
     """Write a bag of ``sensor_msgs/LaserScan`` messages (one per row of ``ranges``) with ``rosbags``.
 
@@ -245,88 +322,51 @@ def write_scan_bag(
         Float32 ranges of each scan (NaN and inf allowed).
     stamps : array_like of shape (N,)
         Header stamps, seconds (>= 0).
-    angle_min, angle_increment, range_min, range_max : float
-        The LaserScan geometry fields of every message.
+    angle_min, angle_increment : float
+        The LaserScan angle fields of every message.
     clouds : list of ndarray of shape (K, 3), optional
         One ``sensor_msgs/PointCloud2`` (float32 x, y, z) per scan, on ``cloud_topic``, frame ``lidar``.
-    ros2 : bool
-        Write a ROS2 (sqlite3) bag instead of a ROS1 one.
-    tf : bool
-        Write the sensors' (identity) offsets on ``/tf_static``.
-    time_increment : float
-        The LaserScan ``time_increment`` of every message, seconds between beams.
+    config : ScanBagConfig, optional
+        Range fields, format, topics and TF (default :class:`ScanBagConfig`'s).
+    **settings
+        :class:`ScanBagConfig` fields by name (``ros2=True``, ``range_max=30.0``, ...), over ``config``'s.
 
     Returns
     -------
     pathlib.Path
     """
-    import math
+    from dataclasses import replace
     from pathlib import Path
 
-    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-
+    cfg = replace(config or ScanBagConfig(), **settings)
     path = Path(path)
-    ts = get_typestore(Stores.ROS2_HUMBLE if ros2 else Stores.ROS1_NOETIC)
-    if not ros2 and "tf2_msgs/msg/TFMessage" not in ts.types:
-        ts.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms", "tf2_msgs/msg/TFMessage"))
-    T = ts.types
-
-    def header(t: float, frame: str, seq: int):
-        sec = int(math.floor(t))
-        stamp = T["builtin_interfaces/msg/Time"](sec=sec, nanosec=min(int(round((t - sec) * 1e9)), 999_999_999))
-        if ros2:
-            return T["std_msgs/msg/Header"](stamp=stamp, frame_id=frame)
-        return T["std_msgs/msg/Header"](seq=seq, stamp=stamp, frame_id=frame)
-
-    def cloud_msg(t: float, seq: int, pts: NDArray[np.float64]):
-        PF = T["sensor_msgs/msg/PointField"]
-        data = np.ascontiguousarray(np.asarray(pts, dtype="<f4").reshape(-1, 3))
-        fields = [PF(name=n, offset=4 * i, datatype=7, count=1) for i, n in enumerate("xyz")]
-        return T["sensor_msgs/msg/PointCloud2"](
-            header=header(t, "lidar", seq), height=1, width=len(data), fields=fields, is_bigendian=False,
-            point_step=12, row_step=12 * len(data), data=np.frombuffer(data.tobytes(), dtype=np.uint8),
-            is_dense=False)
-
+    m = _ScanBagMessages(cfg.ros2)
     ranges = np.asarray(ranges, dtype=np.float32)
     stamps = np.asarray(stamps, dtype=float)
     n = ranges.shape[0]
-    if ros2:
+    if cfg.ros2:
         from rosbags.rosbag2 import Writer
 
-        writer, serialize = Writer(path, version=9), ts.serialize_cdr
+        writer = Writer(path, version=9)
     else:
         from rosbags.rosbag1 import Writer
 
-        writer, serialize = Writer(path), ts.serialize_ros1
-    scan_type, cloud_type = "sensor_msgs/msg/LaserScan", "sensor_msgs/msg/PointCloud2"
-    tf_type = "tf2_msgs/msg/TFMessage"
-
-    def identity(t: float, child: str):
-        V, Q = T["geometry_msgs/msg/Vector3"], T["geometry_msgs/msg/Quaternion"]
-        tr = T["geometry_msgs/msg/Transform"](translation=V(x=0.0, y=0.0, z=0.0), rotation=Q(x=0.0, y=0.0, z=0.0,
-                                                                                              w=1.0))
-        return T["geometry_msgs/msg/TransformStamped"](header=header(t, "base_link", 0), child_frame_id=child,
-                                                      transform=tr)
-
+        writer = Writer(path)
+    scan_type, cloud_type, tf_type = "sensor_msgs/msg/LaserScan", "sensor_msgs/msg/PointCloud2", "tf2_msgs/msg/TFMessage"
     with writer as w:
-        if tf and n:
+        if cfg.tf and n:
             t_tf = max(float(stamps[0]) - 0.5, 0.0)
-            edges = [identity(t_tf, "laser")] + ([identity(t_tf, "lidar")] if clouds is not None else [])
-            w.write(w.add_connection("/tf_static", tf_type, typestore=ts), int(round(t_tf * 1e9)),
-                    serialize(T[tf_type](transforms=edges), tf_type))
-        conn = w.add_connection(scan_topic, scan_type, typestore=ts)
-        cconn = w.add_connection(cloud_topic, cloud_type, typestore=ts) if clouds is not None else None
+            edges = [m.identity(t_tf, "laser")] + ([m.identity(t_tf, "lidar")] if clouds is not None else [])
+            w.write(w.add_connection("/tf_static", tf_type, typestore=m.ts), int(round(t_tf * 1e9)),
+                    m.serialize(m.T[tf_type](transforms=edges), tf_type))
+        conn = w.add_connection(cfg.scan_topic, scan_type, typestore=m.ts)
+        cconn = w.add_connection(cfg.cloud_topic, cloud_type, typestore=m.ts) if clouds is not None else None
         for k in range(n):
-            msg = T[scan_type](
-                header=header(float(stamps[k]), "laser", k), angle_min=float(angle_min),
-                angle_max=float(angle_min + angle_increment * (ranges.shape[1] - 1)),
-                angle_increment=float(angle_increment), time_increment=float(time_increment), scan_time=0.1,
-                range_min=float(range_min), range_max=float(range_max), ranges=ranges[k],
-                intensities=np.zeros(0, dtype=np.float32))
+            msg = m.scan(float(stamps[k]), k, ranges[k], angle_min, angle_increment, cfg)
             t_ns = int(round(float(stamps[k]) * 1e9)) + 1
-            w.write(conn, t_ns, serialize(msg, scan_type))
+            w.write(conn, t_ns, m.serialize(msg, scan_type))
             if cconn is not None:
-                w.write(cconn, t_ns + 1, serialize(cloud_msg(float(stamps[k]), k, clouds[k]), cloud_type))
+                w.write(cconn, t_ns + 1, m.serialize(m.cloud(float(stamps[k]), k, clouds[k]), cloud_type))
     return path
 
 

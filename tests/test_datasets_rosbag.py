@@ -443,9 +443,8 @@ def test_damaged_bags_raise_hsmap_errors_only(tmp_path, rng):
 
 @pytest.mark.parametrize("q", [(0.0, 0.0, 0.0, 0.0), (0.0, 0.0, float("nan"), 1.0)])
 def test_a_tf_quaternion_that_is_zero_or_not_finite_is_one_error_naming_bag_topic_and_frames(tmp_path, capsys, q):
-    """Issue 12 (smaller): an all-zero quaternion printed numpy's RuntimeWarning before the error; now one
-    DataFormatError naming the bag, the topic and the frames, without any warning (the suite turns warnings into
-    errors), and one line from the command line."""
+    """An all-zero or non-finite quaternion in TF is one DataFormatError naming the bag, the topic and the frames,
+    with no numpy warning before it (the suite turns warnings into errors), and one line from the command line."""
     from hsmap.cli import main
 
     b = write_bag(tmp_path / "q.bag", laser_quaternion=q)

@@ -145,7 +145,7 @@ def test_rpe_per_frame_hand_computed():
     assert r2.statistics.n == 4 and r2.statistics.max == pytest.approx(0, abs=1e-12)
     assert rpe(est, gt, delta=2, all_pairs=True).statistics.n == 8
     assert rpe(est, gt, relation=PoseRelation.ROTATION_ANGLE).statistics.max == pytest.approx(0, abs=1e-12)
-    est_p[5, 2] = 0.05  # now also turned by 0.05 rad: both pairs through pose 5 are 0.05 rad off
+    est_p[5, 2] = 0.05  # pose 5 also turned by 0.05 rad: both pairs through pose 5 are 0.05 rad off
     rot = rpe(Trajectory(gt.stamps, compose(WORLD, est_p)), gt, relation=PoseRelation.ROTATION_ANGLE)
     expected[[4, 5]] = math.degrees(0.05)
     np.testing.assert_allclose(rot.errors, expected, atol=1e-9)

@@ -1,4 +1,4 @@
-"""Fault injection (issue 12): disk full during each output, SIGINT, SIGTERM and SIGKILL during ``hsmap slam`` and
+"""Fault injection: disk full during each output, SIGINT, SIGTERM and SIGKILL during ``hsmap slam`` and
 ``hsmap reproduce``, two ``hsmap reproduce`` at once.
 
 Every fault must end the same way: the previous good outputs intact (byte for byte), no temporary file left
@@ -248,12 +248,12 @@ def _open_under(folder: Path) -> list[str]:
 
 
 def test_slam_on_a_real_small_filesystem(bag, previous, tmp_path, capfd):
-    """Issue 12, reproduction 1, on a real 1 MiB tmpfs: filled to 12 KB free, ``hsmap slam --no-recording`` wrote
-    a truncated map.ply under its final name. Now, from 4 KB free up (8 KB steps, with and without the
-    recording: each step runs out in a different output, or half-way through one), the run either completes with
-    every output whole, or ends with one line and the previous run untouched; never a hang (rerun's own file
-    writer hung some of these runs), never a temporary left, no file left open (Open3D's PLY writer left one,
-    holding its space, and printed "RPly: Error closing up"), and nothing printed but that line."""
+    """On a real 1 MiB tmpfs filled to 4 KB free and up (8 KB steps, with and without the recording: each step
+    runs out in a different output, or half-way through one), ``hsmap slam`` either completes with every output
+    whole, or ends with one line and the previous run untouched: never a truncated map.ply under its final name,
+    never a hang (rerun's own file writer can hang on a full disk), never a temporary left, no file left open
+    (Open3D's PLY writer leaves one, holding its space, and prints "RPly: Error closing up"), and nothing printed
+    but that line."""
     import open3d as o3d
 
     from hsmap.io import verify_output
@@ -292,10 +292,10 @@ def test_slam_on_a_real_small_filesystem(bag, previous, tmp_path, capfd):
 
 def test_a_recording_cut_short_by_the_disk_ends_the_run_with_one_line(bag, previous, tmp_path, monkeypatch,
                                                                         capsys):
-    """rerun's own file writer, on a full disk, only logged the failure and sometimes never woke the flush (then
-    the interpreter's exit) that waited for it: the real-filesystem test found runs that hung. The recording's
-    bytes now reach the file through a thread of hsmap's, whose first failed write ends the run on one line,
-    wherever the disk fills (at once, after one byte, a block, 32 KB, or in the last write, the footer's)."""
+    """The recording's bytes reach the file through a thread of hsmap's, whose first failed write ends the run on
+    one line, wherever the disk fills (at once, after one byte, a block, 32 KB, or in the last write, the
+    footer's); rerun's own file writer, on a full disk, only logs the failure and can leave the flush that waits
+    for it (and the interpreter's exit) hanging."""
     from hsmap.viz import rerun_core as hrr
 
     if not hrr._FileFeed.available():
@@ -550,8 +550,8 @@ def _alive(pid: int) -> bool:
 
 
 def test_a_batch_finishing_later_keeps_the_entries_another_wrote_meanwhile(tmp_path, monkeypatch):
-    """Issue 12, reproduction 2: batch A runs 01 (long); meanwhile batch B runs 02, which fails, and writes its
-    entry; A finishes last. A's index must keep B's entry, not its own stale copy of 02's earlier "ok"."""
+    """Batch A runs 01 (long); meanwhile batch B runs 02, which fails, and writes its entry; A finishes last. A's
+    index keeps B's entry, not its own stale copy of 02's earlier "ok"."""
     import hsmap.study.batch as batch
     import hsmap.study.notebook_run as notebook_run
     from hsmap.io import folder_lock, write_json
@@ -643,9 +643,9 @@ def test_reproduce_disk_full_at_each_output_keeps_the_previous_report(tmp_path, 
 
 @pytest.mark.slow
 def test_reproduce_under_concurrency_interrupts_and_kills(tmp_path, capfd):
-    """Issue 12, reproductions 2 and 13, on two small notebooks, with real processes and signals:
+    """Two batches at once, interrupts and kills, on two small notebooks, with real processes and signals:
 
-    0. a run where nothing fails is quiet (the kernels are shut down without the SIGINT that made them log
+    0. a run where nothing fails is quiet (the kernels are shut down without a SIGINT, which makes them log
        "[IPKernelApp] ERROR | KeyboardInterrupt caught in kernel.", and their stderr is the report's);
     1. two batches at once (A waiting in 01 while B runs 02, which fails) keep each other's entries;
     2. SIGKILL of batch A: 01's previous report is intact, its staging folder is left, and the next batch removes

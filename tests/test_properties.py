@@ -1,4 +1,4 @@
-"""Property-based tests (hypothesis) of every reader and parser, and of harmony_icp's inputs (issue 12).
+"""Property-based tests (hypothesis) of every reader and parser, and of harmony_icp's inputs.
 
 Each test generates inputs, well-formed ones and damaged ones (a token replaced by junk, NaN or inf, a token or
 a line dropped or doubled, the file cut short, bytes that are not text, keys of the wrong kind, impossible
@@ -629,7 +629,7 @@ def test_harmony_icp_answers_or_names_the_argument(d, data):
     assert 0.0 <= got.inlier_ratio <= 1.0 and np.isfinite(got.fitness)
 
 
-# --- hostile configuration files and map YAMLs (issue 47) ---------------------------------------------------------
+# --- hostile configuration files and map YAMLs -------------------------------------------------------------------
 
 _SCALARS = st.one_of(
     st.none(), st.booleans(), st.integers(-10, 10), st.integers(-(10 ** 30), 10 ** 30), st.floats(),

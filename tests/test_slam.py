@@ -500,7 +500,7 @@ def test_cli_slam_on_a_carmen_log(tmp_path):
         verify_rrd(out / "slam.rrd")
         from hsmap.viz.rerun import recording_contents
 
-        # the blueprint's 2D map view has its map (issue 13: it stayed empty): the grid and the path
+        # the blueprint's 2D map view has its map (not an empty view): the grid and the path
         entities = recording_contents(out / "slam.rrd")
         assert "/map/occupancy" in entities and "/map/paths/estimate" in entities
         assert "/world/map/occupancy" in entities

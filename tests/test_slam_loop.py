@@ -279,7 +279,7 @@ def test_coarse_peaks_are_the_full_correlations_and_the_same_for_any_thread_coun
     from scipy import fft
 
     from hsmap._threads import using_threads
-    from hsmap.slam.loopclosure import _coarse_peaks, _likelihood_field, correlative_match_2d
+    from hsmap.slam.loopclosure import _coarse_peaks, _CoarseField, _likelihood_field, correlative_match_2d
 
     src, tgt = _office_scan(np.array([3.0, 2.5, 1.0])), _office_scan(np.array([2.0, 2.0, 0.3]), 1)
     rc, centre, half, sep_c, peaks = 0.8, np.array([1.0, 0.5]), 6.0, 3, 8
@@ -288,7 +288,8 @@ def test_coarse_peaks_are_the_full_correlations_and_the_same_for_any_thread_coun
     span = int(np.ceil(2 * np.linalg.norm(src, axis=1).max() / rc)) + 2
     shape = [fft.next_fast_len(n + span - 1, real=True) for n in field_c.shape]
     field_f = fft.rfft2(field_c, shape)
-    found = _coarse_peaks(angles, src, field_f, field_c.shape, shape, t0c, rc, centre, half, sep_c, peaks)
+    found = _coarse_peaks(angles, src, _CoarseField(field_f, field_c.shape, shape, t0c, rc), centre, half, sep_c,
+                          peaks)
     assert len(found) >= len(angles)
     # the same cells, bit for bit, as the whole cross-correlation of each rotated image (rfft2, irfft2)
     for yaw in angles[::10]:

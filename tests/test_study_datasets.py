@@ -79,8 +79,8 @@ def test_a_dataset_is_reused_and_a_changed_scenario_simulated_again(tmp_path):
 
 @pytest.mark.parametrize("damaged", ["scans2d.npz", "clouds3d/000002.npz"])
 def test_a_damaged_dataset_is_simulated_again_with_a_warning_naming_the_file(tmp_path, damaged):
-    """Issue 12: a truncated scans2d.npz (or 3D frame) made every later run fail with BadZipFile; now the cache
-    sees that the file is not the one written, says so and simulates the dataset again."""
+    """A truncated scans2d.npz (or 3D frame) in the cache is seen as not the file written: a warning names it and
+    the dataset is simulated again (no later run fails with BadZipFile)."""
     from hsmap.errors import HsmapWarning
 
     scn = _small_scenario(tmp_path)

@@ -1,4 +1,4 @@
-"""The study's recordings opened in rerun's headless viewer (issue 16): every view of each quick-study recording
+"""The study's recordings opened in rerun's headless viewer: every view of each quick-study recording
 has content and reports no error; an empty view is caught. Skipped, saying why, where no Vulkan driver is
 installed (Mesa's software renderer: ``apt-get install mesa-vulkan-drivers``; ``.ci/ensure-viewer-libs``)."""
 

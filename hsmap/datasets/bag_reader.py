@@ -43,6 +43,49 @@ def _topics_listing(reader) -> str:
     return ", ".join(f"{c.topic} ({c.msgtype})" for c in sorted(reader.connections, key=lambda c: c.topic)) or "none"
 
 
+class _SensorRecords:
+    """The sensors' messages that :meth:`BagReader.read_sensors` gathers, one at a time."""
+
+    def __init__(self, path: str) -> None:
+        self.path = path
+        self.scans: dict[str, list] = {"stamp": [], "seq": [], "ranges": [], "geometry": [], "frame": [],
+                                       "time_increment": []}
+        self.clouds: dict[str, list] = {"stamp": [], "seq": [], "frame": []}
+        self.odom: list[tuple[float, float, float, float, int]] = []
+        self.odom_child: str | None = None
+        self.checked: set = set()  # scan geometries found sound
+        self.bad_odom = 0
+
+    def add_scan(self, topic: str, seq, stamp: float, frame: str, geom: tuple, ranges: NDArray[np.float32],
+                 time_inc: float) -> None:
+        scans = self.scans
+        if (geom, len(ranges), time_inc) not in self.checked:
+            where = f"{self.path}: {topic} message {len(scans['stamp'])} (stamp {stamp:.6f})"
+            check_scan_geometry(geom, len(ranges), where)
+            scan_beam_times(time_inc, len(ranges), where)
+            self.checked.add((geom, len(ranges), time_inc))
+        scans["stamp"].append(stamp)
+        scans["seq"].append(seq)
+        scans["frame"].append(frame)
+        scans["ranges"].append(ranges)
+        scans["geometry"].append(geom)
+        scans["time_increment"].append(time_inc)
+
+    def add_cloud(self, seq, stamp: float, frame: str) -> None:
+        self.clouds["stamp"].append(stamp)
+        self.clouds["seq"].append(seq)
+        self.clouds["frame"].append(frame)
+
+    def add_odom(self, seq, stamp: float, frame: str, pose: tuple) -> None:
+        """An odometry pose (x, y, yaw), left out and counted where it or its stamp is not finite."""
+        if not all(math.isfinite(v) for v in (stamp, *pose)):
+            self.bad_odom += 1
+            return
+        self.odom.append((stamp, *pose, -1 if seq is None else seq))
+        if self.odom_child is None:
+            self.odom_child = frame
+
+
 class BagReader:
     """An open bag (made by :meth:`open`).
 
@@ -126,85 +169,65 @@ class BagReader:
         (N, 5: stamp, x, y, yaw, seq) and the odometry's child frame, read in one pass over the topics. ROS1
         LaserScan and Odometry connections whose definition digest is in ``fast`` are decoded from their raw
         bytes (:func:`hsmap.datasets.ros_messages.ros1_scan`)."""
+
         scan_c = self.conns(scan_topic)
         cloud_c = self.conns(cloud_topic)
         odom_c = self.conns(odom_topic)
-        scan_ids = {id(c) for c in scan_c}
-        cloud_ids = {id(c) for c in cloud_c}
-        scans: dict[str, list] = {"stamp": [], "seq": [], "ranges": [], "geometry": [], "frame": [],
-                                  "time_increment": []}
-        clouds: dict[str, list] = {"stamp": [], "seq": [], "frame": []}
-        odom: list[tuple[float, float, float, float]] = []
-        odom_child = None
-        fast = {id(c) for c in scan_c + odom_c if c.digest in fast}
-        checked: set = set()  # scan geometries found sound
-        bad_odom = 0
         from ..progress import bar as progress_bar
 
+        kinds = {**{id(c): "scan" for c in scan_c}, **{id(c): "cloud" for c in cloud_c}}
+        fast_ids = {id(c) for c in scan_c + odom_c if c.digest in fast}
+        rec = _SensorRecords(self.path)
         total = sum(int(c.msgcount) for c in scan_c + cloud_c + odom_c)
         bar = progress_bar(total, unit="msg", desc=f"reading {Path(self.path).name}", progress=progress, leave=False,
                            mininterval=0.5)
         for c, _, raw in self.messages(scan_c + cloud_c + odom_c):
             bar.update(1)
-            is_scan = id(c) in scan_ids
-            if id(c) in fast:
-                try:
-                    if is_scan:
-                        seq, stamp, frame, geom, ranges, time_inc = ros1_scan(raw)
-                    else:
-                        seq, stamp, frame, pose = ros1_odom(raw)
-                except (struct.error, UnicodeDecodeError, ValueError) as exc:
-                    raise DataFormatError(
-                        f"{self.path}: cannot decode a {c.msgtype} message on {c.topic}: {exc}"
-                    ) from None
+            kind = kinds.get(id(c), "odom")
+            seq, stamp, frame, payload = self._decode(c, raw, kind, id(c) in fast_ids)
+            if kind == "scan":
+                rec.add_scan(c.topic, seq, stamp, frame, *payload)
+            elif kind == "cloud":
+                rec.add_cloud(seq, stamp, frame)
             else:
-                msg = self.deserialize(raw, c)
-                h = msg.header
-                seq, stamp = getattr(h, "seq", None), stamp_seconds(h)
-                frame = h.frame_id
-                if is_scan:
-                    geom = (float(msg.angle_min), float(msg.angle_increment), float(msg.range_min), float(msg.range_max))
-                    ranges = np.asarray(msg.ranges, dtype=np.float32)
-                    time_inc = float(msg.time_increment)
-                elif id(c) not in cloud_ids:
-                    p, q = msg.pose.pose.position, msg.pose.pose.orientation
-                    yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
-                    pose = (p.x, p.y, yaw)
-                    frame = msg.child_frame_id
-            if is_scan:
-                if (geom, len(ranges), time_inc) not in checked:
-                    where = f"{self.path}: {c.topic} message {len(scans['stamp'])} (stamp {stamp:.6f})"
-                    check_scan_geometry(geom, len(ranges), where)
-                    scan_beam_times(time_inc, len(ranges), where)
-                    checked.add((geom, len(ranges), time_inc))
-                scans["stamp"].append(stamp)
-                scans["seq"].append(seq)
-                scans["frame"].append(frame)
-                scans["ranges"].append(ranges)
-                scans["geometry"].append(geom)
-                scans["time_increment"].append(time_inc)
-            elif id(c) in cloud_ids:
-                clouds["stamp"].append(stamp)
-                clouds["seq"].append(seq)
-                clouds["frame"].append(frame)
-            else:
-                if not all(math.isfinite(v) for v in (stamp, *pose)):
-                    bad_odom += 1
-                    continue
-                odom.append((stamp, *pose, -1 if seq is None else seq))
-                if odom_child is None:
-                    odom_child = frame
+                rec.add_odom(seq, stamp, frame, payload)
         bar.close()
-        if bad_odom:
+        if rec.bad_odom:
             import warnings
 
-            warnings.warn(f"{self.path}: {bad_odom} {odom_topic} message(s) have a non-finite pose or stamp and "
+            warnings.warn(f"{self.path}: {rec.bad_odom} {odom_topic} message(s) have a non-finite pose or stamp and "
                           "are ignored", HsmapWarning, stacklevel=3)
-        if scan_topic and not scans["stamp"]:
+        if scan_topic and not rec.scans["stamp"]:
             raise DatasetError(f"{self.path}: topic {scan_topic!r} has no messages")
-        if cloud_topic and not clouds["stamp"]:
+        if cloud_topic and not rec.clouds["stamp"]:
             raise DatasetError(f"{self.path}: topic {cloud_topic!r} has no messages")
-        return scans, clouds, np.asarray(odom, dtype=float).reshape(-1, 5), odom_child
+        return rec.scans, rec.clouds, np.asarray(rec.odom, dtype=float).reshape(-1, 5), rec.odom_child
+
+    def _decode(self, c, raw, kind: str, fast: bool) -> tuple:
+        """(seq, stamp, frame, payload) of one message of a ``kind`` ("scan", "cloud", "odom") connection: a scan's
+        payload is (geometry, ranges, time_increment), an odometry message's (x, y, yaw) and its frame the child
+        frame; with ``fast``, decoded from the ROS1 bytes."""
+        if fast:
+            try:
+                if kind == "scan":
+                    seq, stamp, frame, geom, ranges, time_inc = ros1_scan(raw)
+                    return seq, stamp, frame, (geom, ranges, time_inc)
+                return ros1_odom(raw)
+            except (struct.error, UnicodeDecodeError, ValueError) as exc:
+                raise DataFormatError(
+                    f"{self.path}: cannot decode a {c.msgtype} message on {c.topic}: {exc}"
+                ) from None
+        msg = self.deserialize(raw, c)
+        h = msg.header
+        seq, stamp = getattr(h, "seq", None), stamp_seconds(h)
+        if kind == "scan":
+            geom = (float(msg.angle_min), float(msg.angle_increment), float(msg.range_min), float(msg.range_max))
+            return seq, stamp, h.frame_id, (geom, np.asarray(msg.ranges, dtype=np.float32), float(msg.time_increment))
+        if kind == "cloud":
+            return seq, stamp, h.frame_id, None
+        p, q = msg.pose.pose.position, msg.pose.pose.orientation
+        yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+        return seq, stamp, msg.child_frame_id, (p.x, p.y, yaw)
 
     def dynamic_tf(self, tf: TfTree, base: str, sensors: list[str]) -> None:
         """Add the first /tf transform of every edge that does not move the base (odom -> base is skipped),

@@ -88,9 +88,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import DatasetError, InputError
-from ..geometry import matrix_to_pose, wrap_angle
+from ..geometry import matrix_to_pose
 from ..trajectory import Trajectory, nearest_index
 from .bag_reader import ROS2_STORAGE_SUFFIXES, TF_TYPE, BagReader
+from .bag_streams import clouds_in_order, odometry_at, pick_topic, topic_counts, topic_summary
 from .frames import SOURCE_DEFAULT, Dataset, Frame, LaserScan2D, stamp_in_sweep
 from .ros_messages import (
     POINT_TIME_FIELDS,
@@ -157,6 +158,51 @@ _ROS1_ODOM_MD5 = "cd5e73d190d741a2f92e81eda573aca7"
 OPTION_NAMES = {"scan_topic": "scan_topic", "cloud_topic": "cloud_topic", "odom_topic": "odom_topic",
                 "base_frame": "base_frame", "extrinsic2d": "extrinsic2d", "extrinsic3d": "extrinsic3d",
                 "sync_tolerance": "sync_tolerance", "drive": "drive"}
+
+
+def _checked_options(names: dict, order, sync_tolerance, drive) -> FrameOrder:
+    """The frame order asked for; raises, naming the option (``names``: the caller's names), where ``order``,
+    ``sync_tolerance`` or ``drive`` is not one it can take."""
+    try:
+        frame_order = FrameOrder(order)
+    except ValueError:
+        raise DatasetError(f"order must be one of {[o.value for o in FrameOrder]}, got {order!r}") from None
+    if not (math.isfinite(float(sync_tolerance)) and float(sync_tolerance) >= 0):
+        raise InputError(f"{names['sync_tolerance']} must be a number of seconds >= 0, got {sync_tolerance!r}")
+    if drive not in (None, "scan", "cloud"):
+        raise InputError(f"{names['drive']} must be 'scan' or 'cloud', got {drive!r}")
+    return frame_order
+
+
+class _BeamGeometry:
+    """Beam angles (mirrored for a scanner mounted upside down) and no-return threshold of each scan geometry
+    (angle_min, angle_increment, range_min, range_max) and beam count, computed once."""
+
+    def __init__(self, flip: bool, no_return: float | None) -> None:
+        self.flip, self.no_return = flip, no_return
+        self._cache: dict = {}
+
+    def __call__(self, geom: tuple, n: int) -> tuple[NDArray[np.float64], float]:
+        key = (geom, n)
+        if key not in self._cache:
+            amin, inc, rmin, rmax = geom
+            angles = amin + inc * np.arange(n)
+            self._cache[key] = (-angles if self.flip else angles, no_return_threshold(rmax, self.no_return))
+        return self._cache[key]
+
+
+def _decode_scan(scans: dict, k: int, stamp: float, beams: _BeamGeometry, path: str) -> LaserScan2D:
+    """Scan ``k`` of a bag's scans (as :meth:`BagReader.read_sensors` returns them), no-return readings masked,
+    its beam times (if any) relative to ``stamp``."""
+    r = scans["ranges"][k].astype(float)
+    geom = scans["geometry"][k]
+    angles, thr = beams(geom, len(r))
+    r[~((r >= geom[2]) & (r < thr))] = np.nan  # NaN, inf, below range_min, no return
+    times = scan_beam_times(scans["time_increment"][k], len(r), path)  # checked when read
+    if times is not None:
+        shift = float(scans["stamp"][k]) - float(stamp)
+        times = times + shift if shift else times
+    return LaserScan2D(ranges=r, angles=angles.copy(), range_min=geom[2], range_max=thr, times=times)
 
 
 class RosbagDataset(Dataset):
@@ -234,17 +280,10 @@ class RosbagDataset(Dataset):
         p = Path(path)
         self.name = p.name.split(".")[0] if p.is_file() else p.name
         self._names = {**OPTION_NAMES, **(option_names or {})}
-        try:
-            self.order = FrameOrder(order)
-        except ValueError:
-            raise DatasetError(f"order must be one of {[o.value for o in FrameOrder]}, got {order!r}") from None
+        self.order = _checked_options(self._names, order, sync_tolerance, drive)
         self.no_return = no_return
         self.odom_tolerance = float(odom_tolerance)
-        if not (math.isfinite(float(sync_tolerance)) and float(sync_tolerance) >= 0):
-            raise InputError(f"{self._names['sync_tolerance']} must be a number of seconds >= 0, got {sync_tolerance!r}")
         self.sync_tolerance = float(sync_tolerance)
-        if drive not in (None, "scan", "cloud"):
-            raise InputError(f"{self._names['drive']} must be 'scan' or 'cloud', got {drive!r}")
         self._progress = progress
 
         with BagReader.open(self.path) as bag:
@@ -265,43 +304,17 @@ class RosbagDataset(Dataset):
         self._build_frames(drive or ("scan" if self.scan_topic else "cloud"))
 
     # -- opening and topics -------------------------------------------------------------------------
-    def _pick(self, bag: BagReader, topic: str | None, msgtype: str, what: str, option: str) -> str | None:
-        flag = self._names[option]
-        conns = [c for c in bag.connections if c.msgtype == msgtype]
-        if topic is not None:
-            if topic == "":
-                return None
-            named = [c for c in bag.connections if c.topic == topic]
-            if not named:
-                raise DatasetError(
-                    f"{self.path}: {flag} {topic}: no such topic ({what}); the bag has: {bag.topics_listing()}"
-                )
-            if named[0].msgtype != msgtype:
-                raise DatasetError(
-                    f"{self.path}: {flag} {topic}: the topic is {named[0].msgtype}, expected {msgtype}"
-                )
-            return topic
-        topics = sorted({c.topic for c in conns})
-        if len(topics) > 1:
-            raise DatasetError(
-                f"{self.path}: several {msgtype} topics {topics}: choose one with {flag} (or {flag} '' for none)"
-            )
-        return topics[0] if topics else None
-
     def _resolve_topics(self, bag: BagReader, scan_topic, cloud_topic, odom_topic) -> None:
-        self.scan_topic = self._pick(bag, scan_topic, SCAN_TYPE, "2D scans", "scan_topic")
-        self.cloud_topic = self._pick(bag, cloud_topic, CLOUD_TYPE, "3D clouds", "cloud_topic")
+        self.scan_topic = pick_topic(bag, self.path, scan_topic, SCAN_TYPE, "2D scans", self._names["scan_topic"])
+        self.cloud_topic = pick_topic(bag, self.path, cloud_topic, CLOUD_TYPE, "3D clouds",
+                                       self._names["cloud_topic"])
         if self.scan_topic is None and self.cloud_topic is None:
             raise DatasetError(
                 f"{self.path}: no {SCAN_TYPE} or {CLOUD_TYPE} topic to read; the bag has: {bag.topics_listing()}"
             )
-        self.odom_topic = self._pick(bag, odom_topic, ODOM_TYPE, "odometry", "odom_topic")
-        self._counts = {}
-        for key, topic in (("scan", self.scan_topic), ("cloud", self.cloud_topic), ("odom", self.odom_topic)):
-            if topic:
-                c = next(c for c in bag.connections if c.topic == topic)
-                self._counts[key] = {"topic": topic, "type": c.msgtype,
-                                     "messages": int(sum(x.msgcount for x in bag.connections if x.topic == topic))}
+        self.odom_topic = pick_topic(bag, self.path, odom_topic, ODOM_TYPE, "odometry", self._names["odom_topic"])
+        self._counts = topic_counts(bag, {"scan": self.scan_topic, "cloud": self.cloud_topic,
+                                           "odom": self.odom_topic})
 
     # -- reading ------------------------------------------------------------------------------------
     # -- extrinsics ---------------------------------------------------------------------------------
@@ -346,7 +359,12 @@ class RosbagDataset(Dataset):
                     self._tf_chains[key] = tf.chain(base, sensors[key]) if sensors[key] != base else [base]
             else:
                 self.extrinsic_sources.pop(key, None)
-        if "2d" in sensors and base is not None and found["2d"]:
+        if base is not None:
+            self._set_tf_offsets(tf, base, {k: f for k, f in sensors.items() if found[k]})
+
+    def _set_tf_offsets(self, tf: TfTree, base: str, sensors: dict[str, str]) -> None:
+        """The offsets of the ``sensors`` (key -> frame) that TF places in ``base``."""
+        if "2d" in sensors:
             T = tf.lookup(base, sensors["2d"])
             R = T[:3, :3]
             if R[2, 2] < 0:  # mounted upside down: beam angles are mirrored about the sensor's x axis
@@ -354,7 +372,7 @@ class RosbagDataset(Dataset):
                 R = R @ np.diag([1.0, -1.0, -1.0])
             self.extrinsic2d = np.array([T[0, 3], T[1, 3], math.atan2(R[1, 0], R[0, 0])])
             self.height2d = float(T[2, 3])
-        if "3d" in sensors and base is not None and found["3d"]:
+        if "3d" in sensors:
             self.extrinsic3d = matrix_to_pose(tf.lookup(base, sensors["3d"]))
 
     def _warn_missing_extrinsics(self) -> None:
@@ -428,24 +446,12 @@ class RosbagDataset(Dataset):
             self._scan_index, self._cloud_index = idx, paired
         else:
             self._scan_index, self._cloud_index = paired, idx
-        self._odometry = self._interpolate_odometry(_monotone(self.stamps))
+        self._odometry = odometry_at(self._odom, _monotone(self.stamps), self.odom_tolerance)
         ok = ~np.isnan(self._odometry[:, 0])
         self.odometry = Trajectory(self.stamps[ok], self._odometry[ok]) if ok.any() else None
-        self._angle_cache: dict = {}
+        self._beams = _BeamGeometry(self._flip_scan, self.no_return)
 
     def _describe(self) -> dict:
-        topics = {}
-        for key, rec in (("scan", self._scans), ("cloud", self._clouds)):
-            if key in self._counts:
-                st = np.sort(np.asarray(rec["stamp"], dtype=float))
-                topics[key] = {**self._counts[key], "frame_id": frame_name(rec["frame"][0]) if rec["frame"] else None,
-                               "rate_hz": (len(st) - 1) / float(st[-1] - st[0]) if len(st) > 1 and st[-1] > st[0]
-                               else None}
-        if "odom" in self._counts:
-            st = np.sort(self._odom[:, 0])
-            topics["odom"] = {**self._counts["odom"], "child_frame_id": self._odom_child,
-                              "rate_hz": (len(st) - 1) / float(st[-1] - st[0]) if len(st) > 1 and st[-1] > st[0]
-                              else None}
         n = len(self.stamps)
         attached = {}
         if self.driver == "scan" and self._cloud_index is not None:
@@ -453,7 +459,7 @@ class RosbagDataset(Dataset):
         if self.driver == "cloud" and self._scan_index is not None:
             attached["frames_with_scan"] = int((self._scan_index >= 0).sum())
         return {
-            "topics": topics,
+            "topics": topic_summary(self._counts, self._scans, self._clouds, self._odom, self._odom_child),
             "base_frame": self.base_frame,
             "sensor_frames": dict(self.sensor_frames),
             "tf_chains": {k: " -> ".join(v) for k, v in self._tf_chains.items()},
@@ -464,79 +470,18 @@ class RosbagDataset(Dataset):
             **attached,
         }
 
-    def _interpolate_odometry(self, t: NDArray[np.float64]) -> NDArray[np.float64]:
-        out = np.full((len(t), 3), np.nan)
-        if len(self._odom) == 0:
-            return out
-        od = self._odom[np.argsort(self._odom[:, 0], kind="stable")]
-        ts = od[:, 0]
-        inside = (t >= ts[0] - self.odom_tolerance) & (t <= ts[-1] + self.odom_tolerance)
-        if len(od) == 1:
-            out[inside] = od[0, 1:]
-            return out
-        yaw = np.unwrap(od[:, 3])
-        tq = t[inside]
-        out[inside, 0] = np.interp(tq, ts, od[:, 1])
-        out[inside, 1] = np.interp(tq, ts, od[:, 2])
-        out[inside, 2] = wrap_angle(np.interp(tq, ts, yaw))
-        return out
-
     def __len__(self) -> int:
         return len(self.stamps)
 
     def _scan(self, k: int, stamp: float) -> LaserScan2D:
         """Scan ``k`` of the bag, its beam times (if any) relative to ``stamp`` (the frame's)."""
-        r = self._scans["ranges"][k].astype(float)
-        geom = self._scans["geometry"][k]
-        key = (geom, len(r))
-        if key not in self._angle_cache:
-            amin, inc, rmin, rmax = geom
-            angles = amin + inc * np.arange(len(r))
-            self._angle_cache[key] = (-angles if self._flip_scan else angles, no_return_threshold(rmax, self.no_return))
-        angles, thr = self._angle_cache[key]
-        r[~((r >= geom[2]) & (r < thr))] = np.nan  # NaN, inf, below range_min, no return
-        times = scan_beam_times(self._scans["time_increment"][k], len(r), self.path)  # checked when read
-        if times is not None:
-            shift = float(self._scans["stamp"][k]) - float(stamp)
-            times = times + shift if shift else times
-        return LaserScan2D(ranges=r, angles=angles.copy(), range_min=geom[2], range_max=thr, times=times)
-
-    def _clouds_in_order(self, wanted: NDArray[np.intp]) -> Iterator[tuple | None]:
-        """Yield the cloud of each entry of ``wanted`` (bag index, -1 = none), streaming the bag once, as
-        :func:`pointcloud2_points` returns it."""
-        need: dict[int, int] = {}
-        for k in wanted:
-            if k >= 0:
-                need[int(k)] = need.get(int(k), 0) + 1
-        if not need:
-            yield from (None for _ in wanted)
-            return
-        pending: dict[int, tuple] = {}
-        with BagReader.open(self.path) as bag:
-            stream = bag.messages(bag.conns(self.cloud_topic))
-            pos = -1
-            for k in wanted:
-                k = int(k)
-                if k < 0:
-                    yield None
-                    continue
-                while k not in pending:
-                    c, _, raw = next(stream)
-                    pos += 1
-                    if pos in need:
-                        msg = bag.deserialize(raw, c)
-                        pending[pos] = pointcloud2_points(msg, source=f"{self.path} {self.cloud_topic} message {pos}")
-                cloud = pending[k]
-                need[k] -= 1
-                if need[k] == 0:
-                    del pending[k]
-                yield cloud
+        return _decode_scan(self._scans, k, stamp, self._beams, self.path)
 
     def frames(self, clouds: bool = True) -> Iterator[Frame]:
         """Yield the frames in :attr:`order` (see the module docstring); ``clouds=False`` skips the 3D clouds."""
         n = len(self.stamps)
         want = clouds and self._cloud_index is not None
-        clouds = self._clouds_in_order(self._cloud_index) if want else (None for _ in range(n))
+        clouds = clouds_in_order(self.path, self.cloud_topic, self._cloud_index) if want else (None for _ in range(n))
         for i, got in zip(range(n), clouds, strict=True):
             odo = self._odometry[i]
             k = -1 if self._scan_index is None else int(self._scan_index[i])

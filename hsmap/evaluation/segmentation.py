@@ -97,6 +97,17 @@ def ground_truth_rooms(gt: ArrayLike, min_area: int = 100, free_above: int = 250
     return remap[lab]
 
 
+def _kept_labels(gt: NDArray, min_area: int) -> NDArray[np.int64]:
+    """A label image's rooms of more than ``min_area`` pixels, numbered 1..R in label order (0 = no room)."""
+    rooms = np.asarray(gt).astype(np.int64)
+    ids, inv = np.unique(rooms.ravel(), return_inverse=True)
+    sizes = np.bincount(inv)
+    keep = (ids > 0) & (sizes > min_area)
+    remap = np.zeros(len(ids), dtype=np.int64)
+    remap[keep] = np.arange(1, int(keep.sum()) + 1)
+    return remap[inv].reshape(gt.shape)
+
+
 def segmentation_scores(
     labels: ArrayLike, gt: ArrayLike, *, min_area: int = 100, free_above: int = 250, gt_is_labels: bool = False
 ) -> SegmentationScores:
@@ -136,16 +147,8 @@ def segmentation_scores(
         raise ShapeError(f"segmentation {seg.shape} and ground truth {gt.shape} differ in size")
     if not np.issubdtype(seg.dtype, np.integer):
         raise ShapeError(f"segmentation labels must be integers, got dtype {seg.dtype}")
-    if gt_is_labels:
-        rooms = np.asarray(gt).astype(np.int64)
-        ids, inv = np.unique(rooms.ravel(), return_inverse=True)
-        sizes = np.bincount(inv)
-        keep = (ids > 0) & (sizes > min_area)
-        remap = np.zeros(len(ids), dtype=np.int64)
-        remap[keep] = np.arange(1, int(keep.sum()) + 1)
-        rooms = remap[inv].reshape(gt.shape)
-    else:
-        rooms = ground_truth_rooms(gt, min_area, free_above).astype(np.int64)
+    rooms = (_kept_labels(gt, min_area) if gt_is_labels
+             else ground_truth_rooms(gt, min_area, free_above).astype(np.int64))
     n_rooms = int(rooms.max(initial=0))
     if n_rooms == 0:
         raise EmptyInputError(f"the ground truth has no room of more than {min_area} px (pixels > {free_above})")

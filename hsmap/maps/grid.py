@@ -559,6 +559,85 @@ def grid_from_scans(
                                     margin=margin, config=config)[0]
 
 
+def _scans_in_world(scans, poses: NDArray[np.float64], extrinsic: ArrayLike | None,
+                    cfg: ScanGridConfig) -> list[tuple[int, NDArray, NDArray, NDArray]]:
+    """(index, sensor position, end points, hit mask) of every scan that adds to a grid, in the world."""
+    world = []
+    for k, (sensor, w, hit) in enumerate(_placed_scans(scans, poses, extrinsic)):
+        if not cfg.max_range_free:
+            w[~hit] = sensor
+        if hit.any() or (cfg.max_range_free and len(w)):
+            world.append((k, sensor, w, hit))
+    if not world:
+        raise EmptyInputError("grid_from_scans: no valid return in any scan")
+    return world
+
+
+def _covering(world: list, resolution: float, margin: float, max_cells: int | None) -> tuple[GridGeometry, float]:
+    """The geometry covering every sensor position and end point of ``world``, and its resolution: coarsened
+    where the grid would have more than ``max_cells`` cells."""
+    allp = np.vstack([np.vstack([o[None], w]) for _, o, w, _ in world])
+    lo, hi = allp.min(0), allp.max(0)
+    geometry = GridGeometry.covering(lo, hi, resolution, margin)
+    if max_cells is not None and geometry.height * geometry.width > max_cells:
+        side = hi - lo + 2 * margin  # the coarsest cell that fits, then up until the rounding fits too
+        resolution = float(np.sqrt(side[0] * side[1] / max_cells))
+        geometry = GridGeometry.covering(lo, hi, resolution, margin)
+        while geometry.height * geometry.width > max_cells:
+            resolution *= 1.01
+            geometry = GridGeometry.covering(lo, hi, resolution, margin)
+    return geometry, resolution
+
+
+class _LogOdds:
+    """The log-odds of a grid's cells and which cells any beam touched, scan by scan."""
+
+    def __init__(self, geometry: GridGeometry, cfg: ScanGridConfig) -> None:
+        self.geometry, self.cfg = geometry, cfg
+        self.logodds = np.zeros(geometry.shape)
+        self.touched = np.zeros(geometry.shape, dtype=bool)
+
+    def grid(self) -> OccupancyGrid:
+        cfg, touched, logodds = self.cfg, self.touched, self.logodds
+        data = np.full(self.geometry.shape, UNKNOWN, dtype=np.int8)
+        data[touched & (logodds < cfg.free_below)] = FREE
+        data[touched & (logodds > cfg.occupied_above)] = OCCUPIED
+        return OccupancyGrid(data, self.geometry)
+
+    def add(self, o: NDArray[np.float64], w: NDArray[np.float64], hit: NDArray[np.bool_]) -> None:
+        """One scan from sensor position ``o``: a miss on the area its beams swept, a hit at each of its hits."""
+        from PIL import Image, ImageDraw
+
+        geometry, cfg, logodds, touched = self.geometry, self.cfg, self.logodds, self.touched
+        H, W = geometry.shape
+        # the swept area stops short of each end point by 0.75 cell, so the hit cell and those behind it
+        # are not cleared by rounding
+        v = w - o
+        n = np.linalg.norm(v, axis=1, keepdims=True)
+        w_short = o + v * np.clip(1.0 - 0.75 * geometry.resolution / np.maximum(n, 1e-12), 0.0, 1.0)
+        poly = geometry.world_to_pixel(np.vstack([o[None], w_short]))  # (row, col), centres at integers
+        lo = np.floor(poly.min(0)).astype(int) - 1
+        hi = np.ceil(poly.max(0)).astype(int) + 2
+        lo = np.maximum(lo, 0)
+        hi = np.minimum(hi, [H, W])
+        if np.any(hi <= lo):
+            return
+        canvas = Image.new("1", (int(hi[1] - lo[1]), int(hi[0] - lo[0])), 0)
+        xy = (poly[:, ::-1] - lo[::-1]).ravel().tolist()  # PIL wants (x=col, y=row) pairs
+        ImageDraw.Draw(canvas).polygon(xy, fill=1)
+        swept = np.asarray(canvas, dtype=bool).copy()
+        idx = geometry.world_to_index(w[hit])
+        ok = geometry.inside(idx)
+        hr, hc = idx[ok, 0], idx[ok, 1]
+        inside = (hr >= lo[0]) & (hr < hi[0]) & (hc >= lo[1]) & (hc < hi[1])
+        swept[hr[inside] - lo[0], hc[inside] - lo[1]] = False  # a scan's own hits are no misses
+        box = logodds[lo[0]:hi[0], lo[1]:hi[1]]
+        np.add(box, cfg.miss, out=box, where=swept)  # in place, no box-sized temporary (a 30 m scan's is 1.4 M cells)
+        touched[lo[0]:hi[0], lo[1]:hi[1]] |= swept
+        np.add.at(logodds, (hr, hc), cfg.hit)
+        touched[hr, hc] = True
+
+
 def grids_from_scan_prefixes(
     scans,
     poses: ArrayLike,
@@ -579,8 +658,6 @@ def grids_from_scan_prefixes(
     ``max_cells`` (and no ``geometry``), the resolution is coarsened where the covering grid would have more
     cells than that (a view of a campus-sized log: 5 cm cells over 444 m x 237 m are 42 million).
     """
-    from PIL import Image, ImageDraw
-
     cfg = config or ScanGridConfig()
     if not (np.isfinite(resolution) and resolution > 0):
         raise InputError(f"resolution must be a positive number of metres per cell, got {resolution}")
@@ -590,71 +667,21 @@ def grids_from_scan_prefixes(
     counts = [int(c) for c in np.atleast_1d(np.asarray(counts))]
     if any(b < a for a, b in zip(counts, counts[1:], strict=False)) or (counts and counts[0] < 0):
         raise InputError(f"counts must be >= 0 and must not decrease, got {counts}")
-    world = []
-    for k, (sensor, w, hit) in enumerate(_placed_scans(scans, poses, extrinsic)):
-        if not cfg.max_range_free:
-            w[~hit] = sensor
-        if hit.any() or (cfg.max_range_free and len(w)):
-            world.append((k, sensor, w, hit))
-    if not world:
-        raise EmptyInputError("grid_from_scans: no valid return in any scan")
+    world = _scans_in_world(scans, poses, extrinsic, cfg)
     if geometry is None:
-        allp = np.vstack([np.vstack([o[None], w]) for _, o, w, _ in world])
-        lo, hi = allp.min(0), allp.max(0)
-        geometry = GridGeometry.covering(lo, hi, resolution, margin)
-        if max_cells is not None and geometry.height * geometry.width > max_cells:
-            side = hi - lo + 2 * margin  # the coarsest cell that fits, then up until the rounding fits too
-            resolution = float(np.sqrt(side[0] * side[1] / max_cells))
-            geometry = GridGeometry.covering(lo, hi, resolution, margin)
-            while geometry.height * geometry.width > max_cells:
-                resolution *= 1.01
-                geometry = GridGeometry.covering(lo, hi, resolution, margin)
+        geometry, resolution = _covering(world, resolution, margin, max_cells)
     H, W = geometry.shape
-
     check_allocation(float(H) * float(W) * (16 + len(counts)),
                      f"a {W} x {H} cell occupancy grid at {resolution:g} m per cell (the resolution)")
-    logodds = np.zeros((H, W))
-    touched = np.zeros((H, W), dtype=bool)
+    acc = _LogOdds(geometry, cfg)
     grids: list[OccupancyGrid] = []
     pending = list(counts)
-
-    def emit(done: int) -> None:  # the grids of every prefix of at most `done` scans not yet emitted
-        while pending and pending[0] <= done:
-            pending.pop(0)
-            data = np.full((H, W), UNKNOWN, dtype=np.int8)
-            data[touched & (logodds < cfg.free_below)] = FREE
-            data[touched & (logodds > cfg.occupied_above)] = OCCUPIED
-            grids.append(OccupancyGrid(data, geometry))
-
     for k, o, w, hit in world:
-        emit(k)
-        # the swept area stops short of each end point by 0.75 cell, so the hit cell and those behind it
-        # are not cleared by rounding
-        v = w - o
-        n = np.linalg.norm(v, axis=1, keepdims=True)
-        w_short = o + v * np.clip(1.0 - 0.75 * geometry.resolution / np.maximum(n, 1e-12), 0.0, 1.0)
-        poly = geometry.world_to_pixel(np.vstack([o[None], w_short]))  # (row, col), centres at integers
-        lo = np.floor(poly.min(0)).astype(int) - 1
-        hi = np.ceil(poly.max(0)).astype(int) + 2
-        lo = np.maximum(lo, 0)
-        hi = np.minimum(hi, [H, W])
-        if np.any(hi <= lo):
-            continue
-        canvas = Image.new("1", (int(hi[1] - lo[1]), int(hi[0] - lo[0])), 0)
-        xy = (poly[:, ::-1] - lo[::-1]).ravel().tolist()  # PIL wants (x=col, y=row) pairs
-        ImageDraw.Draw(canvas).polygon(xy, fill=1)
-        swept = np.asarray(canvas, dtype=bool).copy()
-        idx = geometry.world_to_index(w[hit])
-        ok = geometry.inside(idx)
-        hr, hc = idx[ok, 0], idx[ok, 1]
-        inside = (hr >= lo[0]) & (hr < hi[0]) & (hc >= lo[1]) & (hc < hi[1])
-        swept[hr[inside] - lo[0], hc[inside] - lo[1]] = False  # a scan's own hits are no misses
-        box = logodds[lo[0]:hi[0], lo[1]:hi[1]]
-        np.add(box, cfg.miss, out=box, where=swept)  # in place, no box-sized temporary (a 30 m scan's is 1.4 M cells)
-        touched[lo[0]:hi[0], lo[1]:hi[1]] |= swept
-        np.add.at(logodds, (hr, hc), cfg.hit)
-        touched[hr, hc] = True
-    emit(np.iinfo(np.int64).max)
+        while pending and pending[0] <= k:  # the grids of the prefixes of at most k scans
+            pending.pop(0)
+            grids.append(acc.grid())
+        acc.add(o, w, hit)
+    grids.extend(acc.grid() for _ in pending)
     return grids
 
 

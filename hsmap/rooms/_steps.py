@@ -232,6 +232,66 @@ def extension(filtered: NDArray[np.bool_], a: NDArray[np.int64], e: NDArray[np.f
     return None if r < 0 else np.array([r, c], dtype=np.int64)
 
 
+def _corner_pair_gaps(filtered: NDArray[np.bool_], corners: NDArray[np.int64], max_px: float, end_px: float,
+                      steps: int) -> list[tuple[NDArray[np.int64], NDArray[np.int64]]]:
+    """Gaps between two corners, along a free line, where a wall runs on beyond one end at least."""
+    from scipy.spatial import cKDTree
+
+    segs = []
+    pairs = cKDTree(corners).query_pairs(max_px + 1.0, output_type="ndarray") if len(corners) > 1 else []
+    for i, j in pairs:
+        a, b = corners[i], corners[j]
+        af, bf = a.astype(float), b.astype(float)
+        L = float(np.hypot(*(bf - af)))
+        if L < 3.0:
+            continue
+        u = (bf - af) / L
+        if free_run(filtered, af, bf, end_px) and (runs_along_wall(filtered, af, -u, steps)
+                                                    or runs_along_wall(filtered, bf, u, steps)):
+            segs.append((a, b))
+    return segs
+
+
+def _wall_end_gaps(filtered: NDArray[np.bool_], corners: NDArray[np.int64], angles: NDArray[np.float64],
+                   starts: NDArray[np.int64], nbins: int, max_px: float, end_px: float,
+                   ext_steps: int) -> list[tuple[NDArray[np.int64], NDArray[np.int64]]]:
+    """Gaps from a corner along the wall it ends, continued, to the first obstacle, no longer than that wall.
+
+    The free wedge of a corner is bounded by the faces that meet there, so a face continued runs along an edge
+    of the wedge."""
+    segs = []
+    sector = 2.0 * np.pi / nbins
+    for a in corners:
+        s0 = int(starts[a[0], a[1]])
+        if s0 < 0:
+            continue
+        lo = s0 * sector - np.pi
+        hi = lo + np.deg2rad(angles[a[0], a[1]])
+        for th in (lo + np.pi / 2, hi - np.pi / 2):
+            e = np.array([np.sin(th), np.cos(th)])
+            if not runs_along_wall(filtered, a.astype(float), -e, ext_steps):
+                continue
+            b = extension(filtered, a, e, max_px, end_px)
+            # a gap no longer than the wall it continues
+            if b is not None and 3.0 <= np.hypot(*(b - a)) <= wall_run(filtered, a.astype(float), -e,
+                                                                       int(max_px) + 1):
+                segs.append((a, b))
+    return segs
+
+
+def _narrow_sides(walls: NDArray[np.bool_], a: NDArray[np.int64], b: NDArray[np.int64],
+                  gap_ratio: float) -> list[bool]:
+    """Whether the line a-b is at most ``gap_ratio`` times the free chord parallel to it, on each side."""
+    af, bf = a.astype(float), b.astype(float)
+    L = float(np.hypot(*(bf - af)))
+    u = (bf - af) / L
+    nrm = np.array([-u[1], u[0]])
+    depths = np.arange(2.0, max(L / 2, 3.0) + 1.0)
+    reach = int(np.ceil(L / gap_ratio)) + 2
+    centre = (af + bf) / 2
+    return [L - 1.0 <= gap_ratio * free_width(walls, centre, u, side * nrm, depths, reach) for side in (1.0, -1.0)]
+
+
 def wall_gap_lines(filtered: NDArray[np.bool_], dist_px: NDArray[np.float64], corners: NDArray[np.int64],
                     angles: NDArray[np.float64], starts: NDArray[np.int64], nbins: int, res: float,
                     cfg: Any) -> list[tuple[NDArray[np.int64], NDArray[np.int64], float, bool]]:
@@ -248,45 +308,14 @@ def wall_gap_lines(filtered: NDArray[np.bool_], dist_px: NDArray[np.float64], co
     border (firm); on one side only (the mouth of a corridor, into a room or into another corridor), the
     narrowing test decides. Returns (a, b, width in metres, firm) per line narrow on a side at least.
     """
-    from scipy.spatial import cKDTree
-
     if not len(corners):
         return []
     steps = max(2, int(round(cfg.wall_continuation / res)))
     end_px = max(2.0, 0.15 / res)
     max_px = cfg.max_gap_width / res
-    segs: list[tuple[NDArray[np.int64], NDArray[np.int64]]] = []
-    # corner pairs
-    pairs = cKDTree(corners).query_pairs(max_px + 1.0, output_type="ndarray") if len(corners) > 1 else []
-    for i, j in pairs:
-        a, b = corners[i], corners[j]
-        af, bf = a.astype(float), b.astype(float)
-        L = float(np.hypot(*(bf - af)))
-        if L < 3.0:
-            continue
-        u = (bf - af) / L
-        if free_run(filtered, af, bf, end_px) and (runs_along_wall(filtered, af, -u, steps)
-                                                    or runs_along_wall(filtered, bf, u, steps)):
-            segs.append((a, b))
-    # walls continued from their ends: the free wedge of a corner is bounded by the faces that meet there, so
-    # a face continued runs along an edge of the wedge
-    sector = 2.0 * np.pi / nbins
-    ext_steps = max(steps, int(round(1.0 / res)))
-    for a in corners:
-        s0 = int(starts[a[0], a[1]])
-        if s0 < 0:
-            continue
-        lo = s0 * sector - np.pi
-        hi = lo + np.deg2rad(angles[a[0], a[1]])
-        for th in (lo + np.pi / 2, hi - np.pi / 2):
-            e = np.array([np.sin(th), np.cos(th)])
-            if not runs_along_wall(filtered, a.astype(float), -e, ext_steps):
-                continue
-            b = extension(filtered, a, e, max_px, end_px)
-            # a gap no longer than the wall it continues
-            if b is not None and 3.0 <= np.hypot(*(b - a)) <= wall_run(filtered, a.astype(float), -e,
-                                                                       int(max_px) + 1):
-                segs.append((a, b))
+    segs = _corner_pair_gaps(filtered, corners, max_px, end_px, steps)
+    segs += _wall_end_gaps(filtered, corners, angles, starts, nbins, max_px, end_px,
+                           max(steps, int(round(1.0 / res))))
     if not segs:
         return []
     # nothing nearer to the middle than the two ends (the Gabriel condition)
@@ -304,16 +333,9 @@ def wall_gap_lines(filtered: NDArray[np.bool_], dist_px: NDArray[np.float64], co
         walls[lr, lc] = False
     out = []
     for a, b in keep:
-        af, bf = a.astype(float), b.astype(float)
-        L = float(np.hypot(*(bf - af)))
-        u = (bf - af) / L
-        nrm = np.array([-u[1], u[0]])
-        depths = np.arange(2.0, max(L / 2, 3.0) + 1.0)
-        reach = int(np.ceil(L / cfg.gap_ratio)) + 2
-        centre = (af + bf) / 2
-        narrow = [L - 1.0 <= cfg.gap_ratio * free_width(walls, centre, u, side * nrm, depths, reach)
-                  for side in (1.0, -1.0)]
+        narrow = _narrow_sides(walls, a, b, cfg.gap_ratio)
         if any(narrow):
+            L = float(np.hypot(*(b.astype(float) - a.astype(float))))
             out.append((a, b, max(L - 1.0, 0.0) * res, all(narrow)))
     return out
 

@@ -373,6 +373,260 @@ def check_scale(free: NDArray[np.bool_], resolution: float, config: Segmentation
                          "resolution right?")
 
 
+_WEDGE_BINS = 32  # angular bins of the free wedges around obstacle pixels (corner detection)
+
+
+@dataclass(frozen=True)
+class _Crop:
+    """Where the work image (the free space's bounding box, padded by ``pad`` on every side) sits in the map."""
+
+    shape: tuple[int, int]
+    r0: int
+    r1: int
+    c0: int
+    c1: int
+    pad: int = 3
+
+    @classmethod
+    def around(cls, free_full: NDArray[np.bool_], pad: int = 3) -> _Crop:
+        rows = np.nonzero(free_full.any(1))[0]
+        cols = np.nonzero(free_full.any(0))[0]
+        return cls(free_full.shape, max(rows[0] - pad, 0), min(rows[-1] + pad + 1, free_full.shape[0]),
+                   max(cols[0] - pad, 0), min(cols[-1] + pad + 1, free_full.shape[1]), pad)
+
+    @property
+    def offset(self) -> NDArray[np.int64]:
+        """Map pixel of the work image's pixel (0, 0)."""
+        return np.array([self.r0 - self.pad, self.c0 - self.pad])
+
+    def work_image(self, free_full: NDArray[np.bool_]) -> NDArray[np.bool_]:
+        pad = self.pad
+        free = np.zeros((self.r1 - self.r0 + 2 * pad, self.c1 - self.c0 + 2 * pad), dtype=bool)
+        free[pad:-pad, pad:-pad] = free_full[self.r0:self.r1, self.c0:self.c1]
+        return free
+
+    def full(self, img: NDArray, fill=0, dtype=None) -> NDArray:
+        """A work image put back into an image of the map's size."""
+        out = np.full(self.shape, fill, dtype=img.dtype if dtype is None else dtype)
+        out[self.r0:self.r1, self.c0:self.c1] = img[self.pad:-self.pad, self.pad:-self.pad]
+        return out
+
+
+@dataclass
+class _Skeleton:
+    """Steps 2-3: the clearance, the skeleton, the door candidates and (for wall gaps) the free wedges."""
+
+    dist_px: NDArray[np.float64]
+    skel: NDArray[np.bool_]
+    product: NDArray[np.float64]
+    centres: list
+    directions: list
+    angles: NDArray[np.float64] | None = None
+    starts: NDArray[np.int64] | None = None
+
+
+@dataclass
+class _Lines:
+    """Step 4: the lines drawn, as a cut image and per line (centre, a, b, pixels, width)."""
+
+    cut: NDArray[np.bool_]
+    gap_cut: NDArray[np.bool_]
+    door_px: list[tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], float]]
+    soft: list[bool]
+    n_critical: int
+
+
+def _filtered_free(free: NDArray[np.bool_], res: float, cfg: SegmentationConfig) -> NDArray[np.bool_]:
+    """Step 1: the free space median filtered, small obstacles (under ``min_obstacle_area``) cleared."""
+    if cfg.median_size > 1:
+        # the median of binary values is the majority
+        k = cfg.median_size
+        filtered = ndi.correlate(free.astype(np.uint8), np.ones((k, k), np.uint8), mode="reflect") > (k * k) // 2
+        if cfg.median_keeps_walls:
+            filtered &= free
+    else:
+        filtered = free.copy()
+    if not filtered.any():
+        filtered = free.copy()
+    if cfg.min_obstacle_area > 0:
+        occ, n_occ = ndi.label(~filtered, structure=EIGHT)
+        boxes = ndi.find_objects(occ)
+        small = np.bincount(occ.ravel(), minlength=n_occ + 1) * res * res < cfg.min_obstacle_area
+        small[0] = False
+        for k in np.nonzero(small)[0]:
+            box = boxes[k - 1]
+            if box is not None and max(box[0].stop - box[0].start, box[1].stop - box[1].start) * res >= \
+                    cfg.min_obstacle_length:
+                small[k] = False
+        filtered |= small[occ]
+    return filtered
+
+
+def _skeleton_candidates(filtered: NDArray[np.bool_], res: float, cfg: SegmentationConfig) -> _Skeleton:
+    """Steps 2-3: skeleton x distance transform, and the door candidates on the skeleton."""
+    dist_px, feat_r, feat_c = edt(filtered)
+    angles = starts = None
+    if cfg.method == "critical" and cfg.wall_gaps:
+        angles, starts = corner_wedges(filtered, dist_px, feat_r, feat_c, 0.15 / res, 0.5 / res, _WEDGE_BINS)
+    skel = thin(filtered)
+    product = np.where(skel, dist_px * res, 0.0)
+    rr, cc, nbr = skeleton_graph(skel)
+    dvals = dist_px[rr, cc] * res
+    if cfg.method == "paper":
+        centres, directions = paper_candidates(skel, product, rr, cc, nbr, dvals, cfg, res)
+    else:
+        centres, directions = critical_candidates(rr, cc, nbr, dvals, cfg, res)
+    return _Skeleton(dist_px, skel, product, centres, directions, angles, starts)
+
+
+def _candidate_lines(filtered: NDArray[np.bool_], sk: _Skeleton, res: float, cfg: SegmentationConfig) -> _Lines:
+    """Step 4, the candidates: a line through each to the obstacles on both sides, kept where a wall runs on
+    from one end at least (``critical`` with wall gaps) and not over 1.5 times the longest door."""
+    cut = np.zeros_like(filtered)
+    door_px: list[tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], float]] = []
+    max_len = 2.0 * (cfg.max_door_half_width if cfg.method == "critical"
+                     else cfg.door_half_width + cfg.door_half_width_tolerance)
+    max_steps = min(int(np.ceil(1.5 * max_len / res)) + 2, sum(filtered.shape))  # a march never leaves the image
+    wall_steps = max(2, int(round(cfg.wall_continuation / res)))
+    for (r, c), u in zip(sk.centres, sk.directions, strict=True):
+        p = np.array([r, c], dtype=float)
+        if cfg.method == "paper":
+            a = march(filtered, p, u, max_steps)
+            b = march(filtered, p, -u, max_steps)
+        else:
+            a, b = basis_points_at(filtered, np.array([r, c]), max_steps, float(sk.dist_px[r, c]))
+        if a is None or b is None:
+            continue
+        if cfg.method == "critical" and cfg.wall_gaps:
+            # a door runs on from a wall at one end at least (a frame, a partition's end): a bulge of a wall or
+            # a pillar narrowing a corridor does not
+            d = (b - a) / max(float(np.hypot(*(b - a))), 1e-9)
+            side = int(round(0.25 / res))
+            ca = runs_along_wall(filtered, a.astype(float), -d, wall_steps, side)
+            cb = runs_along_wall(filtered, b.astype(float), d, wall_steps, side)
+            if not (ca or cb):
+                continue
+        # the free span: between the facing edges of the two end pixels
+        width = max(float(np.hypot(*(a - b))) - 1.0, 0.0) * res
+        if width > 1.5 * max_len:
+            continue
+        lr, lc = line_pixels_between(a, b)
+        cut[lr, lc] = True
+        door_px.append((np.array([r, c]), a, b, np.stack([lr, lc], 1), width))
+    return _Lines(cut, np.zeros_like(filtered), door_px, [True] * len(door_px), len(door_px))
+
+
+def _door_lines(filtered: NDArray[np.bool_], sk: _Skeleton, res: float, cfg: SegmentationConfig) -> _Lines:
+    """Step 4: the candidates' lines, then (``critical`` with wall gaps) the wall-gap lines."""
+    lines = _candidate_lines(filtered, sk, res, cfg)
+    if cfg.method == "critical" and cfg.wall_gaps:
+        corners = corner_points(sk.angles, cfg.corner_angle)
+        for a, b, width, firm in wall_gap_lines(filtered, sk.dist_px, corners, sk.angles, sk.starts, _WEDGE_BINS,
+                                                res, cfg):
+            lr, lc = line_pixels_between(a, b)
+            lines.cut[lr, lc] = True
+            lines.gap_cut[lr, lc] |= firm
+            lines.door_px.append((np.rint((a + b) / 2).astype(np.int64), a, b, np.stack([lr, lc], 1), width))
+            lines.soft.append(not firm)
+    return lines
+
+
+def _regions(filtered: NDArray[np.bool_], lines: _Lines, dist_px: NDArray[np.float64], res: float,
+             cfg: SegmentationConfig) -> tuple[NDArray, UnionFind]:
+    """Step 5: every line cuts; the wall-gap lines stay, the regions facing each other across a critical line
+    are merged unless it is a narrowing between them (``narrowing_ratio``); a critical line crossing wall-gap
+    lines is judged piece by piece. Returns the regions and which of them are merged."""
+    lab, n = ndi.label(filtered & ~lines.cut, structure=FOUR)
+    uf = UnionFind(n + 1)
+    if cfg.method == "critical" and any(lines.soft):
+        # largest clearance of each region, the wall-gap lines being walls
+        gap_cut = lines.gap_cut
+        clear = edt(filtered & ~gap_cut)[0] if gap_cut.any() else dist_px
+        peak = np.maximum(label_max(lab, clear, n), 0.0) * res
+        peak[0] = 0.0
+        near_gap = gap_cut.copy()
+        gr, gc = np.nonzero(gap_cut)
+        for dr, dc in OFFSETS:
+            near_gap[gr + dr, gc + dc] = True
+        edges = []
+        for (_, a, b, px, width), sft in zip(lines.door_px, lines.soft, strict=True):
+            if not sft:
+                continue
+            for run in pieces_between(px, a, b, near_gap):
+                edges.append((*separated_regions(lab, run), width / 2.0))
+        if edges:
+            e = np.array(edges)
+            merge_by_narrowing(e[:, 2], e[:, :2].astype(np.int64), peak, uf, cfg)
+    return lab, uf
+
+
+def _rooms(regions: NDArray, uf: UnionFind, free: NDArray[np.bool_], res: float,
+           cfg: SegmentationConfig) -> NDArray:
+    """Step 6: the merged regions, the cut pixels folded into them, small regions merged or dropped."""
+    lab = relabel(regions, uf)
+    lab = fill_from_neighbours(lab, free)
+    lab[~free] = 0
+    lab = merge_small(lab, res, cfg.min_room_area, cfg.min_isolated_area)
+    if cfg.assign_furniture:
+        lab = assign_furniture(lab, free)
+    return lab
+
+
+def _doors_between_rooms(lab: NDArray, lines: _Lines, filtered: NDArray[np.bool_], res: float) -> list[tuple]:
+    """The lines that separate two final rooms, one per passage, moved to the middle of the wall they cross:
+    (width, rooms, centre, a, b, is a wall gap) in work-image pixels, in (row, col) order of the centres."""
+    found = []
+    for k, (centre, a, b, px, width) in enumerate(lines.door_px):
+        nb = (px[:, None, :] + OFFSETS[None, :, :]).reshape(-1, 2)
+        ok = (nb[:, 0] >= 0) & (nb[:, 0] < lab.shape[0]) & (nb[:, 1] >= 0) & (nb[:, 1] < lab.shape[1])
+        v = lab[nb[ok, 0], nb[ok, 1]]
+        u, cnt = np.unique(v[v > 0], return_counts=True)
+        if len(u) < 2:
+            continue
+        o = np.argsort(-cnt)
+        found.append((width, tuple(sorted((int(u[o[0]]), int(u[o[1]])))), centre, a, b, k >= lines.n_critical))
+    # one door per passage: of several lines between the same rooms closer than a door width, keep a critical
+    # line (the middle of a passage through a thick wall) before a wall-gap line (its ends), the narrowest first
+    kept: list[tuple] = []
+    for width, pair, centre, a, b, gap in sorted(found, key=lambda t: (t[5], t[0])):
+        if any(k[1] == pair and np.hypot(*(k[2] - centre)) * res < max(width, k[0]) for k in kept):
+            continue
+        kept.append((width, pair, centre, a, b, gap))
+    thick = int(np.ceil(0.5 / res))  # the thickest wall a door passes through
+    kept = [(w, pair, *middle_of_wall(filtered, c, a, b, thick), gap) for w, pair, c, a, b, gap in kept]
+    kept.sort(key=lambda t: (t[2][0], t[2][1]))
+    return kept
+
+
+def _as_doors(kept: list[tuple], geometry: GridGeometry, off: NDArray[np.int64]) -> list[Door]:
+    """Doors in world coordinates from :func:`_doors_between_rooms`'s lines (``off``: the work image's place)."""
+    doors: list[Door] = []
+    for width, pair, centre, a, b, gap in kept:
+        ends = geometry.pixel_to_world(np.stack([a, b]) + off)
+        doors.append(Door(geometry.pixel_to_world(centre + off), ends, width, pair,
+                          (int(centre[0] + off[0]), int(centre[1] + off[1])), "opening" if gap else "door"))
+    return doors
+
+
+def _step_images(crop: _Crop, free_full: NDArray[np.bool_], filtered: NDArray[np.bool_], sk: _Skeleton,
+                 lines: _Lines, regions: NDArray, res: float) -> dict[str, NDArray]:
+    """Every intermediate image, in the map's size (:attr:`Segmentation.steps`)."""
+    cand = np.zeros_like(filtered)
+    for (r, c) in sk.centres:
+        cand[r, c] = True
+    return {
+        "free": free_full.copy(),
+        "filtered": crop.full(filtered),
+        "distance": crop.full(sk.dist_px * res),
+        "skeleton": crop.full(sk.skel),
+        "product": crop.full(sk.product),
+        "candidates": crop.full(cand),
+        "door_lines": crop.full(lines.cut),
+        "gap_lines": crop.full(lines.gap_cut),
+        "regions": crop.full(regions.astype(np.int32)),
+    }
+
+
 def segment_rooms(
     grid: OccupancyGrid | ArrayLike,
     resolution: float | None = None,
@@ -407,182 +661,16 @@ def segment_rooms(
     free_full, geometry = _as_free(grid, resolution)
     res = geometry.resolution
     check_scale(free_full, res, cfg)
-    # work on the bounding box of the free space, padded
-    rows = np.nonzero(free_full.any(1))[0]
-    cols = np.nonzero(free_full.any(0))[0]
-    pad = 3
-    r0, r1 = max(rows[0] - pad, 0), min(rows[-1] + pad + 1, free_full.shape[0])
-    c0, c1 = max(cols[0] - pad, 0), min(cols[-1] + pad + 1, free_full.shape[1])
-    free = np.zeros((r1 - r0 + 2 * pad, c1 - c0 + 2 * pad), dtype=bool)
-    free[pad:-pad, pad:-pad] = free_full[r0:r1, c0:c1]
-    off = np.array([r0 - pad, c0 - pad])
-    steps: dict[str, NDArray] = {}
-
-    # 1. median filter
-    if cfg.median_size > 1:
-        # the median of binary values is the majority
-        k = cfg.median_size
-        filtered = ndi.correlate(free.astype(np.uint8), np.ones((k, k), np.uint8), mode="reflect") > (k * k) // 2
-        if cfg.median_keeps_walls:
-            filtered &= free
-    else:
-        filtered = free.copy()
-    if not filtered.any():
-        filtered = free.copy()
-    if cfg.min_obstacle_area > 0:
-        occ, n_occ = ndi.label(~filtered, structure=EIGHT)
-        boxes = ndi.find_objects(occ)
-        small = np.bincount(occ.ravel(), minlength=n_occ + 1) * res * res < cfg.min_obstacle_area
-        small[0] = False
-        for k in np.nonzero(small)[0]:
-            box = boxes[k - 1]
-            if box is not None and max(box[0].stop - box[0].start, box[1].stop - box[1].start) * res >= \
-                    cfg.min_obstacle_length:
-                small[k] = False
-        filtered |= small[occ]
-    # 2. skeleton x distance transform
-    dist_px, feat_r, feat_c = edt(filtered)
-    nbins = 32
-    if cfg.method == "critical" and cfg.wall_gaps:
-        angles, starts = corner_wedges(filtered, dist_px, feat_r, feat_c, 0.15 / res, 0.5 / res, nbins)
-    skel = thin(filtered)
-    product = np.where(skel, dist_px * res, 0.0)
-
-    # 3. candidates
-    rr, cc, nbr = skeleton_graph(skel)
-    dvals = dist_px[rr, cc] * res
-    if cfg.method == "paper":
-        centres, directions = paper_candidates(skel, product, rr, cc, nbr, dvals, cfg, res)
-    else:
-        centres, directions = critical_candidates(rr, cc, nbr, dvals, cfg, res)
-
-    # 4. door lines
-    cut = np.zeros_like(free)
-    door_px: list[tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], float]] = []
-    max_len = 2.0 * (cfg.max_door_half_width if cfg.method == "critical"
-                     else cfg.door_half_width + cfg.door_half_width_tolerance)
-    max_steps = min(int(np.ceil(1.5 * max_len / res)) + 2, sum(free.shape))  # a march never leaves the image
-    wall_steps = max(2, int(round(cfg.wall_continuation / res)))
-    for (r, c), u in zip(centres, directions, strict=True):
-        p = np.array([r, c], dtype=float)
-        if cfg.method == "paper":
-            a = march(filtered, p, u, max_steps)
-            b = march(filtered, p, -u, max_steps)
-        else:
-            a, b = basis_points_at(filtered, np.array([r, c]), max_steps, float(dist_px[r, c]))
-        if a is None or b is None:
-            continue
-        if cfg.method == "critical" and cfg.wall_gaps:
-            # a door runs on from a wall at one end at least (a frame, a partition's end): a bulge of a wall or
-            # a pillar narrowing a corridor does not
-            d = (b - a) / max(float(np.hypot(*(b - a))), 1e-9)
-            side = int(round(0.25 / res))
-            ca = runs_along_wall(filtered, a.astype(float), -d, wall_steps, side)
-            cb = runs_along_wall(filtered, b.astype(float), d, wall_steps, side)
-            if not (ca or cb):
-                continue
-        # the free span: between the facing edges of the two end pixels
-        width = max(float(np.hypot(*(a - b))) - 1.0, 0.0) * res
-        if width > 1.5 * max_len:
-            continue
-        lr, lc = line_pixels_between(a, b)
-        cut[lr, lc] = True
-        door_px.append((np.array([r, c]), a, b, np.stack([lr, lc], 1), width))
-    n_critical = len(door_px)
-    soft = [True] * n_critical
-    gap_cut = np.zeros_like(free)
-    if cfg.method == "critical" and cfg.wall_gaps:
-        corners = corner_points(angles, cfg.corner_angle)
-        for a, b, width, firm in wall_gap_lines(filtered, dist_px, corners, angles, starts, nbins, res, cfg):
-            lr, lc = line_pixels_between(a, b)
-            cut[lr, lc] = True
-            gap_cut[lr, lc] |= firm
-            door_px.append((np.rint((a + b) / 2).astype(np.int64), a, b, np.stack([lr, lc], 1), width))
-            soft.append(not firm)
-
-    # 5. regions: every line cuts; the wall-gap lines stay, the regions facing each other across a critical
-    # line are merged unless it is a narrowing between them (``narrowing_ratio``); a critical line crossing
-    # wall-gap lines is judged piece by piece
-    lab, n = ndi.label(filtered & ~cut, structure=FOUR)
-    uf = UnionFind(n + 1)
-    if cfg.method == "critical" and any(soft):
-        # largest clearance of each region, the wall-gap lines being walls
-        clear = edt(filtered & ~gap_cut)[0] if gap_cut.any() else dist_px
-        peak = np.maximum(label_max(lab, clear, n), 0.0) * res
-        peak[0] = 0.0
-        near_gap = gap_cut.copy()
-        gr, gc = np.nonzero(gap_cut)
-        for dr, dc in OFFSETS:
-            near_gap[gr + dr, gc + dc] = True
-        edges = []
-        for (_, a, b, px, width), sft in zip(door_px, soft, strict=True):
-            if not sft:
-                continue
-            for run in pieces_between(px, a, b, near_gap):
-                edges.append((*separated_regions(lab, run), width / 2.0))
-        if edges:
-            e = np.array(edges)
-            merge_by_narrowing(e[:, 2], e[:, :2].astype(np.int64), peak, uf, cfg)
-    regions0 = lab.copy()
-
-    # 6. fold the cut pixels into regions, then merge small regions
-    lab = relabel(lab, uf)
-    lab = fill_from_neighbours(lab, free)
-    lab[~free] = 0
-    lab = merge_small(lab, res, cfg.min_room_area, cfg.min_isolated_area)
-    if cfg.assign_furniture:
-        lab = assign_furniture(lab, free)
-
-    # doors that separate two final rooms
-    doors: list[Door] = []
-    full_labels = np.zeros(free_full.shape, dtype=np.int32)
-    full_labels[r0:r1, c0:c1] = lab[pad:-pad, pad:-pad]
-    found = []
-    for k, (centre, a, b, px, width) in enumerate(door_px):
-        nb = (px[:, None, :] + OFFSETS[None, :, :]).reshape(-1, 2)
-        ok = (nb[:, 0] >= 0) & (nb[:, 0] < lab.shape[0]) & (nb[:, 1] >= 0) & (nb[:, 1] < lab.shape[1])
-        v = lab[nb[ok, 0], nb[ok, 1]]
-        u, cnt = np.unique(v[v > 0], return_counts=True)
-        if len(u) < 2:
-            continue
-        o = np.argsort(-cnt)
-        found.append((width, tuple(sorted((int(u[o[0]]), int(u[o[1]])))), centre, a, b, k >= n_critical))
-    # one door per passage: of several lines between the same rooms closer than a door width, keep a critical
-    # line (the middle of a passage through a thick wall) before a wall-gap line (its ends), the narrowest first
-    kept: list[tuple] = []
-    for width, pair, centre, a, b, gap in sorted(found, key=lambda t: (t[5], t[0])):
-        if any(k[1] == pair and np.hypot(*(k[2] - centre)) * res < max(width, k[0]) for k in kept):
-            continue
-        kept.append((width, pair, centre, a, b, gap))
-    thick = int(np.ceil(0.5 / res))  # the thickest wall a door passes through
-    kept = [(w, pair, *middle_of_wall(filtered, c, a, b, thick), gap) for w, pair, c, a, b, gap in kept]
-    kept.sort(key=lambda t: (t[2][0], t[2][1]))
-    for width, pair, centre, a, b, gap in kept:
-        ends = geometry.pixel_to_world(np.stack([a, b]) + off)
-        doors.append(Door(geometry.pixel_to_world(centre + off), ends, width, pair,
-                          (int(centre[0] + off[0]), int(centre[1] + off[1])), "opening" if gap else "door"))
-
-    if keep_steps:
-        def full(img: NDArray, fill=0) -> NDArray:
-            out = np.full(free_full.shape, fill, dtype=img.dtype)
-            out[r0:r1, c0:c1] = img[pad:-pad, pad:-pad]
-            return out
-
-        cand = np.zeros_like(free)
-        for (r, c) in centres:
-            cand[r, c] = True
-        steps = {
-            "free": free_full.copy(),
-            "filtered": full(filtered),
-            "distance": full(dist_px * res),
-            "skeleton": full(skel),
-            "product": full(product),
-            "candidates": full(cand),
-            "door_lines": full(cut),
-            "gap_lines": full(gap_cut),
-            "regions": full(regions0.astype(np.int32)),
-        }
-    return Segmentation(full_labels, doors, geometry, cfg, steps)
+    crop = _Crop.around(free_full)  # work on the bounding box of the free space, padded
+    free = crop.work_image(free_full)
+    filtered = _filtered_free(free, res, cfg)
+    sk = _skeleton_candidates(filtered, res, cfg)
+    lines = _door_lines(filtered, sk, res, cfg)
+    regions, uf = _regions(filtered, lines, sk.dist_px, res, cfg)
+    lab = _rooms(regions, uf, free, res, cfg)
+    doors = _as_doors(_doors_between_rooms(lab, lines, filtered, res), geometry, crop.offset)
+    steps = _step_images(crop, free_full, filtered, sk, lines, regions, res) if keep_steps else {}
+    return Segmentation(crop.full(lab, dtype=np.int32), doors, geometry, cfg, steps)
 
 
 def points_in_doors(points: ArrayLike, doors: list[Door], depth: float = 0.3, margin: float = 0.1,

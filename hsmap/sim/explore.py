@@ -136,6 +136,77 @@ def _smooth(path: NDArray[np.int64], clear: NDArray[np.float64], cfg: ExploreCon
     return keep
 
 
+def _room_candidates(plan: FloorPlan, ok: NDArray[np.bool_], need: float
+                     ) -> tuple[dict[int, NDArray[np.int64]], dict[int, str]]:
+    """Per room, its pixels the robot may stand on, best first (farthest from the room's border); and why the
+    rooms without any are unreachable."""
+    free = plan.furnished_free
+    unreachable: dict[int, str] = {}
+    candidates: dict[int, NDArray[np.int64]] = {}
+    for k, sl in enumerate(ndi.find_objects(plan.rooms), start=1):
+        if sl is None:
+            continue
+        room = (plan.rooms[sl] == k) & free[sl]
+        inner = ndi.distance_transform_edt(np.pad(room, 1))[1:-1, 1:-1]
+        inner = np.where(ok[sl] & room, inner, -1.0)
+        if inner.max() < 0:
+            unreachable[k] = (f"no free pixel {need:g} m clear of walls and furniture at floor level "
+                              "(the robot does not fit)")
+            continue
+        flat = np.flatnonzero(inner.ravel() >= 0)
+        order = flat[np.argsort(-inner.ravel()[flat], kind="stable")]
+        rr, cc = np.unravel_index(order, inner.shape)
+        candidates[k] = np.stack([rr + sl[0].start, cc + sl[1].start], -1)
+    return candidates, unreachable
+
+
+def _main_goals(comp: NDArray, candidates: dict[int, NDArray[np.int64]], unreachable: dict[int, str]
+                ) -> tuple[int, dict[int, NDArray[np.int64]]]:
+    """The connected part of the free space that holds most rooms' centres (ties: the largest), and each room's
+    goal in it: its best pixel there. The rooms outside it are added to ``unreachable``."""
+    best_comp = np.array([comp[tuple(c[0])] for c in candidates.values()])
+    sizes = np.bincount(comp.ravel())
+    ids, votes = np.unique(best_comp, return_counts=True)
+    main = int(ids[np.lexsort((-sizes[ids], -votes))[0]])
+    goals_rc: dict[int, NDArray[np.int64]] = {}
+    for k, c in candidates.items():
+        inside = comp[c[:, 0], c[:, 1]] == main
+        if inside.any():
+            goals_rc[k] = c[np.argmax(inside)]
+        else:
+            unreachable[k] = "not joined to the other rooms by free space the robot fits through at floor level"
+    return main, goals_rc
+
+
+def _visit(comp: NDArray, main: int, clear: NDArray[np.float64], goals_rc: dict[int, NDArray[np.int64]],
+           cfg: ExploreConfig) -> tuple[list[int], list[NDArray[np.int64]]]:
+    """The rooms in visiting order (from the one with most space around its goal, then always the cheapest to
+    reach next) and the pixel path of each leg, its costs keeping to the middle of corridors and doorways."""
+    from skimage.graph import MCP_Geometric
+
+    rows, cols = np.nonzero(comp == main)
+    r0, r1, c0, c1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
+    sub = comp[r0:r1, c0:c1] == main
+    cost = 1.0 + cfg.wall_cost * np.maximum(0.0, 1.0 - clear[r0:r1, c0:c1] / cfg.preferred_clearance)
+    cost = np.where(sub, cost, np.inf)
+    off = np.array([r0, c0])
+    rooms = sorted(goals_rc)
+    first = max(rooms, key=lambda k: (clear[tuple(goals_rc[k])], -k))
+    order, todo = [first], [k for k in rooms if k != first]
+    pieces: list[NDArray[np.int64]] = []
+    mcp = MCP_Geometric(cost, fully_connected=True)
+    while todo:
+        cur = goals_rc[order[-1]] - off
+        costs, _ = mcp.find_costs([tuple(cur)])
+        dist = np.array([costs[tuple(goals_rc[k] - off)] for k in todo])
+        nxt = todo[int(np.argmin(dist))]
+        path = np.asarray(mcp.traceback(tuple(goals_rc[nxt] - off)), dtype=np.int64) + off
+        pieces.append(path)
+        order.append(nxt)
+        todo.remove(nxt)
+    return order, pieces
+
+
 def plan_exploration(plan: FloorPlan, config: ExploreConfig | None = None, *, footprint: float | None = None,
                      stand: NDArray[np.bool_] | None = None) -> Exploration:
     """Plan the route through every reachable ground-truth room (see the module docstring).
@@ -157,8 +228,6 @@ def plan_exploration(plan: FloorPlan, config: ExploreConfig | None = None, *, fo
     EmptyInputError
         No room is reachable (no free space with the clearance the robot needs).
     """
-    from skimage.graph import MCP_Geometric
-
     cfg = config or ExploreConfig()
     g = plan.geometry
     res = g.resolution
@@ -169,60 +238,13 @@ def plan_exploration(plan: FloorPlan, config: ExploreConfig | None = None, *, fo
     if stand is not None:
         ok &= stand
     comp, _ = ndi.label(ok, structure=_EIGHT)
-    unreachable: dict[int, str] = {}
-    candidates: dict[int, NDArray[np.int64]] = {}  # room -> its pixels the robot may stand on, best first
-    for k, sl in enumerate(ndi.find_objects(plan.rooms), start=1):
-        if sl is None:
-            continue
-        room = (plan.rooms[sl] == k) & free[sl]
-        inner = ndi.distance_transform_edt(np.pad(room, 1))[1:-1, 1:-1]
-        inner = np.where(ok[sl] & room, inner, -1.0)
-        if inner.max() < 0:
-            unreachable[k] = (f"no free pixel {need:g} m clear of walls and furniture at floor level "
-                              "(the robot does not fit)")
-            continue
-        flat = np.flatnonzero(inner.ravel() >= 0)
-        order = flat[np.argsort(-inner.ravel()[flat], kind="stable")]
-        rr, cc = np.unravel_index(order, inner.shape)
-        candidates[k] = np.stack([rr + sl[0].start, cc + sl[1].start], -1)
+    candidates, unreachable = _room_candidates(plan, ok, need)
     if not candidates:
         raise EmptyInputError(f"{plan.files.get('furnished', plan.name)}: no ground-truth room has free space "
                               f"{need:g} m clear of walls and furniture: nothing to explore")
-    # the connected part of the free space that holds most rooms' centres (ties: the largest)
-    best_comp = np.array([comp[tuple(c[0])] for c in candidates.values()])
-    sizes = np.bincount(comp.ravel())
-    ids, votes = np.unique(best_comp, return_counts=True)
-    main = int(ids[np.lexsort((-sizes[ids], -votes))[0]])
-    goals_rc: dict[int, NDArray[np.int64]] = {}
-    for k, c in candidates.items():
-        inside = comp[c[:, 0], c[:, 1]] == main
-        if inside.any():
-            goals_rc[k] = c[np.argmax(inside)]
-        else:
-            unreachable[k] = "not joined to the other rooms by free space the robot fits through at floor level"
-    # costs: keep to the middle of corridors and doorways
-    rows, cols = np.nonzero(comp == main)
-    r0, r1, c0, c1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
-    sub = comp[r0:r1, c0:c1] == main
-    cost = 1.0 + cfg.wall_cost * np.maximum(0.0, 1.0 - clear[r0:r1, c0:c1] / cfg.preferred_clearance)
-    cost = np.where(sub, cost, np.inf)
-    off = np.array([r0, c0])
-    # start in the room with most space around its centre
-    rooms = sorted(goals_rc)
-    first = max(rooms, key=lambda k: (clear[tuple(goals_rc[k])], -k))
-    order, todo = [first], [k for k in rooms if k != first]
-    pieces: list[NDArray[np.int64]] = []
-    mcp = MCP_Geometric(cost, fully_connected=True)
-    while todo:
-        cur = goals_rc[order[-1]] - off
-        costs, _ = mcp.find_costs([tuple(cur)])
-        dist = np.array([costs[tuple(goals_rc[k] - off)] for k in todo])
-        nxt = todo[int(np.argmin(dist))]
-        path = np.asarray(mcp.traceback(tuple(goals_rc[nxt] - off)), dtype=np.int64) + off
-        pieces.append(path)
-        order.append(nxt)
-        todo.remove(nxt)
-    waypoints_rc = [goals_rc[first]]
+    main, goals_rc = _main_goals(comp, candidates, unreachable)
+    order, pieces = _visit(comp, main, clear, goals_rc, cfg)
+    waypoints_rc = [goals_rc[order[0]]]
     legs_clear = clear if stand is None else np.where(stand, clear, 0.0)  # legs stay where the robot may stand
     for path in pieces:
         idx = _smooth(path, legs_clear, cfg, res)
@@ -235,6 +257,6 @@ def plan_exploration(plan: FloorPlan, config: ExploreConfig | None = None, *, fo
         length = float(legs.sum())
     else:
         yaw, length = 0.0, 0.0
-    goals = {int(k): tuple(float(v) for v in g.pixel_to_world(goals_rc[k])) for k in rooms}
+    goals = {int(k): tuple(float(v) for v in g.pixel_to_world(goals_rc[k])) for k in sorted(goals_rc)}
     return Exploration(np.array([wp[0, 0], wp[0, 1], yaw]), wp[1:] if len(wp) > 1 else wp, [int(k) for k in order],
                        goals, dict(sorted(unreachable.items())), length)

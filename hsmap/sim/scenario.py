@@ -111,14 +111,18 @@ def _frame_rate(P: _Parser, value: Any) -> float:
     return rate
 
 
-def parse_scenario(data: Any, file: str = "<scenario>", check: bool = True) -> Scenario:
-    """Build a :class:`Scenario` from a parsed YAML mapping; ``file`` names it in error messages.
+@dataclasses.dataclass(frozen=True)
+class _Defaults:
+    """The scenario-wide sizes that walls, doors and furniture take unless they give their own."""
 
-    With ``check`` (default), the geometric checks of :func:`check_scenario` run too.
-    """
-    P = _Parser(file)
-    data = P.mapping(data, "", TOP_KEYS, {"name", "walls", "route"})
-    name = P.string(data["name"], "name")
+    wall_height: float
+    wall_thickness: float
+    door_width: float
+    door_height: float
+    ceiling_height: float | None
+
+
+def _defaults(P: _Parser, data: dict) -> _Defaults:
     wall_h = P.number(data.get("wall_height", 2.8), "wall_height", positive=True)
     wall_t = P.number(data.get("wall_thickness", 0.15), "wall_thickness", positive=True)
     door_w = P.number(data.get("door_width", 0.85), "door_width", positive=True)
@@ -126,24 +130,11 @@ def parse_scenario(data: Any, file: str = "<scenario>", check: bool = True) -> S
     ceiling = data.get("ceiling_height", wall_h)
     if ceiling is not None:
         ceiling = P.number(ceiling, "ceiling_height", positive=True)
-    seed = data.get("seed", 0)
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise P.error("seed", f"expected a non-negative integer, got {quote(seed)}")
+    return _Defaults(wall_h, wall_t, door_w, door_h, ceiling)
 
-    scn = Scenario(
-        name=name,
-        description=str(data.get("description", "") or "").strip(),
-        path=file,
-        seed=seed,
-        frame_rate=_frame_rate(P, data.get("frame_rate", 2.0)),
-        start_time=P.number(data.get("start_time", 0.0), "start_time", nonneg=True),
-        wall_height=wall_h,
-        ceiling_height=ceiling,
-        label_resolution=P.number(data.get("label_resolution", 0.05), "label_resolution", positive=True),
-        raw=data,
-    )
 
-    # walls
+def _parse_walls(P: _Parser, data: dict, scn: Scenario, dflt: _Defaults) -> dict[str, int]:
+    """Append the walls to ``scn``; returns the index of each named wall."""
     names: dict[str, int] = {}
     for i, w in enumerate(P.sequence(data["walls"], "walls")):
         key = f"walls[{i}]"
@@ -153,8 +144,8 @@ def parse_scenario(data: Any, file: str = "<scenario>", check: bool = True) -> S
             name=P.string(w.get("name", ""), f"{key}.name"),
             start=P.point(w["from"], f"{key}.from"),
             end=P.point(w["to"], f"{key}.to"),
-            thickness=P.number(w.get("thickness", wall_t), f"{key}.thickness", positive=True),
-            height=P.number(w.get("height", wall_h), f"{key}.height", positive=True),
+            thickness=P.number(w.get("thickness", dflt.wall_thickness), f"{key}.thickness", positive=True),
+            height=P.number(w.get("height", dflt.wall_height), f"{key}.height", positive=True),
         )
         if wall.length < 1e-6:
             raise P.error(f"{key}", f"the wall has zero length (from == to == {wall.start.tolist()})")
@@ -165,20 +156,40 @@ def parse_scenario(data: Any, file: str = "<scenario>", check: bool = True) -> S
         scn.walls.append(wall)
     if not scn.walls:
         raise P.error("walls", "a scenario needs at least one wall")
+    return names
 
-    # doors
+
+def _parse_doors(P: _Parser, data: dict, scn: Scenario, dflt: _Defaults, names: dict[str, int]) -> None:
     for i, d in enumerate(P.sequence(data.get("doors"), "doors")):
         key = f"doors[{i}]"
         d = P.mapping(d, key, {"name", "wall", "at", "center", "width", "height", "open"})
-        width = P.number(d.get("width", door_w), f"{key}.width", positive=True)
-        height = P.number(d.get("height", door_h), f"{key}.height", positive=True)
+        width = P.number(d.get("width", dflt.door_width), f"{key}.width", positive=True)
+        height = P.number(d.get("height", dflt.door_height), f"{key}.height", positive=True)
         is_open = d.get("open", True)
         if not isinstance(is_open, bool):
             raise P.error(f"{key}.open", f"expected true or false, got {quote(is_open)}")
         wall_idx, at = _door_position(P, scn, d, key, names)
         scn.doors.append(Door(i, P.string(d.get("name", ""), f"{key}.name"), wall_idx, at, width, height, is_open))
 
-    # rooms
+
+def _room_polygon(P: _Parser, r: dict, key: str) -> NDArray[np.float64]:
+    if ("rect" in r) == ("polygon" in r):
+        raise P.error(key, "give exactly one of 'rect: [xmin, ymin, xmax, ymax]' or 'polygon: [[x, y], ...]'")
+    if "rect" in r:
+        x0, y0, x1, y1 = P.point(r["rect"], f"{key}.rect", 4)
+        if not (x1 > x0 and y1 > y0):
+            raise P.error(f"{key}.rect", f"expected [xmin, ymin, xmax, ymax] with max > min, got {r['rect']}")
+        return np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
+    pts = P.sequence(r["polygon"], f"{key}.polygon")
+    if len(pts) < 3:
+        raise P.error(f"{key}.polygon", f"a polygon needs at least 3 points, got {len(pts)}")
+    poly = np.array([P.point(p, f"{key}.polygon[{k}]") for k, p in enumerate(pts)])
+    if abs(_polygon_area(poly)) < 1e-6:
+        raise P.error(f"{key}.polygon", "the polygon has zero area")
+    return poly
+
+
+def _parse_rooms(P: _Parser, data: dict, scn: Scenario) -> None:
     room_names: set[str] = set()
     for i, r in enumerate(P.sequence(data.get("rooms"), "rooms")):
         key = f"rooms[{i}]"
@@ -187,23 +198,10 @@ def parse_scenario(data: Any, file: str = "<scenario>", check: bool = True) -> S
         if rname in room_names:
             raise P.error(f"{key}.name", f"duplicate room name {quote(rname)}")
         room_names.add(rname)
-        if ("rect" in r) == ("polygon" in r):
-            raise P.error(key, "give exactly one of 'rect: [xmin, ymin, xmax, ymax]' or 'polygon: [[x, y], ...]'")
-        if "rect" in r:
-            x0, y0, x1, y1 = P.point(r["rect"], f"{key}.rect", 4)
-            if not (x1 > x0 and y1 > y0):
-                raise P.error(f"{key}.rect", f"expected [xmin, ymin, xmax, ymax] with max > min, got {r['rect']}")
-            poly = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
-        else:
-            pts = P.sequence(r["polygon"], f"{key}.polygon")
-            if len(pts) < 3:
-                raise P.error(f"{key}.polygon", f"a polygon needs at least 3 points, got {len(pts)}")
-            poly = np.array([P.point(p, f"{key}.polygon[{k}]") for k, p in enumerate(pts)])
-            if abs(_polygon_area(poly)) < 1e-6:
-                raise P.error(f"{key}.polygon", "the polygon has zero area")
-        scn.rooms.append(Room(i, rname, poly))
+        scn.rooms.append(Room(i, rname, _room_polygon(P, r, key)))
 
-    # furniture
+
+def _parse_furniture(P: _Parser, data: dict, scn: Scenario, dflt: _Defaults) -> None:
     for i, f in enumerate(P.sequence(data.get("furniture"), "furniture")):
         key = f"furniture[{i}]"
         f = P.mapping(f, key, {"type", "name", "center", "size", "yaw", "height"}, {"type", "center"})
@@ -212,7 +210,7 @@ def parse_scenario(data: Any, file: str = "<scenario>", check: bool = True) -> S
             raise P.error(f"{key}.type", f"unknown furniture type {quote(ftype)}; known: {sorted(FURNITURE_TYPES)}")
         dsize, dheight = FURNITURE_TYPES[ftype]
         if dheight is None and ftype == "column":
-            dheight = ceiling if ceiling is not None else wall_h
+            dheight = dflt.ceiling_height if dflt.ceiling_height is not None else dflt.wall_height
         if "size" not in f and dsize is None:
             raise P.error(f"{key}.size", f"a {ftype} needs an explicit size [lx, ly]")
         if "height" not in f and dheight is None:
@@ -227,7 +225,8 @@ def parse_scenario(data: Any, file: str = "<scenario>", check: bool = True) -> S
             height=P.number(f.get("height", dheight), f"{key}.height", positive=True),
         ))
 
-    # route
+
+def _parse_route(P: _Parser, data: dict, scn: Scenario) -> None:
     route = P.mapping(data["route"], "route", {"start", "steps"}, {"start", "steps"})
     start = route["start"]
     if not isinstance(start, (list, tuple)) or len(start) not in (2, 3):
@@ -238,7 +237,9 @@ def parse_scenario(data: Any, file: str = "<scenario>", check: bool = True) -> S
     if not any(st.kind == "goto" for st in scn.steps):
         raise P.error("route.steps", "the route has no waypoint to drive to")
 
-    # robot, odometry and sensors (dataclass configs)
+
+def _parse_robot_and_sensors(P: _Parser, data: dict, scn: Scenario) -> None:
+    """The robot, odometry and sensors (dataclass configs), and how the sensors fit the frame rate and ceiling."""
     scn.robot = P.config(RobotConfig, data.get("robot"), "robot")
     scn.odometry = P.config(OdometryConfig, data.get("odometry"), "odometry")
     sensors = P.mapping(data.get("sensors") or {}, "sensors", {"lidar2d", "lidar3d"})
@@ -251,6 +252,37 @@ def parse_scenario(data: Any, file: str = "<scenario>", check: bool = True) -> S
         raise P.error("sensors.lidar3d.position", f"the 3D LiDAR at z = {scn.lidar3d.position[2]} m is not "
                       f"below the ceiling at {scn.ceiling_height} m")
 
+
+def parse_scenario(data: Any, file: str = "<scenario>", check: bool = True) -> Scenario:
+    """Build a :class:`Scenario` from a parsed YAML mapping; ``file`` names it in error messages.
+
+    With ``check`` (default), the geometric checks of :func:`check_scenario` run too.
+    """
+    P = _Parser(file)
+    data = P.mapping(data, "", TOP_KEYS, {"name", "walls", "route"})
+    name = P.string(data["name"], "name")
+    dflt = _defaults(P, data)
+    seed = data.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise P.error("seed", f"expected a non-negative integer, got {quote(seed)}")
+    scn = Scenario(
+        name=name,
+        description=str(data.get("description", "") or "").strip(),
+        path=file,
+        seed=seed,
+        frame_rate=_frame_rate(P, data.get("frame_rate", 2.0)),
+        start_time=P.number(data.get("start_time", 0.0), "start_time", nonneg=True),
+        wall_height=dflt.wall_height,
+        ceiling_height=dflt.ceiling_height,
+        label_resolution=P.number(data.get("label_resolution", 0.05), "label_resolution", positive=True),
+        raw=data,
+    )
+    names = _parse_walls(P, data, scn, dflt)
+    _parse_doors(P, data, scn, dflt, names)
+    _parse_rooms(P, data, scn)
+    _parse_furniture(P, data, scn, dflt)
+    _parse_route(P, data, scn)
+    _parse_robot_and_sensors(P, data, scn)
     if check:
         check_scenario(scn)
     return scn

@@ -289,18 +289,39 @@ def _unique_cells(cells: NDArray[np.int64]) -> NDArray[np.int64]:
     return np.column_stack([key // width + lo[0], key % width + lo[1]])
 
 
-def _coarse_peaks(angles: NDArray[np.float64], src: NDArray[np.float64], field_f: NDArray[np.complex128],
-                  field_shape: tuple[int, int], shape: list[int], t0c: NDArray[np.float64], rc: float,
+@dataclass(frozen=True)
+class _CoarseField:
+    """The coarse likelihood field of :func:`correlative_match_2d`'s target: ``field_shape`` cells of ``rc`` metres
+    from ``t0c``, and its real 2D transform ``field_f`` at ``shape`` (large enough to hold the full correlation with
+    the source at any rotation)."""
+
+    field_f: NDArray[np.complex128]
+    field_shape: tuple[int, int]
+    shape: list[int]
+    t0c: NDArray[np.float64]
+    rc: float
+
+    @classmethod
+    def of(cls, src: NDArray[np.float64], tgt: NDArray[np.float64], rc: float) -> _CoarseField:
+        from scipy import fft
+
+        field_c, t0c = _likelihood_field(tgt, rc)
+        # the source's cells span at most its diameter plus one each way
+        span = int(np.ceil(2 * np.linalg.norm(src, axis=1).max() / rc)) + 2
+        shape = [fft.next_fast_len(n + span - 1, real=True) for n in field_c.shape]
+        return cls(fft.rfft2(field_c, shape), field_c.shape, shape, t0c, rc)
+
+
+def _coarse_peaks(angles: NDArray[np.float64], src: NDArray[np.float64], field: _CoarseField,
                   centre: NDArray[np.float64], half_translation: float, sep_c: int, peaks: int
                   ) -> list[tuple[float, float, float, float]]:
     """:func:`correlative_match_2d`'s coarse stage at the rotations ``angles``: each one's ``peaks`` best cells of
-    the window at least ``sep_c`` cells apart, as (score, x, y, yaw), rotation by rotation, best first.
-
-    ``field_f`` is the coarse likelihood field's (``field_shape`` cells of ``rc`` metres from ``t0c``) real 2D
-    transform at ``shape``; the source's image at each rotation is cross-correlated with it by FFT.
+    the window at least ``sep_c`` cells apart, as (score, x, y, yaw), rotation by rotation, best first. The
+    source's image at each rotation is cross-correlated with the coarse field by FFT.
     """
     from scipy import fft
 
+    field_f, field_shape, shape, t0c, rc = field.field_f, field.field_shape, field.shape, field.t0c, field.rc
     scale = float(1 / np.longdouble(shape[0] * shape[1]))  # irfft2's own factor, on the rows kept
     column = np.zeros((shape[0], shape[1] // 2 + 1), dtype=complex)
     used = 0  # rows of `column` that may hold an earlier image's transform
@@ -344,52 +365,21 @@ def _coarse_peaks(angles: NDArray[np.float64], src: NDArray[np.float64], field_f
     return found
 
 
-def correlative_match_2d(source: NDArray[np.float64], target: NDArray[np.float64], predicted: NDArray[np.float64],
-                         half_translation: float, half_rotation: float, resolution: float = 0.2,
-                         angle_step: float = float(np.deg2rad(1.0)), separation: float = 2.0, *, coarse: int = 4,
-                         peaks: int = 8) -> tuple[NDArray[np.float64], float, float]:
-    """Exhaustive 2D scan matching over a window (Olson's correlative scan matching, 2009), coarse to fine.
-
-    A pose is scored by the mean, over the source's occupied cells, of a likelihood field of the target (a
-    Gaussian of the distance to the nearest target point, sigma = one cell). Every rotation in ``predicted[2] +/-
-    half_rotation`` (steps of ``angle_step``) and every translation in ``predicted[:2] +/- half_translation`` is
-    scored on a grid ``coarse`` times coarser than ``resolution`` (the translations of one rotation at once, by an
-    FFT cross-correlation); the ``peaks`` best coarse poses at least ``separation`` apart are then searched at
-    ``resolution`` over their coarse cell and the neighbouring rotations. No initial guess is needed inside the
-    window, however wide; the coarse grid keeps a 100 m window's cost near a fine 25 m one's.
-
-    Returns ``(pose, score, ambiguity)``: the best pose of the source in the target's frame (x, y, yaw), its
-    (fine) score in [0, 1], and the best fine score of any other peak more than ``separation`` metres from it
-    divided by its score (near 1: a look-alike place or a corridor, the match says little).
-    """
-    from scipy import fft
-
-    src = np.asarray(source, dtype=float)[:, :2]
-    tgt = np.asarray(target, dtype=float)[:, :2]
-    predicted = np.asarray(predicted, dtype=float)
-    res = float(resolution)
-    rc = res * max(int(coarse), 1)
-    centre = predicted[:2]
-    n_rot = int(np.floor(half_rotation / angle_step))
-    angles = predicted[2] + angle_step * np.arange(-n_rot, n_rot + 1)
-    # coarse: every rotation, every translation of the window
-    field_c, t0c = _likelihood_field(tgt, rc)
+def _coarse_search(src: NDArray[np.float64], tgt: NDArray[np.float64], angles: NDArray[np.float64],
+                   centre: NDArray[np.float64], half_translation: float, rc: float, separation: float,
+                   peaks: int) -> list[tuple[float, float, float, float]]:
+    """The ``peaks`` best coarse poses (score, x, y, yaw) at least ``separation`` metres apart: every rotation,
+    every translation of the window, on cells of ``rc`` metres."""
     sep_c = max(int(np.ceil(separation / rc)), 1)
-    # the field's transform once, at a size that holds the full correlation with the source at any rotation
-    # (its cells span at most its diameter plus one each way)
-    span = int(np.ceil(2 * np.linalg.norm(src, axis=1).max() / rc)) + 2
-    shape = [fft.next_fast_len(n + span - 1, real=True) for n in field_c.shape]
-    field_f = fft.rfft2(field_c, shape)
+    field = _CoarseField.of(src, tgt, rc)  # the field's transform once
     # the rotations in contiguous shares, one per compute thread (the transforms release the GIL); each
     # rotation's peaks are its own, so the list, joined in order, is the same for any number of threads
-    args = (src, field_f, field_c.shape, shape, t0c, rc, centre, half_translation, sep_c, peaks)
+    args = (src, field, centre, half_translation, sep_c, peaks)
     shares = np.array_split(angles, max(1, min(current_threads(), len(angles) // 16)))
     futures = [helper_pool(len(shares) - 1).submit(_coarse_peaks, share, *args) for share in shares[1:]]
     found = _coarse_peaks(shares[0], *args)
     for f in futures:
         found += f.result()
-    if not found:
-        return predicted.copy(), 0.0, 1.0
     found.sort(key=lambda f: -f[0])
     chosen: list[tuple[float, float, float, float]] = []
     for f in found:  # the best coarse poses, one per place
@@ -397,8 +387,28 @@ def correlative_match_2d(source: NDArray[np.float64], target: NDArray[np.float64
             chosen.append(f)
             if len(chosen) == peaks:
                 break
-    # fine: each chosen pose over two coarse cells each way and the neighbouring rotations. The translations are
-    # whole cells apart, so each source cell reads a (2W+1)^2 patch of the field: one gather per rotation
+    return chosen
+
+
+@dataclass(frozen=True)
+class _Window:
+    """The poses :func:`correlative_match_2d` searches: ``predicted`` (x, y, yaw) +/- ``half_translation`` and
+    ``half_rotation``, rotations ``angle_step`` apart."""
+
+    predicted: NDArray[np.float64]
+    half_translation: float
+    half_rotation: float
+    angle_step: float
+
+
+def _fine_search(src: NDArray[np.float64], tgt: NDArray[np.float64], chosen: list, window: _Window, res: float,
+                 coarse: int) -> list[NDArray[np.float64]]:
+    """Each chosen coarse pose searched at ``res`` over two coarse cells each way and the neighbouring rotations,
+    within the window: (score, x, y, yaw) rows. The translations are whole cells apart, so each source cell reads
+    a (2W+1)^2 patch of the field: one gather per rotation."""
+    predicted, half_translation = window.predicted, window.half_translation
+    half_rotation, angle_step = window.half_rotation, window.angle_step
+    centre = predicted[:2]
     field, t0 = _likelihood_field(tgt, res)
     W = 2 * max(int(coarse), 1)
     padded = np.pad(field, 2 * W)
@@ -423,6 +433,39 @@ def correlative_match_2d(source: NDArray[np.float64], target: NDArray[np.float64
             start = base[keep] + W
             score = patches[start[:, 0], start[:, 1]].sum(axis=0).reshape(-1) / len(cells)
             evaluated.append(np.column_stack([score[inside], xy[inside], np.full(int(inside.sum()), yaw)]))
+    return evaluated
+
+
+def correlative_match_2d(source: NDArray[np.float64], target: NDArray[np.float64], predicted: NDArray[np.float64],
+                         half_translation: float, half_rotation: float, resolution: float = 0.2,
+                         angle_step: float = float(np.deg2rad(1.0)), separation: float = 2.0, *, coarse: int = 4,
+                         peaks: int = 8) -> tuple[NDArray[np.float64], float, float]:
+    """Exhaustive 2D scan matching over a window (Olson's correlative scan matching, 2009), coarse to fine.
+
+    A pose is scored by the mean, over the source's occupied cells, of a likelihood field of the target (a
+    Gaussian of the distance to the nearest target point, sigma = one cell). Every rotation in ``predicted[2] +/-
+    half_rotation`` (steps of ``angle_step``) and every translation in ``predicted[:2] +/- half_translation`` is
+    scored on a grid ``coarse`` times coarser than ``resolution`` (the translations of one rotation at once, by an
+    FFT cross-correlation); the ``peaks`` best coarse poses at least ``separation`` apart are then searched at
+    ``resolution`` over their coarse cell and the neighbouring rotations. No initial guess is needed inside the
+    window, however wide; the coarse grid keeps a 100 m window's cost near a fine 25 m one's.
+
+    Returns ``(pose, score, ambiguity)``: the best pose of the source in the target's frame (x, y, yaw), its
+    (fine) score in [0, 1], and the best fine score of any other peak more than ``separation`` metres from it
+    divided by its score (near 1: a look-alike place or a corridor, the match says little).
+    """
+    src = np.asarray(source, dtype=float)[:, :2]
+    tgt = np.asarray(target, dtype=float)[:, :2]
+    predicted = np.asarray(predicted, dtype=float)
+    res = float(resolution)
+    rc = res * max(int(coarse), 1)
+    n_rot = int(np.floor(half_rotation / angle_step))
+    angles = predicted[2] + angle_step * np.arange(-n_rot, n_rot + 1)
+    chosen = _coarse_search(src, tgt, angles, predicted[:2], half_translation, rc, separation, peaks)
+    if not chosen:
+        return predicted.copy(), 0.0, 1.0
+    window = _Window(predicted, half_translation, half_rotation, angle_step)
+    evaluated = _fine_search(src, tgt, chosen, window, res, coarse)
     if not evaluated:
         return predicted.copy(), 0.0, 1.0
     ev = np.concatenate(evaluated)

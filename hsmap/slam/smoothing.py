@@ -192,6 +192,80 @@ def vote(slam: NDArray[np.float64], odometry: NDArray[np.float64], scan: NDArray
     return (m_so > gate) & (m_oi > gate), scan_agrees  # NaN: not slipped
 
 
+@dataclass
+class _Chain:
+    """What every pass of :func:`smooth_with_odometry` solves against: the SLAM poses and their weights on the
+    free axes, the odometry steps (``k1``: each step's later frame) with their weights, and the poses that a scan
+    match confirms."""
+
+    P: NDArray[np.float64]
+    free: NDArray[np.bool_]
+    w_pose: NDArray[np.float64]
+    k1: NDArray[np.int64]
+    z_odo: NDArray[np.float64]
+    w_odo: NDArray[np.float64]
+    a_odo: NDArray[np.float64]
+    confirmed: NDArray[np.bool_]
+    gate_pose: float
+
+
+def _chain(P: NDArray[np.float64], odo: NDArray[np.float64], Os: NDArray[np.float64], M: NDArray[np.float64],
+           white: NDArray[np.float64], v_scan: NDArray[np.float64]) -> tuple[_Chain, NDArray[np.bool_]]:
+    """The chain of poses and odometry steps, and which steps slipped (:func:`vote`)."""
+    free = np.sqrt(white) > _NEGLIGIBLE
+    # the white noise's inverse sigmas; an axis without any is held (its pose component stays)
+    w_pose = 1.0 / np.sqrt(np.maximum(white, _NEGLIGIBLE**2))
+    n = len(P)
+    k1 = np.flatnonzero(np.isfinite(odo[1:]).all(1) & np.isfinite(Os[1:]).all(1) & (Os[1:] > 0).all(1)) + 1
+    z_odo = odo[k1]  # each step's motion, k1 its later frame
+    w_odo = 1.0 / Os[k1]
+    gate_pose = chi2.ppf(0.999, int(free.sum()))
+    slipped, scan_agrees = vote(relative(P[k1 - 1], P[k1]), z_odo, M[k1], white, Os[k1] ** 2, v_scan)
+    a_odo = np.where(slipped, 0.0, 1.0)  # a slipped step cuts the chain
+    # a pose that the scan match into it or out of it confirms is never overruled by the odometry
+    confirmed = np.zeros(n, dtype=bool)
+    confirmed[k1[scan_agrees]] = True
+    confirmed[k1[scan_agrees] - 1] = True
+    return _Chain(P, free, w_pose, k1, z_odo, w_odo, a_odo, confirmed, gate_pose), slipped
+
+
+def _correction(ch: _Chain, cur: NDArray[np.float64], a_pose: NDArray[np.float64],
+                r_pose: NDArray[np.float64]) -> NDArray[np.float64]:
+    """One pass's correction of every pose (N, 3), in its current frame: the whitened, weighted least-squares
+    system linearised at ``cur`` (``r_pose``: its whitened offsets from the SLAM poses), solved."""
+    n, k1, free, w_pose, w_odo = len(ch.P), ch.k1, ch.free, ch.w_pose, ch.w_odo
+    frames = np.arange(n)
+    z = relative(cur[k1 - 1], cur[k1])
+    e = _difference(ch.z_odo, z) * w_odo  # the estimate's motion against the odometry's, whitened
+    blocks: list[tuple] = []  # (rows, columns, values, right-hand sides) of the whitened, weighted system
+    row = 0
+    # a pose's correction d_k (in its current frame): r_pose + d_k on the free axes; 0 on the held ones
+    for c in range(3):
+        if free[c]:
+            s = np.sqrt(a_pose)
+            blocks.append((row + frames, 3 * frames + c, w_pose[c] * s, -r_pose[:, int(free[:c].sum())] * s))
+        else:
+            blocks.append((row + frames, 3 * frames + c, np.full(n, _HELD), np.zeros(n)))
+        row += n
+    # a step's residual: log(o^-1 z) + d_k - Ad(z^-1) d_{k-1}
+    A = adjoint(pose_to_matrix(invert(z)))  # Ad(z^-1), one a step
+    s = np.sqrt(ch.a_odo)
+    for c in range(3):
+        r = row + np.arange(len(k1))
+        blocks.append((r, 3 * k1 + c, w_odo[:, c] * s, -e[:, c] * s))
+        for cc in range(3):
+            blocks.append((r, 3 * (k1 - 1) + cc, -w_odo[:, c] * A[:, c, cc] * s, None))
+        row += len(k1)
+    rows = np.concatenate([b[0] for b in blocks])
+    J = sp.csr_matrix((np.concatenate([b[2] for b in blocks]), (rows, np.concatenate([b[1] for b in blocks]))),
+                      shape=(row, 3 * n))
+    rhs = np.zeros(row)
+    for b in blocks:
+        if b[3] is not None:
+            rhs[b[0]] = b[3]
+    return spla.spsolve((J.T @ J).tocsc(), J.T @ rhs).reshape(n, 3)
+
+
 def smooth_with_odometry(poses: ArrayLike, odometry_motion: ArrayLike, odometry_sigma: ArrayLike,
                          scan_motion: ArrayLike, *, iterations: int = 50) -> SmoothingResult:
     """Smooth 2D SLAM poses with the wheel odometry: the poses' white noise as :func:`identify_noise` measures it,
@@ -234,59 +308,17 @@ def smooth_with_odometry(poses: ArrayLike, odometry_motion: ArrayLike, odometry_
     if n_compared < MIN_FRAMES:
         result.status = f"skipped: {n_compared} frames with odometry and a scan match, fewer than {MIN_FRAMES}"
         return result
-    free = np.sqrt(white) > _NEGLIGIBLE
-    if not free.any():  # the SLAM poses carry no white noise of their own that the data can tell: status ok
-        return result
-    # the white noise's inverse sigmas; an axis without any is held (its pose component stays)
-    w_pose = 1.0 / np.sqrt(np.maximum(white, _NEGLIGIBLE**2))
-    n = len(P)
-    k1 = np.flatnonzero(np.isfinite(odo[1:]).all(1) & np.isfinite(Os[1:]).all(1) & (Os[1:] > 0).all(1)) + 1
-    z_odo = odo[k1]  # each step's motion, k1 its later frame
-    w_odo = 1.0 / Os[k1]
-    result.odometry_model_sigma = np.median(Os[k1], axis=0) if len(k1) else np.zeros(3)
-    frames = np.arange(n)
-    gate_pose = chi2.ppf(0.999, int(free.sum()))
-    slipped, scan_agrees = vote(relative(P[k1 - 1], P[k1]), z_odo, M[k1], white, Os[k1] ** 2, v_scan)
-    a_odo = np.where(slipped, 0.0, 1.0)  # a slipped step cuts the chain
-    # a pose that the scan match into it or out of it confirms is never overruled by the odometry
-    confirmed = np.zeros(n, dtype=bool)
-    confirmed[k1[scan_agrees]] = True
-    confirmed[k1[scan_agrees] - 1] = True
+    if not (np.sqrt(white) > _NEGLIGIBLE).any():
+        return result  # the SLAM poses carry no white noise of their own that the data can tell: status ok
+    ch, slipped = _chain(P, odo, Os, M, white, v_scan)
+    result.odometry_model_sigma = np.median(Os[ch.k1], axis=0) if len(ch.k1) else np.zeros(3)
     cur = P.copy()
-    a_pose = np.ones(n)
+    a_pose = np.ones(len(P))
     for it in range(max(1, iterations)):
-        r_pose = _difference(P, cur)[:, free] * w_pose[free]  # the estimate's offset from the SLAM pose, whitened
-        z = relative(cur[k1 - 1], cur[k1])
-        e = _difference(z_odo, z) * w_odo  # the estimate's motion against the odometry's, whitened
+        r_pose = _difference(P, cur)[:, ch.free] * ch.w_pose[ch.free]  # the offset from the SLAM pose, whitened
         if it > 0:  # least squares first, then the poses that the current estimate puts far from theirs
-            a_pose = np.where(confirmed, 1.0, _down_weight((r_pose**2).sum(1), gate_pose))
-        blocks: list[tuple] = []  # (rows, columns, values, right-hand sides) of the whitened, weighted system
-        row = 0
-        # a pose's correction d_k (in its current frame): r_pose + d_k on the free axes; 0 on the held ones
-        for c in range(3):
-            if free[c]:
-                s = np.sqrt(a_pose)
-                blocks.append((row + frames, 3 * frames + c, w_pose[c] * s, -r_pose[:, int(free[:c].sum())] * s))
-            else:
-                blocks.append((row + frames, 3 * frames + c, np.full(n, _HELD), np.zeros(n)))
-            row += n
-        # a step's residual: log(o^-1 z) + d_k - Ad(z^-1) d_{k-1}
-        A = adjoint(pose_to_matrix(invert(z)))  # Ad(z^-1), one a step
-        s = np.sqrt(a_odo)
-        for c in range(3):
-            r = row + np.arange(len(k1))
-            blocks.append((r, 3 * k1 + c, w_odo[:, c] * s, -e[:, c] * s))
-            for cc in range(3):
-                blocks.append((r, 3 * (k1 - 1) + cc, -w_odo[:, c] * A[:, c, cc] * s, None))
-            row += len(k1)
-        rows = np.concatenate([b[0] for b in blocks])
-        J = sp.csr_matrix((np.concatenate([b[2] for b in blocks]), (rows, np.concatenate([b[1] for b in blocks]))),
-                          shape=(row, 3 * n))
-        rhs = np.zeros(row)
-        for b in blocks:
-            if b[3] is not None:
-                rhs[b[0]] = b[3]
-        d = spla.spsolve((J.T @ J).tocsc(), J.T @ rhs).reshape(n, 3)
+            a_pose = np.where(ch.confirmed, 1.0, _down_weight((r_pose**2).sum(1), ch.gate_pose))
+        d = _correction(ch, cur, a_pose, r_pose)
         if not np.all(np.isfinite(d)):
             result.status = "skipped: the smoothing system could not be solved"
             return result

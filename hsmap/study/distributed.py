@@ -90,6 +90,55 @@ def _client(workers: int | None, scheduler: str | None):
     return Client(cluster), cluster
 
 
+def _finished_and_todo(jobs: Sequence[Job], out: Path, skip_finished: bool) -> tuple[dict[str, dict], list[Job]]:
+    """The records of the jobs whose result in ``out`` says ok (read back, with ``skip_finished``), and the jobs to
+    run."""
+    records: dict[str, dict] = {}
+    todo = []
+    for job in jobs:
+        done = read_result(out / job.name / RESULT_FILE)
+        if skip_finished and done is not None and done.get("status") == "ok":
+            records[job.name] = done | {"skipped": True}
+        else:
+            todo.append(job)
+    return records, todo
+
+
+def _submit(client, todo: list[Job], out: Path, retries: int) -> tuple[dict, dict[str, list]]:
+    """Submit every stage of every job, each stage on its predecessor's result; returns each job's last future
+    (future -> job) and each job's (stage, future) list."""
+    finals = {}
+    stage_of: dict[str, list] = {}
+    for job in todo:
+        (out / job.name).mkdir(parents=True, exist_ok=True)
+        prev = None
+        futs = []
+        for k, (stage, fn) in enumerate(job.stages):
+            key = f"{job.name}/{stage}-{time.time_ns()}"
+            if k == 0:
+                f = client.submit(_call, fn, job.kwargs, key=key, retries=retries, pure=False,
+                                  priority=job.priority)
+            else:
+                f = client.submit(_call_on, fn, prev, key=key, retries=retries, pure=False,
+                                  priority=job.priority)
+            futs.append((stage, f))
+            prev = f
+        finals[prev] = job
+        stage_of[job.name] = futs
+    return finals, stage_of
+
+
+def _record(job: Job, fut, stages: list) -> dict:
+    """The record of a finished job: its last stage's result, or the stage that failed and why."""
+    try:
+        result = fut.result()
+        return {"name": job.name, "status": "ok", **result}
+    except Exception as exc:  # noqa: BLE001 - any failure of a job is recorded, the others go on
+        stage = next((s for s, f in stages if f.status == "error"), job.stages[-1][0])
+        return {"name": job.name, "status": "failed", "stage": stage, "error": _one_line(exc),
+                "traceback": "".join(traceback.format_exception(exc))[-4000:]}
+
+
 def run_jobs(jobs: Sequence[Job], out: str | Path, *, workers: int | None = 2, scheduler: str | None = None,
              retries: int = 1, progress: bool | None = None, log: Callable[[str], None] | None = None,
              client=None, skip_finished: bool = True) -> list[dict]:
@@ -128,14 +177,7 @@ def run_jobs(jobs: Sequence[Job], out: str | Path, *, workers: int | None = 2, s
     names = [j.name for j in jobs]
     if len(set(names)) != len(names):
         raise ConfigError(f"job names must be unique, got {names}")
-    records: dict[str, dict] = {}
-    todo = []
-    for job in jobs:
-        done = read_result(out / job.name / RESULT_FILE)
-        if skip_finished and done is not None and done.get("status") == "ok":
-            records[job.name] = done | {"skipped": True}
-        else:
-            todo.append(job)
+    records, todo = _finished_and_todo(jobs, out, skip_finished)
     bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), unit="job", desc="jobs",
                disable=None if progress is None else not progress)
     if not todo:
@@ -148,36 +190,13 @@ def run_jobs(jobs: Sequence[Job], out: str | Path, *, workers: int | None = 2, s
     try:
         from dask.distributed import as_completed
 
-        finals = {}
-        stage_of: dict[str, list] = {}
-        for job in todo:
-            (out / job.name).mkdir(parents=True, exist_ok=True)
-            prev = None
-            futs = []
-            for k, (stage, fn) in enumerate(job.stages):
-                key = f"{job.name}/{stage}-{time.time_ns()}"
-                if k == 0:
-                    f = client.submit(_call, fn, job.kwargs, key=key, retries=retries, pure=False,
-                                      priority=job.priority)
-                else:
-                    f = client.submit(_call_on, fn, prev, key=key, retries=retries, pure=False,
-                                      priority=job.priority)
-                futs.append((stage, f))
-                prev = f
-            finals[prev] = job
-            stage_of[job.name] = futs
+        finals, stage_of = _submit(client, todo, out, retries)
         failed = 0
         for fut in as_completed(list(finals)):
             job = finals[fut]
             t = time.time()
-            try:
-                result = fut.result()
-                rec = {"name": job.name, "status": "ok", **result}
-            except Exception as exc:  # noqa: BLE001 - any failure of a job is recorded, the others go on
-                stage = next((s for s, f in stage_of[job.name] if f.status == "error"), job.stages[-1][0])
-                rec = {"name": job.name, "status": "failed", "stage": stage, "error": _one_line(exc),
-                       "traceback": "".join(traceback.format_exception(exc))[-4000:]}
-                failed += 1
+            rec = _record(job, fut, stage_of[job.name])
+            failed += rec["status"] != "ok"
             rec["finished"] = time.strftime("%Y-%m-%dT%H:%M:%S", time.localtime(t))
             write_json(out / job.name / RESULT_FILE, rec)
             records[job.name] = rec | {"skipped": False}

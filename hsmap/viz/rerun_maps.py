@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
 from typing import Any
 
 os.environ["RERUN_ANALYTICS"] = "0"  # before rerun is imported: never phone home from our runs
@@ -233,6 +234,101 @@ def _centroid(node: Any, data: Mapping[str, Any]) -> NDArray[np.float64]:
     return c[:2]
 
 
+@dataclass
+class _GraphNodes:
+    """A room graph's nodes as drawn: ids, world (x, y), long and short labels, colours, radii, kinds."""
+
+    ids: list[str]
+    pos: NDArray[np.float64]
+    labels: list[str]
+    short: list[str]
+    colors: list
+    radii: NDArray[np.float64]
+    kinds: list[str]
+
+
+@dataclass
+class _GraphEdges:
+    """A room graph's edges: node id pairs, their world lines and their length labels."""
+
+    pairs: list[tuple[str, str]]
+    lines: list[list[NDArray[np.float64]]]
+    labels: list[str]
+
+
+def _graph_nodes(graph: Any) -> _GraphNodes:
+    ids, pos, labels, short, colors, radii, kinds = [], [], [], [], [], [], []
+    for i, (n, data) in enumerate(graph.nodes(data=True)):
+        kind = _node_kind(data)
+        c = _centroid(n, data)
+        ids.append(str(n))
+        pos.append(c)
+        kinds.append(kind)
+        if kind == "room":
+            area = data.get("area")
+            name = data.get("name") or f"room {n}"
+            labels.append(f"{name} ({float(area):.1f} m²)" if area is not None else str(name))
+            short.append(str(name))
+            lab = data.get("label", n if isinstance(n, (int, np.integer)) else i + 1)
+            colors.append(label_color(int(lab)) if isinstance(lab, (int, np.integer)) else tuple(ROOM_PALETTE[0]))
+            radii.append(1.0)
+        else:
+            name = str(data.get("name") or f"door {n}")
+            labels.append(name)
+            short.append(name)
+            colors.append(_DOOR_COLOR)
+            radii.append(0.5)
+    if not ids:
+        raise InputError("the room graph has no nodes")
+    return _GraphNodes(ids, np.array(pos), labels, short, colors, np.array(radii), kinds)
+
+
+def _graph_edges(graph: Any, pos: NDArray[np.float64], index: Mapping[str, int]) -> _GraphEdges:
+    edges, edge_lines, edge_labels = [], [], []
+    for u, v, data in graph.edges(data=True):
+        edges.append((str(u), str(v)))
+        edge_lines.append([pos[index[str(u)]], pos[index[str(v)]]])
+        d = data.get("distance")
+        edge_labels.append(f"{float(d):.2f} m" if d is not None else "")
+    return _GraphEdges(edges, edge_lines, edge_labels)
+
+
+def _log_world_graph(s: Any, world_entity: str, nodes: _GraphNodes, edges: _GraphEdges, z: float,
+                     static: bool) -> None:
+    """The graph in the 3D world at height ``z``: nodes, room labels, light edges and each edge's length."""
+    p3 = np.column_stack([nodes.pos, np.full(len(nodes.pos), z)])
+    # labels in white: a room's label in its own colour would vanish on its floor's fill
+    s.log(f"{world_entity}/nodes", rr.Points3D(p3, colors=nodes.colors, radii=nodes.radii * 0.2),
+          static=static, strict=True)
+    # rooms only: door labels would crowd a corridor's (the door clouds and the edges show the doors)
+    rooms = np.array([k == "room" for k in nodes.kinds])
+    s.log(f"{world_entity}/labels", rr.Points3D(p3[rooms] + [0.0, 0.0, 0.25], colors=(255, 255, 255),
+                                                radii=0.01, labels=[t for t, r in zip(nodes.labels, rooms, strict=True)
+                                                                    if r], show_labels=True),
+          static=static, strict=True)
+    if edges.pairs:
+        lines = [np.column_stack([np.array(e), np.full(2, z)]) for e in edges.lines]
+        s.log(f"{world_entity}/edges", rr.LineStrips3D(lines, colors=(235, 235, 235), radii=0.06),
+              static=static, strict=True)
+        mids = np.array([ln.mean(axis=0) for ln in lines])
+        s.log(f"{world_entity}/lengths", rr.Points3D(mids, colors=(235, 235, 235), radii=0.08,
+                                                     labels=edges.labels, show_labels=True),
+              static=static, strict=True)
+
+
+def _log_map_graph(s: Any, geometry: GridGeometry, nodes: _GraphNodes, edges: _GraphEdges, static: bool) -> None:
+    """The graph over the 2D map view: labels in white (the room's colour is the fill under them), doors by their
+    short name."""
+    tags = [lab if nodes.kinds[k] == "room" else lab.removeprefix("door ") for k, lab in enumerate(nodes.short)]
+    s.log(f"{MAP2D}/graph/nodes", rr.Points2D(world_to_map2d(geometry, nodes.pos), colors=(255, 255, 255),
+                                             radii=nodes.radii * 4.0, labels=tags, draw_order=30.0),
+          static=static, strict=True)
+    if edges.pairs:
+        s.log(f"{MAP2D}/graph/edges",
+              rr.LineStrips2D([world_to_map2d(geometry, np.array(e)) for e in edges.lines],
+                              colors=(40, 40, 40), radii=1.0, draw_order=25.0), static=static, strict=True)
+
+
 def log_room_graph(
     rec: Any,
     graph: Any,
@@ -257,71 +353,19 @@ def log_room_graph(
     """
     if not hasattr(graph, "nodes") or not hasattr(graph, "edges"):
         raise InputError(f"expected a networkx graph, got {type(graph).__name__}")
-    ids, pos, labels, short, colors, radii, kinds = [], [], [], [], [], [], []
-    for i, (n, data) in enumerate(graph.nodes(data=True)):
-        kind = _node_kind(data)
-        c = _centroid(n, data)
-        ids.append(str(n))
-        pos.append(c)
-        kinds.append(kind)
-        if kind == "room":
-            area = data.get("area")
-            name = data.get("name") or f"room {n}"
-            labels.append(f"{name} ({float(area):.1f} m²)" if area is not None else str(name))
-            short.append(str(name))
-            lab = data.get("label", n if isinstance(n, (int, np.integer)) else i + 1)
-            colors.append(label_color(int(lab)) if isinstance(lab, (int, np.integer)) else tuple(ROOM_PALETTE[0]))
-            radii.append(1.0)
-        else:
-            name = str(data.get("name") or f"door {n}")
-            labels.append(name)
-            short.append(name)
-            colors.append(_DOOR_COLOR)
-            radii.append(0.5)
-    if not ids:
-        raise InputError("the room graph has no nodes")
-    pos_a = np.array(pos)
+    nodes = _graph_nodes(graph)
     index = {str(n): k for k, n in enumerate(graph.nodes)}
-    edges, edge_lines, edge_labels = [], [], []
-    for u, v, data in graph.edges(data=True):
-        edges.append((str(u), str(v)))
-        edge_lines.append([pos_a[index[str(u)]], pos_a[index[str(v)]]])
-        d = data.get("distance")
-        edge_labels.append(f"{float(d):.2f} m" if d is not None else "")
+    edges = _graph_edges(graph, nodes.pos, index)
     s = _stream(rec)
-    gpos = _graph_positions(graph, pos_a, kinds, index) * np.array([1.0, -1.0]) * scale
-    s.log(entity, rr.GraphNodes(ids, positions=gpos, labels=labels, colors=colors,
-                                radii=np.array(radii) * 0.15 * scale, show_labels=True),
+    gpos = _graph_positions(graph, nodes.pos, nodes.kinds, index) * np.array([1.0, -1.0]) * scale
+    s.log(entity, rr.GraphNodes(nodes.ids, positions=gpos, labels=nodes.labels, colors=nodes.colors,
+                                radii=nodes.radii * 0.15 * scale, show_labels=True),
           static=static, strict=True)
-    s.log(entity, rr.GraphEdges(edges, graph_type="undirected"), static=static, strict=True)
+    s.log(entity, rr.GraphEdges(edges.pairs, graph_type="undirected"), static=static, strict=True)
     if world_entity is not None:
-        p3 = np.column_stack([pos_a, np.full(len(pos_a), z)])
-        # labels in white: a room's label in its own colour would vanish on its floor's fill
-        s.log(f"{world_entity}/nodes", rr.Points3D(p3, colors=colors, radii=np.array(radii) * 0.2),
-              static=static, strict=True)
-        # rooms only: door labels would crowd a corridor's (the door clouds and the edges show the doors)
-        rooms = np.array([k == "room" for k in kinds])
-        s.log(f"{world_entity}/labels", rr.Points3D(p3[rooms] + [0.0, 0.0, 0.25], colors=(255, 255, 255),
-                                                    radii=0.01, labels=[t for t, r in zip(labels, rooms, strict=True)
-                                                                        if r], show_labels=True),
-              static=static, strict=True)
-        if edges:
-            lines = [np.column_stack([np.array(e), np.full(2, z)]) for e in edge_lines]
-            s.log(f"{world_entity}/edges", rr.LineStrips3D(lines, colors=(235, 235, 235), radii=0.06),
-                  static=static, strict=True)
-            mids = np.array([ln.mean(axis=0) for ln in lines])
-            s.log(f"{world_entity}/lengths", rr.Points3D(mids, colors=(235, 235, 235), radii=0.08,
-                                                         labels=edge_labels, show_labels=True),
-                  static=static, strict=True)
+        _log_world_graph(s, world_entity, nodes, edges, z, static)
     if geometry is not None:
-        tags = [lab if kinds[k] == "room" else lab.removeprefix("door ") for k, lab in enumerate(short)]
-        s.log(f"{MAP2D}/graph/nodes", rr.Points2D(world_to_map2d(geometry, pos_a), colors=(255, 255, 255),
-                                                 radii=np.array(radii) * 4.0, labels=tags, draw_order=30.0),
-              static=static, strict=True)
-        if edges:
-            s.log(f"{MAP2D}/graph/edges",
-                  rr.LineStrips2D([world_to_map2d(geometry, np.array(e)) for e in edge_lines],
-                                  colors=(40, 40, 40), radii=1.0, draw_order=25.0), static=static, strict=True)
+        _log_map_graph(s, geometry, nodes, edges, static)
 
 
 _DOOR_COLOR = (230, 230, 230)

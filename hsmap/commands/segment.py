@@ -55,8 +55,9 @@ def _band_grid(args: argparse.Namespace, min_passage: float):
 
     import numpy as np
 
-    from ..errors import InputError
+    from ..errors import EmptyInputError, InputError
     from ..grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid
+    from ..maps3d import FREE as FREE_3D
     from ..maps3d import band_grid, band_layers, floor_height, read_map3d, seen_through, segmentation_free
     from .inputs import parse_vector
 
@@ -71,6 +72,12 @@ def _band_grid(args: argparse.Namespace, min_passage: float):
     if kw and not args.map.lower().endswith((".ply", ".pcd")):
         raise InputError(f"--resolution applies to point maps (.ply/.pcd); {args.map} has its own resolution")
     m = read_map3d(args.map, **kw)
+    if not (m.state == FREE_3D).any():
+        what = ("a point map records occupied voxels only, no free space" if args.map.lower().endswith((".ply", ".pcd"))
+                else "the map holds no free voxel")
+        raise EmptyInputError(f"{args.map}: {what}, so its band has no free cell to segment; segment an OctoMap "
+                              ".bt/.ot that records free space, or the floor.yaml that hsmap map makes of the "
+                              "recording")
     found = floor_height(m)
     floor = found if args.floor is None else float(args.floor)
     layers = band_layers(m, lo, hi, floor=floor)
@@ -146,9 +153,17 @@ def run(args: argparse.Namespace) -> int:
     except EmptyInputError as exc:
         raise EmptyInputError(f"{args.map}: {exc}") from None
     except InputError as exc:
-        src = "--resolution" if args.resolution is not None else (
-            f"{args.map}: 'resolution'" if Path(args.map).suffix.lower() in (".yaml", ".yml")
-            else "the default resolution 0.05 (set it with --resolution)")
+        suffix = Path(args.map).suffix.lower()
+        if args.resolution is not None:
+            src = "--resolution"
+        elif suffix in (".yaml", ".yml"):
+            src = f"{args.map}: 'resolution'"
+        elif suffix in (".bt", ".ot"):  # an OctoMap tree's voxel size is its own: no flag changes it
+            src = f"{args.map}: the tree's voxel size {grid.geometry.resolution:g} m"
+        elif suffix in MAP3D_SUFFIXES:
+            src = "the point map's default voxel size 0.05 (set it with --resolution)"
+        else:
+            src = "the default resolution 0.05 (set it with --resolution)"
         raise InputError(f"{src}: {exc}") from None
     seg = segment_rooms(grid, config=cfg, keep_steps=args.steps)
     if seg.n_rooms == 0:

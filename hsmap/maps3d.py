@@ -286,7 +286,12 @@ def _octomap_leaves(path: Path) -> tuple[NDArray[np.float64], NDArray[np.int64],
         raise EmptyInputError(f"{path}: the OctoMap tree has no leaves")
     centres = np.array([r[0] for r in rows], dtype=float)
     depth = np.array([r[1] for r in rows], dtype=np.int64)
-    occupied = np.array([r[2] for r in rows], dtype=float) >= thres
+    value = np.array([r[2] for r in rows], dtype=float)
+    nan = int(np.isnan(value).sum())
+    if nan:  # neither occupied nor free: a NaN compares false with the threshold and would read as free
+        raise DataFormatError(f"{path}: {nan} of its {len(value)} OctoMap leaves have a NaN log-odds occupancy; "
+                              "expected numbers")
+    occupied = value >= thres
     return centres, depth, occupied, float(tree.getResolution())
 
 
@@ -482,8 +487,15 @@ def floor_height(m: Map3D) -> float:
     return float(m.origin[2] + (k + 1) * m.resolution)
 
 
+#: Share of a voxel's height by which a layer must overlap a band to belong to it: a band edge on a voxel face
+#: (0 on the floor's top face, a multiple of the resolution above it) takes no layer beyond the face, whatever
+#: the rounding of the floor's and the edges' heights.
+BAND_FACE_TOLERANCE = 1e-6
+
+
 def band_layers(m: Map3D, lo: float, hi: float, *, floor: float | None = None) -> slice:
-    """The voxel layers overlapping heights [lo, hi] above the floor (``floor`` or :func:`floor_height`)."""
+    """The voxel layers overlapping heights [lo, hi] above the floor (``floor`` or :func:`floor_height`) by more
+    than :data:`BAND_FACE_TOLERANCE` of a voxel: an edge on a voxel face takes only the layer on the band's side."""
     if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
         raise InputError(f"band must be two finite heights LO < HI above the floor, got {lo}, {hi}")
     f = floor_height(m) if floor is None else float(floor)
@@ -491,7 +503,8 @@ def band_layers(m: Map3D, lo: float, hi: float, *, floor: float | None = None) -
         raise InputError(f"floor must be a finite height, got {floor}")
     z0, z1 = f + lo, f + hi
     bottom = m.origin[2] + np.arange(m.state.shape[2]) * m.resolution
-    over = np.flatnonzero((bottom < z1) & (bottom + m.resolution > z0))
+    eps = BAND_FACE_TOLERANCE * m.resolution
+    over = np.flatnonzero((bottom < z1 - eps) & (bottom + m.resolution > z0 + eps))
     if len(over) == 0:
         lo_m, hi_m = m.bounds
         raise InputError(f"band {lo:g}-{hi:g} m above the floor at {f:.3f} m ({z0:.3f}-{z1:.3f} m) lies outside "

@@ -214,3 +214,79 @@ def test_align_refuses_a_match_it_cannot_tell_from_another(tmp_path):
     line = error_line(err)
     assert line.startswith(f"{tmp_path / 'black.png'} onto {tmp_path / 'rooms.yaml'}: no unique match"), line
     assert not (tmp_path / "o").exists()
+
+
+def test_octomap_leaves_with_nan_log_odds_are_refused(tmp_path):
+    """Before: a .ot leaf whose log-odds is NaN was read as free space."""
+    import struct
+
+    tree = octomap.OcTree(0.1)
+    g = np.mgrid[0:1:0.05, 0:1:0.05].reshape(2, -1).T
+    tree.insertPointCloud(np.c_[g, np.zeros(len(g))], np.array([0.5, 0.5, 1.0]))
+    tree.updateInnerOccupancy()
+    path = tmp_path / "nan.ot"
+    assert tree.write(str(path).encode())
+    raw = bytearray(path.read_bytes())
+    assert raw[-1] == 0  # the last node of the depth-first stream is a leaf: float32 log-odds, no children
+    raw[-5:-1] = struct.pack("<f", float("nan"))
+    path.write_bytes(bytes(raw))
+    code, err = run_cli("segment", path, "--band", "0.2,0.4", "--out", tmp_path / "o")
+    assert code == 2
+    line = error_line(err)
+    assert line.startswith(f"{path}: 1 of its ") and line.endswith(" OctoMap leaves have a NaN log-odds occupancy; "
+                                                                    "expected numbers"), line
+
+
+# band edges on voxel faces ---------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("res, origin_z", [(0.08, float(np.float32(-0.16))), (0.05, -0.1), (0.1, float(np.float32(-0.3)))])
+def test_a_band_edge_on_a_voxel_face_takes_no_layer_beyond_it(res, origin_z):
+    """Before: on geb079 (0.08 m voxels) ``--band 0,0.001`` took the floor's own layer and ``--band 0.16,0.24``
+    two layers where ``0.8,0.88`` took one: an edge on a face took the layer beyond it or not, by rounding."""
+    from hsmap.maps3d import OCCUPIED, Map3D, band_layers, floor_height
+
+    state = np.zeros((4, 4, 40), np.uint8)
+    state[:, :, 1] = OCCUPIED  # the floor: layer 1, its top face one voxel above the origin's layer
+    m = Map3D(state, np.array([0.0, 0.0, origin_z]), res, "test")
+    floor = floor_height(m)
+    assert band_layers(m, 0.0, 0.001, floor=floor) == slice(2, 3)  # just above the floor's face: the next layer
+    for j in range(30):  # one voxel's height from face to face: that voxel alone
+        assert band_layers(m, j * res, (j + 1) * res, floor=floor) == slice(2 + j, 3 + j), j
+    # a band across a face keeps both layers it overlaps
+    assert band_layers(m, 0.5 * res, 1.5 * res, floor=floor) == slice(2, 4)
+
+
+# simulate --world --------------------------------------------------------------------------------------------------
+
+
+def test_simulate_refuses_a_scenario_beside_world(small_bt, tmp_path):
+    """Before: ``simulate two-rooms --world MAP`` ignored two-rooms without a word."""
+    code, err = run_cli("simulate", "two-rooms", "--world", small_bt, "--out", tmp_path / "o")
+    assert code == 2
+    assert error_line(err) == (f"SCENARIO 'two-rooms' and --world {small_bt} both name the world to simulate; give "
+                               "one of them")
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_one_room_map_says_why_the_route_goes_nowhere(tmp_path):
+    """Before: 'the route does not move the robot', with no file and no reason."""
+    tree = octomap.OcTree(0.1)
+    step = 0.05
+    xs, ys, zs = np.arange(0.05, 4.0, step), np.arange(0.05, 3.0, step), np.arange(0.05, 2.5, step)
+    X, Y = np.meshgrid(xs, ys, indexing="ij")
+    Y2, Z2 = np.meshgrid(ys, zs, indexing="ij")
+    X3, Z3 = np.meshgrid(xs, zs, indexing="ij")
+    cloud = np.vstack([
+        np.stack([X.ravel(), Y.ravel(), np.full(X.size, -0.05)], 1), np.stack([X.ravel(), Y.ravel(), np.full(X.size, 2.55)], 1),
+        np.stack([np.full(Y2.size, -0.05), Y2.ravel(), Z2.ravel()], 1), np.stack([np.full(Y2.size, 4.05), Y2.ravel(), Z2.ravel()], 1),
+        np.stack([X3.ravel(), np.full(X3.size, -0.05), Z3.ravel()], 1), np.stack([X3.ravel(), np.full(X3.size, 3.05), Z3.ravel()], 1)])
+    tree.insertPointCloud(cloud, np.array([2.0, 1.5, 1.2]))
+    tree.updateInnerOccupancy()
+    room = tmp_path / "room.bt"
+    assert tree.writeBinary(str(room).encode())
+    code, err = run_cli("simulate", "--world", room, "--out", tmp_path / "o")
+    assert code == 2
+    line = error_line(err)
+    assert line.startswith(f"{room}: the route has nowhere to drive: the map's 1.7-1.8 m band shows 1 room "), line
+    assert "route.cover_spacing" in line

@@ -20,7 +20,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..errors import ScenarioError
+from ..errors import EmptyInputError, ScenarioError
 from ..io import write_json
 from ..maps3d import read_map3d
 from .building import BuildingRunConfig, building_motion, write_dataset_yaml, write_route_files
@@ -115,6 +115,14 @@ def simulate_world(world: VoxelWorld | str | os.PathLike, out: str | os.PathLike
     t = time.perf_counter()
     route = plan_route3d(world, cfg.route, lidar3d=cfg.lidar3d, footprint=cfg.robot.radius)
     timings["route"] = time.perf_counter() - t
+    if not route.route.path_length > 0:
+        x, y = route.route.start[:2]
+        n = int(route.rooms.max(initial=0))
+        raise EmptyInputError(
+            f"{world.source}: the route has nowhere to drive: the map's {cfg.route.rooms_band[0]:g}-"
+            f"{cfg.route.rooms_band[1]:g} m band shows {n} room{'s' if n != 1 else ''} the robot fits in, and every "
+            f"place it fits is within {cfg.route.cover_spacing:g} m (route.cover_spacing) of its start "
+            f"({x:.2f}, {y:.2f}); a run needs a map with somewhere to go")
     t = time.perf_counter()
     bcfg = BuildingRunConfig(frame_rate=cfg.frame_rate, robot=cfg.robot, odometry=cfg.odometry)
     motion = building_motion(route.route, bcfg, seed, max_frames)

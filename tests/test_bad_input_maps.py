@@ -170,6 +170,10 @@ def test_a_point_map_band_says_a_point_map_has_no_free_space(tmp_path):
     line = error_line(err)
     assert line.startswith(f"{path}: a point map records occupied voxels only, no free space"), line
     assert "OctoMap" in line
+    code, err = run_cli("simulate", "--world", path, "--out", tmp_path / "o")
+    assert code == 2
+    assert error_line(err).startswith(f"{path}: a point map records occupied voxels only, so there is no known free "
+                                      "space to drive through")
 
 
 def test_a_coarse_octomap_does_not_blame_a_flag_it_refuses(small_bt, tmp_path):

@@ -27,7 +27,7 @@ from .building import BuildingRunConfig, building_motion, write_dataset_yaml, wr
 from .robot import Motion, OdometryConfig, RobotConfig
 from .route3d import Route3D, Route3DConfig, plan_route3d
 from .sensors import Lidar2DConfig, Lidar3DConfig
-from .voxelworld import VoxelWorld
+from .voxelworld import FREE, VoxelWorld
 from .writer import staged_dataset_folder, write_sensor_frames
 
 __all__ = ["WorldRunConfig", "WorldRun", "simulate_world", "load_voxel_world"]
@@ -110,6 +110,11 @@ def simulate_world(world: VoxelWorld | str | os.PathLike, out: str | os.PathLike
     if not isinstance(world, VoxelWorld):
         world = load_voxel_world(world)
     timings["world"] = time.perf_counter() - t0
+    if not (world.state == FREE).any():
+        what = ("a point map records occupied voxels only" if str(world.source).lower().endswith((".ply", ".pcd"))
+                else "the map holds no free voxel")
+        raise EmptyInputError(f"{world.source}: {what}, so there is no known free space to drive through; simulate "
+                              "in an OctoMap .bt/.ot that records free space")
     final = Path(out)
 
     t = time.perf_counter()

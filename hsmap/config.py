@@ -13,9 +13,9 @@ from typing import Any, TypeVar
 
 import yaml
 
-from .errors import ConfigError
+from .errors import ConfigError, InputError
 from .io import to_plain, write_text
-from .limits import load_yaml, quote
+from .limits import load_yaml, quote, read_bounded
 
 T = TypeVar("T")
 
@@ -112,7 +112,9 @@ def read_yaml(path: str | os.PathLike, what: str = "configuration file") -> Any:
     """
     path = Path(path)
     try:
-        return load_yaml(path.read_text(encoding="utf-8"))
+        return load_yaml(read_bounded(path, what).decode("utf-8"))
+    except InputError as exc:
+        raise ConfigError(str(exc)) from None
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read the {what}: {exc.strerror}") from None
     except UnicodeDecodeError as exc:

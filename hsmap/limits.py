@@ -4,7 +4,8 @@ Every array sized by an input (a grid from a resolution, a point count from a fi
 header) is checked with :func:`check_allocation` before it is allocated; every input value quoted in a message
 goes through :func:`quote`, so that a value built from YAML aliases cannot make a message of gigabytes. YAML
 documents are read with :func:`load_yaml`: YAML 1.2 numbers (``1e-1`` is a number) and at most
-:data:`MAX_YAML_NODES` values once aliases are expanded.
+:data:`MAX_YAML_NODES` values once aliases are expanded; their files with :func:`read_bounded`, at most
+:data:`MAX_YAML_BYTES` (``--config /dev/zero`` never ends otherwise).
 """
 
 from __future__ import annotations
@@ -18,12 +19,34 @@ import yaml
 
 from .errors import InputError
 
-__all__ = ["quote", "check_allocation", "available_memory", "load_yaml", "MAX_YAML_NODES", "MAX_MESSAGE"]
+__all__ = ["quote", "check_allocation", "available_memory", "load_yaml", "read_bounded", "MAX_YAML_NODES",
+           "MAX_YAML_BYTES", "MAX_MESSAGE"]
 
 #: Longest error message the command line prints, characters.
 MAX_MESSAGE = 1000
 #: Most values (scalars, lists, mappings, counting each alias use) a YAML document may expand to.
 MAX_YAML_NODES = 1_000_000
+#: Largest YAML file read, bytes (a configuration, scenario, map or parameters file is a few kilobytes; the
+#: node bound above is reached well within it).
+MAX_YAML_BYTES = 16 * 2**20
+
+
+def read_bounded(path: str | os.PathLike, what: str, limit: int = MAX_YAML_BYTES) -> bytes:
+    """The bytes of the file ``path``, read up to ``limit`` of them: an endless or huge input (``/dev/zero``) is
+    an :class:`InputError` naming it and the ``what`` expected.
+
+    Raises
+    ------
+    OSError
+        The file cannot be opened or read (the caller names the reason).
+    InputError
+        It holds more than ``limit`` bytes.
+    """
+    with open(path, "rb") as fh:
+        data = fh.read(limit + 1)
+    if len(data) > limit:
+        raise InputError(f"{path}: more than {limit} bytes; expected a {what} (a small YAML text file)")
+    return data
 
 _repr = reprlib.Repr()
 _repr.maxlevel = 3

@@ -72,7 +72,7 @@ def test_an_interrupted_world_run_leaves_the_previous_dataset_whole(world_datase
     assert sorted(p.name for p in folder.iterdir()) == sorted(p.name for p in world_dataset.iterdir())
 
 
-def test_a_world_run_that_cannot_plan_its_route_leaves_the_previous_dataset_whole(world_dataset, tmp_path):
+def test_a_world_run_refused_before_writing_leaves_the_previous_dataset_whole(world_dataset, tmp_path):
     import shutil
 
     folder = tmp_path / "dataset"

@@ -73,13 +73,13 @@ def _map_files(path: str) -> list[str]:
     """A map's file and, for a map_server YAML, the image it names (both are inputs an output must not replace)."""
     from pathlib import Path
 
-    from ..limits import load_yaml
+    from ..limits import load_yaml, read_bounded
 
     files = [path]
     p = Path(path)
     if p.suffix.lower() in (".yaml", ".yml") and p.is_file():
         try:
-            meta = load_yaml(p.read_text(encoding="utf-8"))
+            meta = load_yaml(read_bounded(p, "map_server YAML").decode("utf-8"))
         except Exception:  # noqa: BLE001 - the map's reader names what is wrong with it
             return files
         if isinstance(meta, dict) and isinstance(meta.get("image"), str):

@@ -1,5 +1,6 @@
 """Every setting of hsmap with its default and meaning, by section: slam (hsmap slam --config FILE), map (hsmap
-map --config FILE: the sections slam2d and slam3d take slam's keys, segmentation segmentation's), segmentation
+map --config FILE: the sections slam2d and slam3d take slam's keys, segmentation segmentation's; ``config show map``
+shows all four with the chain's defaults, ``config show slam2d`` one), segmentation
 (hsmap segment --config FILE), and the simulator's scenario files (scenario.robot, scenario.odometry,
 scenario.sensors.lidar2d, scenario.sensors.lidar3d). --markdown prints the reference as docs/CONFIG.md holds it."""
 
@@ -24,8 +25,23 @@ def sections() -> dict[str, object]:
             "scenario.sensors.lidar2d": Lidar2DConfig(), "scenario.sensors.lidar3d": Lidar3DConfig()}
 
 
+def map_sections() -> dict[str, object]:
+    """The sections of ``hsmap map --config FILE`` (its keys slam2d, slam3d, grids, segmentation): name -> the
+    chain's default for it (:class:`hsmap.pipeline.config.ChainConfig`)."""
+    from ..pipeline.config import ChainConfig
+
+    c = ChainConfig()
+    return {"map.slam2d": c.slam2d, "map.slam3d": c.slam3d, "map.grids": c.grids, "map.segmentation": c.segmentation}
+
+
+#: Section names ``config show`` takes beside those of :func:`sections`: a ``map --config`` key alone.
+MAP_KEYS = {"slam2d": "map.slam2d", "slam3d": "map.slam3d", "grids": "map.grids"}
+
 #: What each section configures, and where its keys go.
 SECTION_HELP = {
+    "map.slam2d": "the chain's 3-DOF HS-SLAM run (hsmap map --config FILE: under slam2d; slam's keys, dof 3)",
+    "map.slam3d": "the chain's 6-DOF HS-SLAM run (hsmap map --config FILE: under slam3d; slam's keys, dof 6)",
+    "map.segmentation": "the chain's doors and rooms (hsmap map --config FILE: under segmentation)",
     "slam": "HS-SLAM (hsmap slam --config FILE; hsmap map --config FILE: under slam2d and slam3d, slam3d with dof 6)",
     "map.grids": "the chain's grids (hsmap map --config FILE: under grids; segmentation's keys under segmentation)",
     "segmentation": "doors and rooms (hsmap segment --config FILE; hsmap map --config FILE: under segmentation)",
@@ -42,10 +58,18 @@ def reference(section: str | None = None) -> dict[str, list[tuple[str, str, str]
     from ..errors import InputError
 
     all_ = sections()
-    names = [s for s in all_ if section is None or s == section or s.startswith(section + ".")]
+    if section is None:
+        return {name: config_reference(cfg) for name, cfg in all_.items()}
+    shown = {"slam": all_["slam"], **map_sections(),
+             **{k: v for k, v in all_.items() if k not in ("slam", "map.grids")}}
+    key = MAP_KEYS.get(section, section)
+    names = [s for s in shown if s == key or s.startswith(key + ".")]
     if not names:
-        raise InputError(f"config show: no section {section!r}; the sections are {', '.join(all_)}")
-    return {name: config_reference(all_[name]) for name in names}
+        listed = ", ".join(["slam", "map", *[n for n in shown if n.startswith("map.")], "segmentation", "scenario",
+                            *[n for n in shown if n.startswith("scenario.")]])
+        raise InputError(f"config show: no section {section!r}; the sections are {listed} (and slam2d, slam3d, "
+                         "grids: map's)")
+    return {name: config_reference(shown[name]) for name in names}
 
 
 def markdown() -> str:
@@ -63,8 +87,9 @@ def markdown() -> str:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
     p = sub.add_parser("show", help="every key of a section (default: all) with its default and meaning")
-    p.add_argument("section", nargs="?", help="slam, map.grids, segmentation, scenario, scenario.robot, ... "
-                                              "(default: all)")
+    p.add_argument("section", nargs="?", help="slam, map (map.slam2d, map.slam3d, map.grids, map.segmentation; "
+                                              "or slam2d, slam3d, grids), segmentation, scenario, scenario.robot, "
+                                              "... (default: all)")
     p.add_argument("--markdown", action="store_true", help="the reference as Markdown (docs/CONFIG.md)")
 
 

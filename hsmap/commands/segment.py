@@ -107,7 +107,8 @@ def _map_and_floor(args):
 
     import numpy as np
 
-    from ..errors import InputError
+    from ..errors import EmptyInputError, InputError
+    from ..maps.maps3d import FREE as FREE_3D
     from ..maps.maps3d import floor_height, read_map3d
     from ..maps.occupancy3d import floor_field, floor_under_path, level_map
     from ..pipeline.config import GridsConfig
@@ -117,6 +118,12 @@ def _map_and_floor(args):
         if kw and not args.map.lower().endswith((".ply", ".pcd")):
             raise InputError(f"--resolution applies to point maps (.ply/.pcd); {args.map} has its own resolution")
         m = read_map3d(args.map, **kw)
+        if not (m.state == FREE_3D).any():
+            what = ("a point map records occupied voxels only, no free space"
+                    if args.map.lower().endswith((".ply", ".pcd")) else "the map holds no free voxel")
+            raise EmptyInputError(f"{args.map}: {what}, so its band has no free cell to segment; segment an OctoMap "
+                                  ".bt/.ot that records free space, or the output folder of the hsmap map or hsmap "
+                                  "slam run that made it (its free space is carved along the rays)")
         found = floor_height(m)
         floor = found if args.floor is None else float(args.floor)
         return m, floor, {"floor": floor, "floor_found": found, "floor_source":
@@ -225,9 +232,17 @@ def run(args: argparse.Namespace) -> int:
                 "the free space along the trajectory") if Path(args.map).suffix.lower() in (".ply", ".pcd") else ""
         raise EmptyInputError(f"{args.map}: {exc}{hint}") from None
     except InputError as exc:
-        src = "--resolution" if args.resolution is not None else (
-            f"{args.map}: 'resolution'" if Path(args.map).suffix.lower() in (".yaml", ".yml")
-            else "the default resolution 0.05 (set it with --resolution)")
+        suffix = Path(args.map).suffix.lower()
+        if args.resolution is not None:
+            src = "--resolution"
+        elif suffix in (".yaml", ".yml"):
+            src = f"{args.map}: 'resolution'"
+        elif suffix in (".bt", ".ot"):  # an OctoMap tree's voxel size is its own: no flag changes it
+            src = f"{args.map}: the tree's voxel size {grid.geometry.resolution:g} m"
+        elif suffix in MAP3D_SUFFIXES:
+            src = "the point map's default voxel size 0.05 (set it with --resolution)"
+        else:
+            src = "the default resolution 0.05 (set it with --resolution)"
         raise InputError(f"{src}: {exc}") from None
     seg = segment_rooms(grid, config=cfg, keep_steps=args.steps)
     if seg.n_rooms == 0:

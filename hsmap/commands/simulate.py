@@ -17,8 +17,8 @@ HELP = "simulate a scenario into a dataset folder (2D scans, 3D clouds, ground t
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("scenario", nargs="?", default="slam-office", metavar="SCENARIO",
-                        help="shipped scenario name or YAML file (default: slam-office)")
+    parser.add_argument("scenario", nargs="?", default=None, metavar="SCENARIO",
+                        help="shipped scenario name or YAML file (default: slam-office); not with --world")
     parser.add_argument("--world", metavar="MAP3D", default=None,
                         help="simulate in a real 3D map (OctoMap .bt/.ot, PLY/PCD) instead of a scenario")
     parser.add_argument("--out", metavar="DIR", default=None,
@@ -53,8 +53,11 @@ def run(args: argparse.Namespace) -> int:
     if args.label_resolution is not None and not args.label_resolution > 0:
         raise InputError(f"--label-resolution must be > 0 metres, got {args.label_resolution}")
     if args.world is not None:
+        if args.scenario is not None:
+            raise InputError(f"SCENARIO {args.scenario!r} and --world {args.world} both name the world to simulate; "
+                             "give one of them")
         return _run_world(args)
-    scn = load_scenario(resolve_scenario(args.scenario))
+    scn = load_scenario(resolve_scenario("slam-office" if args.scenario is None else args.scenario))
     if args.check:
         m = motion_for(scn, args.seed, args.max_frames)
         print(json.dumps({"scenario": scn.name, "file": scn.path, "ok": True, "frames": len(m),

@@ -273,6 +273,7 @@ def _declared_points(p: Path) -> int | None:
         raise DataFormatError(f"{p}: damaged PLY header (no end_header line in its first 64 KiB)")
     lines = head[:end].decode("latin-1").splitlines()
     count, width, binary, variable, values = None, 0, False, False, 0
+    elements: list[str] = []  # a PLY's elements in order: with the vertices alone, the data are theirs exactly
     data_start, element = end + len(b"end_header\n"), None
     for line in lines:
         w = line.split()
@@ -280,6 +281,7 @@ def _declared_points(p: Path) -> int | None:
             binary = w[1].startswith("binary")
         elif w[:1] == ["element"] and len(w) == 3:
             element = w[1]
+            elements.append(element)
             if element == "vertex":
                 try:
                     count = int(w[2])
@@ -301,6 +303,10 @@ def _declared_points(p: Path) -> int | None:
         raise DataFormatError(f"{p}: damaged: its header declares {count} points ({need:.0f} bytes of "
                               f"{'binary' if binary else 'text'} data at least), the file holds "
                               f"{size - data_start} bytes after its header (cut short?)")
+    alone = elements == ["vertex"]
+    if binary and alone and size - data_start > need:
+        raise DataFormatError(f"{p}: damaged: its header declares {count} vertices ({need:.0f} bytes), the file "
+                              f"holds {size - data_start} bytes after its header (more data than declared)")
     if not binary and values:
         with open(p, "rb") as fh:
             fh.seek(data_start)
@@ -308,6 +314,9 @@ def _declared_points(p: Path) -> int | None:
         if found < count * values:
             raise DataFormatError(f"{p}: damaged: its header declares {count} points of {values} values, the file "
                                   f"holds {found} values after its header (cut short?)")
+        if alone and found > count * values:
+            raise DataFormatError(f"{p}: damaged: its header declares {count} vertices of {values} values, the file "
+                                  f"holds {found} values after its header (more data than declared)")
     return count
 
 
@@ -395,7 +404,7 @@ def read_points_timed(path: str | os.PathLike, stamp: float = 0.0
     """The points (N, 3) of one cloud file (as :func:`read_points`) and, for a .pcd/.ply with a per-point time
     field (the names and units of :data:`hsmap.datasets.rosbag.POINT_TIME_FIELDS`), each point's seconds
     relative to ``stamp`` (the file's stamp), and the field's name; (points, None, None) otherwise."""
-    from .rosbag import POINT_TIME_FIELDS
+    from .ros_messages import POINT_TIME_FIELDS, point_time_unit
 
     p = Path(path)
     got = _records(p) if p.suffix.lower() in (".pcd", ".ply") else None
@@ -404,11 +413,11 @@ def read_points_timed(path: str | os.PathLike, stamp: float = 0.0
     rec, tname = got
     pts = np.column_stack([rec["x"], rec["y"], rec["z"]]).astype(float)
     ok = np.isfinite(pts).all(axis=1) & (pts != 0.0).any(axis=1)
-    _, scale, absolute = POINT_TIME_FIELDS[tname]
-    t = rec[tname][ok].astype(float) * scale - (float(stamp) if absolute else 0.0)
+    scale, label = point_time_unit(tname, rec[tname][ok])
+    t = rec[tname][ok].astype(float) * scale - (float(stamp) if POINT_TIME_FIELDS[tname][2] else 0.0)
     if not np.all(np.isfinite(t)):
-        raise DataFormatError(f"{p}: field {tname!r} holds non-finite times")
-    return pts[ok], t, tname
+        raise DataFormatError(f"{p}: field {tname!r} holds non-finite (NaN or infinite) times")
+    return pts[ok], t, label
 
 
 def _scan_from_points(pts: NDArray[np.float64]) -> LaserScan2D:
@@ -574,9 +583,9 @@ class CloudFolderDataset(Dataset):
                 cloud, times, field = read_points_timed(self._clouds.files[c], cstamp)
                 if times is not None:
                     if self.point_time is None:
-                        from .rosbag import POINT_TIME_FIELDS
+                        from .ros_messages import point_time_convention
 
-                        self.point_time = {"field": field, "convention": POINT_TIME_FIELDS[field][0]}
+                        self.point_time = {"field": field, "convention": point_time_convention(field)}
                     times = times + (cstamp - float(t))  # relative to the frame's stamp
                     if not np.any(times):
                         times = None

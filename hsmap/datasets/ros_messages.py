@@ -12,7 +12,7 @@ from numpy.typing import NDArray
 from ..errors import DataFormatError, InputError
 from ..geometry import invert_matrix, quaternion_to_matrix
 
-__all__ = ["pointcloud2_xyz", "pointcloud2_points", "ros1_header", "ros1_scan", "ros1_odom", "check_scan_geometry", "scan_beam_times", "stamp_seconds", "frame_name", "transform_matrix", "TfTree", "POINT_TIME_FIELDS", "MAX_POINT_TIME_OFFSET"]
+__all__ = ["pointcloud2_xyz", "pointcloud2_points", "ros1_header", "ros1_scan", "ros1_odom", "check_scan_geometry", "scan_beam_times", "stamp_seconds", "frame_name", "transform_matrix", "TfTree", "POINT_TIME_FIELDS", "MAX_POINT_TIME_OFFSET", "READ_AS_SECONDS", "point_time_unit", "point_time_convention"]
 
 # sensor_msgs/PointField datatypes -> numpy
 _POINTFIELD_DTYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
@@ -46,6 +46,35 @@ POINT_TIME_FIELDS = {
 }
 #: Seconds: the largest distance of a point's time from its cloud's header stamp.
 MAX_POINT_TIME_OFFSET = 1.0
+#: Appended to a time field's name when its values were read as seconds against its driver's unit.
+READ_AS_SECONDS = " as seconds"
+
+
+def point_time_unit(name: str, values: NDArray) -> tuple[float, str]:
+    """Seconds per unit of the time field ``name`` whose values (in the file's own dtype) are ``values``, and the
+    field's label (its name, plus :data:`READ_AS_SECONDS` when read in seconds against its driver's unit).
+
+    The rule: a field its driver writes in nanoseconds (``t``, ``offset_time``: uint32) that this file stores as
+    floating point with every finite value within :data:`MAX_POINT_TIME_OFFSET` (1) of zero holds seconds: read
+    as nanoseconds the whole sweep would last at most a nanosecond, which no LiDAR's does, and deskewing would
+    move nothing. Integer fields, and floating ones with a value beyond 1, keep the driver's unit.
+    """
+    _, scale, _ = POINT_TIME_FIELDS[name]
+    if scale != 1.0 and values.dtype.kind == "f" and len(values):
+        finite = np.abs(values[np.isfinite(values)])
+        if len(finite) and 0 < finite.max() <= MAX_POINT_TIME_OFFSET:
+            return 1.0, name + READ_AS_SECONDS
+    return scale, name
+
+
+def point_time_convention(label: str) -> str:
+    """What a time field's values mean: its driver's convention (:data:`POINT_TIME_FIELDS`), or, for a field read
+    as seconds (:func:`point_time_unit`), that reading and why."""
+    name = label.removesuffix(READ_AS_SECONDS)
+    if name == label:
+        return POINT_TIME_FIELDS[name][0]
+    return (f"{POINT_TIME_FIELDS[name][0]}; here floating-point values within {MAX_POINT_TIME_OFFSET:g} of zero, "
+            "read as seconds (as nanoseconds no sweep lasts that short)")
 
 
 def pointcloud2_points(msg, *, source: str = "PointCloud2"
@@ -63,13 +92,13 @@ def pointcloud2_points(msg, *, source: str = "PointCloud2"
     times : ndarray of shape (N,) or None
         Seconds relative to ``msg.header.stamp``; None without a time field.
     field : str or None
-        The time field read.
+        The time field read (its label, :func:`point_time_unit`).
 
     Raises
     ------
     DataFormatError
         A missing x/y/z field, an unknown datatype, a too short ``point_step`` or data, or point times more than
-        :data:`MAX_POINT_TIME_OFFSET` from the stamp (naming the field).
+        :data:`MAX_POINT_TIME_OFFSET` from the stamp or not finite (naming the field).
     """
     fields = {f.name: f for f in msg.fields}
     missing = [n for n in ("x", "y", "z") if n not in fields]
@@ -107,15 +136,20 @@ def pointcloud2_points(msg, *, source: str = "PointCloud2"
     ok = np.isfinite(xyz).all(axis=1) & (xyz != 0.0).any(axis=1)
     if tname is None:
         return xyz[ok], None, None
-    _, scale, absolute = POINT_TIME_FIELDS[tname]
-    t = rec[tname][ok].astype(float) * scale
-    if absolute:
+    raw = rec[tname][ok]
+    scale, label = point_time_unit(tname, raw)
+    t = raw.astype(float) * scale
+    if POINT_TIME_FIELDS[tname][2]:
         t = t - stamp_seconds(msg.header)
-    if len(t) and not (np.all(np.isfinite(t)) and np.abs(t).max() <= MAX_POINT_TIME_OFFSET):
-        far = float(np.nanmax(np.abs(t))) if np.isfinite(t).any() else float("nan")
-        raise DataFormatError(f"{source}: PointCloud2 field {tname!r} ({POINT_TIME_FIELDS[tname][0]}) puts points "
-                              f"{far:.6g} s from the header stamp; expected at most {MAX_POINT_TIME_OFFSET} s")
-    return xyz[ok], t, tname
+    bad = int((~np.isfinite(t)).sum())
+    if bad:
+        raise DataFormatError(f"{source}: PointCloud2 field {tname!r} ({POINT_TIME_FIELDS[tname][0]}) holds {bad} "
+                              f"non-finite (NaN or infinite) time(s) of {len(t)}; expected finite times")
+    if len(t) and np.abs(t).max() > MAX_POINT_TIME_OFFSET:
+        raise DataFormatError(f"{source}: PointCloud2 field {tname!r} ({point_time_convention(label)}) puts points "
+                              f"{float(np.abs(t).max()):.6g} s from the header stamp; expected at most "
+                              f"{MAX_POINT_TIME_OFFSET} s")
+    return xyz[ok], t, label
 
 
 # ROS1 md5sums of the standard definitions, for which the raw layout below is fixed

@@ -97,6 +97,7 @@ from .ros_messages import (
     POINT_TIME_FIELDS,
     TfTree,
     frame_name,
+    point_time_convention,
     pointcloud2_points,
     pointcloud2_xyz,
     scan_beam_times,
@@ -488,7 +489,7 @@ class RosbagDataset(Dataset):
             cloud, times = (None, None) if got is None else got[:2]
             if times is not None:
                 if self.point_time is None:
-                    self.point_time = {"field": got[2], "convention": POINT_TIME_FIELDS[got[2]][0]}
+                    self.point_time = {"field": got[2], "convention": point_time_convention(got[2])}
                 # relative to the frame's stamp (a scan's, where scans make the frames)
                 shift = float(self._clouds["stamp"][int(self._cloud_index[i])]) - float(self.stamps[i])
                 times = times + shift if shift else times

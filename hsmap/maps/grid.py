@@ -23,7 +23,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..errors import DataFormatError, DatasetError, EmptyInputError, HsmapWarning, InputError, ShapeError
 from ..geometry import compose, pose_to_matrix, transform_points
 from ..io import atomic_path, write_text
-from ..limits import check_allocation, load_yaml, quote
+from ..limits import check_allocation, load_yaml, quote, read_bounded
 
 __all__ = [
     "GridGeometry",
@@ -326,7 +326,7 @@ def _read_map_yaml(path: Path, resolution: float | None) -> OccupancyGrid:
     import yaml
 
     try:
-        meta = load_yaml(path.read_text(encoding="utf-8"))
+        meta = load_yaml(read_bounded(path, "map_server YAML").decode("utf-8"))
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
         raise DataFormatError(f"{path}: not valid YAML ({' '.join(str(exc).split())[:400]})") from None
     except OSError as exc:

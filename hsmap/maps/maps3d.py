@@ -12,7 +12,9 @@ along the world axes x, y, z.
 
 from __future__ import annotations
 
+import errno
 import os
+import stat
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -284,28 +286,44 @@ def _octomap_leaves(path: Path) -> tuple[NDArray[np.float64], NDArray[np.int64],
         raise EmptyInputError(f"{path}: the OctoMap tree has no leaves")
     centres = np.array([r[0] for r in rows], dtype=float)
     depth = np.array([r[1] for r in rows], dtype=np.int64)
-    occupied = np.array([r[2] for r in rows], dtype=float) >= thres
+    value = np.array([r[2] for r in rows], dtype=float)
+    nan = int(np.isnan(value).sum())
+    if nan:  # neither occupied nor free: a NaN compares false with the threshold and would read as free
+        raise DataFormatError(f"{path}: {nan} of its {len(value)} OctoMap leaves have a NaN log-odds occupancy; "
+                              "expected numbers")
+    occupied = value >= thres
     return centres, depth, occupied, float(tree.getResolution())
 
 
 def _check_budget(path: Path, shape: ArrayLike, max_cells: int) -> tuple[int, int, int]:
-    shape = tuple(int(s) for s in np.asarray(shape))
-    cells = int(np.prod(np.asarray(shape, dtype=np.float64)))
+    """The grid's shape as integers, checked against ``max_cells`` while still floats: a coordinate or resolution
+    far out of range (3e38 m, res 1e300) gives a shape no integer holds, or none at all (NaN)."""
+    extent = np.asarray(shape, dtype=np.float64)
+    if not np.isfinite(extent).all():
+        raise InputError(f"{path}: its coordinates and resolution give no finite voxel grid (a coordinate or the "
+                         "resolution far out of range)")
+    cells = float(np.prod(extent))
     if cells > max_cells:
-        raise InputError(f"{path}: its voxel grid {shape[0]} x {shape[1]} x {shape[2]} = {cells} cells exceeds "
-                         f"the limit of {max_cells} cells (max_cells)")
-    return shape  # type: ignore[return-value]
+        def count(v: float) -> str:
+            return str(int(v)) if v < 1e15 else f"{v:.3g}"
+
+        raise InputError(f"{path}: its voxel grid {' x '.join(count(v) for v in extent)} = {count(cells)} cells "
+                         f"exceeds the limit of {max_cells} cells (max_cells)")
+    return tuple(int(v) for v in extent)  # type: ignore[return-value]
 
 
 def _map_from_leaves(path: Path, centres: NDArray[np.float64], depth: NDArray[np.int64],
                      occupied: NDArray[np.bool_], res: float, max_cells: int) -> Map3D:
     """Expand OctoMap leaves (centres, depths, occupied flags) into a dense grid at the finest resolution."""
+    if not np.isfinite(centres).all():
+        raise DataFormatError(f"{path}: its leaves' coordinates are not finite at the header's resolution 'res "
+                              f"{res:g}' (a voxel size far out of range)")
     k = (1 << np.clip(_OCTREE_DEPTH - depth, 0, _OCTREE_DEPTH)).astype(np.int64)
     lo = centres - (k[:, None] * res) / 2.0
     origin = lo.min(axis=0)
-    first = np.rint((lo - origin) / res).astype(np.int64)
-    shape = (first + k[:, None]).max(axis=0)
-    shape = _check_budget(path, shape, max_cells)
+    first_f = np.rint((lo - origin) / res)
+    shape = _check_budget(path, (first_f + k[:, None]).max(axis=0), max_cells)
+    first = first_f.astype(np.int64)
     state = np.zeros(shape, dtype=np.uint8)
     values = np.where(occupied, OCCUPIED, FREE).astype(np.uint8)
     for size in np.unique(k):
@@ -378,8 +396,7 @@ def _point_map(path: Path, poses: ArrayLike | None, resolution: float, max_cells
             raise InputError("poses must be finite")
     allp = pts if origins is None else np.vstack([pts, origins])
     origin = np.floor(allp.min(axis=0) / resolution) * resolution
-    shape = np.floor((allp.max(axis=0) - origin) / resolution).astype(np.int64) + 1
-    shape = _check_budget(path, shape, max_cells)
+    shape = _check_budget(path, np.floor((allp.max(axis=0) - origin) / resolution) + 1, max_cells)
     state = np.zeros(shape, dtype=np.uint8)
     idx = np.floor((pts - origin) / resolution).astype(np.int64)
     idx = np.minimum(idx, np.asarray(shape) - 1)
@@ -391,6 +408,21 @@ def _point_map(path: Path, poses: ArrayLike | None, resolution: float, max_cells
         _carve(state, origin, float(resolution), np.ascontiguousarray(origins[near]), np.ascontiguousarray(pts),
                float(resolution) / 2.0)
     return Map3D(state, origin, float(resolution), str(path))
+
+
+def _not_a_file(path: Path) -> str:
+    """Why ``path``, which is not a regular file, cannot be read as a 3D map."""
+    try:
+        st = path.stat()
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            return "a symbolic link loop, not a 3D map file"
+        if path.is_symlink():
+            return f"a broken symbolic link (to {os.readlink(path)}), not a 3D map file"
+        return "no such 3D map file"
+    if stat.S_ISDIR(st.st_mode):
+        return "a folder, not a 3D map file (expected a .bt, .ot, .ply or .pcd file)"
+    return "not a regular file (a FIFO, socket or device), not a 3D map file"
 
 
 def read_map3d(path: str | os.PathLike, *, poses: ArrayLike | None = None, resolution: float = 0.05,
@@ -421,7 +453,7 @@ def read_map3d(path: str | os.PathLike, *, poses: ArrayLike | None = None, resol
     """
     path = Path(path)
     if not path.is_file():
-        raise DatasetError(f"{path}: no such 3D map file")
+        raise DatasetError(f"{path}: {_not_a_file(path)}")
     suffix = path.suffix.lower()
     if suffix in (".bt", ".ot"):
         if poses is not None:
@@ -455,8 +487,15 @@ def floor_height(m: Map3D) -> float:
     return float(m.origin[2] + (k + 1) * m.resolution)
 
 
+#: Share of a voxel's height by which a layer must overlap a band to belong to it: a band edge on a voxel face
+#: (0 on the floor's top face, a multiple of the resolution above it) takes no layer beyond the face, whatever
+#: the rounding of the floor's and the edges' heights.
+BAND_FACE_TOLERANCE = 1e-6
+
+
 def band_layers(m: Map3D, lo: float, hi: float, *, floor: float | None = None) -> slice:
-    """The voxel layers overlapping heights [lo, hi] above the floor (``floor`` or :func:`floor_height`)."""
+    """The voxel layers overlapping heights [lo, hi] above the floor (``floor`` or :func:`floor_height`) by more
+    than :data:`BAND_FACE_TOLERANCE` of a voxel: an edge on a voxel face takes only the layer on the band's side."""
     if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
         raise InputError(f"band must be two finite heights LO < HI above the floor, got {lo}, {hi}")
     f = floor_height(m) if floor is None else float(floor)
@@ -464,7 +503,8 @@ def band_layers(m: Map3D, lo: float, hi: float, *, floor: float | None = None) -
         raise InputError(f"floor must be a finite height, got {floor}")
     z0, z1 = f + lo, f + hi
     bottom = m.origin[2] + np.arange(m.state.shape[2]) * m.resolution
-    over = np.flatnonzero((bottom < z1) & (bottom + m.resolution > z0))
+    eps = BAND_FACE_TOLERANCE * m.resolution
+    over = np.flatnonzero((bottom < z1 - eps) & (bottom + m.resolution > z0 + eps))
     if len(over) == 0:
         lo_m, hi_m = m.bounds
         raise InputError(f"band {lo:g}-{hi:g} m above the floor at {f:.3f} m ({z0:.3f}-{z1:.3f} m) lies outside "

@@ -27,8 +27,8 @@ import yaml
 from numpy.typing import NDArray
 
 from ..config import from_dict
-from ..errors import ConfigError, ScenarioError
-from ..limits import load_yaml, quote
+from ..errors import ConfigError, InputError, ScenarioError
+from ..limits import load_yaml, quote, read_bounded
 from . import layout
 from .model import FURNITURE_TYPES, Door, Furniture, Room, Scenario, Wall
 from .robot import OdometryConfig, RobotConfig, RouteStep, plan_legs
@@ -451,7 +451,9 @@ def load_scenario(path: str | os.PathLike, check: bool = True) -> Scenario:
     """Read and check a scenario YAML file (see the module docstring for its keys)."""
     path = Path(path)
     try:
-        text = path.read_bytes()
+        text = read_bounded(path, "scenario file")
+    except InputError as exc:
+        raise ScenarioError(str(exc)) from None
     except FileNotFoundError:
         raise ScenarioError(f"{path}: no such scenario file") from None
     except OSError as exc:

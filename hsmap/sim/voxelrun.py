@@ -20,14 +20,14 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..errors import ScenarioError
+from ..errors import EmptyInputError, ScenarioError
 from ..io import write_json
 from ..maps.maps3d import read_map3d
 from .building import BuildingRunConfig, building_motion, write_dataset_yaml, write_route_files
 from .robot import Motion, OdometryConfig, RobotConfig
 from .route3d import Route3D, Route3DConfig, plan_route3d
 from .sensors import Lidar2DConfig, Lidar3DConfig
-from .voxelworld import VoxelWorld
+from .voxelworld import FREE, VoxelWorld
 from .writer import staged_dataset_folder, write_sensor_frames
 
 __all__ = ["WorldRunConfig", "WorldRun", "simulate_world", "load_voxel_world"]
@@ -110,11 +110,24 @@ def simulate_world(world: VoxelWorld | str | os.PathLike, out: str | os.PathLike
     if not isinstance(world, VoxelWorld):
         world = load_voxel_world(world)
     timings["world"] = time.perf_counter() - t0
+    if not (world.state == FREE).any():
+        what = ("a point map records occupied voxels only" if str(world.source).lower().endswith((".ply", ".pcd"))
+                else "the map holds no free voxel")
+        raise EmptyInputError(f"{world.source}: {what}, so there is no known free space to drive through; simulate "
+                              "in an OctoMap .bt/.ot that records free space")
     final = Path(out)
 
     t = time.perf_counter()
     route = plan_route3d(world, cfg.route, lidar3d=cfg.lidar3d, footprint=cfg.robot.radius)
     timings["route"] = time.perf_counter() - t
+    if not route.route.path_length > 0:
+        x, y = route.route.start[:2]
+        n = int(route.rooms.max(initial=0))
+        raise EmptyInputError(
+            f"{world.source}: the route has nowhere to drive: the map's {cfg.route.rooms_band[0]:g}-"
+            f"{cfg.route.rooms_band[1]:g} m band shows {n} room{'s' if n != 1 else ''} the robot fits in, and every "
+            f"place it fits is within {cfg.route.cover_spacing:g} m (route.cover_spacing) of its start "
+            f"({x:.2f}, {y:.2f}); a run needs a map with somewhere to go")
     t = time.perf_counter()
     bcfg = BuildingRunConfig(frame_rate=cfg.frame_rate, robot=cfg.robot, odometry=cfg.odometry)
     motion = building_motion(route.route, bcfg, seed, max_frames)

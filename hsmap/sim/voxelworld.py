@@ -20,6 +20,7 @@ import numba as nb
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .._threads import start_threading_layer
 from ..errors import InputError, ShapeError
 from ..maps.maps3d import floor_height
 from .world import World
@@ -113,6 +114,7 @@ def cast_voxels(state: NDArray[np.uint8], origin: ArrayLike, resolution: float,
     rays = np.ascontiguousarray(np.asarray(rays, dtype=np.float64).reshape(-1, 6))
     out = np.empty(len(rays), dtype=np.float64)
     if len(rays):
+        start_threading_layer()  # quietly: numba warns about a TBB it will not use on the first parallel kernel
         _cast_kernel(state, np.asarray(origin, dtype=np.float64), float(resolution), rays, out)
     return out.astype(np.float32)
 

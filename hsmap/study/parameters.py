@@ -1,5 +1,6 @@
 """Notebook parameters given to ``hsmap reproduce`` (``-p KEY VALUE``, ``--parameters-file``), checked against the
-names and types each notebook's ``parameters`` cell declares, before any notebook runs."""
+names and types each notebook's ``parameters`` cell declares, before any notebook runs; and inside a running
+notebook (:func:`check_declared`, its first cell after the parameters), so that plain papermill checks them too."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from ..errors import ConfigError
 from ..limits import quote
 from .discovery import inspect_parameters
 
-__all__ = ["check_parameters", "declared_parameters"]
+__all__ = ["check_parameters", "declared_parameters", "check_declared"]
 
 _KINDS = {"bool": "true or false", "int": "a whole number", "float": "a number", "str": "text"}
 
@@ -73,3 +74,24 @@ def check_parameters(declared: Mapping[str, Mapping[str, Mapping[str, Any]] | No
     for nb, params in per_notebook.items():
         for name, value in params.items():
             check(str(name), value, [nb], f"--parameters-file notebooks.{nb}:")
+
+
+def check_declared(namespace: Mapping[str, Any]) -> None:
+    """ConfigError naming the parameter when a notebook parameter's value is not of the type its line in the
+    ``parameters`` cell declares (``quick: bool = False``).
+
+    Every study notebook calls it with ``globals()`` in its first cell after the parameters: papermill injects
+    its values (``papermill NB OUT -p quick notabool``) after the parameters cell and before that one, so a bad
+    value stops the notebook there, named, whether ``hsmap reproduce`` or plain papermill runs it. The declared
+    types are the annotations the parameters cell leaves in the namespace (``__annotations__``); a float takes
+    a whole number too.
+    """
+    annotations = namespace.get("__annotations__") or {}
+    for name, kind in annotations.items():
+        if name not in namespace:
+            continue
+        kind_name = kind if isinstance(kind, str) else getattr(kind, "__name__", "")
+        value = namespace[name]
+        if kind_name in _KINDS and not _fits(value, kind_name):
+            raise ConfigError(f"notebook parameter {name} is declared {kind_name} ({_KINDS[kind_name]}) in the "
+                              f"parameters cell, got {quote(value)} (papermill -p {name} VALUE, or hsmap reproduce)")

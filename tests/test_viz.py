@@ -493,3 +493,10 @@ def test_compared_segmentations_colour_a_room_as_its_reference_room():
     truth_img = fig.axes[1].images[0].get_array()
     assert np.allclose(img[10, 5], truth_img[10, 5]) and np.allclose(img[10, 25], truth_img[10, 25])
     assert sorted(t.get_text() for t in fig.axes[0].texts) == ["1", "2", "3"]  # each room keeps its number
+
+
+def test_voronoi_panel_says_why_fewer_doors_than_lines():
+    from hsmap.viz.map_figures import _final_title
+
+    assert _final_title(3, 2, 2) == "(h) segmentation: 3 rooms, 2 doors"
+    assert "of the 3 lines, those between two final rooms, one per passage" in _final_title(3, 2, 3)

@@ -205,12 +205,22 @@ def voronoi_steps_figure(grid: OccupancyGrid, segmentation, *, title: str | None
                         title=f"(h) segmentation: {segmentation.n_rooms} rooms, {len(segmentation.doors)} doors")
     if segmentation.doors:
         figures.plot_segments(np.array([d.end_points for d in segmentation.doors]), ax=axes[7], linewidth=2.5)
-    axes[7].set_title(f"(h) segmentation: {segmentation.n_rooms} rooms, {len(segmentation.doors)} doors")
+    axes[7].set_title(_final_title(segmentation.n_rooms, len(segmentation.doors), n_lines))
     for ax in axes:
         _zoom_to(ax, st["free"], geo, 0.3)
     if title:
         fig.suptitle(title)
     return fig
+
+
+def _final_title(rooms: int, doors: int, lines: int) -> str:
+    """Panel (h)'s title; where fewer doors than lines drawn, why: a line is a door only between two final rooms
+    (not within a room merged across it, nor a small region merged away), one per passage."""
+    head = f"(h) segmentation: {rooms} rooms, {doors} doors"
+    if lines > doors:
+        return (f"{head}\n(of the {lines} lines, those between two final rooms, one per passage; "
+                "the others lie within one room or repeat a passage)")
+    return head
 
 
 # ----------------------------------------------------------------------------------------------------------

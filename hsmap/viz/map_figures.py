@@ -218,8 +218,7 @@ def _final_title(rooms: int, doors: int, lines: int) -> str:
     (not within a room merged across it, nor a small region merged away), one per passage."""
     head = f"(h) segmentation: {rooms} rooms, {doors} doors"
     if lines > doors:
-        return (f"{head}\n(of the {lines} lines, those between two final rooms, one per passage; "
-                "the others lie within one room or repeat a passage)")
+        return f"{head} ({lines} lines drawn:\na line is a door only between two final rooms, one per passage)"
     return head
 
 

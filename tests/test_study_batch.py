@@ -432,3 +432,14 @@ def test_a_kernel_that_dies_before_it_starts_gets_one_more_try(tmp_path, monkeyp
     deaths = 2
     run = execute_notebook(spec, tmp_path / "reports", {"quick": True}, verify_recordings=False)
     assert run.status == "failed" and len(calls) == 2 and "died before replying" in run.error
+
+
+def test_notebook_reports_swallow_open3d_banner(tmp_path):
+    import subprocess
+    import sys
+
+    (tmp_path / "open3d.py").write_text("print('Jupyter environment detected. Enabling Open3D WebVisualizer.')\n")
+    code = ("import sys; sys.path.insert(0, sys.argv[1]); from hsmap.study.report import _quiet_open3d; "
+            "_quiet_open3d(); import open3d; print('after', 'open3d' in sys.modules)")
+    p = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True, check=True)
+    assert p.stdout == "after True\n", p.stdout

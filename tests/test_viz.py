@@ -492,3 +492,31 @@ def test_real_sweep_figures_draw_each_method_and_refuse_bad_shapes():
         dof_errors_figure({"a": (np.arange(3), np.zeros((3, 3)))})
     with pytest.raises(InputError, match="poses"):
         tracks_figure(np.zeros(3), {})
+
+
+def test_compared_segmentations_colour_a_room_as_its_reference_room():
+    from hsmap.viz.map_figures import matched_labels, segmentation_comparison_figure
+
+    geo = GridGeometry((20, 40), 0.1)
+    ref = np.zeros((20, 40), dtype=np.int32)
+    ref[:, :20], ref[:, 20:] = 1, 2
+    ours = np.zeros((20, 40), dtype=np.int32)
+    ours[:, :21], ours[:, 21:35], ours[:, 35:] = 2, 1, 3  # the same two rooms numbered the other way, and a third
+    shown = matched_labels(ours, geo, ref, geo)
+    assert shown[0, 0] == 1 and shown[0, 25] == 2 and shown[0, 38] == 3
+    # a finer grid over the same place matches in world coordinates
+    fine = GridGeometry((40, 80), 0.05)
+    assert matched_labels(np.repeat(np.repeat(ours, 2, 0), 2, 1), fine, ref, geo)[0, 50] == 2
+    fig = segmentation_comparison_figure([(None, (ours, geo), "ours"), (None, (ref, geo), "truth")], reference=1)
+    img = fig.axes[0].images[0].get_array()
+    truth_img = fig.axes[1].images[0].get_array()
+    assert np.allclose(img[10, 5], truth_img[10, 5]) and np.allclose(img[10, 25], truth_img[10, 25])
+    assert sorted(t.get_text() for t in fig.axes[0].texts) == ["1", "2", "3"]  # each room keeps its number
+
+
+def test_voronoi_panel_says_why_fewer_doors_than_lines():
+    from hsmap.viz.map_figures import _final_title
+
+    assert _final_title(3, 2, 2) == "(h) segmentation: 3 rooms, 2 doors"
+    assert _final_title(3, 2, 3) == ("(h) segmentation: 3 rooms, 2 doors (3 lines drawn:\n"
+                                     "a line is a door only between two final rooms, one per passage)")

@@ -82,6 +82,22 @@ def _in_ipython() -> bool:
     return ip is not None and getattr(ip, "kernel", None) is not None
 
 
+def _quiet_open3d() -> None:
+    """Import Open3D (where installed and not yet imported) with its stdout swallowed: in a kernel it prints a
+    banner about its web visualiser into whichever cell first imports it."""
+    import contextlib
+    import io
+    import sys
+
+    if "open3d" in sys.modules:
+        return
+    with contextlib.redirect_stdout(io.StringIO()):
+        try:
+            import open3d  # noqa: F401
+        except ImportError:
+            pass
+
+
 def _notebook_file_stem() -> str | None:
     """The running notebook's file stem where the front end tells it (VS Code)."""
     try:
@@ -275,6 +291,8 @@ class NotebookReport:
                 "make the name in NotebookReport(...) match the file name"
             )
         self.name = name
+        if _in_ipython():
+            _quiet_open3d()
         if out_dir is None or str(out_dir) == "":
             from .paths import reports_dir
 

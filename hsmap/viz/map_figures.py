@@ -31,6 +31,7 @@ __all__ = [
     "segmentation_figure",
     "door_clouds_figure",
     "segmentation_comparison_figure",
+    "matched_labels",
     "log_overlay",
 ]
 
@@ -204,12 +205,21 @@ def voronoi_steps_figure(grid: OccupancyGrid, segmentation, *, title: str | None
                         title=f"(h) segmentation: {segmentation.n_rooms} rooms, {len(segmentation.doors)} doors")
     if segmentation.doors:
         figures.plot_segments(np.array([d.end_points for d in segmentation.doors]), ax=axes[7], linewidth=2.5)
-    axes[7].set_title(f"(h) segmentation: {segmentation.n_rooms} rooms, {len(segmentation.doors)} doors")
+    axes[7].set_title(_final_title(segmentation.n_rooms, len(segmentation.doors), n_lines))
     for ax in axes:
         _zoom_to(ax, st["free"], geo, 0.3)
     if title:
         fig.suptitle(title)
     return fig
+
+
+def _final_title(rooms: int, doors: int, lines: int) -> str:
+    """Panel (h)'s title; where fewer doors than lines drawn, why: a line is a door only between two final rooms
+    (not within a room merged across it, nor a small region merged away), one per passage."""
+    head = f"(h) segmentation: {rooms} rooms, {doors} doors"
+    if lines > doors:
+        return f"{head} ({lines} lines drawn:\na line is a door only between two final rooms, one per passage)"
+    return head
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -313,25 +323,71 @@ def door_clouds_figure(doors: Sequence[Any], clouds3d: Sequence[NDArray], clouds
 # ----------------------------------------------------------------------------------------------------------
 
 
+def matched_labels(labels: ArrayLike, geometry: GridGeometry, reference: ArrayLike,
+                   reference_geometry: GridGeometry) -> NDArray[np.int64]:
+    """``labels`` (H, W) renumbered after the rooms of ``reference`` they cover: pairs of a room and a reference
+    room taken one to one, the largest overlap (in world coordinates) first, each room given its reference room's
+    label; a room that overlaps none left takes a label above every reference label. 0 stays 0."""
+    lab = np.asarray(labels).astype(np.int64)
+    ref = np.asarray(reference).astype(np.int64)
+    rc = np.argwhere(lab > 0)
+    idx = reference_geometry.world_to_index(geometry.pixel_to_world(rc))
+    inside = reference_geometry.inside(idx)
+    pairs = np.zeros((0, 2), dtype=np.int64)
+    if inside.any():
+        r = ref[idx[inside, 0], idx[inside, 1]]
+        ok = r > 0
+        pairs = np.column_stack([lab[rc[inside][ok, 0], rc[inside][ok, 1]], r[ok]])
+    mapping: dict[int, int] = {}
+    taken: set[int] = set()
+    if len(pairs):
+        uniq, counts = np.unique(pairs, axis=0, return_counts=True)
+        for k in np.argsort(-counts, kind="stable"):
+            a, b = int(uniq[k, 0]), int(uniq[k, 1])
+            if a not in mapping and b not in taken:
+                mapping[a] = b
+                taken.add(b)
+    nxt = int(max(ref.max(initial=0), 0)) + 1
+    for a in np.unique(lab[lab > 0]):
+        if int(a) not in mapping:
+            mapping[int(a)] = nxt
+            nxt += 1
+    lut = np.zeros(int(lab.max(initial=0)) + 1, dtype=np.int64)
+    for a, b in mapping.items():
+        lut[a] = b
+    return lut[lab]
+
+
 def segmentation_comparison_figure(panels: Sequence[tuple[OccupancyGrid | None, Any, str]],
-                                   *, title: str | None = None) -> Figure:
+                                   *, title: str | None = None, reference: int | None = None) -> Figure:
     """Segmentations side by side (the paper's Figure 18): each panel ``(grid, labels_or_segmentation, title)``
-    draws the labels (a Segmentation, or a (labels, GridGeometry) pair) over the grid (None: no base)."""
+    draws the labels (a Segmentation, or a (labels, GridGeometry) pair) over the grid (None: no base). With
+    ``reference`` (a panel's index, e.g. the ground truth's), every other panel's rooms take the colours of the
+    reference rooms they match (:func:`matched_labels`); each room keeps its own number."""
     if not panels:
         raise InputError("no panel to draw")
     n = len(panels)
+    if reference is not None and not -n <= reference < n:
+        raise InputError(f"reference must be a panel's index (0..{n - 1}), got {reference}")
     fig, axes = figures.new_figure(n, 1, size=(11, 4.0 * n))
     axes = np.atleast_1d(axes).ravel()
-    for ax, (grid, seg, ttl) in zip(axes, panels, strict=True):
-        if hasattr(seg, "labels"):
-            labels, geo, doors = seg.labels, seg.geometry, seg.doors
-        else:
-            labels, geo = seg
-            doors = []
+
+    def unpack(seg):
+        return (seg.labels, seg.geometry, seg.doors) if hasattr(seg, "labels") else (*seg, [])
+
+    ref = None if reference is None else unpack(panels[reference][1])[:2]
+    for k, (ax, (grid, seg, ttl)) in enumerate(zip(axes, panels, strict=True)):
+        labels, geo, doors = unpack(seg)
         base = None if grid is None else grid.data
         if grid is not None and grid.geometry.shape != geo.shape:
             raise ShapeError(f"panel {ttl!r}: grid {grid.geometry.shape} and labels {geo.shape} differ")
-        figures.plot_labels(labels, geo, ax=ax, base=base, alpha=0.6, title=ttl)
+        names = None
+        if ref is not None and k != reference % n:
+            shown = matched_labels(labels, geo, *ref)
+            lab = np.asarray(labels)
+            names = {int(shown[tuple(np.argwhere(lab == v)[0])]): str(int(v)) for v in np.unique(lab[lab > 0])}
+            labels = shown
+        figures.plot_labels(labels, geo, ax=ax, base=base, alpha=0.6, title=ttl, names=names)
         if doors:
             figures.plot_segments(np.array([d.end_points for d in doors]), ax=ax, linewidth=2.5)
         ax.set_title(ttl)

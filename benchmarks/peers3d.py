@@ -21,7 +21,7 @@ per sweep (median) and CPU seconds per sweep (the whole run's process CPU over t
 with its helper process). Reading the sweeps is not counted. A peer that is not installed or fails is reported with
 ``status`` and ``reason``, never dropped. Writes reports/benchmarks/peers3d.json (atomically, after each run).
 
-    .venv/bin/python benchmarks/peers3d.py [--seeds 1,2,3] [--max-sweeps N] [--only hs_slam_6dof kiss_icp genz_icp
+    .venv/bin/python benchmarks/peers3d.py [--seeds 0,1,2] [--max-sweeps N] [--only hs_slam_6dof kiss_icp genz_icp
         small_gicp] [--dataset DIR] [--scratch DIR]
 """
 
@@ -140,7 +140,7 @@ def table(out: dict) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--dataset", default=None, help="the BALM folder (default $HSMAP_DATASETS/balm)")
-    ap.add_argument("--seeds", default="1,2,3", help="HS-SLAM seeds, comma-separated")
+    ap.add_argument("--seeds", default="0,1,2", help="HS-SLAM seeds, comma-separated (0: the command line's default)")
     ap.add_argument("--max-sweeps", type=int, default=None, help="the first N sweeps only (smoke runs)")
     ap.add_argument("--only", nargs="+", choices=METHODS, default=list(METHODS))
     ap.add_argument("--scratch", default=None, help="the sweep folder to make (default: a temporary one)")

@@ -37,13 +37,12 @@ def run(args: argparse.Namespace) -> int:
 def _fetch(args: argparse.Namespace) -> int:
     from ..study.public_data import fetch, fetch_dir
 
-    if args.dest is not None:
+    if args.dest is not None:  # named by its flag here, before any download
+        from ..errors import InputError
         from ..io import resolved
 
-        dest = resolved(args.dest, "--dest")
-        if dest.exists() and not dest.is_dir():
-            from ..errors import InputError
-
+        target = resolved(args.dest, "--dest")
+        if target.exists() and not target.is_dir():
             raise InputError(f"--dest {args.dest}: exists and is not a folder")
     dest = args.dest or fetch_dir()
     results = fetch(args.names or None, dest=dest, mirror=args.mirror, log=lambda line: print(line, flush=True))

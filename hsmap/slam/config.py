@@ -157,8 +157,8 @@ class SlamConfig:
         recent confirmed frames' is searched again in wider boxes (``widen_factors``); the one that aligns the
         scan best is kept, and is not a keyframe unless it passes this check or two searches agree on it.
     widen_factors : tuple of floats
-        The search box's half-widths are multiplied by these in turn (coarse to fine: each wider search is
-        refined) for a registration that fails the inlier check, until one passes.
+        The search box's half-widths are multiplied by these in turn (1: the same box searched again, longer;
+        each search is refined) for a registration that fails the inlier check, until one passes.
     loop_closure : LoopClosureConfig
         Loop-closure candidates, matching and verification.
     graph : KeyframeGraphConfig
@@ -200,8 +200,8 @@ class SlamConfig:
     prior_sigma: tuple[float, ...] = (0.01, 0.02, float(np.deg2rad(0.2)), 0.02, float(np.deg2rad(0.5)))
     verify_sigmas: float = 3.0
     motion_window: int = 10
-    min_inlier_share: float = 0.7
-    widen_factors: tuple[float, ...] = (2.0, 4.0)
+    min_inlier_share: float = 0.85
+    widen_factors: tuple[float, ...] = (1.0, 2.0, 4.0)
     degenerate_ratio: float = 0.05
     loop_closure: LoopClosureConfig = field(default_factory=LoopClosureConfig)
     graph: KeyframeGraphConfig = field(default_factory=KeyframeGraphConfig)
@@ -253,8 +253,8 @@ class SlamConfig:
             widen = np.asarray(self.widen_factors, dtype=float).reshape(-1)
         except (TypeError, ValueError):
             widen = np.array([np.nan])
-        if not np.all(np.isfinite(widen)) or np.any(widen <= 1) or len(widen) > 8:
-            raise ConfigError(f"slam.widen_factors must be at most 8 finite numbers > 1, got {self.widen_factors!r}")
+        if not np.all(np.isfinite(widen)) or np.any(widen < 1) or len(widen) > 8:
+            raise ConfigError(f"slam.widen_factors must be at most 8 finite numbers >= 1, got {self.widen_factors!r}")
         self.widen_factors = tuple(float(x) for x in widen)
         for name in ("recent_poses", "warmup_frames", "odometry_window", "odometry_lag", "motion_window"):
             v = getattr(self, name)

@@ -124,6 +124,17 @@ class RegistrationConfig:
     robust_kernel : float
         Metres. Scale of the Geman-McClure kernel weighting the point-to-plane residuals (0: plain least squares):
         correspondences much farther than it (new, unmapped surfaces matched to old ones) lose their pull.
+    polish_voxel : float or None
+        Metres. 3D: a final point-to-plane refinement after the search and its refinement, against the target
+        averaged in voxels of this size (normals estimated there, where a neighbourhood spans a surface rather
+        than a scan line) with the source averaged in voxels of twice it; kept where it lowers the truncated
+        point-to-plane cost on that target. None: 0.1 m; 0: none. 2D scans have none.
+    polish_distance : float
+        Metres. The final refinement's correspondences farther apart than this are ignored.
+    polish_kernel : float
+        Metres. Scale of the Geman-McClure kernel of the final refinement (0: plain least squares).
+    polish_iterations : int
+        The final refinement's iterations at most (0: none).
     """
 
     harmony: HarmonyConfig = field(default_factory=_default_harmony)
@@ -146,12 +157,16 @@ class RegistrationConfig:
     refine_reach: float | None = 0.0
     refine_seeds: int = 0
     robust_kernel: float = 0.0
+    polish_voxel: float | None = None
+    polish_distance: float = 0.3
+    polish_kernel: float = 0.1
+    polish_iterations: int = 30
 
     def __post_init__(self) -> None:
         for name in ("threshold", "search_threshold", "inlier_weight", "translation_range", "z_range", "yaw_range",
-                     "roll_pitch_range", "fine_range_factor"):
+                     "roll_pitch_range", "fine_range_factor", "polish_distance", "polish_kernel"):
             v = getattr(self, name)
-            positive = name in ("threshold", "search_threshold")
+            positive = name in ("threshold", "search_threshold", "polish_distance")
             if not (np.isfinite(v) and (v > 0 if positive else v >= 0)):
                 need = "> 0" if positive else ">= 0"
                 raise ConfigError(f"registration.{name} must be a finite number {need}, got {v!r}")
@@ -161,12 +176,16 @@ class RegistrationConfig:
             v = getattr(self, name)
             if v is not None and not (np.isfinite(v) and v > 0):
                 raise ConfigError(f"registration.{name} must be None or > 0, got {v!r}")
+        if self.polish_voxel is not None and not (np.isfinite(self.polish_voxel) and self.polish_voxel >= 0):
+            raise ConfigError(f"registration.polish_voxel must be None or a finite number >= 0, got "
+                              f"{self.polish_voxel!r}")
         if self.refine_reach is not None and not (np.isfinite(self.refine_reach) and self.refine_reach >= 0):
             raise ConfigError(f"registration.refine_reach must be None or a finite number >= 0, got "
                               f"{self.refine_reach!r}")
-        for name in ("max_points", "refine_iterations", "refine_points", "refine_seeds"):
+        for name in ("max_points", "refine_iterations", "refine_points", "refine_seeds", "polish_iterations"):
             v = getattr(self, name)
-            if not isinstance(v, (int, np.integer)) or v < (0 if name in ("refine_iterations", "refine_seeds") else 1):
+            zero_ok = name in ("refine_iterations", "refine_seeds", "polish_iterations")
+            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < (0 if zero_ok else 1):
                 raise ConfigError(f"registration.{name} must be a positive integer, got {v!r}")
         try:
             self.backend = Backend(self.backend)
@@ -182,6 +201,10 @@ class RegistrationConfig:
             from ..config import from_dict
 
             self.harmony = from_dict(HarmonyConfig, self.harmony, "registration.harmony")
+
+    def effective_polish_voxel(self) -> float:
+        """``polish_voxel`` or its default, 0.1 m (0: no final refinement)."""
+        return 0.1 if self.polish_voxel is None else float(self.polish_voxel)
 
 
 @dataclass
@@ -326,12 +349,24 @@ class RegistrationTarget:
         self._tree: cKDTree | None = None
         self._grid: NeighbourGrid | None | bool = None  # False: the points do not fit a grid
         self._normals: NDArray[np.float64] | None = None
+        self._voxelised: dict[float, RegistrationTarget] = {}
         if normals is not None:
             n = np.asarray(normals, dtype=float)
             if n.shape != self.points.shape or self.dropped:
                 raise ShapeError(f"target normals must have the shape of the (finite) points {self.points.shape}, "
                                  f"got {n.shape}")
             self._normals = n
+
+    def voxelised(self, voxel: float) -> RegistrationTarget:
+        """This target averaged in voxels of side ``voxel`` (:func:`hsmap.maps.mapping.voxel_downsample`), as a target
+        of its own with its own normals; built on first use, then cached."""
+        cached = self._voxelised.get(voxel)
+        if cached is None:
+            pts = voxel_downsample(self.points, voxel)
+            cached = self if len(pts) == len(self.points) or not spans_its_space(pts) else \
+                RegistrationTarget(pts, self.config)
+            self._voxelised[voxel] = cached
+        return cached
 
     def lookup(self, truncation: float) -> DistanceField | KDTreeLookup:
         """The distance look-up for a truncation distance (built on first use, then cached)."""
@@ -619,6 +654,24 @@ def _within(a: NDArray[np.float64], b: NDArray[np.float64], reach: NDArray[np.fl
     return bool(np.all(moved <= reach))
 
 
+def _polish(source: NDArray[np.float64], target: RegistrationTarget, pose: NDArray[np.float64],
+            cfg: RegistrationConfig) -> NDArray[np.float64] | None:
+    """The final point-to-plane refinement of a 3D ``pose`` (``RegistrationConfig.polish_*``) against the target
+    averaged in voxels: the refined pose where it lowers the truncated point-to-plane cost there, else None."""
+    voxel = cfg.effective_polish_voxel()
+    if voxel <= 0 or cfg.polish_iterations <= 0:
+        return None
+    fine = target.voxelised(voxel)
+    src = voxel_downsample(source, 2 * voxel)
+    if len(src) < 6:
+        return None
+    cand = refine_icp(src, fine, pose, max_distance=cfg.polish_distance, iterations=cfg.polish_iterations,
+                      robust_kernel=cfg.polish_kernel)
+    before = _alignment_cost(pose, src, fine, cfg.threshold, plane=True)
+    after = _alignment_cost(cand, src, fine, cfg.threshold, plane=True)
+    return cand if after < before else None
+
+
 @blas_limited
 @threads_limited
 def harmony_icp(
@@ -748,6 +801,9 @@ def harmony_icp(
             cost = _cost_of(cand_match, tgt, cfg.threshold, plane)
             if cost <= best_cost + 1e-12 or (not refined and reach.any() and _within(global_pose, cand, reach, dim)):
                 pose, best_cost, refined, match = cand, cost, True, cand_match
+    polished = _polish(src, tgt, pose, cfg) if dim == 3 else None
+    if polished is not None:
+        pose, refined, match = polished, True, None
     pose = pose.copy()
     pose[dim:] = wrap_angle(pose[dim:])  # the same transform: `match` still holds
     if match is None:

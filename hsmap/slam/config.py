@@ -148,6 +148,17 @@ class SlamConfig:
         unconstrained (:func:`hsmap.registration.icp.drop_degenerate`): the prediction carries the pose along them.
     verify_sigmas : float
         A registration further than this many sigmas from the prediction is retried around the prediction.
+    motion_window : int
+        6-DOF runs without a prior: the last this many frames' motions set the search box, which is widened per
+        axis to ``verify_sigmas`` times the RMS change between consecutive motions (the error of the
+        constant-velocity prediction) where that exceeds the configured ranges (a sensor carried by hand).
+    min_inlier_share : float
+        6-DOF runs without a prior: a registration whose inlier ratio is below this share of the median of the
+        recent confirmed frames' is searched again in wider boxes (``widen_factors``); the one that aligns the
+        scan best is kept, and is not a keyframe unless it passes this check or two searches agree on it.
+    widen_factors : tuple of floats
+        The search box's half-widths are multiplied by these in turn (1: the same box searched again, longer;
+        each search is refined) for a registration that fails the inlier check, until one passes.
     loop_closure : LoopClosureConfig
         Loop-closure candidates, matching and verification.
     graph : KeyframeGraphConfig
@@ -188,6 +199,9 @@ class SlamConfig:
     motion_sigma: tuple[float, ...] = (0.1, 0.5, float(np.deg2rad(5.0)), 0.5, float(np.deg2rad(5.0)))
     prior_sigma: tuple[float, ...] = (0.01, 0.02, float(np.deg2rad(0.2)), 0.02, float(np.deg2rad(0.5)))
     verify_sigmas: float = 3.0
+    motion_window: int = 10
+    min_inlier_share: float = 0.85
+    widen_factors: tuple[float, ...] = (1.0, 2.0, 4.0)
     degenerate_ratio: float = 0.05
     loop_closure: LoopClosureConfig = field(default_factory=LoopClosureConfig)
     graph: KeyframeGraphConfig = field(default_factory=KeyframeGraphConfig)
@@ -233,7 +247,16 @@ class SlamConfig:
             raise ConfigError(f"slam.odometry_scale_bounds must be two numbers 0 < low <= high, got "
                               f"{self.odometry_scale_bounds!r}")
         self.odometry_scale_bounds = (float(lo_hi[0]), float(lo_hi[1]))
-        for name in ("recent_poses", "warmup_frames", "odometry_window", "odometry_lag"):
+        if not (np.isfinite(self.min_inlier_share) and 0 <= self.min_inlier_share <= 1):
+            raise ConfigError(f"slam.min_inlier_share must be a number in [0, 1], got {self.min_inlier_share!r}")
+        try:
+            widen = np.asarray(self.widen_factors, dtype=float).reshape(-1)
+        except (TypeError, ValueError):
+            widen = np.array([np.nan])
+        if not np.all(np.isfinite(widen)) or np.any(widen < 1) or len(widen) > 8:
+            raise ConfigError(f"slam.widen_factors must be at most 8 finite numbers >= 1, got {self.widen_factors!r}")
+        self.widen_factors = tuple(float(x) for x in widen)
+        for name in ("recent_poses", "warmup_frames", "odometry_window", "odometry_lag", "motion_window"):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or v < 1:
                 raise ConfigError(f"slam.{name} must be an integer >= 1, got {v!r}")

@@ -1,4 +1,4 @@
-"""Issue 12's reproductions, run as a user runs them: each gives one line ``hsmap: error: ...`` naming the file,
+"""Bad inputs run as a user runs them: each gives one line ``hsmap: error: ...`` naming the file,
 key, field or flag (exit 2), or the right result.
 
 The faults (full disk, signals, two batches at once, a damaged cache) are in ``test_faults.py`` and
@@ -47,8 +47,8 @@ def end_x(out: Path) -> float:
                                        ("angle_increment", {"angle_increment": float("nan")}),
                                        ("range_min", {"range_min": -100.0, "negate": True})])
 def test_impossible_scan_geometry_is_an_error_naming_topic_and_field(scans, tmp_path, capsys, field, kw):
-    """Before: angle_increment 0 ended at x = -0.002 m instead of 1.95 m, negative ranges (range_min -100)
-    gave a mirrored path, both with exit 0."""
+    """A zero angle_increment or negative ranges (range_min -100), which would end the path in the wrong place or
+    mirror it, are errors naming the topic and field."""
     r, a, _ = scans
     if kw.pop("negate", False):
         r = -r
@@ -69,8 +69,8 @@ def test_good_geometry_gives_the_right_path(scans, tmp_path, capsys):
 
 
 def test_one_all_nan_scan_is_skipped_counted_and_named(scans, tmp_path, capsys):
-    """Before: one all-NaN scan at frame 20 of 40 aborted the run ("frame 20 ... has 0 usable points", exit 2),
-    the other 39 frames lost, the message naming neither file nor cause."""
+    """One all-NaN scan at frame 20 of 40 is skipped, counted and named (file and cause); the other 39 frames are
+    tracked."""
     r, a, _ = scans
     r = r.copy()
     r[20] = np.nan
@@ -88,7 +88,7 @@ def test_one_all_nan_scan_is_skipped_counted_and_named(scans, tmp_path, capsys):
     assert one_line(capsys.readouterr().err).startswith(f"{b}: frame 20 (stamp 102.0) has 0 usable points")
 
 
-# 5. tracebacks that are now one line -----------------------------------------------------------------------------
+# 5. what would be tracebacks is one line -----------------------------------------------------------------------------
 
 
 def test_negative_seed_and_bad_flags(scans, tmp_path, capsys):
@@ -147,8 +147,8 @@ def _map_png(folder: Path) -> Path:
 
 @pytest.mark.parametrize("res", ["1e-9", "1e-3"])
 def test_segment_resolution_out_of_range(tmp_path, capsys, monkeypatch, res):
-    """Before: 1e-9 was still running after 11 minutes (time grew as 1/resolution); 1e-3 gave 0 rooms silently.
-    Now the scale is checked before any segmentation work starts (and segment_rooms checks it too)."""
+    """A map scale far from a floor plan's (1e-9, 1e-3 m a pixel) is refused before any segmentation work starts
+    (segment_rooms checks it too): its time grows as 1/resolution, and a tiny scale gives no room."""
     import hsmap.rooms.segmentation
     from hsmap.errors import InputError
     from hsmap.maps.grid import read_map
@@ -171,8 +171,8 @@ def test_segment_resolution_out_of_range(tmp_path, capsys, monkeypatch, res):
     ("origin: [0, 0, 0]\nnegate: 2", "'negate' must be 0 or 1"),
 ])
 def test_map_yaml_fully_validated(tmp_path, capsys, text, key):
-    """Before: a NaN origin wrote NaN into doors.json and topology.json (not JSON); thresholds out of [0, 1] and
-    free above occupied were accepted."""
+    """A map YAML is validated whole: a NaN origin (which would put NaN into doors.json and topology.json),
+    thresholds out of [0, 1] and free above occupied are refused."""
     png = _map_png(tmp_path)
     (tmp_path / "m.yaml").write_text(f"image: {png.name}\nresolution: 0.05\n{text}\n")
     assert main(["segment", str(tmp_path / "m.yaml"), "--out", str(tmp_path / "o")]) == 2
@@ -219,7 +219,7 @@ def test_relations_of_a_partial_run(scans, tmp_path, capsys):
                                         (np.c_[np.random.default_rng(0).random((50, 2)), np.zeros(50)],
                                          "all lie on one plane")])
 def test_harmony_icp_refuses_clouds_that_cannot_be_registered(cloud, what):
-    """Before: one point, two points or 100 identical points gave an arbitrary pose with inlier_ratio 1.0."""
+    """One point, two points or 100 identical points cannot fix a pose: an error, not an arbitrary pose."""
     from hsmap import harmony_icp
     from hsmap.errors import DegenerateInputError
     from hsmap.testing import room_cloud_3d
@@ -244,7 +244,7 @@ def test_harmony_icp_negative_seed():
 
 
 def test_prior_that_matches_no_frame_or_only_some(scans, tmp_path, capsys):
-    """Before: a --prior whose stamps matched no frame was silently ignored."""
+    """A --prior whose stamps match no frame is an error, not silently ignored."""
     from hsmap.testing import room_cloud_3d, sensor_cloud
 
     r, a, poses = scans
@@ -291,7 +291,7 @@ def test_an_all_zero_quaternion_is_one_line(tmp_path, capsys):
     assert one_line(capsys.readouterr().err) == f"{tum}: quaternion [0.0, 0.0, 0.0, 0.0] is zero or not finite"
 
 
-# issue 13's flags and readers: each bad value is one line naming the flag or file and what was expected ------
+# the input flags and readers: each bad value is one line naming the flag or file and what was expected ------
 
 
 @pytest.fixture(scope="module")
@@ -300,7 +300,7 @@ def recording_inputs(tmp_path_factory):
     from hsmap.sim import Lidar3DConfig
     from hsmap.sim.bag import write_simulated_bag
 
-    d = tmp_path_factory.mktemp("issue13")
+    d = tmp_path_factory.mktemp("inputs")
     write_simulated_bag("two-rooms", d / "b.mcap", duration=1.0, lidar3d=Lidar3DConfig(channels=4, columns=16))
     cloud = np.array([[1.0, 2.0, 3.0, 1.0], [2.0, 1.0, 0.5, 1.0], [0.0, 3.0, 1.0, 1.0]], dtype="<f4")
     for name, times in [("clouds", None), ("c_count", "0.0\n0.1\n0.2\n"), ("c_nan", "0.0\nabc\n"),
@@ -319,7 +319,7 @@ def recording_inputs(tmp_path_factory):
     return d
 
 
-ISSUE13 = [
+BAD_INPUT_FLAGS = [
     # bag: flags of the base frame, the synchronisation and the offsets; flags of other inputs
     ("b.mcap", ["--base-frame", "bse_link"], "b.mcap: --base-frame bse_link: no such frame in the bag's TF"),
     ("b.mcap", ["--sync-tolerance", "-1"], "--sync-tolerance must be a number of seconds >= 0, got -1.0"),
@@ -356,8 +356,8 @@ ISSUE13 = [
 
 
 @pytest.mark.parametrize("command", ["slam", "map"])
-@pytest.mark.parametrize("name, args, message", ISSUE13, ids=[f"{n}{''.join(a)}"[:40] for n, a, _ in ISSUE13])
-def test_issue13_flags_and_readers(recording_inputs, tmp_path, capsys, monkeypatch, command, name, args, message):
+@pytest.mark.parametrize("name, args, message", BAD_INPUT_FLAGS, ids=[f"{n}{''.join(a)}"[:40] for n, a, _ in BAD_INPUT_FLAGS])
+def test_bad_input_flags_and_readers_are_one_line_each(recording_inputs, tmp_path, capsys, monkeypatch, command, name, args, message):
     monkeypatch.chdir(recording_inputs)
     extra = ["--dof", "6"] if command == "slam" else []
     assert main([command, name, "--out", str(tmp_path / "o"), "--quiet", "--no-recording", *extra, *args]) == 2

@@ -1,4 +1,4 @@
-"""``hsmap map``: the paper's whole chain on a robot's recording (issue 13's acceptance).
+"""``hsmap map``: the paper's whole chain on a robot's recording.
 
 The recording: the simulated two-rooms run written as a ROS2 MCAP bag the way a robot writes it
 (:func:`hsmap.sim.bag.write_simulated_bag`): 2D scans at 4 Hz, an Ouster-style PointCloud2 at a quarter of that
@@ -95,7 +95,7 @@ def test_map_of_a_robot_recording(recording):
     e3, y3 = _errors(t3.as_3dof(), bag.clouds)
     print(f"2D HS-SLAM: {100 * e2:.2f} cm, {y2:.3f} deg; 6-DOF: {100 * e3:.2f} cm, {y3:.3f} deg")
     assert e3 < 0.02 and y3 < 0.5
-    # issue 13 asks 2 cm and 0.5 deg of both paths. The 6-DOF path keeps it; the 2D path's largest error on this
+    # 2 cm and 0.5 deg are asked of both paths. The 6-DOF path keeps it; the 2D path's largest error on this
     # bag, the 2D run alone over seeds 0-4: 1.09-2.80 cm (mean 1.86; the batch solver 1.46-2.91, mean 2.07), so
     # one draw is held to the paper's Table 1 bound in x (3 cm) and the heading to 0.5 deg
     assert np.abs(t3.poses[:, 2]).max() < 0.02 and np.degrees(np.abs(t3.poses[:, 3:5]).max()) < 0.5
@@ -334,7 +334,7 @@ def test_map_needs_3d_clouds(tmp_path):
 
 
 def test_slam_6dof_on_a_recording_with_a_faster_2d_lidar(tmp_path):
-    """Issue 13's first complaint: scans at 4x the cloud rate; the 6-DOF run's frames are the clouds, and the 2D
+    """Scans at 4x the cloud rate: the 6-DOF run's frames are the clouds, and the 2D
     run's poses (at the scans' stamps) seed them, interpolated at the clouds' stamps."""
     from hsmap.sim import Lidar3DConfig
     from hsmap.sim.bag import write_simulated_bag

@@ -190,7 +190,7 @@ def test_segment_of_a_slam_folder_carves_free_space_from_the_trajectory(mapped, 
 
 def test_segment_of_a_folder_that_is_no_run_is_one_line(tmp_path):
     code, err = run_cli("segment", str(tmp_path), "--out", str(tmp_path / "seg"), "--band", "1.7,1.8")
-    assert code == 2 and "not a run's output folder" in err and len(err.strip().splitlines()) == 1
+    assert code == 2 and "nor a run's output folder" in err and len(err.strip().splitlines()) == 1
 
 
 def test_map_of_a_3d_only_recording_again_reads_every_stage_back(mapped, recording):
@@ -207,5 +207,6 @@ def test_segment_of_a_bare_point_map_without_free_space_points_to_the_run_folder
     out, _ = mapped
     code, err = run_cli("segment", str(out / "map3d.ply"), "--out", str(tmp_path / "seg"), "--band", "1.7,1.8",
                         "--resolution", "0.1")
-    assert code == 2 and "no free pixel" in err and "segment its run's folder (hsmap segment DIR)" in err
+    assert code == 2 and "a point map records occupied voxels only, no free space" in err
+    assert "the output folder of the hsmap map or hsmap slam run that made it" in err
     assert len(err.strip().splitlines()) == 1

@@ -53,7 +53,7 @@ def test_digest_covers_the_core_package_and_not_the_excluded_parts(tmp_path):
     (root / "viz" / "figures.py").write_text((root / "viz" / "figures.py").read_text() + "\n# a figure tweak\n")
     (root / "study" / "report.py").write_text((root / "study" / "report.py").read_text() + "\n# a wording\n")
     assert code_digest(root) == base  # drawing and the study layer are not part of the key
-    (root / "fusion.py").write_text((root / "fusion.py").read_text() + "\n# an algorithm change\n")
+    (root / "maps" / "fusion.py").write_text((root / "maps" / "fusion.py").read_text() + "\n# an algorithm change\n")
     changed = code_digest(root)
     assert changed != base
     (root / "sim" / "new_model.py").write_text("X = 1\n")  # a new module enters the key by itself

@@ -307,7 +307,7 @@ def test_slam_6dof_in_a_room():
 def test_the_number_of_threads_changes_nothing(monkeypatch):
     """6-DOF HS-SLAM on one thread and on two, every KD-tree query split between the threads: the same
     trajectory, bit for bit (the parallel harmony batches: tests/test_fitness.py)."""
-    from hsmap.registration.icp import neighbours
+    from hsmap.registration import neighbours
 
     monkeypatch.setattr(neighbours, "TREE_PARALLEL_MIN_QUERIES", 1)
     frames, _ = _room_frames_3d(6)

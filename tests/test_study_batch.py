@@ -120,7 +120,10 @@ def test_batch_runs_every_notebook_and_marks_the_failures(tmp_path):
         assert f"id='{name}'" in index_html
     assert "scratch" not in index_html
     assert "deliberate failure in the test notebook" in index_html
-    assert "0.0375 m</td><td>0.03 m" in index_html  # ours beside the paper's
+    from hsmap.study.report import format_value
+
+    # ours beside the paper's, each to the millimetre
+    assert f"{format_value(good['error_m'], 'm')} m</td><td>0.030 m" in index_html
     assert "FAILED: 2 of 5 notebooks failed" in index_html
     for key in ("hsmap", "python", "numpy", "open3d", "rerun-sdk"):
         assert index["versions"][key] and key in index_html

@@ -81,7 +81,7 @@ def test_reference_numbers_carry_their_source_and_labels_reach_the_index(tmp_pat
                            units={"intel_trans_m": "m", "hs6_max_roll_deg": "deg"},
                            labels={"intel_trans_m": "Intel: relations translation error"},
                            headline=["intel_trans_m", "hs6_max_roll_deg"])
-    assert "Cartographer (Hess 2016)" in repr(table) and "0.0229" in table._repr_html_()
+    assert "Cartographer (Hess 2016)" in repr(table) and "0.023" in table._repr_html_()
     rows = headline_rows(report.metrics_doc)
     assert [(r.label, r.ours, r.reference, r.source, r.unit) for r in rows] == [
         ("Intel: relations translation error", 0.027, 0.0229, "Cartographer (Hess 2016)", "m"),
@@ -91,7 +91,7 @@ def test_reference_numbers_carry_their_source_and_labels_reach_the_index(tmp_pat
                         {"final": True, "ran": ["08-bench"]})
     assert "Intel: relations translation error" in page and "HS-SLAM 6-DOF max roll" in page
     assert "hs6_max_roll_deg</td>" not in page  # the raw key only as a tooltip
-    assert "0.0229 m <span class='source'>Cartographer (Hess 2016)</span>" in page
+    assert "0.023 m <span class='source'>Cartographer (Hess 2016)</span>" in page
     with pytest.raises(InputError, match="source"):
         report.metrics(reference={"intel_trans_m": {"value": 0.02}})
 

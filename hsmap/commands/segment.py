@@ -88,8 +88,9 @@ def _run_folder_map(folder, resolution: float | None):
         if (folder / map_name).is_file() and (folder / traj_name).is_file():
             break
     else:
-        raise DatasetError(f"{folder}: not a run's output folder (expected map3d.bt or map3d.ply with "
-                           "trajectory3d.tum, from hsmap map, or map.ply with trajectory.tum, from hsmap slam)")
+        raise DatasetError(f"{folder}: a folder, not a 3D map file nor a run's output folder (expected a .bt, .ot, "
+                           ".ply or .pcd file, or a folder with map3d.bt or map3d.ply and trajectory3d.tum, from "
+                           "hsmap map, or map.ply and trajectory.tum, from hsmap slam)")
     T = pose_to_matrix(read_tum(folder / traj_name).as_6dof().poses) @ pose_to_matrix(_extrinsic3d(folder))
     positions = T[:, :3, 3]
     if map_name.endswith(".bt"):

@@ -245,7 +245,11 @@ def read_points(path: str | os.PathLike) -> NDArray[np.float64]:
 def _xyz(p: Path, rec: np.ndarray) -> NDArray[np.float64]:
     """The (N, 3) positions of a PCD's records."""
     names = rec.dtype.names or ()
-    if not {"x", "y", "z"} <= set(names) or any(rec.dtype[k].shape for k in "xyz"):
+    missing = [c for c in "xyz" if c not in names]
+    if missing:
+        raise DataFormatError(f"{p}: its PCD FIELDS are {' '.join(names) or 'empty'}: no {', '.join(missing)} "
+                              "field (a point cloud needs x, y and z)")
+    if any(rec.dtype[k].shape for k in "xyz"):
         raise DataFormatError(f"{p}: no x, y, z fields of one value each (FIELDS {' '.join(names)})")
     return np.column_stack([rec["x"], rec["y"], rec["z"]]).astype(float)
 

@@ -143,7 +143,7 @@ def test_bad_headers_are_named(tmp_path, monkeypatch):
     with pytest.raises(DataFormatError, match=r"no DATA line"):
         read_pcd(f)
     f.write_text("FIELDS a b\nSIZE 4 4\nTYPE F F\nWIDTH 1\nDATA ascii\n1 2\n")
-    with pytest.raises(DataFormatError, match=r"no x, y, z fields of one value each \(FIELDS a b\)"):
+    with pytest.raises(DataFormatError, match=r"its PCD FIELDS are a b: no x, y, z field \(a point cloud needs x, y and z\)"):
         read_points(f)
     monkeypatch.setattr("hsmap.limits.available_memory", lambda: 8 << 30)
     f.write_text("FIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nWIDTH 500000000\nDATA binary_compressed\n")

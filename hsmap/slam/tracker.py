@@ -17,14 +17,7 @@ from ..errors import InputError, UnusableFrameError
 from ..geometry import compose, pose_to_matrix, relative, wrap_angle
 from ..maps.mapping import VoxelMap
 from ..registration.harmony import as_rng
-from ..registration.icp import (
-    RegistrationConfig,
-    RegistrationResult,
-    RegistrationTarget,
-    _default_bounds,
-    harmony_icp,
-    spans_its_space,
-)
+from ..registration.icp import RegistrationResult, RegistrationTarget, harmony_icp, spans_its_space
 from ..trajectory import Trajectory
 from .config import SlamConfig
 from .costs import Costs
@@ -34,6 +27,7 @@ from .loopclosure import Keyframe
 from .motions import FrameMotions
 from .odometry import OdometryModel
 from .posegraph import EdgeKind, PoseGraph
+from .search import SearchBox
 from .smoothing import SmoothingResult, smooth_with_odometry
 from .verify import Prediction, Verifier
 
@@ -63,12 +57,6 @@ class FrameResult:
     retried: bool = False
     verified: bool = True
     cost: float = float("nan")
-
-
-def _same_pose(a: NDArray[np.float64], b: NDArray[np.float64]) -> bool:
-    """Whether two 6-DOF poses lie within 5 cm and 1 deg of each other."""
-    d = relative(a, b)
-    return bool(np.linalg.norm(d[:3]) <= 0.05 and np.abs(wrap_angle(d[3:])).max() <= np.deg2rad(1.0))
 
 
 def mean_pose(poses: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -135,6 +123,7 @@ class HsSlam:
                                       prior=prior is not None)
         self.costs = Costs()
         self.verifier = Verifier(cfg, costs=self.costs, prior=prior is not None)
+        self.search = SearchBox(cfg, self.costs, prior=prior is not None)
         self.keyframe_graph = KeyframeGraph(cfg, self.odometry, loop_rng, costs=self.costs)
         self._smooth = cfg.smoothing and cfg.dof == 3 and prior is None
         self.motions = FrameMotions(cfg, self.odometry, self.costs) if self._smooth else None  # the smoothing's
@@ -193,73 +182,7 @@ class HsSlam:
         return s, half
 
     def _ranges(self, prior: bool) -> NDArray[np.float64]:
-        cfg, reg = self.config, self.config.registration
-        t = cfg.prior_translation_range if prior else reg.translation_range
-        y = cfg.prior_yaw_range if prior else reg.yaw_range
-        if cfg.dof == 3:
-            return np.array([t, t, y])
-        half = np.array([t, t, reg.z_range, reg.roll_pitch_range, reg.roll_pitch_range, y])
-        return half if prior else np.maximum(half, self._motion_spread())
-
-    def _follows_motion(self) -> bool:
-        """Whether the search box follows the motion and failed registrations are searched again wider: 6-DOF
-        runs without a prior."""
-        return self.config.dof == 6 and self._prior is None
-
-    def _motion_spread(self) -> NDArray[np.float64]:
-        """6-DOF without a prior: per pose component, ``verify_sigmas`` times the RMS change between consecutive
-        frames' steps of that component over the last ``motion_window`` frames (the constant-velocity
-        prediction's error); zeros otherwise or with too few frames."""
-        cfg = self.config
-        n = min(len(self.poses), cfg.motion_window + 2)
-        if not self._follows_motion() or n < 3:
-            return np.zeros(cfg.dof)
-        steps = np.diff(np.asarray(self.poses[-n:]), axis=0)
-        steps[:, 3:] = wrap_angle(steps[:, 3:])
-        change = np.diff(steps, axis=0)
-        change[:, 3:] = wrap_angle(change[:, 3:])
-        return cfg.verify_sigmas * np.sqrt(np.mean(change ** 2, axis=0))
-
-    def _inlier_reference(self) -> float | None:
-        """The median inlier ratio of the last ``motion_window`` confirmed frames (None before there are
-        three)."""
-        recent = [r.inlier_ratio for r in self.results[1:][-self.config.motion_window:] if r.verified]
-        return float(np.median(recent)) if len(recent) >= 3 else None
-
-    def _passes(self, res: RegistrationResult) -> bool:
-        """Whether a registration matches at least ``min_inlier_share`` of the recent confirmed frames' inlier
-        ratio."""
-        ref = self._inlier_reference()
-        return ref is None or res.inlier_ratio >= self.config.min_inlier_share * ref
-
-    def _widened(self, scan: NDArray[np.float64], target: RegistrationTarget, res: RegistrationResult,
-                 guesses: NDArray[np.float64], half: NDArray[np.float64]) -> tuple[RegistrationResult, bool, bool]:
-        """A registration that fails the inlier check (:meth:`_passes`) searched again in boxes of ``half``
-        times each of ``widen_factors`` around ``guesses`` (each half-width at most the larger of ``half``'s and
-        the box :func:`hsmap.registration.icp.harmony_icp` searches without a guess), with a longer search, until one
-        passes. Returns the registration that aligns the scan best
-        (point-to-plane cost), whether a search was repeated, and whether the kept one passes the check or two
-        searches agree on it."""
-        cfg = self.config
-        if not self._follows_motion() or self._passes(res):
-            return res, False, True
-        hs = cfg.registration.harmony
-        wide_cfg = replace(cfg.registration, harmony=replace(
-            hs, max_iterations=2 * hs.max_iterations, patience=None if hs.patience is None else 2 * hs.patience))
-        tried = [res]
-        reach = np.maximum(half, _default_bounds(np.zeros((1, 6)), RegistrationConfig())[:, 1])
-        for factor in cfg.widen_factors:
-            h = np.minimum(half * factor, reach)
-            bounds = np.column_stack([guesses.min(0) - h, guesses.max(0) + h])
-            alt = harmony_icp(scan, target, bounds=bounds, initial_guesses=guesses, config=wide_cfg, rng=self.rng)
-            self.costs.registration(alt.evaluations)
-            self.costs.add(retries=1)
-            tried.append(alt)
-            if self._passes(alt):
-                break
-        best = min(tried, key=lambda r: r.cost)
-        agree = sum(_same_pose(best.pose, r.pose) for r in tried) >= 2
-        return best, True, self._passes(best) or agree
+        return self.search.ranges(self.poses, prior)
 
     def prediction(self, frame: Frame, gate: bool = False, use_prior: bool = True) -> Prediction:
         """The predicted pose of ``frame`` and the sigmas (translation, yaw) of its x/y and yaw, or None.
@@ -347,11 +270,11 @@ class HsSlam:
             res = harmony_icp(scan, target, bounds=bounds, initial_guesses=guesses,
                               config=cfg.registration, rng=self.rng)
             self.costs.registration(res.evaluations)
-            res, widened, matched = self._widened(scan, target, res, guesses, half)
+            res, widened, matched = self.search.widened(scan, target, res, guesses, half, self.rng)
             self.odometry.learn_bias(frame, res, self.poses[-1])
             use_prior = not self._prior_contradicted(frame, res)
             res, retried, verified = self._verify(frame, scan, res, use_prior)
-            retried, verified = retried or widened, verified and (matched or self._passes(res))
+            retried, verified = retried or widened, verified and (matched or self.search.passes(res))
             if times is not None:
                 res, scan = self._refine_sweep(scan, times, target, res)
             self.odometry.learn_scale(frame, res)
@@ -379,6 +302,8 @@ class HsSlam:
                              int(evaluations), time.perf_counter() - t0, bool(keyframe), len(scan), len(kg.map),
                              retried, verified, float(cost))
         self.results.append(result)
+        if not first:
+            self.search.record(result.inlier_ratio, result.verified)
         return result
 
     def _floor_prior(self) -> None:

@@ -1,0 +1,114 @@
+"""Where the tracker searches for a frame (:class:`SearchBox`): the box around the seeds, which in 6-DOF runs
+without a prior follows the recent motion, and the wider searches of a registration that fails the inlier check."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..geometry import relative, wrap_angle
+from ..registration.icp import (
+    RegistrationConfig,
+    RegistrationResult,
+    RegistrationTarget,
+    _default_bounds,
+    harmony_icp,
+)
+from .config import SlamConfig
+from .costs import Costs
+
+__all__ = ["SearchBox", "same_pose"]
+
+
+def same_pose(a: NDArray[np.float64], b: NDArray[np.float64]) -> bool:
+    """Whether two 6-DOF poses lie within 5 cm and 1 deg of each other."""
+    d = relative(a, b)
+    return bool(np.linalg.norm(d[:3]) <= 0.05 and np.abs(wrap_angle(d[3:])).max() <= np.deg2rad(1.0))
+
+
+class SearchBox:
+    """The half-widths of the search box and the inlier check of a registration.
+
+    The box is the configured one (``registration.*_range``; with a prior, ``prior_*_range``). In 6-DOF runs
+    without a prior (:attr:`follows_motion`) it is at least :meth:`motion_spread` wide, and a registration whose
+    inlier ratio falls below ``min_inlier_share`` of the recent confirmed frames' median is searched again
+    (:meth:`widened`).
+    """
+
+    def __init__(self, config: SlamConfig, costs: Costs, prior: bool = False) -> None:
+        self.config = config
+        self.costs = costs
+        self.follows_motion = config.dof == 6 and not prior
+        self._recent: list[tuple[float, bool]] = []  # the last frames' inlier ratios and whether confirmed
+
+    def record(self, inlier_ratio: float, verified: bool) -> None:
+        """Remember a tracked frame's inlier ratio and whether it was confirmed."""
+        self._recent = [*self._recent, (float(inlier_ratio), bool(verified))][-self.config.motion_window:]
+
+    def ranges(self, poses: Sequence[NDArray[np.float64]], prior: bool) -> NDArray[np.float64]:
+        """The box's half-widths (dof,) for the frame after ``poses``."""
+        cfg, reg = self.config, self.config.registration
+        t = cfg.prior_translation_range if prior else reg.translation_range
+        y = cfg.prior_yaw_range if prior else reg.yaw_range
+        if cfg.dof == 3:
+            return np.array([t, t, y])
+        half = np.array([t, t, reg.z_range, reg.roll_pitch_range, reg.roll_pitch_range, y])
+        return half if prior else np.maximum(half, self.motion_spread(poses))
+
+    def motion_spread(self, poses: Sequence[NDArray[np.float64]]) -> NDArray[np.float64]:
+        """With :attr:`follows_motion`: per pose component, ``verify_sigmas`` times the RMS change between
+        consecutive frames' steps of that component over the last ``motion_window`` frames (the constant-velocity
+        prediction's error); zeros otherwise or with too few frames."""
+        cfg = self.config
+        n = min(len(poses), cfg.motion_window + 2)
+        if not self.follows_motion or n < 3:
+            return np.zeros(cfg.dof)
+        steps = np.diff(np.asarray(poses[-n:]), axis=0)
+        steps[:, 3:] = wrap_angle(steps[:, 3:])
+        change = np.diff(steps, axis=0)
+        change[:, 3:] = wrap_angle(change[:, 3:])
+        return cfg.verify_sigmas * np.sqrt(np.mean(change ** 2, axis=0))
+
+    def inlier_reference(self) -> float | None:
+        """The median inlier ratio of the confirmed ones among the last ``motion_window`` tracked frames (None with
+        fewer than three)."""
+        recent = [r for r, ok in self._recent if ok]
+        return float(np.median(recent)) if len(recent) >= 3 else None
+
+    def passes(self, res: RegistrationResult) -> bool:
+        """Whether a registration matches at least ``min_inlier_share`` of the recent confirmed frames' inlier
+        ratio."""
+        ref = self.inlier_reference()
+        return ref is None or res.inlier_ratio >= self.config.min_inlier_share * ref
+
+    def widened(self, scan: NDArray[np.float64], target: RegistrationTarget, res: RegistrationResult,
+                guesses: NDArray[np.float64], half: NDArray[np.float64], rng: np.random.Generator
+                ) -> tuple[RegistrationResult, bool, bool]:
+        """A registration that fails the inlier check (:meth:`passes`) searched again in boxes of ``half`` times
+        each of ``widen_factors`` around ``guesses`` (each half-width at most the larger of ``half``'s and the box
+        :func:`hsmap.registration.icp.harmony_icp` searches without a guess), with a longer search, until one
+        passes. Returns the registration that aligns the scan best (point-to-plane cost), whether a search was
+        repeated, and whether the kept one passes the check or two searches agree on it."""
+        cfg = self.config
+        if not self.follows_motion or self.passes(res):
+            return res, False, True
+        hs = cfg.registration.harmony
+        wide_cfg = replace(cfg.registration, harmony=replace(
+            hs, max_iterations=2 * hs.max_iterations, patience=None if hs.patience is None else 2 * hs.patience))
+        tried = [res]
+        reach = np.maximum(half, _default_bounds(np.zeros((1, 6)), RegistrationConfig())[:, 1])
+        for factor in cfg.widen_factors:
+            h = np.minimum(half * factor, reach)
+            bounds = np.column_stack([guesses.min(0) - h, guesses.max(0) + h])
+            alt = harmony_icp(scan, target, bounds=bounds, initial_guesses=guesses, config=wide_cfg, rng=rng)
+            self.costs.registration(alt.evaluations)
+            self.costs.add(retries=1)
+            tried.append(alt)
+            if self.passes(alt):
+                break
+        best = min(tried, key=lambda r: r.cost)
+        agree = sum(same_pose(best.pose, r.pose) for r in tried) >= 2
+        return best, True, self.passes(best) or agree

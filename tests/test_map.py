@@ -11,7 +11,6 @@ of CPU in all.
 from __future__ import annotations
 
 import contextlib
-import io
 import json
 import re
 import warnings
@@ -20,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from _cli import run_cli
 from PIL import Image
 
 from hsmap.cli import main
@@ -29,14 +29,6 @@ from hsmap.trajectory import read_tum
 
 pytest.importorskip("open3d")
 
-
-def run_cli(*argv: str) -> tuple[int, str]:
-    """``hsmap ARGV`` in this process: exit status and stderr (warnings printed as the command prints them)."""
-    err = io.StringIO()
-    with contextlib.redirect_stderr(err), warnings.catch_warnings():
-        warnings.simplefilter("always")
-        code = main(list(argv))
-    return code, err.getvalue()
 
 
 @pytest.fixture(scope="module")

@@ -35,16 +35,23 @@ from __future__ import annotations
 
 import html
 import json
-import math
 import os
 import re
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigError, InputError
 from ..io import atomic_path, to_plain, write_json
+from .metrics_tables import (
+    UNIT_DECIMALS,
+    HeadlineRow,
+    MetricsTable,
+    format_value,
+    headline_rows,
+    read_metrics,
+    readable_label,
+)
 
 __all__ = [
     "NotebookReport",
@@ -56,6 +63,8 @@ __all__ = [
     "read_metrics",
     "render_index",
     "format_duration",
+    "readable_label",
+    "UNIT_DECIMALS",
 ]
 
 #: Environment variable through which ``hsmap reproduce`` tells a notebook its name.
@@ -107,150 +116,6 @@ def _notebook_file_stem() -> str | None:
     ip = get_ipython()
     vsc = getattr(ip, "user_ns", {}).get("__vsc_ipynb_file__") if ip is not None else None
     return Path(vsc).stem if isinstance(vsc, str) and vsc.endswith(".ipynb") else None
-
-
-#: Decimals of a float in a unit where its digits beyond stop meaning anything (a millimetre, a hundredth of a
-#: degree, a tenth of a square metre): the rest get 4 significant digits.
-UNIT_DECIMALS = {"m": 3, "cm": 1, "mm": 1, "deg": 2, "m2": 1, "s": 1, "ms": 1}
-
-
-def format_value(v: Any, unit: str | None = None) -> str:
-    """A short human reading of a metric value: a float in a unit of :data:`UNIT_DECIMALS` to those decimals
-    (one that rounds to 0 but is not three decades below that, with 2 significant digits), others to 4
-    significant digits; ``-`` for missing."""
-    if isinstance(v, float) and math.isfinite(v) and unit in UNIT_DECIMALS and abs(v) < 1e7:
-        k = UNIT_DECIMALS[unit]
-        if round(v, k) == 0 and abs(v) >= 10.0 ** -(k + 3):
-            return f"{v:.2g}"
-        return f"{round(v, k) + 0.0:.{k}f}"
-    if v is None:
-        return "-"
-    if isinstance(v, bool):
-        return "yes" if v else "no"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        if not math.isfinite(v):
-            return str(v)
-        if v != 0 and (abs(v) >= 1e5 or abs(v) < 1e-3):
-            return f"{v:.3e}"
-        return f"{v:.4g}"
-    if hasattr(v, "item") and getattr(v, "ndim", 1) == 0:  # numpy scalar
-        return format_value(v.item(), unit)
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(format_value(x, unit) for x in v) + "]"
-    return str(v)
-
-
-@dataclass(frozen=True)
-class HeadlineRow:
-    """One number of a metrics document as the index shows it.
-
-    Attributes
-    ----------
-    key : str
-    label : str
-        What it is, for a reader (the document's ``labels``, else the key made readable).
-    ours, paper, reference : object
-        Our value, the paper's, another published one (None where there is none).
-    source : str
-        Who published ``reference``.
-    unit : str
-    """
-
-    key: str
-    label: str
-    ours: Any
-    paper: Any
-    reference: Any
-    source: str
-    unit: str
-
-
-_UNIT_SUFFIXES = ("_m", "_deg", "_s", "_ms", "_m2")
-
-
-def readable_label(key: str) -> str:
-    """A key as words: ``hsslam_final_error_m`` -> ``HS-SLAM final error`` (the unit goes in its own column)."""
-    k = key
-    for suffix in _UNIT_SUFFIXES:
-        if k.endswith(suffix) and len(k) > len(suffix):
-            k = k[: -len(suffix)]
-            break
-    words = []
-    for w in k.split("_"):
-        words.append({"hsslam": "HS-SLAM", "hs3": "HS-SLAM 3-DOF", "hs6": "HS-SLAM 6-DOF", "p95": "95th percentile",
-                      "seg": "segmentation", "rot": "rotation", "trans": "translation"}.get(w, w))
-    return " ".join(words)
-
-
-def headline_rows(doc: Mapping[str, Any], limit: int = 8) -> list[HeadlineRow]:
-    """The numbers a metrics document puts forward (see module docstring).
-
-    Keys named in ``headline`` come first; without one, the keys the paper has, then (when the paper has
-    none) the first scalar metrics, up to ``limit`` rows.
-    """
-    metrics = doc.get("metrics") or {}
-    paper = doc.get("paper") or {}
-    reference = doc.get("reference") or {}
-    units = doc.get("units") or {}
-    labels = doc.get("labels") or {}
-    keys = list(doc.get("headline") or [])
-    if not keys:
-        keys = [k for k in paper]
-        if not keys:
-            keys = [k for k, v in metrics.items() if not isinstance(v, (Mapping, list))]
-    rows = []
-    for k in keys[:limit]:
-        ref = reference.get(k) or {}
-        rows.append(HeadlineRow(k, labels.get(k) or readable_label(k), metrics.get(k), paper.get(k),
-                                ref.get("value"), str(ref.get("source") or ""), units.get(k, "")))
-    return rows
-
-
-def read_metrics(path: str | os.PathLike) -> dict[str, Any] | None:
-    """The metrics document at ``path``, or None when there is none (or it is not a JSON object)."""
-    try:
-        doc = json.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return None
-    return doc if isinstance(doc, dict) else None
-
-
-class MetricsTable:
-    """Our numbers beside the paper's (and other published ones); shows as a table in a notebook
-    (``_repr_html_``) and as text."""
-
-    def __init__(self, doc: Mapping[str, Any]):
-        self.doc = dict(doc)
-
-    def rows(self) -> list[HeadlineRow]:
-        """Every key of the document: ours first, then those only the paper or a reference has."""
-        keys = list(dict.fromkeys([*(self.doc.get("metrics") or {}), *(self.doc.get("paper") or {}),
-                                   *(self.doc.get("reference") or {})]))
-        return headline_rows({**self.doc, "headline": keys}, limit=len(keys))
-
-    def _columns(self) -> tuple[list[str], list[list[str]]]:
-        rows = self.rows()
-        has_ref = any(r.reference is not None for r in rows)
-        head = ["metric", "ours", "paper"] + (["reference"] if has_ref else []) + ["unit"]
-        body = []
-        for r in rows:
-            ref = [f"{format_value(r.reference, r.unit)} ({r.source})" if r.reference is not None else "-"] if has_ref else []
-            body.append([r.key, format_value(r.ours, r.unit), format_value(r.paper, r.unit), *ref, r.unit])
-        return head, body
-
-    def __repr__(self) -> str:
-        head, body = self._columns()
-        table = [head, *body]
-        w = [max(len(str(r[i])) for r in table) for i in range(len(head))]
-        return "\n".join("  ".join(str(c).ljust(w[i]) for i, c in enumerate(r)).rstrip() for r in table)
-
-    def _repr_html_(self) -> str:
-        head, body = self._columns()
-        th = "".join(f"<th>{html.escape(h)}</th>" for h in head)
-        trs = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in body)
-        return f"<table class='hsmap-metrics'><tr>{th}</tr>{trs}</table>"
 
 
 class NotebookReport:
@@ -552,21 +417,11 @@ def _headline_html(metrics: Mapping[str, Any] | None, notes: str | None = None) 
     return f"<table class='headline'>{head}{body}</table>{note}"
 
 
-def render_index(entries: Sequence[Mapping[str, Any]], meta: Mapping[str, Any]) -> str:
-    """The HTML index of a batch run.
-
-    Parameters
-    ----------
-    entries : sequence of mappings
-        One per notebook, the fields of :class:`hsmap.study.batch.NotebookRun`.
-    meta : mapping
-        ``started`` (ISO date), ``duration_s``, ``quick``, ``jobs``, ``final`` (False while running),
-        ``versions`` (name -> version), ``ran`` (names run now).
-    """
+def _summary_html(entries: Sequence[Mapping[str, Any]], meta: Mapping[str, Any], ran: set[str]) -> str:
+    """The index's summary box: the run's state (in progress, failed, complete), start, duration, mode, jobs."""
     esc = html.escape
-    ran = set(meta.get("ran") or [])
-    this_run = [e for e in entries if e.get("name") in ran]
     final = bool(meta.get("final"))
+    this_run = [e for e in entries if e.get("name") in ran]
     n_ok = sum(e.get("status") == "ok" for e in this_run)
     n_skipped = sum(e.get("status") == "skipped" for e in this_run)
     done = ("failed", "interrupted") if not final else None
@@ -582,50 +437,71 @@ def render_index(entries: Sequence[Mapping[str, Any]], meta: Mapping[str, Any]) 
         cls, state = "ok", f"complete: {n_ok} of {len(this_run)} notebooks ok{skipped} (inputs missing)"
     else:
         cls, state = "ok", f"complete: all {len(this_run)} notebooks ok"
-    summary = (f"<div class='summary {cls}'><b>{esc(state)}</b><br>"
-               f"run started {esc(str(meta.get('started', '-')))}; "
-               f"{'total duration' if final else 'elapsed'} {esc(format_duration(meta.get('duration_s')))}; "
-               f"{mode} run; {int(meta.get('jobs', 1))} job(s) at a time</div>")
+    return (f"<div class='summary {cls}'><b>{esc(state)}</b><br>"
+            f"run started {esc(str(meta.get('started', '-')))}; "
+            f"{'total duration' if final else 'elapsed'} {esc(format_duration(meta.get('duration_s')))}; "
+            f"{mode} run; {int(meta.get('jobs', 1))} job(s) at a time</div>")
 
-    rows = []
-    for e in entries:
-        name = str(e.get("name", ""))
-        status = str(e.get("status", "not run"))
-        title = esc(str(e.get("title") or name))
-        link = (f"<a href='{esc(str(e['html']))}'>{title}</a>" if e.get("html") else title)
-        st_cls = status.replace(" ", "")
-        st = f"<span class='status {st_cls}'>{esc('FAILED' if status == 'failed' else status)}</span>"
-        if status in ("failed", "interrupted") and e.get("error"):
-            err = str(e["error"])
-            err = err if len(err) <= 1500 else err[:1500] + " ..."
-            cell = f" at cell [{e['error_cell']}]" if e.get("error_cell") else ""
-            st += f"<pre class='error'>{esc(err)}{esc(cell)}</pre>"
-        if status == "skipped" and e.get("error"):
-            st += f"<div class='skip'>{esc(str(e['error']))}</div>"
-        for w in e.get("warnings") or []:
-            st += f"<div class='warn'>warning: {esc(str(w))}</div>"
-        if name not in ran and status not in ("not run",):
-            st += "<div class='earlier'>(from an earlier run)</div>"
-        metrics = e.get("metrics")
-        headline = _headline_html(metrics, (metrics or {}).get("notes")) if status != "not run" else ""
-        outs = []
-        if e.get("ipynb"):
-            outs.append(f"<a href='{esc(str(e['ipynb']))}'>notebook</a>")
-        if metrics is not None:
-            outs.append(f"<a href='{esc(name)}/metrics.json'>metrics.json</a>")
-        recs = e.get("recordings") or []
-        if recs:
-            outs.append("recordings: " + ", ".join(f"<a href='{esc(r)}'>{esc(Path(r).name)}</a>" for r in recs))
-        figs = e.get("figures") or []
-        thumbs = "".join(f"<a href='{esc(f)}' title='{esc(Path(f).stem)}'><img src='{esc(f)}' alt='{esc(Path(f).stem)}'></a>"
-                         for f in figs)
-        outputs = " | ".join(outs) + (f"<div class='thumbs'>{thumbs}</div>" if thumbs else "")
-        started = str(e.get("started") or "-")
-        rows.append(
-            f"<tr id='{esc(name)}'><td>{link}<div class='small'>{esc(name)}</div></td><td>{st}</td>"
-            f"<td>{headline}</td><td>{esc(format_duration(e.get('duration_s')))}</td>"
-            f"<td class='small'>{esc(started.replace('T', ' '))}</td><td>{outputs}</td></tr>"
-        )
+
+def _notebook_row(e: Mapping[str, Any], ran: set[str]) -> str:
+    """One notebook's row of the index: link, status (with its error, skip reason, warnings), headline numbers,
+    duration, start and outputs."""
+    esc = html.escape
+    name = str(e.get("name", ""))
+    status = str(e.get("status", "not run"))
+    title = esc(str(e.get("title") or name))
+    link = (f"<a href='{esc(str(e['html']))}'>{title}</a>" if e.get("html") else title)
+    st_cls = status.replace(" ", "")
+    st = f"<span class='status {st_cls}'>{esc('FAILED' if status == 'failed' else status)}</span>"
+    if status in ("failed", "interrupted") and e.get("error"):
+        err = str(e["error"])
+        err = err if len(err) <= 1500 else err[:1500] + " ..."
+        cell = f" at cell [{e['error_cell']}]" if e.get("error_cell") else ""
+        st += f"<pre class='error'>{esc(err)}{esc(cell)}</pre>"
+    if status == "skipped" and e.get("error"):
+        st += f"<div class='skip'>{esc(str(e['error']))}</div>"
+    for w in e.get("warnings") or []:
+        st += f"<div class='warn'>warning: {esc(str(w))}</div>"
+    if name not in ran and status not in ("not run",):
+        st += "<div class='earlier'>(from an earlier run)</div>"
+    metrics = e.get("metrics")
+    headline = _headline_html(metrics, (metrics or {}).get("notes")) if status != "not run" else ""
+    outs = []
+    if e.get("ipynb"):
+        outs.append(f"<a href='{esc(str(e['ipynb']))}'>notebook</a>")
+    if metrics is not None:
+        outs.append(f"<a href='{esc(name)}/metrics.json'>metrics.json</a>")
+    recs = e.get("recordings") or []
+    if recs:
+        outs.append("recordings: " + ", ".join(f"<a href='{esc(r)}'>{esc(Path(r).name)}</a>" for r in recs))
+    figs = e.get("figures") or []
+    thumbs = "".join(f"<a href='{esc(f)}' title='{esc(Path(f).stem)}'><img src='{esc(f)}' alt='{esc(Path(f).stem)}'></a>"
+                     for f in figs)
+    outputs = " | ".join(outs) + (f"<div class='thumbs'>{thumbs}</div>" if thumbs else "")
+    started = str(e.get("started") or "-")
+    return (
+        f"<tr id='{esc(name)}'><td>{link}<div class='small'>{esc(name)}</div></td><td>{st}</td>"
+        f"<td>{headline}</td><td>{esc(format_duration(e.get('duration_s')))}</td>"
+        f"<td class='small'>{esc(started.replace('T', ' '))}</td><td>{outputs}</td></tr>"
+    )
+
+
+def render_index(entries: Sequence[Mapping[str, Any]], meta: Mapping[str, Any]) -> str:
+    """The HTML index of a batch run.
+
+    Parameters
+    ----------
+    entries : sequence of mappings
+        One per notebook, the fields of :class:`hsmap.study.batch.NotebookRun`.
+    meta : mapping
+        ``started`` (ISO date), ``duration_s``, ``quick``, ``jobs``, ``final`` (False while running),
+        ``versions`` (name -> version), ``ran`` (names run now).
+    """
+    ran = set(meta.get("ran") or [])
+    final = bool(meta.get("final"))
+    summary = _summary_html(entries, meta, ran)
+    rows = [_notebook_row(e, ran) for e in entries]
+    esc = html.escape
     versions = meta.get("versions") or {}
     env_rows = "".join(f"<tr><td>{esc(str(k))}</td><td>{esc(str(v))}</td></tr>" for k, v in versions.items())
     refresh = "" if final else "<meta http-equiv='refresh' content='10'>"

@@ -120,25 +120,11 @@ def _covered(grid, other_geo, T) -> dict:
     return out
 
 
-def run(args: argparse.Namespace) -> int:
+def _check_args(args: argparse.Namespace) -> tuple[float, float]:
+    """The band's (lo, hi) after checking ``--resolution``, ``--floor``, ``--seed`` and ``--band``."""
     import math
-    from pathlib import Path
-
-    import numpy as np
-    from PIL import Image
 
     from ..errors import InputError
-    from ..io import (
-        atomic_path,
-        prepare_output_dir,
-        refuse_overwriting_input,
-        staged_outputs,
-        sweep_stale_temporaries,
-        write_json,
-    )
-    from ..maps.fusion import FusionConfig, GlobalSearch, global_align, resample_grid
-    from ..maps.grid import read_map, write_map
-    from ..maps.maps3d import band_grid, floor_height, read_map3d
     from .inputs import parse_vector
 
     if args.resolution is not None and not (math.isfinite(args.resolution) and args.resolution > 0):
@@ -150,24 +136,32 @@ def run(args: argparse.Namespace) -> int:
     lo, hi = parse_vector(args.band, 2, "--band")
     if not lo < hi:
         raise InputError(f"--band must be LO,HI with LO < HI, got {args.band!r}")
-    refuse_overwriting_input(args.out, [*_map_files(args.map2d), *_map_files(args.map3d)], OUTPUTS)
-    out = prepare_output_dir(args.out, "--out", create=False)
-    map2d, points2d = _read_2d(args.map2d, args.resolution)
-    band = None
+    return lo, hi
+
+
+def _read_target(args: argparse.Namespace, lo: float, hi: float):
+    """MAP3D as a 2D grid (a 3D map's band ``lo..hi`` above its floor, or a 2D map as it is) and the band's
+    description (None for a 2D map)."""
+    from pathlib import Path
+
+    from ..maps.grid import read_map
+    from ..maps.maps3d import band_grid, floor_height, read_map3d
+
     if Path(args.map3d).suffix.lower() in (".bt", ".ot", ".ply", ".pcd"):
         m = read_map3d(args.map3d)
         floor = floor_height(m) if args.floor is None else float(args.floor)
         target = band_grid(m, lo, hi, floor=floor)
-        band = {"floor": floor, "band": [float(lo), float(hi)], "resolution": m.resolution}
-    else:
-        target = read_map(args.map3d)
-    cfg = FusionConfig()
-    al, candidates = global_align(map2d, target, floor_points=points2d, config=cfg, search=GlobalSearch(),
-                                  rng=args.seed)
-    _check_unique(candidates, args.map2d, args.map3d)
+        return target, {"floor": floor, "band": [float(lo), float(hi)], "resolution": m.resolution}
+    return read_map(args.map3d), None
+
+
+def _alignment_json(args: argparse.Namespace, al, candidates, map2d, target, band, cfg) -> dict:
+    """The contents of ``alignment.json``: the transform, overlap, residual, coverage both ways, candidates."""
+    import numpy as np
+
     T = al.transformation
     reg = al.registration
-    result = {
+    return {
         "map2d": str(args.map2d),
         "map3d": str(args.map3d),
         "band": band,
@@ -184,6 +178,16 @@ def run(args: argparse.Namespace) -> int:
         "candidates": candidates,
         "seconds": reg.seconds,
     }
+
+
+def _write_outputs(out, result: dict, al, target) -> None:
+    """``alignment.json``, ``overlay.png`` and the two aligned maps, published together."""
+    from PIL import Image
+
+    from ..io import atomic_path, staged_outputs, sweep_stale_temporaries, write_json
+    from ..maps.fusion import resample_grid
+    from ..maps.grid import write_map
+
     sweep_stale_temporaries(out, OUTPUTS)
     with staged_outputs(out) as stage:
         write_json(stage / "alignment.json", result)
@@ -194,6 +198,24 @@ def run(args: argparse.Namespace) -> int:
                 tmp, format="PNG")
         write_map(stage / "map2d_aligned.yaml", al.floor)
         write_map(stage / "map3d_band.yaml", resample_grid(target, target=al.slice.geometry))
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..io import prepare_output_dir, refuse_overwriting_input
+    from ..maps.fusion import FusionConfig, GlobalSearch, global_align
+
+    lo, hi = _check_args(args)
+    refuse_overwriting_input(args.out, [*_map_files(args.map2d), *_map_files(args.map3d)], OUTPUTS)
+    out = prepare_output_dir(args.out, "--out", create=False)
+    map2d, points2d = _read_2d(args.map2d, args.resolution)
+    target, band = _read_target(args, lo, hi)
+    cfg = FusionConfig()
+    al, candidates = global_align(map2d, target, floor_points=points2d, config=cfg, search=GlobalSearch(),
+                                  rng=args.seed)
+    _check_unique(candidates, args.map2d, args.map3d)
+    reg = al.registration
+    result = _alignment_json(args, al, candidates, map2d, target, band, cfg)
+    _write_outputs(out, result, al, target)
     t = result["transform"]
     ov = result["overlap"]
     print(f"MAP2D -> MAP3D: x {t['x']:.3f} m, y {t['y']:.3f} m, yaw {t['yaw_deg']:.3f} deg; overlap "

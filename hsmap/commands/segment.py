@@ -182,27 +182,14 @@ def _band_grid(args: argparse.Namespace, min_passage: float):
     return grid, OccupancyGrid(data, grid.geometry), info
 
 
-def run(args: argparse.Namespace) -> int:
+def _config(args: argparse.Namespace):
+    """The segmentation settings: ``--config`` (or the defaults), ``--method`` and ``--furniture`` applied, after
+    checking ``--resolution``."""
     import dataclasses
-    import warnings
-    from pathlib import Path
 
-    from PIL import Image
-
-    from ..config import dump_config, load_config
-    from ..errors import EmptyInputError, HsmapWarning, InputError
-    from ..io import (
-        atomic_path,
-        prepare_output_dir,
-        refuse_overwriting_input,
-        staged_outputs,
-        sweep_stale_temporaries,
-        write_json,
-    )
-    from ..maps.grid import read_map, write_label_image, write_map
-    from ..rooms.segmentation import SegmentationConfig, check_scale, segment_rooms
-    from ..rooms.topology import room_graph, topology_listing, write_topology
-    from ..viz.colors import segmentation_picture
+    from ..config import load_config
+    from ..errors import InputError
+    from ..rooms.segmentation import SegmentationConfig
 
     if args.resolution is not None and not (args.resolution > 0 and args.resolution < float("inf")):
         raise InputError(f"--resolution must be a finite number > 0 of metres per pixel, got {args.resolution}")
@@ -211,9 +198,16 @@ def run(args: argparse.Namespace) -> int:
         cfg = dataclasses.replace(cfg, method=args.method)
     if args.furniture:
         cfg = dataclasses.replace(cfg, assign_furniture=True)
-    refuse_overwriting_input(args.out, [args.map, args.config], OUTPUTS)
-    out = prepare_output_dir(args.out, "--out", create=False)
-    band = None
+    return cfg
+
+
+def _read_grid(args: argparse.Namespace, cfg):
+    """The grid to segment, with the 3D map's band grid and its description (None, None for a 2D map)."""
+    from pathlib import Path
+
+    from ..errors import InputError
+    from ..maps.grid import read_map
+
     if Path(args.map).suffix.lower() in MAP3D_SUFFIXES or Path(args.map).is_dir():
         band_map, grid, band = _band_grid(args, 2.0 * cfg.min_door_half_width)
         print(f"floor at z = {band['floor']:.3f} m ({band['floor_source']}); band {band['band'][0]:g}-"
@@ -221,11 +215,20 @@ def run(args: argparse.Namespace) -> int:
               f"{band['band_heights'][1]:.3f} m; {band['cells']['occupied']} occupied, {band['cells']['free']} free, "
               f"{band['cells']['unknown']} unknown ({band['cells']['unknown_seen_through']} seen through); "
               f"{band['cells']['segmented_free']} cells segmented as free space")
-    elif args.band is not None or args.floor is not None:
+        return grid, band_map, band
+    if args.band is not None or args.floor is not None:
         raise InputError(f"--band and --floor apply to 3D maps ({', '.join(MAP3D_SUFFIXES)}) and run folders, not "
                          f"{args.map}")
-    else:
-        grid = read_map(args.map, args.resolution)
+    return read_map(args.map, args.resolution), None, None
+
+
+def _check_scale(args: argparse.Namespace, grid, cfg) -> None:
+    """:func:`~hsmap.rooms.segmentation.check_scale`, its error naming where the resolution came from."""
+    from pathlib import Path
+
+    from ..errors import EmptyInputError, InputError
+    from ..rooms.segmentation import check_scale
+
     try:
         check_scale(grid.free, grid.geometry.resolution, cfg)
     except EmptyInputError as exc:
@@ -245,12 +248,21 @@ def run(args: argparse.Namespace) -> int:
         else:
             src = "the default resolution 0.05 (set it with --resolution)"
         raise InputError(f"{src}: {exc}") from None
-    seg = segment_rooms(grid, config=cfg, keep_steps=args.steps)
-    if seg.n_rooms == 0:
-        warnings.warn(f"{args.map}: no room found (free space {int(grid.free.sum())} pixels at "
-                      f"{grid.geometry.resolution:g} m/pixel); is the map or its resolution right?", HsmapWarning,
-                      stacklevel=2)
-    g = room_graph(seg)
+
+
+def _write_outputs(args: argparse.Namespace, out, seg, g, grid, cfg, band_map, band) -> None:
+    """The labels, doors, graph, picture and settings (with the band's grid and description for a 3D map and the
+    steps figure with ``--steps``), published together."""
+    from pathlib import Path
+
+    from PIL import Image
+
+    from ..config import dump_config
+    from ..io import atomic_path, staged_outputs, sweep_stale_temporaries, write_json
+    from ..maps.grid import write_label_image, write_map
+    from ..rooms.topology import write_topology
+    from ..viz.colors import segmentation_picture
+
     sweep_stale_temporaries(out, OUTPUTS)
     with staged_outputs(out, replaces=OUTPUTS) as stage:
         write_label_image(stage / "rooms.png", seg.labels)
@@ -274,6 +286,28 @@ def run(args: argparse.Namespace) -> int:
             fig = voronoi_steps_figure(grid, seg, title=Path(args.map).name)
             with atomic_path(stage / "steps.png") as tmp:
                 fig.savefig(tmp, dpi=110)
+
+
+def run(args: argparse.Namespace) -> int:
+    import warnings
+
+    from ..errors import HsmapWarning
+    from ..io import prepare_output_dir, refuse_overwriting_input
+    from ..rooms.segmentation import segment_rooms
+    from ..rooms.topology import room_graph, topology_listing
+
+    cfg = _config(args)
+    refuse_overwriting_input(args.out, [args.map, args.config], OUTPUTS)
+    out = prepare_output_dir(args.out, "--out", create=False)
+    grid, band_map, band = _read_grid(args, cfg)
+    _check_scale(args, grid, cfg)
+    seg = segment_rooms(grid, config=cfg, keep_steps=args.steps)
+    if seg.n_rooms == 0:
+        warnings.warn(f"{args.map}: no room found (free space {int(grid.free.sum())} pixels at "
+                      f"{grid.geometry.resolution:g} m/pixel); is the map or its resolution right?", HsmapWarning,
+                      stacklevel=2)
+    g = room_graph(seg)
+    _write_outputs(args, out, seg, g, grid, cfg, band_map, band)
     print(topology_listing(g), end="")
     extra = ", grid.yaml, grid.pgm, band.json" if band is not None else ""
     print(f"wrote {out}/rooms.png, doors.json, topology.json, topology.graphml, segmentation.png{extra}")

@@ -189,6 +189,23 @@ def _write_dataset(scn: Scenario, out: Path, seed: int, *, max_frames: int | Non
                         compresslevel=compresslevel)
 
     t = time.perf_counter()
+    gt, grid = _write_ground_truth(scn, out, motion, label_resolution)
+    timings["ground_truth"] = time.perf_counter() - t
+
+    end_err = float(np.hypot(*(motion.odometry[-1, :2] - motion.groundtruth[-1, :2])))
+    yaw_err = float(np.rad2deg(np.angle(np.exp(1j * (motion.odometry[-1, 2] - motion.groundtruth[-1, 2])))))
+    summary = SimulationSummary(out, scn.name, seed, n, float(motion.stamps[-1] - motion.stamps[0]),
+                                gt.path_length(), end_err, yaw_err, timings)
+    write_text(out / "README.md", _readme(scn, summary, grid))
+    meta = _dataset_meta(scn, seed, motion, summary)
+    timings["total"] = time.perf_counter() - t_start
+    write_text(out / "dataset.yaml", yaml.safe_dump(meta, sort_keys=False, width=110))
+    return summary
+
+
+def _write_ground_truth(scn: Scenario, out: Path, motion: Motion, label_resolution: float | None):
+    """The true and odometry trajectories (and the swaying mast's), the room labels, the doors and the scenario
+    file; returns the true trajectory and the labels' grid."""
     gt = Trajectory(motion.stamps, motion.groundtruth)
     odo = Trajectory(motion.stamps, motion.odometry)
     write_tum(out / "groundtruth.tum", gt)
@@ -214,22 +231,20 @@ def _write_dataset(scn: Scenario, out: Path, seed: int, *, max_frames: int | Non
             shutil.copyfile(scn.path, tmp)
     else:
         write_text(out / "scenario.yaml", yaml.safe_dump(scn.raw, sort_keys=False))
-    timings["ground_truth"] = time.perf_counter() - t
+    return gt, grid
 
-    end_err = float(np.hypot(*(motion.odometry[-1, :2] - motion.groundtruth[-1, :2])))
-    yaw_err = float(np.rad2deg(np.angle(np.exp(1j * (motion.odometry[-1, 2] - motion.groundtruth[-1, 2])))))
-    summary = SimulationSummary(out, scn.name, seed, n, float(motion.stamps[-1] - motion.stamps[0]),
-                                gt.path_length(), end_err, yaw_err, timings)
+
+def _dataset_meta(scn: Scenario, seed: int, motion: Motion, summary: SimulationSummary) -> dict:
+    """The contents of ``dataset.yaml``: format, scenario, run, frame conventions, sensors, robot, files."""
     files = dict(FILE_DESCRIPTIONS)
-    if l3.sway_frequency > 0:
+    if scn.lidar3d.sway_frequency > 0:
         files["groundtruth3d.tum"] = ("the swaying mast's true poses at the scan stamps (the base's pose tilted "
                                       "about the mast's foot; the 3D LiDAR is at this pose times its extrinsic), TUM")
     if scn.lidar3d.sweep_time > 0:
         files["clouds3d/"] += "; column_time (columns,) float64 s after stamp at which each column was measured"
     if scn.lidar2d.scan_time > 0:
         files["scans2d.npz"] += "; beam_time (M,) float64 s after the stamp at which each beam was measured"
-    write_text(out / "README.md", _readme(scn, summary, grid))
-    meta = {
+    return {
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
         "hsmap_version": __version__,
@@ -237,12 +252,12 @@ def _write_dataset(scn: Scenario, out: Path, seed: int, *, max_frames: int | Non
         "scenario_sha256": scn.sha256,
         "description": scn.description,
         "seed": seed,
-        "frames": n,
+        "frames": summary.frames,
         "frame_rate": float(scn.frame_rate),
         "start_time": float(motion.stamps[0]),
         "duration": round(summary.duration, 6),
         "path_length": round(summary.path_length, 6),
-        "odometry_end_error": round(end_err, 6),
+        "odometry_end_error": round(summary.odometry_end_error, 6),
         "frames_conventions": {
             "world": "x, y on the floor, z up, metres; the floor is z = 0",
             "base": "robot base frame on the floor: x forward, y left, z up",
@@ -255,9 +270,6 @@ def _write_dataset(scn: Scenario, out: Path, seed: int, *, max_frames: int | Non
         "odometry_model": to_dict(scn.odometry),
         "files": files,
     }
-    timings["total"] = time.perf_counter() - t_start
-    write_text(out / "dataset.yaml", yaml.safe_dump(meta, sort_keys=False, width=110))
-    return summary
 
 
 def write_sensor_frames(out: Path, world, motion: Motion, lidar2d, lidar3d, seed: int, timings: dict, *,

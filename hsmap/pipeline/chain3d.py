@@ -52,7 +52,7 @@ from ..maps.occupancy3d import (
 from ..rooms.segmentation import Segmentation, points_in_doors
 from ..trajectory import Trajectory, write_tum
 from .cache import FolderCache, description_digest
-from .config import ChainConfig
+from .config import ChainConfig, GridsConfig
 from .outputs import (
     FigureSaver,
     grid_record,
@@ -66,7 +66,8 @@ from .outputs import (
 from .runs import cached_slam, dataset_fingerprint
 from .stages import StageLog, cached_stage, rooms_stage, slam_summary
 
-__all__ = ["map_recording_3d", "given_poses", "GivenPoses", "OUTPUTS", "SKIPPED"]
+__all__ = ["map_recording_3d", "given_poses", "GivenPoses", "posed_sweep", "carve_map", "band_grids", "levelled_bands",
+           "OUTPUTS", "SKIPPED"]
 
 #: What :func:`map_recording_3d` writes (besides ``figures/`` and ``.stages/``).
 OUTPUTS = ("trajectory3d.tum", "map3d.bt", "map3d.ply", "floor.pgm", "floor.yaml", "floor.png", "slice.pgm",
@@ -128,9 +129,32 @@ def _sweeps(ds: Dataset, traj: Trajectory, voxel: float, deskew: bool) -> Iterat
         if not ok or f.cloud3d is None:
             continue
         f = deskew_frame(f, prior=traj)[0] if deskew else f
-        T = pose_to_matrix(pose) @ pose_to_matrix(f.extrinsic3d)
-        pts = voxel_downsample(np.asarray(f.cloud3d, dtype=float), voxel)
-        yield pts @ T[:3, :3].T + T[:3, 3], T[:3, 3].copy()
+        yield posed_sweep(f.cloud3d, pose_to_matrix(pose) @ pose_to_matrix(f.extrinsic3d), voxel)
+
+
+def posed_sweep(cloud: np.ndarray, sensor_to_world: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarray]:
+    """A cloud in its sensor's frame, thinned to ``voxel``, placed in the world by the (4, 4) ``sensor_to_world``:
+    (world points, the sensor's world position), what :func:`carve_map` takes."""
+    T = np.asarray(sensor_to_world, dtype=float)
+    pts = voxel_downsample(np.asarray(cloud, dtype=float), voxel)
+    return pts @ T[:3, :3].T + T[:3, 3], T[:3, 3].copy()
+
+
+def carve_map(sweeps, grids: GridsConfig, bar=None, source: str = "the posed clouds") -> tuple[Map3D, np.ndarray]:
+    """The 3D occupancy map of posed sweeps (:func:`posed_sweep`), free space carved along every ray
+    (:func:`hsmap.maps.occupancy3d.carve_sweeps`, ``grids.voxel``, ``grids.max_range``), and the sensor positions.
+
+    ``sweeps`` is read twice (the map's bounds, then the carving): a sequence, or a callable giving a new
+    iterator each time.
+    """
+    def each():
+        return sweeps() if callable(sweeps) else iter(sweeps)
+
+    lo, hi = sweep_bounds(_counted(each(), bar), grids.max_range)
+    sensors: list[np.ndarray] = []
+    m = carve_sweeps(_counted(each(), bar, sensors), lo, hi, resolution=grids.voxel, max_range=grids.max_range,
+                     source=source)
+    return m, np.asarray(sensors, dtype=float).reshape(-1, 3)
 
 
 def _voxels_stage(ds: Dataset, traj: Trajectory, cfg: ChainConfig, stages: StageLog):
@@ -138,13 +162,10 @@ def _voxels_stage(ds: Dataset, traj: Trajectory, cfg: ChainConfig, stages: Stage
 
     def compute(folder: Path) -> None:
         bar = stages.bar("voxels", 2 * len(ds), "cloud")
-        lo, hi = sweep_bounds(_counted(_sweeps(ds, traj, g.voxel, deskew), bar), g.max_range)
-        sensors: list[np.ndarray] = []
-        m = carve_sweeps(_counted(_sweeps(ds, traj, g.voxel, deskew), bar, sensors), lo, hi, resolution=g.voxel,
-                         max_range=g.max_range, source="the posed clouds")
+        m, sensors = carve_map(lambda: _sweeps(ds, traj, g.voxel, deskew), g, bar)
         bar.close()
         np.savez_compressed(folder / "voxels.npz", state=m.state, origin=m.origin, resolution=m.resolution,
-                            sensors=np.asarray(sensors, dtype=float).reshape(-1, 3))
+                            sensors=sensors)
 
     def load(folder: Path) -> tuple[Map3D, np.ndarray]:
         with np.load(folder / "voxels.npz") as z:
@@ -157,25 +178,34 @@ def _counted(items, bar, sensors: list | None = None):
     """The sweeps, counted on ``bar``; their sensor positions appended to ``sensors``."""
     for item in items:
         yield item
-        bar.update(1)
+        if bar is not None:
+            bar.update(1)
         if sensors is not None:
             sensors.append(item[1])
 
 
+def band_grids(m: Map3D, band: tuple[float, float], *, floor: float | None, min_passage: float
+               ) -> tuple[OccupancyGrid, OccupancyGrid]:
+    """A height band of a 3D map (metres above ``floor``): its occupancy grid as the map knows it
+    (:func:`hsmap.maps.maps3d.band_grid`) and the grid to segment, free where
+    :func:`hsmap.maps.maps3d.segmentation_free` finds free space."""
+    lo, hi = float(band[0]), float(band[1])
+    grid = band_grid(m, lo, hi, floor=floor)
+    free = segmentation_free(m, lo, hi, floor=floor, min_passage=min_passage)
+    data = np.where(free, FREE, np.where(grid.occupied, OCCUPIED, UNKNOWN)).astype(np.int8)
+    return grid, OccupancyGrid(data, grid.geometry)
+
+
 def levelled_bands(m: Map3D, positions: np.ndarray, cfg: ChainConfig) -> dict:
     """The floor under each position, and per band (``floor``, ``slice``) its occupancy grid and the grid
-    segmented (free: :func:`hsmap.maps.maps3d.segmentation_free` of the map levelled to the floor)."""
+    segmented (:func:`band_grids` of the map levelled to the floor)."""
     g = cfg.grids
     floors = floor_under_path(m, positions, radius=g.floor_radius, depth=g.floor_depth)
     level = level_map(m, floor_field(m, positions, floors, reach=g.floor_reach))
     out: dict[str, Any] = {"floors": floors}
     passage = 2.0 * cfg.segmentation.min_door_half_width
-    for name, (lo, hi) in (("floor", g.floor_band), ("slice", g.slice)):
-        grid = band_grid(level, lo, hi, floor=0.0)
-        free = segmentation_free(level, lo, hi, floor=0.0, min_passage=passage)
-        data = np.where(free, FREE, np.where(grid.occupied, OCCUPIED, UNKNOWN)).astype(np.int8)
-        out[name] = grid
-        out[f"{name}_segmented"] = OccupancyGrid(data, grid.geometry)
+    for name, band in (("floor", g.floor_band), ("slice", g.slice)):
+        out[name], out[f"{name}_segmented"] = band_grids(level, band, floor=0.0, min_passage=passage)
     return out
 
 

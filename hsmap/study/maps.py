@@ -66,7 +66,7 @@ from .paths import generated_dir
 from .runs import SimulatedRuns, dataset_fingerprint, default_slam_dir, simulated_slam_runs
 
 __all__ = ["point_maps", "point_map", "scan_grid", "map_distances", "TwoLidarMaps", "two_lidar_maps",
-           "recording_maps", "recording_config", "default_maps_dir", "MapSegmentations", "segment_maps", "door_errors",
+           "recording_maps", "default_maps_dir", "MapSegmentations", "segment_maps", "door_errors",
            "true_room_names"]
 
 
@@ -325,11 +325,6 @@ class TwoLidarMaps:
             return None
 
 
-def _grids_config(z_range: tuple[float, float], resolution: float, slice_bins: int) -> GridsConfig:
-    return GridsConfig(resolution=float(resolution), slice=(float(z_range[0]), float(z_range[1])),
-                       slice_bins=int(slice_bins))
-
-
 def _save_maps(folder: Path, grids: ChainGrids, trajectories: dict[str, tuple], point_maps: dict,
                meta: dict) -> None:
     """``maps.npz`` (the grids, the trajectories (stamps, poses) as ``NAME_stamps`` and ``NAME``, the point maps)
@@ -410,24 +405,22 @@ def recording_maps(
     dataset: str | os.PathLike | Dataset,
     seed: int = 1,
     *,
+    config: ChainConfig | None = None,
     max_frames: int | None = None,
-    z_range: tuple[float, float] = (1.7, 1.8),
-    resolution: float = 0.05,
-    slice_bins: int = 720,
     every: int = 1,
-    use_odometry: bool | None = None,
     open_kwargs: Mapping[str, Any] | None = None,
     cache_dir: str | os.PathLike | None = None,
 ) -> TwoLidarMaps:
-    """The maps of :func:`two_lidar_maps` made from a recording (see the module docstring).
+    """The maps of :func:`two_lidar_maps` made from a recording as ``hsmap map`` makes them (see the module
+    docstring).
 
     Parameters
     ----------
     dataset : path or Dataset
         Anything :func:`hsmap.datasets.open.open_dataset` opens (``open_kwargs`` are its keywords) that has 2D
         scans and 3D clouds.
-    use_odometry : bool, optional
-        Default: the command line's (:class:`hsmap.slam.SlamConfig`), which uses the odometry when there is one.
+    config : ChainConfig, optional
+        The chain's settings (both runs, the grids); default ``hsmap map``'s.
 
     Other parameters are those of :func:`two_lidar_maps`.
     """
@@ -438,11 +431,11 @@ def recording_maps(
         raise InputError(f"every must be >= 1, got {every}")
     if max_frames is not None and int(max_frames) < 1:
         raise InputError(f"max_frames must be >= 1, got {max_frames}")
+    config = ChainConfig() if config is None else config
     ds = dataset if isinstance(dataset, Dataset) else open_dataset(dataset, **dict(open_kwargs or {}))
     n = len(ds) if max_frames is None else min(int(max_frames), len(ds))
     if n < 1:
         raise InputError(f"{ds.name}: the recording has no frames")
-    config = recording_config(z_range, resolution, slice_bins, use_odometry)
     runs = slam_runs(ds.driven_by("scan"), ds.driven_by("cloud"), config, int(seed), cache_dir=default_slam_dir(),
                      max_frames=max_frames)
     # the key names the input as given (a path: its contents and options), the runs and maps share it
@@ -457,25 +450,12 @@ def recording_maps(
     return dataclasses.replace(got.value, key=got.key, cached=got.cached)
 
 
-def recording_config(z_range: tuple[float, float] = (1.7, 1.8), resolution: float = 0.05, slice_bins: int = 720,
-                     use_odometry: bool | None = None) -> ChainConfig:
-    """The chain's configuration of a recording's maps: ``hsmap map``'s defaults with these grids and, when not
-    None, ``use_odometry`` in both runs."""
-    cfg = ChainConfig(grids=_grids_config(z_range, resolution, slice_bins))
-    if use_odometry is None:
-        return cfg
-    return dataclasses.replace(cfg, slam2d=dataclasses.replace(cfg.slam2d, use_odometry=bool(use_odometry)),
-                               slam3d=dataclasses.replace(cfg.slam3d, use_odometry=bool(use_odometry)))
-
-
 def two_lidar_maps(
     scenario: str = "two-rooms",
     seed: int = 1,
     *,
     max_frames: int | None = None,
-    z_range: tuple[float, float] = (1.7, 1.8),
-    resolution: float = 0.05,
-    slice_bins: int = 720,
+    grids: GridsConfig | None = None,
     poses: str = "slam",
     every: int = 1,
     use_odometry: bool = False,
@@ -496,12 +476,9 @@ def two_lidar_maps(
         Simulator seed and HS-SLAM seed.
     max_frames : int, optional
         Use only the first frames (quick runs).
-    z_range : (float, float)
-        The slice of the 3D map (the paper: 1.7-1.8 m).
-    resolution : float
-        Metres per cell of both grids.
-    slice_bins : int
-        Azimuth bins of the virtual slice scans.
+    grids : GridsConfig, optional
+        The grids: ``resolution`` (metres per cell of both), ``slice`` (the slice of the 3D map; the paper's
+        1.7-1.8 m), ``slice_bins`` (azimuth bins of the virtual slice scans); default ``hsmap map``'s.
     poses : str
         ``"slam"`` (the paper's pipeline: HS-SLAM in 2D and 6-DOF) or ``"groundtruth"`` (no SLAM: the grids
         at the true poses; ``slam2d``/``slam3d`` then hold the true poses and ``map2d``/``map3d`` are empty).
@@ -518,16 +495,17 @@ def two_lidar_maps(
     TwoLidarMaps
     """
 
+    grids = GridsConfig() if grids is None else grids
     if poses not in ("slam", "groundtruth"):
         raise InputError(f"poses must be 'slam' or 'groundtruth', got {poses!r}")
     if dataset is not None and (isinstance(dataset, Dataset) or str(dataset).strip()):
         if poses != "slam":
             raise InputError("a recording's maps are made at its HS-SLAM poses: poses must be 'slam'")
-        return recording_maps(dataset, seed, max_frames=max_frames, z_range=z_range, resolution=resolution,
-                              slice_bins=slice_bins, every=every, cache_dir=cache_dir)
+        return recording_maps(dataset, seed, config=ChainConfig(grids=grids), max_frames=max_frames, every=every,
+                              cache_dir=cache_dir)
     if int(every) < 1:
         raise InputError(f"every must be >= 1, got {every}")
-    z = (float(z_range[0]), float(z_range[1]))
+    z = grids.slice
     if poses == "slam":
         runs = simulated_slam_runs(scenario, seed, max_frames=max_frames, use_odometry=use_odometry)
         ds, n = runs.dataset, runs.frames
@@ -535,13 +513,13 @@ def two_lidar_maps(
         runs = None
         ds = simulated_dataset(scenario, seed, max_frames=max_frames)
         n = len(ds) if max_frames is None else min(int(max_frames), len(ds))
-    params = {"z_range": list(z), "resolution": float(resolution), "slice_bins": int(slice_bins), "poses": poses,
+    params = {"z_range": list(z), "resolution": float(grids.resolution), "slice_bins": int(grids.slice_bins), "poses": poses,
               "every": int(every), "use_odometry": bool(use_odometry), "frames": int(n), "seed": int(seed)}
     desc = {"dataset": dataset_fingerprint(ds), "params": params,
             "slam": None if runs is None else [runs.run3.key, runs.run6.key]}
     slot = f"{slug(ds.name)}-seed{int(seed)}-{n}f-{'gt-' if runs is None else ''}{description_digest(params)[:16]}"
     cache = FolderCache(cache_dir if cache_dir is not None else default_maps_dir())
-    got = cache.get(slot, desc, _compute_maps(ds, n, runs, _grids_config(z, resolution, slice_bins), int(every)),
+    got = cache.get(slot, desc, _compute_maps(ds, n, runs, grids, int(every)),
                     _maps_loader(ds, z, poses))
     return dataclasses.replace(got.value, key=got.key, cached=got.cached)
 

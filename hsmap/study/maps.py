@@ -375,7 +375,8 @@ def _compute_maps(ds: SimulatedDataset, n: int, runs: SimulatedRuns | None, grid
     return compute
 
 
-def _compute_recording_maps(ds: Dataset, n: int, runs: tuple, grids_cfg: GridsConfig, deskew: bool, every: int):
+def _compute_recording_maps(ds: Dataset, n: int, runs: tuple, grids_cfg: GridsConfig, deskew: bool, every: int,
+                            max_frames: int | None):
     """The maps' folder writer of a recording: the chain's grids (:func:`hsmap.pipeline.stages.chain_grids`) of
     its frames at the chain's runs' poses, as ``hsmap map`` makes them."""
 
@@ -384,7 +385,7 @@ def _compute_recording_maps(ds: Dataset, n: int, runs: tuple, grids_cfg: GridsCo
         seconds = {"slam2d": run2.seconds, "slam3d": run3.seconds}
         t = time.perf_counter()
         grids = chain_grids(ds.driven_by("scan"), ds.driven_by("cloud"), run2.trajectory, run3.trajectory,
-                            grids_cfg, deskew=deskew, every=every)
+                            grids_cfg, deskew=deskew, every=every, max_frames=max_frames)
         seconds["grids"] = time.perf_counter() - t
         gt = getattr(ds, "groundtruth", None)
         stamps = run2.trajectory.stamps
@@ -445,8 +446,8 @@ def recording_maps(
             "params": params, "slam": [r.key for r in runs]}
     slot = f"{slug(ds.name.split('.')[0])}-rec-seed{int(seed)}-{n}f-{description_digest(desc)[:16]}"
     cache = FolderCache(cache_dir if cache_dir is not None else default_maps_dir())
-    got = cache.get(slot, desc, _compute_recording_maps(ds, n, runs, config.grids, config.slam3d.deskew, int(every)),
-                    _maps_loader(ds, config.grids.slice, "slam"))
+    compute = _compute_recording_maps(ds, n, runs, config.grids, config.slam3d.deskew, int(every), max_frames)
+    got = cache.get(slot, desc, compute, _maps_loader(ds, config.grids.slice, "slam"))
     return dataclasses.replace(got.value, key=got.key, cached=got.cached)
 
 

@@ -161,8 +161,8 @@ def test_wheel_odometry_is_an_edge_of_its_own_between_keyframes():
     wheel = [e for e in slam.graph.edges if e.kind == EdgeKind.WHEEL]
     assert len(tracking) == len(slam.keyframes) - 1 > 10 and [(e.i, e.j) for e in wheel] == [(e.i, e.j) for e in tracking]
     assert_wheel_edges_measure_the_odometry(slam, frames)
-    assert slam.loop_summary()["wheel_edges"] == len(wheel)
-    assert slam.loop_summary()["wheel_edges_down_weighted"] == 0  # nothing slipped: the covariance covers the noise
+    assert slam.keyframe_graph.summary()["wheel_edges"] == len(wheel)
+    assert slam.keyframe_graph.summary()["wheel_edges_down_weighted"] == 0  # nothing slipped: the covariance covers the noise
     # single frames without odometry, keyframes among them: no edge into such a keyframe, and none out of it that
     # measures from an older frame's odometry
     gap = make_noisy_odometry_frames(np.deg2rad(0.05), n=60)

@@ -246,9 +246,9 @@ def run_slam(
     peak = peak_memory_mb()  # the helper process's too
     return SlamResult(slam.trajectory, slam.global_map(), slam.results, slam.config, time.perf_counter() - t0,
                       peak, getattr(dataset, "name", ""), cpu_seconds() - c0,
-                      loop_closure=slam.loop_summary(), tracked=slam.tracked_trajectory, skipped=skipped,
+                      loop_closure=slam.keyframe_graph.summary(), tracked=slam.tracked_trajectory, skipped=skipped,
                       prior=prior_info, input_info=dataset.describe() if isinstance(dataset, Dataset) else {},
-                      odometry=slam.odometry_summary(), smoothing=slam.smoothing_summary(),
+                      odometry=slam.odometry.summary(), smoothing=slam.smoothing_summary(),
                       unsmoothed=slam.graph_trajectory, costs=slam.costs.as_dict())
 
 

@@ -56,6 +56,17 @@ class FrameResult:
     verified: bool = True
     cost: float = float("nan")
 
+    @classmethod
+    def of(cls, frame: Frame, pose: NDArray[np.float64], res: RegistrationResult | None, checked: tuple[bool, bool],
+           keyframe: bool, sizes: tuple[int, int], started: float) -> FrameResult:
+        """The result of ``frame`` tracked at ``pose`` by the registration ``res`` (None: the first frame), whether
+        it was retried and confirmed (``checked``), its scan's and the map's sizes, from ``started`` (a
+        :func:`time.perf_counter` reading)."""
+        fit = (0.0, 1.0, 0.0, 0, 0.0) if res is None else (res.fitness, res.inlier_ratio, res.rmse, res.evaluations,
+                                                             res.cost)
+        return cls(frame.index, float(frame.stamp), pose, float(fit[0]), float(fit[1]), float(fit[2]), int(fit[3]),
+                   time.perf_counter() - started, bool(keyframe), *sizes, *checked, float(fit[4]))
+
 
 def hold_to_floor(graph: PoseGraph, floor: NDArray[np.float64]) -> None:
     """Hold the newest keyframe's height, roll and pitch near the floor's (``floor``, a 6-DOF pose) with
@@ -67,6 +78,17 @@ def hold_to_floor(graph: PoseGraph, floor: NDArray[np.float64]) -> None:
     info[2] = 1.0 / FLOOR_SIGMA[0] ** 2
     info[3:5] = 1.0 / FLOOR_SIGMA[1] ** 2
     graph.add_edge(k, k, level, np.diag(info), EdgeKind.PRIOR, robust=False)
+
+
+def _start_pose(config: SlamConfig, initial_pose: NDArray[np.float64] | None, prior: Trajectory | None
+                ) -> NDArray[np.float64]:
+    """The first frame's pose (``initial_pose``, by default the origin), checked with the prior's dof."""
+    pose = np.zeros(config.dof) if initial_pose is None else np.asarray(initial_pose, dtype=float)
+    if pose.shape != (config.dof,):
+        raise InputError(f"initial_pose must have {config.dof} values, got shape {pose.shape}")
+    if prior is not None and config.dof != 6:
+        raise InputError("a prior trajectory seeds 6-DOF runs only (dof=6)")
+    return pose
 
 
 class HsSlam:
@@ -104,11 +126,7 @@ class HsSlam:
         self.config = cfg = config or SlamConfig()
         self.rng = as_rng(rng)
         loop_rng = self.rng.spawn(1)[0]  # loop closure's own stream: its searches do not shift the tracking's
-        self._initial = np.zeros(cfg.dof) if initial_pose is None else np.asarray(initial_pose, dtype=float)
-        if self._initial.shape != (cfg.dof,):
-            raise InputError(f"initial_pose must have {cfg.dof} values, got shape {self._initial.shape}")
-        if prior is not None and cfg.dof != 6:
-            raise InputError("a prior trajectory seeds 6-DOF runs only (dof=6)")
+        self._initial = _start_pose(cfg, initial_pose, prior)
         self.results: list[FrameResult] = []
         self.frame: Frame | None = None
         self.odometry = OdometryModel(cfg, learn=cfg.learn_odometry and prior is None,
@@ -123,8 +141,10 @@ class HsSlam:
         self.verifier = Verifier(cfg, self.prediction, costs=self.costs)
         self.keyframe_graph = KeyframeGraph(cfg, self.odometry, loop_rng, costs=self.costs)
         self._level_floor = cfg.level_floor and cfg.dof == 6 and prior is not None
-        smooth = cfg.smoothing and cfg.dof == 3 and prior is None
-        self.motions = FrameMotions(cfg, self.odometry, self.costs) if smooth else None  # the smoothing's
+        self._not_smoothed = ("off (slam.smoothing: false)" if not cfg.smoothing else "not applicable: 6-DOF"
+                              if cfg.dof != 3 else "not applicable: seeded by a prior trajectory" if prior is not None
+                              else None)
+        self.motions = None if self._not_smoothed else FrameMotions(cfg, self.odometry, self.costs)
 
     @property
     def graph(self) -> PoseGraph:
@@ -167,11 +187,7 @@ class HsSlam:
         if keyframe:
             # the next frame's target, built in the keyframe's step: the next frame only tracks
             kg.ensure_target(self.poses[-1])
-        fit = (0.0, 1.0, 0.0, 0, 0.0) if res is None else (res.fitness, res.inlier_ratio, res.rmse, res.evaluations,
-                                                             res.cost)
-        result = FrameResult(frame.index, float(frame.stamp), pose, float(fit[0]), float(fit[1]), float(fit[2]),
-                             int(fit[3]), time.perf_counter() - t0, bool(keyframe), len(scan), len(kg.map),
-                             *checked, float(fit[4]))
+        result = FrameResult.of(frame, pose, res, checked, keyframe, (len(scan), len(kg.map)), t0)
         self.results.append(result)
         if not first:
             self.search.record(result.inlier_ratio, result.verified)
@@ -211,20 +227,9 @@ class HsSlam:
             self.motions.smooth(self.graph_trajectory.poses)
 
     # ------------------------------------------------------------------------------------------ results
-    def odometry_summary(self) -> dict:
-        """The learned odometry model (JSON-ready)."""
-        return self.odometry.summary()
-
-    def loop_summary(self) -> dict:
-        """Loop-closure counts (JSON-ready)."""
-        return self.keyframe_graph.summary()
-
     def smoothing_summary(self) -> dict:
         """What the smoothing measured and did (JSON-ready), or why it did nothing."""
-        cfg = self.config
-        return self.motions.summary() if self.motions is not None else {"status": (
-            "off (slam.smoothing: false)" if not cfg.smoothing else "not applicable: 6-DOF" if cfg.dof != 3
-            else "not applicable: seeded by a prior trajectory")}
+        return self.motions.summary() if self.motions is not None else {"status": self._not_smoothed}
 
     def global_map(self) -> VoxelMap:
         """The point map of every keyframe at its current (optimised) pose."""

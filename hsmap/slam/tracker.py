@@ -82,7 +82,8 @@ def hold_to_floor(graph: PoseGraph, floor: NDArray[np.float64]) -> None:
 
 def _start_pose(config: SlamConfig, initial_pose: NDArray[np.float64] | None, prior: Trajectory | None
                 ) -> NDArray[np.float64]:
-    """The first frame's pose (``initial_pose``, by default the origin), checked with the prior's dof."""
+    """The first frame's pose (``initial_pose``, by default the origin); an InputError for a pose of another dof
+    or a prior in a 3-DOF run."""
     pose = np.zeros(config.dof) if initial_pose is None else np.asarray(initial_pose, dtype=float)
     if pose.shape != (config.dof,):
         raise InputError(f"initial_pose must have {config.dof} values, got shape {pose.shape}")

@@ -120,25 +120,11 @@ def _covered(grid, other_geo, T) -> dict:
     return out
 
 
-def run(args: argparse.Namespace) -> int:
+def _checked_band(args: argparse.Namespace) -> tuple[float, float]:
+    """The flags checked (``--resolution``, ``--floor``, ``--seed``, ``--band``); the band's LO and HI."""
     import math
-    from pathlib import Path
-
-    import numpy as np
-    from PIL import Image
 
     from ..errors import InputError
-    from ..io import (
-        atomic_path,
-        prepare_output_dir,
-        refuse_overwriting_input,
-        staged_outputs,
-        sweep_stale_temporaries,
-        write_json,
-    )
-    from ..maps.fusion import FusionConfig, GlobalSearch, global_align, resample_grid
-    from ..maps.grid import read_map, write_map
-    from ..maps.maps3d import band_grid, floor_height, read_map3d
     from .inputs import parse_vector
 
     if args.resolution is not None and not (math.isfinite(args.resolution) and args.resolution > 0):
@@ -150,6 +136,28 @@ def run(args: argparse.Namespace) -> int:
     lo, hi = parse_vector(args.band, 2, "--band")
     if not lo < hi:
         raise InputError(f"--band must be LO,HI with LO < HI, got {args.band!r}")
+    return lo, hi
+
+
+def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    import numpy as np
+    from PIL import Image
+
+    from ..io import (
+        atomic_path,
+        prepare_output_dir,
+        refuse_overwriting_input,
+        staged_outputs,
+        sweep_stale_temporaries,
+        write_json,
+    )
+    from ..maps.fusion import FusionConfig, GlobalSearch, global_align, resample_grid
+    from ..maps.grid import read_map, write_map
+    from ..maps.maps3d import band_grid, floor_height, read_map3d
+
+    lo, hi = _checked_band(args)
     refuse_overwriting_input(args.out, [*_map_files(args.map2d), *_map_files(args.map3d)], OUTPUTS)
     out = prepare_output_dir(args.out, "--out", create=False)
     map2d, points2d = _read_2d(args.map2d, args.resolution)

@@ -21,7 +21,6 @@ per step of the algorithm.
 from __future__ import annotations
 
 import argparse
-from typing import Any
 
 NAME = "segment"
 HELP = "detect doors and segment a 2D map into rooms, with the room/door graph"
@@ -183,35 +182,6 @@ def _band_grid(args: argparse.Namespace, min_passage: float):
     return grid, OccupancyGrid(data, grid.geometry), info
 
 
-def _check_scale(args: argparse.Namespace, grid: Any, cfg: Any) -> None:
-    """:func:`hsmap.rooms.segmentation.check_scale` of the map ``grid`` read from ``args.map`` with the settings
-    ``cfg``; its error names the map and where the resolution came from (a flag, the map's file, a default)."""
-    from pathlib import Path
-
-    from ..errors import EmptyInputError, InputError
-    from ..rooms.segmentation import check_scale
-
-    try:
-        check_scale(grid.free, grid.geometry.resolution, cfg)
-    except EmptyInputError as exc:
-        hint = ("; a point map holds occupied points only: segment its run's folder (hsmap segment DIR) to carve "
-                "the free space along the trajectory") if Path(args.map).suffix.lower() in (".ply", ".pcd") else ""
-        raise EmptyInputError(f"{args.map}: {exc}{hint}") from None
-    except InputError as exc:
-        suffix = Path(args.map).suffix.lower()
-        if args.resolution is not None:
-            src = "--resolution"
-        elif suffix in (".yaml", ".yml"):
-            src = f"{args.map}: 'resolution'"
-        elif suffix in (".bt", ".ot"):  # an OctoMap tree's voxel size is its own: no flag changes it
-            src = f"{args.map}: the tree's voxel size {grid.geometry.resolution:g} m"
-        elif suffix in MAP3D_SUFFIXES:
-            src = "the point map's default voxel size 0.05 (set it with --resolution)"
-        else:
-            src = "the default resolution 0.05 (set it with --resolution)"
-        raise InputError(f"{src}: {exc}") from None
-
-
 def run(args: argparse.Namespace) -> int:
     import dataclasses
     import warnings
@@ -220,7 +190,7 @@ def run(args: argparse.Namespace) -> int:
     from PIL import Image
 
     from ..config import dump_config, load_config
-    from ..errors import HsmapWarning, InputError
+    from ..errors import EmptyInputError, HsmapWarning, InputError
     from ..io import (
         atomic_path,
         prepare_output_dir,
@@ -230,7 +200,7 @@ def run(args: argparse.Namespace) -> int:
         write_json,
     )
     from ..maps.grid import read_map, write_label_image, write_map
-    from ..rooms.segmentation import SegmentationConfig, segment_rooms
+    from ..rooms.segmentation import SegmentationConfig, check_scale, segment_rooms
     from ..rooms.topology import room_graph, topology_listing, write_topology
     from ..viz.colors import segmentation_picture
 
@@ -256,7 +226,25 @@ def run(args: argparse.Namespace) -> int:
                          f"{args.map}")
     else:
         grid = read_map(args.map, args.resolution)
-    _check_scale(args, grid, cfg)
+    try:
+        check_scale(grid.free, grid.geometry.resolution, cfg)
+    except EmptyInputError as exc:
+        hint = ("; a point map holds occupied points only: segment its run's folder (hsmap segment DIR) to carve "
+                "the free space along the trajectory") if Path(args.map).suffix.lower() in (".ply", ".pcd") else ""
+        raise EmptyInputError(f"{args.map}: {exc}{hint}") from None
+    except InputError as exc:
+        suffix = Path(args.map).suffix.lower()
+        if args.resolution is not None:
+            src = "--resolution"
+        elif suffix in (".yaml", ".yml"):
+            src = f"{args.map}: 'resolution'"
+        elif suffix in (".bt", ".ot"):  # an OctoMap tree's voxel size is its own: no flag changes it
+            src = f"{args.map}: the tree's voxel size {grid.geometry.resolution:g} m"
+        elif suffix in MAP3D_SUFFIXES:
+            src = "the point map's default voxel size 0.05 (set it with --resolution)"
+        else:
+            src = "the default resolution 0.05 (set it with --resolution)"
+        raise InputError(f"{src}: {exc}") from None
     seg = segment_rooms(grid, config=cfg, keep_steps=args.steps)
     if seg.n_rooms == 0:
         warnings.warn(f"{args.map}: no room found (free space {int(grid.free.sum())} pixels at "

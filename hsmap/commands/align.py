@@ -120,31 +120,14 @@ def _covered(grid, other_geo, T) -> dict:
     return out
 
 
-def _checked_band(args: argparse.Namespace) -> tuple[float, float]:
-    """The flags checked (``--resolution``, ``--floor``, ``--seed``, ``--band``); the band's LO and HI."""
-    import math
-
-    from ..errors import InputError
-    from .inputs import parse_vector
-
-    if args.resolution is not None and not (math.isfinite(args.resolution) and args.resolution > 0):
-        raise InputError(f"--resolution must be a finite number > 0 of metres, got {args.resolution}")
-    if args.floor is not None and not math.isfinite(args.floor):
-        raise InputError(f"--floor must be a finite height in metres, got {args.floor}")
-    if args.seed < 0:
-        raise InputError(f"--seed must be >= 0, got {args.seed}")
-    lo, hi = parse_vector(args.band, 2, "--band")
-    if not lo < hi:
-        raise InputError(f"--band must be LO,HI with LO < HI, got {args.band!r}")
-    return lo, hi
-
-
 def run(args: argparse.Namespace) -> int:
+    import math
     from pathlib import Path
 
     import numpy as np
     from PIL import Image
 
+    from ..errors import InputError
     from ..io import (
         atomic_path,
         prepare_output_dir,
@@ -156,8 +139,17 @@ def run(args: argparse.Namespace) -> int:
     from ..maps.fusion import FusionConfig, GlobalSearch, global_align, resample_grid
     from ..maps.grid import read_map, write_map
     from ..maps.maps3d import band_grid, floor_height, read_map3d
+    from .inputs import parse_vector
 
-    lo, hi = _checked_band(args)
+    if args.resolution is not None and not (math.isfinite(args.resolution) and args.resolution > 0):
+        raise InputError(f"--resolution must be a finite number > 0 of metres, got {args.resolution}")
+    if args.floor is not None and not math.isfinite(args.floor):
+        raise InputError(f"--floor must be a finite height in metres, got {args.floor}")
+    if args.seed < 0:
+        raise InputError(f"--seed must be >= 0, got {args.seed}")
+    lo, hi = parse_vector(args.band, 2, "--band")
+    if not lo < hi:
+        raise InputError(f"--band must be LO,HI with LO < HI, got {args.band!r}")
     refuse_overwriting_input(args.out, [*_map_files(args.map2d), *_map_files(args.map3d)], OUTPUTS)
     out = prepare_output_dir(args.out, "--out", create=False)
     map2d, points2d = _read_2d(args.map2d, args.resolution)

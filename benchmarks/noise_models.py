@@ -37,7 +37,7 @@ from slam import FREIBURG  # noqa: E402
 
 from hsmap.datasets.open import open_dataset  # noqa: E402
 from hsmap.geometry import compose, relative, wrap_angle  # noqa: E402
-from hsmap.slam import HsSlam, SlamConfig, run_slam  # noqa: E402
+from hsmap.slam import MotionPrediction, SlamConfig, run_slam  # noqa: E402
 from hsmap.study.paths import datasets_dir  # noqa: E402
 
 NU = 3.0
@@ -50,12 +50,12 @@ def record(log: str, seed: int, max_frames: int | None) -> np.ndarray:
     ds = open_dataset(datasets_dir() / "slam2d" / spec["bag"], extrinsic2d=spec["extrinsic2d"])
     frames = [f for _, f in zip(range(max_frames or len(ds)), ds.frames(clouds=False), strict=False)]
     rows: list[list[float]] = []
-    learn = HsSlam._learn_odometry
+    learn = MotionPrediction.first_registration
 
-    def recording(self, frame, res):
-        step = self._odometry_step(frame)
+    def recording(self, res):
+        step = self.odometry.step(self.frame)
         if step is not None and res.information is not None:
-            st, sr = self._model_sigmas(step)
+            st, sr = self.odometry.model_sigmas(step)
             d = relative(compose(self.poses[-1], step), res.pose)
             d[2] = wrap_angle(d[2])
             try:
@@ -63,13 +63,13 @@ def record(log: str, seed: int, max_frames: int | None) -> np.ndarray:
             except np.linalg.LinAlgError:
                 cov = np.full(3, np.nan)
             rows.append([*d, *cov, st * st, st * st, sr * sr])
-        return learn(self, frame, res)
+        return learn(self, res)
 
-    HsSlam._learn_odometry = recording
+    MotionPrediction.first_registration = recording
     try:
         run_slam(frames, SlamConfig(dof=3), rng=seed, progress=False)
     finally:
-        HsSlam._learn_odometry = learn
+        MotionPrediction.first_registration = learn
     return np.asarray(rows)
 
 

@@ -44,8 +44,8 @@ from hsmap.registration.fitness import score  # noqa: E402
 from hsmap.registration.icp import (  # noqa: E402
     RegistrationConfig,
     RegistrationTarget,
-    _default_bounds,
     _subsample,
+    default_bounds,
     harmony_icp,
     refine_icp,
 )
@@ -164,7 +164,7 @@ def m_differential_evolution(src, tgt, rng):
     lookup = target.lookup(cfg.search_threshold)
     dim = src.shape[1]
     sample = _subsample(src, cfg.voxel_size or (0.05 if dim == 2 else 0.1), cfg.max_points, rng)
-    bounds = _default_bounds(np.zeros((1, 3 if dim == 2 else 6)), cfg)
+    bounds = default_bounds(np.zeros((1, 3 if dim == 2 else 6)), cfg)
 
     def f(X):  # vectorized: X has shape (D, S)
         return score(X.T, sample, lookup, cfg.inlier_weight).value

@@ -102,5 +102,5 @@ def test_slam_3dof_on_turning_scans_with_and_without_deskewing(tmp_path):
 
     f = next(iter(ds.frames(clouds=False)))
     plain = dataclasses.replace(f, scan2d=dataclasses.replace(f.scan2d, times=None))
-    assert HsSlam(SlamConfig(dof=3)).deskewed(plain) is plain
-    assert HsSlam(SlamConfig(dof=3, deskew=False)).deskewed(f) is f
+    assert HsSlam(SlamConfig(dof=3)).deskewing.deskewed(plain) is plain
+    assert HsSlam(SlamConfig(dof=3, deskew=False)).deskewing.deskewed(f) is f

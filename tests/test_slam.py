@@ -161,8 +161,8 @@ def test_wheel_odometry_is_an_edge_of_its_own_between_keyframes():
     wheel = [e for e in slam.graph.edges if e.kind == EdgeKind.WHEEL]
     assert len(tracking) == len(slam.keyframes) - 1 > 10 and [(e.i, e.j) for e in wheel] == [(e.i, e.j) for e in tracking]
     assert_wheel_edges_measure_the_odometry(slam, frames)
-    assert slam.loop_summary()["wheel_edges"] == len(wheel)
-    assert slam.loop_summary()["wheel_edges_down_weighted"] == 0  # nothing slipped: the covariance covers the noise
+    assert slam.keyframe_graph.summary()["wheel_edges"] == len(wheel)
+    assert slam.keyframe_graph.summary()["wheel_edges_down_weighted"] == 0  # nothing slipped: the covariance covers the noise
     # single frames without odometry, keyframes among them: no edge into such a keyframe, and none out of it that
     # measures from an older frame's odometry
     gap = make_noisy_odometry_frames(np.deg2rad(0.05), n=60)
@@ -231,14 +231,16 @@ def test_seeds_include_odometry_velocity_and_mean(frames):
     slam = HsSlam(SlamConfig(), rng=0)
     for f in frames[:4]:
         slam.process(f)
-    seeds, half = slam.seeds(frames[4])
+    slam.prediction.start(frames[4])
+    seeds, half = slam.prediction.seeds()
     assert len(seeds) == 4  # previous, constant velocity, odometry, mean of recent
     np.testing.assert_allclose(seeds[0], slam.poses[-1])
     assert half.shape == (3,)
     no_odom = HsSlam(SlamConfig(use_odometry=False), rng=0)
     for f in frames[:4]:
         no_odom.process(f)
-    assert len(no_odom.seeds(frames[4])[0]) == 3
+    no_odom.prediction.start(frames[4])
+    assert len(no_odom.prediction.seeds()[0]) == 3
 
 
 def test_odometry_step_follows_the_readings_however_often_it_is_asked():
@@ -320,7 +322,8 @@ def test_prior_seeds_6dof():
     prior = Trajectory([0.0, 1.0], [[0, 0, 0], [0.5, 0.1, 0.2]])
     slam = HsSlam(SlamConfig(dof=6), prior=prior)
     slam.poses.append(np.zeros(6))
-    seeds, half = slam.seeds(Frame(stamp=1.0, cloud3d=np.zeros((10, 3))))
+    slam.prediction.start(Frame(stamp=1.0, cloud3d=np.zeros((10, 3))))
+    seeds, half = slam.prediction.seeds()
     np.testing.assert_allclose(seeds[0], [0.5, 0.1, 0, 0, 0, 0.2])
     assert half[0] == SlamConfig().prior_translation_range
     with pytest.raises(InputError, match="prior trajectory seeds 6-DOF runs only"):
@@ -328,13 +331,14 @@ def test_prior_seeds_6dof():
     # a cloud between two prior poses (a 2D LiDAR runs faster than the 3D one): their SE(2) interpolation
     wide = HsSlam(SlamConfig(dof=6, sync_tolerance=0.5), prior=prior)
     wide.poses.append(np.zeros(6))
-    seeds, _ = wide.seeds(Frame(stamp=0.5, cloud3d=np.zeros((10, 3))))
+    wide.prediction.start(Frame(stamp=0.5, cloud3d=np.zeros((10, 3))))
+    seeds, _ = wide.prediction.seeds()
     np.testing.assert_allclose(seeds[0][[0, 1, 5]], prior.interpolate([0.5], 0.5)[0][0])
-    assert slam._prior_pose(0.5) is not None  # 0.5 s from both: two poses of the prior's cadence
+    assert slam.prediction.prior_pose(0.5) is not None  # 0.5 s from both: two poses of the prior's cadence
     gap = Trajectory([0.0, 0.1, 0.2, 1.2, 1.3], np.zeros((5, 3)))  # poses every 0.1 s, none in 0.2 .. 1.2 s
     slam = HsSlam(SlamConfig(dof=6), prior=gap)
     slam.poses.append(np.zeros(6))
-    assert slam._prior_pose(0.7) is None and slam._prior_pose(0.15) is not None
+    assert slam.prediction.prior_pose(0.7) is None and slam.prediction.prior_pose(0.15) is not None
 
 
 class _Stamped:
@@ -458,7 +462,8 @@ def test_one_search_box_knob_the_tracking_registration_config():
     assert cfg.registration.translation_range == 0.4  # the tracking box, not harmony_icp's 1.5 m default
     slam = HsSlam(SlamConfig(dof=3, registration=RegistrationConfig(translation_range=0.7)))
     slam.poses.append(np.zeros(3))
-    _, half = slam.seeds(Frame(stamp=0.0, scan2d=None))
+    slam.prediction.start(Frame(stamp=0.0, scan2d=None))
+    _, half = slam.prediction.seeds()
     assert half[0] == half[1] == 0.7
     with pytest.raises(ConfigError, match=r"unknown key\(s\) \['translation_range'\]"):
         from_dict(SlamConfig, {"translation_range": 0.5}, "slam")
@@ -617,7 +622,8 @@ def test_a_retried_registration_stays_in_the_box_it_searched(monkeypatch):
                                                  for y in (-0.8, 0.8)]), slam.config.registration)
     sig = np.array([0.02, np.deg2rad(1.0)])
     predicted = truth.copy()
-    monkeypatch.setattr(slam, "prediction", lambda frame, gate=False, use_prior=True: (predicted.copy(), sig))
+    monkeypatch.setattr(slam.prediction, "predict", lambda gate=False: (predicted.copy(), sig))
+    slam.prediction.start(frame)
     first = harmony_icp(scan, slam.keyframe_graph.target, initial_guesses=[[0.9, 0.0, 0.0]], config=slam.config.registration,
                         rng=1)
     first = dataclasses.replace(first, pose=np.array([0.9, first.pose[1], first.pose[2]]))  # 0.9 m along
@@ -625,14 +631,14 @@ def test_a_retried_registration_stays_in_the_box_it_searched(monkeypatch):
     monkeypatch.setattr(slam_module, "harmony_icp", lambda *a, **k: slid)
     half = np.array([3 * sig[0], 3 * sig[0], 3 * sig[1]])
     # the prediction aligns the scan better than the box's edge (which is 2 mm and 0.03 deg off the walls): kept
-    kept, retried, verified = slam._verify(frame, scan, first)
+    kept, retried, verified = slam.verifier.verify(scan, slam.keyframe_graph.target, first, slam.rng)
     assert retried and verified
     np.testing.assert_allclose(kept.pose, predicted)
     np.testing.assert_allclose(kept.transformation[:2, 2], predicted[:2])
     # a prediction 4 cm off the corridor's centre line aligns it worse: the edge stands, x at the box's edge, y and
     # yaw as the retry found them
     predicted = np.array([0.0, 0.04, 0.0])
-    kept, retried, _ = slam._verify(frame, scan, first)
+    kept, retried, _ = slam.verifier.verify(scan, slam.keyframe_graph.target, first, slam.rng)
     assert retried
     np.testing.assert_allclose(kept.pose, [half[0], 0.002, 0.0005])
     np.testing.assert_allclose(kept.transformation[:2, 2], kept.pose[:2])
@@ -661,6 +667,28 @@ def _corridor_scan(cfg):
     return truth, scan, target
 
 
+class _FixedPrediction:
+    """A motion prediction (:class:`hsmap.slam.prediction.MotionPrediction`) that predicts ``pose`` with ``sigma``
+    (translation, rotation), a tracking box of ``half``, from a prior trajectory (``prior``) or the wheels, whose
+    wheels consent to overrule it (``consent``) and set no step aside."""
+
+    def __init__(self, pose, sigma, half, *, prior, consent=True):
+        self.pose, self.sigma, self.half, self.consent = pose, sigma, half, consent
+        self.prior = Trajectory([0.0], [[0.0, 0.0, 0.0]]) if prior else None
+
+    def predict(self, gate=False):
+        return self.pose.copy(), self.sigma
+
+    def tracking_box(self):
+        return self.half.copy()
+
+    def set_aside(self, res):
+        return False
+
+    def consents(self, res):
+        return self.consent
+
+
 def test_a_prior_s_prediction_stands_against_a_retry_that_slid_beyond_its_gate(monkeypatch):
     """A prediction from a prior trajectory (another SLAM run) does not slip as wheels do. In a corridor the
     retry's refinement slides along the free axis, inside its box (at least two voxels wide) but beyond the
@@ -682,9 +710,8 @@ def test_a_prior_s_prediction_stands_against_a_retry_that_slid_beyond_its_gate(m
     monkeypatch.setattr(slam_module, "harmony_icp", lambda *a, **k: slid)
     half = np.array([0.3, 0.3, np.deg2rad(4.0)])
     for prior, expected in ((True, truth), (False, slid.pose)):
-        verifier = slam_module.Verifier(cfg, prior=prior)
-        kept, retried, verified = verifier.verify(scan, target, first, lambda gate: (truth.copy(), sig), half,
-                                                  np.random.default_rng(0))
+        verifier = slam_module.Verifier(cfg, _FixedPrediction(truth, sig, half, prior=prior))
+        kept, retried, verified = verifier.verify(scan, target, first, np.random.default_rng(0))
         assert retried and verified
         np.testing.assert_allclose(kept.pose, expected, atol=1e-12)
         np.testing.assert_allclose(kept.transformation[:2, 2], expected[:2], atol=1e-12)
@@ -711,10 +738,8 @@ def test_a_prior_s_prediction_is_overruled_only_with_the_wheels_consent(monkeypa
     for retry in (truth, predicted):
         monkeypatch.setattr(slam_module, "harmony_icp", lambda *a, retry=retry, **k: result(retry))
         for consent, expected in ((True, truth), (False, predicted)):
-            verifier = slam_module.Verifier(cfg, prior=True)
-            kept, retried, _ = verifier.verify(scan, target, result(truth), lambda gate: (predicted.copy(), sig),
-                                               half, np.random.default_rng(0),
-                                               overrule=lambda res, consent=consent: consent)
+            verifier = slam_module.Verifier(cfg, _FixedPrediction(predicted, sig, half, prior=True, consent=consent))
+            kept, retried, _ = verifier.verify(scan, target, result(truth), np.random.default_rng(0))
             assert retried
             np.testing.assert_allclose(kept.pose, expected, atol=1e-12)
 
@@ -741,13 +766,19 @@ def test_the_wheels_replace_a_prior_s_step_that_jumped():
     def frame(odometry):
         return Frame(stamp=2.0, cloud3d=np.zeros((10, 3)), odometry=odometry, index=2)
 
+    def contradicted(frame, res):
+        motion.start(frame)
+        motion.first_registration(res)
+        return not motion.use_prior
+
+    motion = slam.prediction
     wheels = frame(np.array([10.5, 0.0, 0.0]))  # the wheels moved 0.5 m, as the robot did
-    assert slam._prior_contradicted(wheels, registered(1.0))
-    np.testing.assert_allclose(slam.prediction(wheels, use_prior=False)[0], [1.0, 0, 0, 0, 0, 0], atol=1e-12)
-    assert not slam._prior_contradicted(wheels, registered(1.2))  # the registration sides with the prior
-    assert not slam._prior_contradicted(frame(np.array([10.7, 0.0, 0.0])), registered(1.0))  # wheels agree
-    assert not slam._prior_contradicted(frame(None), registered(1.0))
-    np.testing.assert_allclose(slam.prediction(wheels)[0], [1.2, 0, 0, 0, 0, 0], atol=1e-12)
+    assert contradicted(wheels, registered(1.0))
+    np.testing.assert_allclose(motion.predict()[0], [1.0, 0, 0, 0, 0, 0], atol=1e-12)  # the wheels predict
+    assert not contradicted(wheels, registered(1.2))  # the registration sides with the prior
+    np.testing.assert_allclose(motion.predict()[0], [1.2, 0, 0, 0, 0, 0], atol=1e-12)
+    assert not contradicted(frame(np.array([10.7, 0.0, 0.0])), registered(1.0))  # wheels agree
+    assert not contradicted(frame(None), registered(1.0))
 
 
 def test_a_registration_overrules_the_prediction_only_on_evidence():
@@ -797,20 +828,20 @@ def test_a_registration_that_explains_little_of_its_scan_cannot_veto_the_predict
     scan = frame_points(frame, 3, 0.1, 30.0, 0.03)
 
     def verify(mapped_to):
-        """``_verify`` with the map holding the corridor's walls up to x = ``mapped_to``, the first registration
+        """The verifier's check with the map holding the corridor's walls up to x = ``mapped_to``, the first registration
         2 m back along it and the retry returning the prediction."""
         slam = HsSlam(SlamConfig(), rng=0)
         xs = np.arange(-15.0, mapped_to, 0.05)
         slam.keyframe_graph.target = RegistrationTarget(np.vstack([np.column_stack([xs, np.full(len(xs), y)]) for y in (-1.0, 1.0)]),
                                           slam.config.registration)
-        monkeypatch.setattr(slam, "prediction",
-                            lambda frame, gate=False, use_prior=True: (truth.copy(), np.array([0.02, 0.02])))
+        monkeypatch.setattr(slam.prediction, "predict", lambda gate=False: (truth.copy(), np.array([0.02, 0.02])))
         found = harmony_icp(scan, slam.keyframe_graph.target, initial_guesses=[truth], config=slam.config.registration, rng=1)
         back = dataclasses.replace(found, pose=np.array([-2.0, 0.0, 0.0]))
         monkeypatch.setattr(slam_module, "harmony_icp", lambda *a, **k: dataclasses.replace(found, pose=truth.copy()))
         fractions = [float(np.isfinite(slam_module.residuals(scan, slam.keyframe_graph.target, p, 0.1)).mean())
                      for p in (back.pose, truth)]
-        return slam._verify(frame, scan, back), fractions
+        slam.prediction.start(frame)
+        return slam.verifier.verify(scan, slam.keyframe_graph.target, back, slam.rng), fractions
 
     (kept, retried, confirmed), (f_back, f_truth) = verify(mapped_to=-3.0)
     assert f_truth + 0.1 < f_back < slam_module.STRICT_MIN_MATCHED  # more matches 2 m back, but under 60 %
@@ -844,14 +875,14 @@ def test_a_registration_that_explains_little_of_its_scan_stays_within_the_learne
         xs = np.arange(-15.0, mapped_to, 0.05)
         slam.keyframe_graph.target = RegistrationTarget(np.vstack([np.column_stack([xs, np.full(len(xs), y)]) for y in (-1.0, 1.0)]),
                                           slam.config.registration)
-        monkeypatch.setattr(slam, "prediction",
-                            lambda frame, gate=False, use_prior=True:
-                            (truth.copy(), (configured if gate else learned).copy()))
+        monkeypatch.setattr(slam.prediction, "predict",
+                            lambda gate=False: (truth.copy(), (configured if gate else learned).copy()))
         found = harmony_icp(scan, slam.keyframe_graph.target, initial_guesses=[truth], config=slam.config.registration, rng=1)
         turned = dataclasses.replace(found, pose=np.array([0.0, 0.06, np.deg2rad(1.8)]))  # inside the wide gate
         monkeypatch.setattr(slam_module, "harmony_icp", lambda *a, **k: dataclasses.replace(found, pose=truth.copy()))
         share = float(np.isfinite(slam_module.residuals(scan, slam.keyframe_graph.target, turned.pose, 0.1)).mean())
-        return slam._verify(frame, scan, turned), share, turned
+        slam.prediction.start(frame)
+        return slam.verifier.verify(scan, slam.keyframe_graph.target, turned, slam.rng), share, turned
 
     (kept, retried, confirmed), share, _ = verify(mapped_to=-3.0)
     assert share < slam_module.STRICT_MIN_MATCHED

@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 from ..errors import DatasetError
 from .frames import Dataset
@@ -76,7 +77,7 @@ def open_dataset(
         ``path`` does not exist, is none of the above, options are given for an input that does not take them,
         or the simulated-dataset reader is not available.
     """
-    from .rosbag import DEFAULT_SYNC_TOLERANCE, OPTION_NAMES
+    from .rosbag import OPTION_NAMES
 
     names = {**OPTION_NAMES, "cloud_rate": "cloud_rate", "scans": "scans", "scan_rate": "scan_rate",
              "times": "times", **(option_names or {})}
@@ -86,11 +87,21 @@ def open_dataset(
     if not (p.is_dir() or p.is_file()):  # a device, pipe or socket (a link to /dev/zero): never ends
         raise DatasetError(f"{p}: not a regular file or a folder{f' (a link to {p.resolve()})' if p.is_symlink() else ''}"
                            "; expected a recording file or folder")
-    given = {"scan_topic": scan_topic, "cloud_topic": cloud_topic, "odom_topic": odom_topic, "base_frame": base_frame,
-             "cloud_rate": cloud_rate, "scans": scans, "scan_rate": scan_rate, "times": times}
-    given = [k for k, v in given.items() if v is not None]
-    tol = DEFAULT_SYNC_TOLERANCE if sync_tolerance is None else sync_tolerance
-    kind = _kind(p)
+    options = {"scan_topic": scan_topic, "cloud_topic": cloud_topic, "odom_topic": odom_topic, "base_frame": base_frame,
+               "cloud_rate": cloud_rate, "scans": scans, "scan_rate": scan_rate, "times": times,
+               "extrinsic2d": extrinsic2d, "extrinsic3d": extrinsic3d, "sync_tolerance": sync_tolerance, "drive": drive}
+    return _reader(p, _kind(p), options, names, progress)
+
+
+def _reader(p: Path, kind: str, options: dict[str, Any], names: Mapping[str, str], progress: bool | None
+            ) -> Dataset:
+    """The reader of ``p``, a ``kind`` of input (:func:`_kind`), with :func:`open_dataset`'s ``options`` (None:
+    not given); an option given for an input that does not take it is a DatasetError naming it by ``names``."""
+    from .rosbag import DEFAULT_SYNC_TOLERANCE
+
+    o = options
+    given = [k for k in (*_BAG_OPTIONS, *_FOLDER_OPTIONS) if o[k] is not None]
+    tol = DEFAULT_SYNC_TOLERANCE if o["sync_tolerance"] is None else o["sync_tolerance"]
 
     def only(allowed: tuple[str, ...]) -> None:
         wrong = [names[k] for k in given if k not in allowed]
@@ -101,16 +112,17 @@ def open_dataset(
         only(_BAG_OPTIONS)
         from .rosbag import RosbagDataset
 
-        return RosbagDataset(p, scan_topic=scan_topic, cloud_topic=cloud_topic, odom_topic=odom_topic,
-                             base_frame=base_frame, sync_tolerance=tol, drive=drive, extrinsic2d=extrinsic2d,
-                             extrinsic3d=extrinsic3d, option_names=names, progress=progress)
+        return RosbagDataset(p, scan_topic=o["scan_topic"], cloud_topic=o["cloud_topic"], odom_topic=o["odom_topic"],
+                             base_frame=o["base_frame"], sync_tolerance=tol, drive=o["drive"],
+                             extrinsic2d=o["extrinsic2d"], extrinsic3d=o["extrinsic3d"], option_names=names,
+                             progress=progress)
     if kind == "point-cloud folder":
         only(_FOLDER_OPTIONS)
         from .clouds import CloudFolderDataset
 
-        return CloudFolderDataset(p, cloud_rate=cloud_rate, scans=scans, scan_rate=scan_rate, sync_tolerance=tol,
-                                  drive=drive, extrinsic2d=extrinsic2d, extrinsic3d=extrinsic3d, times=times,
-                                  option_names=names)
+        return CloudFolderDataset(p, cloud_rate=o["cloud_rate"], scans=o["scans"], scan_rate=o["scan_rate"],
+                                  sync_tolerance=tol, drive=o["drive"], extrinsic2d=o["extrinsic2d"],
+                                  extrinsic3d=o["extrinsic3d"], times=o["times"], option_names=names)
     only(())
     if kind == "simulated dataset folder":
         try:
@@ -124,9 +136,9 @@ def open_dataset(
         from .carmen import CarmenDataset
 
         ds = CarmenDataset(p)
-    for key, value in (("extrinsic2d", extrinsic2d), ("extrinsic3d", extrinsic3d)):
-        if value is not None:
-            ds.override_extrinsics(**{key: value}, source=names.get(key, key))
+    for key in ("extrinsic2d", "extrinsic3d"):
+        if o[key] is not None:
+            ds.override_extrinsics(**{key: o[key]}, source=names.get(key, key))
     return ds
 
 

@@ -40,6 +40,7 @@ __all__ = [
     "RegistrationResult",
     "RegistrationTarget",
     "harmony_icp",
+    "default_bounds",
     "refine_icp",
     "estimate_normals",
     "orient_normals",
@@ -435,7 +436,10 @@ class RegistrationTarget:
         return self._normals
 
 
-def _default_bounds(centres: NDArray[np.float64], cfg: RegistrationConfig) -> NDArray[np.float64]:
+def default_bounds(centres: NDArray[np.float64], cfg: RegistrationConfig) -> NDArray[np.float64]:
+    """The box (dof, 2) that :func:`harmony_icp` searches without ``bounds``: the initial guesses ``centres``
+    (K, dof) widened by the configured ranges (``translation_range``, ``z_range``, ``roll_pitch_range``,
+    ``yaw_range``)."""
     dof = centres.shape[1]
     if dof == 3:
         half = np.array([cfg.translation_range, cfg.translation_range, cfg.yaw_range])
@@ -443,6 +447,9 @@ def _default_bounds(centres: NDArray[np.float64], cfg: RegistrationConfig) -> ND
         half = np.array([cfg.translation_range, cfg.translation_range, cfg.z_range,
                          cfg.roll_pitch_range, cfg.roll_pitch_range, cfg.yaw_range])
     return np.column_stack([centres.min(axis=0) - half, centres.max(axis=0) + half])
+
+
+_default_bounds = default_bounds  # its private name, for the callers that import that
 
 
 def _check_bounds(bounds: ArrayLike, dof: int) -> NDArray[np.float64]:
@@ -739,7 +746,7 @@ def harmony_icp(
             raise InputError("initial_guesses must be finite (no NaN or inf)")
     if bounds is None:
         centres = guesses if guesses is not None else np.zeros((1, dof))
-        b = _default_bounds(centres, cfg)
+        b = default_bounds(centres, cfg)
     else:
         b = _check_bounds(bounds, dof)
 

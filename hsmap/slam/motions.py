@@ -1,5 +1,5 @@
 """The smoothing's inputs (:class:`FrameMotions`): each frame's motion from the previous frame as the wheel
-odometry has it and as its scan matched against the previous frame's scan has it."""
+odometry has it and as its scan matched against the previous frame's scan has it; the smoothing run on them."""
 
 from __future__ import annotations
 
@@ -18,6 +18,7 @@ from .config import SlamConfig
 from .costs import Costs
 from .keyframes import pair_match
 from .odometry import OdometryModel, constrains_xy
+from .smoothing import SmoothingResult, smooth_with_odometry
 
 __all__ = ["FrameMotions", "scan_motions"]
 
@@ -85,6 +86,7 @@ class FrameMotions:
         self._batches: list = []  # per batch, its answer, or (its arguments, the helper's Future) until it comes
         self._reference = False  # whether the previous frame's scan is a reference
         self.seconds = 0.0  # the time spent here, in this process
+        self.result: SmoothingResult | None = None  # the smoothing's (:meth:`smooth`)
 
     def record(self, frame: Frame, scan: NDArray[np.float64], previous_pose: NDArray[np.float64],
                pose: NDArray[np.float64]) -> None:
@@ -141,3 +143,18 @@ class FrameMotions:
         self.seconds += time.perf_counter() - t0
         scan = np.concatenate(self._batches) if self._batches else np.empty((0, 3))
         return (*(np.asarray(rows).reshape(-1, 3) for rows in (self._odometry, self._sigma)), scan)
+
+    def smooth(self, poses: NDArray[np.float64]) -> SmoothingResult:
+        """The trajectory ``poses`` (frames, 3) smoothed with the motions recorded
+        (:func:`hsmap.slam.smoothing.smooth_with_odometry`), kept as :attr:`result`."""
+        odometry, sigma, scan = self.arrays()
+        t0 = time.perf_counter()
+        self.result = smooth_with_odometry(poses, odometry, sigma, scan)
+        self.seconds += time.perf_counter() - t0
+        return self.result
+
+    def summary(self) -> dict:
+        """What the smoothing measured and did (JSON-ready), or that it did not run."""
+        if self.result is None:
+            return {"status": "not run (finish() was not called)"}
+        return self.result.as_dict() | {"seconds": self.seconds}

@@ -15,9 +15,11 @@ from ..geometry import body_covariance_2d, compose, compose_with_covariance_2d, 
 from ..registration.icp import RegistrationResult
 from ..registration.information import constrained_axes
 from .config import SlamConfig
-from .verify import slip_weight
 
-__all__ = ["OdometryModel", "constrains_xy"]
+__all__ = ["OdometryModel", "constrains_xy", "slip_weight", "CHI2_999"]
+
+#: 99.9 % quantiles of chi-square with 3 and 6 degrees of freedom, to 3 decimals: the gate on a prediction
+CHI2_999 = {3: 16.266, 6: 22.458}
 
 
 def constrains_xy(info: NDArray[np.float64] | None, degenerate_ratio: float) -> bool:
@@ -25,6 +27,16 @@ def constrains_xy(info: NDArray[np.float64] | None, degenerate_ratio: float) -> 
     may see walls only)."""
     return (info is not None and bool(np.all(np.isfinite(info)))
             and constrained_axes(info[:2, :2], degenerate_ratio).shape[1] == 2)
+
+
+def slip_weight(d: NDArray[np.float64], info_a: NDArray[np.float64], info_b: NDArray[np.float64]) -> float:
+    """The weight (<= 1) of measurement b where it lies ``d`` (n,) from measurement a: 1 within their joint
+    uncertainty, ``gate / m2`` beyond the chi-square 99.9 % quantile, ``m2`` being d's squared Mahalanobis length
+    under the information of their difference, I_a (I_a + I_b)^-1 I_b."""
+    n = len(d)
+    m2 = float(d @ (info_a @ np.linalg.solve(info_a + info_b + 1e-12 * np.eye(n), info_b)) @ d)
+    gate = CHI2_999[n]
+    return gate / m2 if m2 > gate else 1.0
 
 
 def _distance(a: NDArray[np.float64], b: NDArray[np.float64]) -> float:

@@ -5,9 +5,10 @@ from __future__ import annotations
 
 import time
 import warnings
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -211,45 +212,63 @@ def run_slam(
     t0, c0 = time.perf_counter(), cpu_seconds()  # the helper process's CPU too
     bar = progress_bar(total, unit="scan" if dof == 3 else "cloud", desc=f"HS-SLAM {dof}-DOF", progress=progress)
     source = str(getattr(dataset, "path", "") or getattr(dataset, "name", "") or "the input")
-    skipped: list[dict] = []
-    n_read = 0
     try:
-        for k, frame in enumerate(frames):
-            if max_frames is not None and k >= max_frames:
-                break
-            n_read += 1
-            try:
-                res = slam.process(frame)
-                frame = slam.frame
-            except UnusableFrameError as exc:
-                if strict:
-                    raise UnusableFrameError(f"{source}: {exc}", exc.index, exc.stamp) from None
-                skipped.append({"index": exc.index, "stamp": exc.stamp, "reason": str(exc)})
-                if len(skipped) <= _WARN_SKIPPED:
-                    more = "; later ones are counted in the metrics" if len(skipped) == _WARN_SKIPPED else ""
-                    warnings.warn(f"{source}: {exc}; frame skipped{more}", HsmapWarning, stacklevel=2)
-                bar.update(1)
-                continue
-            if on_frame is not None:
-                on_frame(frame, res, slam)
-            bar.update(1)
+        skipped, n_read = _track(slam, frames, max_frames, bar, on_frame, strict, source)
     finally:
         bar.close()
+    return _finished(slam, dataset, source, skipped, n_read, prior_info, (t0, c0))
+
+
+def _finished(slam: HsSlam, dataset: Dataset | Iterable[Frame], source: str, skipped: list[dict], n_read: int,
+              prior_info: dict, started: tuple[float, float]) -> SlamResult:
+    """The run's result once its ``n_read`` frames are tracked (``slam`` finished), from the clock and the CPU
+    time when it ``started``; an error where no frame was usable, a warning where more than a few were skipped."""
+    t0, c0 = started
     if not slam.poses:
         if skipped:
             raise UnusableFrameError(f"{source}: none of its {n_read} frames could be used; the first: "
                                      f"{skipped[0]['reason']}", skipped[0]["index"], skipped[0]["stamp"])
         raise EmptyInputError("the input has no frames")
     if len(skipped) > _WARN_SKIPPED:
-        warnings.warn(f"{source}: {len(skipped)} of {n_read} frames skipped in all", HsmapWarning, stacklevel=2)
+        warnings.warn(f"{source}: {len(skipped)} of {n_read} frames skipped in all", HsmapWarning, stacklevel=3)
     slam.finish()
     peak = peak_memory_mb()  # the helper process's too
     return SlamResult(slam.trajectory, slam.global_map(), slam.results, slam.config, time.perf_counter() - t0,
                       peak, getattr(dataset, "name", ""), cpu_seconds() - c0,
-                      loop_closure=slam.loop_summary(), tracked=slam.tracked_trajectory, skipped=skipped,
+                      loop_closure=slam.keyframe_graph.summary(), tracked=slam.tracked_trajectory, skipped=skipped,
                       prior=prior_info, input_info=dataset.describe() if isinstance(dataset, Dataset) else {},
-                      odometry=slam.odometry_summary(), smoothing=slam.smoothing_summary(),
+                      odometry=slam.odometry.summary(), smoothing=slam.smoothing_summary(),
                       unsmoothed=slam.graph_trajectory, costs=slam.costs.as_dict())
+
+
+def _track(slam: HsSlam, frames: Iterator[Frame], max_frames: int | None, bar: Any,
+           on_frame: Callable[[Frame, FrameResult, HsSlam], None] | None, strict: bool, source: str
+           ) -> tuple[list[dict], int]:
+    """Process ``frames`` in order, the first ``max_frames`` (``on_frame`` after each, the progress ``bar``
+    advanced); a frame that is unusable (:class:`UnusableFrameError`) stops them with ``strict``, else is skipped
+    with a warning naming ``source``. Returns the skipped frames (index, stamp, reason) and the number read."""
+    skipped: list[dict] = []
+    n_read = 0
+    for k, frame in enumerate(frames):
+        if max_frames is not None and k >= max_frames:
+            break
+        n_read += 1
+        try:
+            res = slam.process(frame)
+            frame = slam.frame
+        except UnusableFrameError as exc:
+            if strict:
+                raise UnusableFrameError(f"{source}: {exc}", exc.index, exc.stamp) from None
+            skipped.append({"index": exc.index, "stamp": exc.stamp, "reason": str(exc)})
+            if len(skipped) <= _WARN_SKIPPED:
+                more = "; later ones are counted in the metrics" if len(skipped) == _WARN_SKIPPED else ""
+                warnings.warn(f"{source}: {exc}; frame skipped{more}", HsmapWarning, stacklevel=3)
+            bar.update(1)
+            continue
+        if on_frame is not None:
+            on_frame(frame, res, slam)
+        bar.update(1)
+    return skipped, n_read
 
 
 def write_slam_outputs(result: SlamResult, out_dir: str | Path) -> dict[str, Path]:

@@ -14,7 +14,7 @@ from ..registration.icp import (
     RegistrationConfig,
     RegistrationResult,
     RegistrationTarget,
-    _default_bounds,
+    default_bounds,
     harmony_icp,
 )
 from .config import SlamConfig
@@ -99,7 +99,7 @@ class SearchBox:
         wide_cfg = replace(cfg.registration, harmony=replace(
             hs, max_iterations=2 * hs.max_iterations, patience=None if hs.patience is None else 2 * hs.patience))
         tried = [res]
-        reach = np.maximum(half, _default_bounds(np.zeros((1, 6)), RegistrationConfig())[:, 1])
+        reach = np.maximum(half, default_bounds(np.zeros((1, 6)), RegistrationConfig())[:, 1])
         for factor in cfg.widen_factors:
             h = np.minimum(half * factor, reach)
             bounds = np.column_stack([guesses.min(0) - h, guesses.max(0) + h])

@@ -162,7 +162,7 @@ def identify_noise(poses: NDArray[np.float64], odometry_motion: NDArray[np.float
 
 
 def _down_weight(m2: NDArray[np.float64], gate: float) -> NDArray[np.float64]:
-    """1 within the chi-square gate, ``gate / m^2`` beyond it (as :func:`hsmap.slam._slip_weight`)."""
+    """1 within the chi-square gate, ``gate / m^2`` beyond it (as :func:`hsmap.slam.odometry.slip_weight`)."""
     return np.where(m2 > gate, gate / np.maximum(m2, 1e-300), 1.0)
 
 
@@ -281,7 +281,7 @@ def smooth_with_odometry(poses: ArrayLike, odometry_motion: ArrayLike, odometry_
     odometry_sigma : array_like of shape (N, 3)
         Row k: the sigmas (x, y, yaw) of that motion. They must not claim the odometry better than it is: an
         odometry taken for exact holds the trajectory to its drift. The model a SLAM run learns
-        (:meth:`hsmap.slam.HsSlam.odometry_sigma`) errs on the loose side (it holds some of the registrations' noise),
+        (:meth:`hsmap.slam.OdometryModel.sigma`) errs on the loose side (it holds some of the registrations' noise),
         which is the safe side; the three-cornered hat's own estimate of the odometry (reported in the result) is a
         small difference of large variances where the odometry is the best of the three sources, and can be 0.
     scan_motion : array_like of shape (N, 3)

@@ -3,7 +3,6 @@ where they disagree, the better-aligned kept, then fused with the prediction by 
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
@@ -14,10 +13,12 @@ from ..registration.icp import RegistrationResult, RegistrationTarget, harmony_i
 from ..registration.information import drop_degenerate
 from .config import SlamConfig
 from .costs import Costs
+from .odometry import slip_weight
 from .posegraph import information_with_floor
+from .prediction import MotionPrediction
 
 __all__ = ["Verifier", "residuals", "within_box", "truncated_residual", "matched_share", "at_least_as_good",
-           "slip_weight", "STRICT_SIGMAS", "STRICT_MIN_POINTS", "STRICT_MIN_MATCHED"]
+           "STRICT_SIGMAS", "STRICT_MIN_POINTS", "STRICT_MIN_MATCHED"]
 
 #: Standard errors by which a registration's residuals must beat the prediction's to overrule it.
 STRICT_SIGMAS = 3.0
@@ -26,11 +27,6 @@ STRICT_MIN_POINTS = 30
 #: Fraction of its scan a registration must match to overrule the prediction (a scan mostly unexplained at either
 #: pose, by a changed or unmapped scene, says little about the pose).
 STRICT_MIN_MATCHED = 0.6
-#: 99.9 % quantiles of chi-square with 3 and 6 degrees of freedom, to 3 decimals: the gate on a prediction
-CHI2_999 = {3: 16.266, 6: 22.458}
-
-#: A prediction: the predicted pose (dof,) and its sigmas (translation, rotation), or None
-Prediction = tuple[NDArray[np.float64], NDArray[np.float64]] | None
 
 
 def residuals(scan: NDArray[np.float64], target: RegistrationTarget, pose: NDArray[np.float64],
@@ -91,83 +87,100 @@ def at_least_as_good(ra: NDArray[np.float64], rb: NDArray[np.float64], dim: int,
     return ma <= 1.2 * mb + 0.002 and fa >= fb - 0.1
 
 
-def slip_weight(d: NDArray[np.float64], info_a: NDArray[np.float64], info_b: NDArray[np.float64]) -> float:
-    """The weight (<= 1) of measurement b where it lies ``d`` (n,) from measurement a: 1 within their joint
-    uncertainty, ``gate / m2`` beyond the chi-square 99.9 % quantile, ``m2`` being d's squared Mahalanobis length
-    under the information of their difference, I_a (I_a + I_b)^-1 I_b."""
-    n = len(d)
-    m2 = float(d @ (info_a @ np.linalg.solve(info_a + info_b + 1e-12 * np.eye(n), info_b)) @ d)
-    gate = CHI2_999[n]
-    return gate / m2 if m2 > gate else 1.0
-
-
 class Verifier:
     """Checks each registration against the motion prediction, and fuses the two.
 
     Parameters
     ----------
     config : SlamConfig
+    prediction : MotionPrediction
+        The prediction of the frame being tracked. A prediction from a prior trajectory (another SLAM run) does not
+        slip as wheels do: a retry that ends beyond its gate must then align the scan clearly better than the
+        prediction itself.
     costs : Costs, optional
         Counts the retries' registrations.
-    prior : bool
-        The predictions come from a prior trajectory (another SLAM run), which does not slip as wheels do: a retry
-        that ends beyond the prediction's gate must then align the scan clearly better than the prediction itself.
     """
 
-    def __init__(self, config: SlamConfig, *, costs: Costs | None = None, prior: bool = False) -> None:
+    def __init__(self, config: SlamConfig, prediction: MotionPrediction, *, costs: Costs | None = None) -> None:
         self.config = config
         self.dim = config.dim
+        self.prediction = prediction
         self.costs = costs if costs is not None else Costs()
-        self.prior = prior
 
     def verify(self, scan: NDArray[np.float64], target: RegistrationTarget, res: RegistrationResult,
-               predict: Callable[[bool], Prediction], half: NDArray[np.float64], rng: np.random.Generator,
-               set_aside: Callable[[RegistrationResult], bool] | None = None,
-               overrule: Callable[[RegistrationResult], bool] | None = None
-               ) -> tuple[RegistrationResult, bool, bool]:
+               rng: np.random.Generator) -> tuple[RegistrationResult, bool, bool]:
         """Check a registration ``res`` of ``scan`` (N, dim) against the prediction; retry around the prediction
         when they disagree.
 
         They disagree where the registration lies further from the prediction than ``verify_sigmas`` of the
-        gate's sigmas (``predict(True)``), or, for a registration that matches less than ``STRICT_MIN_MATCHED``
-        of its scan, of the learned ones (``predict(False)``). The retry searches the box of the prediction's
-        uncertainty (within ``half``, the tracking's box) and the pose that aligns the scan clearly better wins.
-        A registration beyond the gate stands as it is where ``set_aside(res)`` sets the odometry step aside
-        (:meth:`hsmap.slam.odometry.OdometryModel.set_aside`); it overrules the retry only where ``overrule(res)``
-        (default: always; a run seeded by a prior: where the wheels side with it).
+        gate's sigmas (:meth:`MotionPrediction.predict` with ``gate``), or, for a registration that matches less
+        than ``STRICT_MIN_MATCHED`` of its scan, of the learned ones. The retry searches the box of the
+        prediction's uncertainty (within :meth:`MotionPrediction.tracking_box`) and the pose that aligns the scan
+        clearly better wins. A registration beyond the gate stands as it is where it sets the odometry step aside
+        (:meth:`MotionPrediction.set_aside`); it overrules the retry only where the prediction
+        :meth:`~MotionPrediction.consents` (a run seeded by a prior: where the wheels side with it).
 
         Returns the registration to keep, whether it was retried, and whether its pose is confirmed.
         """
-        cfg = self.config
-        pred = predict(True)
+        pred = self.prediction.predict(True)
         if pred is None:
             return res, False, True
         centre, sig = pred
-        d = relative(centre, res.pose)
-        reg = cfg.registration
-
-        def within(s: NDArray[np.float64], d: NDArray[np.float64] = d) -> bool:
-            return bool(np.linalg.norm(d[:2]) <= cfg.verify_sigmas * s[0]
-                        and abs(wrap_angle(d[-1])) <= cfg.verify_sigmas * s[1])
-
-        r_first = None  # the scan's residuals at the first registration, computed once
-        if within(sig):
-            # a registration explaining too little of its scan must stay within the learned model's gate too
-            tight = predict(False)
-            if tight is None or within(tight[1]):
-                return res, False, True
-            r_first = residuals(scan, target, res.pose, reg.threshold)
-            if matched_share(r_first) >= STRICT_MIN_MATCHED:
-                return res, False, True
-            sig = tight[1]
-        elif set_aside is not None and set_aside(res):
+        threshold = self.config.registration.threshold
+        stands, sig, r_first = self._stands(scan, target, res, centre, sig)
+        if stands:
             return res, False, True
-        # retry in a box of the prediction's uncertainty, from the prediction, with a longer search
+        alt, boxed = self._retry(scan, target, centre, sig, rng)
+        if r_first is None:
+            r_first = residuals(scan, target, res.pose, threshold)
+        r_alt = residuals(scan, target, boxed.pose, threshold)
+        alt, r_alt, at_prediction = self._or_prediction(scan, target, alt, boxed, r_alt, centre, sig)
+        # the first registration stands only if it aligns the scan clearly better (the odometry slipped), or,
+        # against the prediction itself, explains it at least twice as well
+        first_matched = matched_share(r_first)
+        if (at_least_as_good(r_first, r_alt, self.dim, strict=True) or (
+                at_prediction and first_matched >= STRICT_MIN_MATCHED
+                and truncated_residual(r_first, threshold) < 0.5 * truncated_residual(r_alt, threshold))
+                ) and self.prediction.consents(res):
+            return res, True, True
+        # a registration that explains too little of its scan cannot veto the prediction either: the scan sees
+        # space the map does not hold
+        return alt, True, first_matched < STRICT_MIN_MATCHED or at_least_as_good(r_alt, r_first, self.dim)
+
+    def _within(self, d: NDArray[np.float64], sig: NDArray[np.float64]) -> bool:
+        """Whether a pose ``d`` from the prediction lies within ``verify_sigmas`` of the sigmas ``sig``."""
+        k = self.config.verify_sigmas
+        return bool(np.linalg.norm(d[:2]) <= k * sig[0] and abs(wrap_angle(d[-1])) <= k * sig[1])
+
+    def _stands(self, scan: NDArray[np.float64], target: RegistrationTarget, res: RegistrationResult,
+                centre: NDArray[np.float64], sig: NDArray[np.float64]
+                ) -> tuple[bool, NDArray[np.float64], NDArray[np.float64] | None]:
+        """Whether the registration ``res`` stands without a retry: within the gate ``sig`` of the prediction
+        ``centre`` (one that matches less than ``STRICT_MIN_MATCHED`` of its scan, within the learned model's gate
+        too), or beyond the gate where it sets the odometry step aside. Returns that, the sigmas of the retry's box
+        and the scan's residuals at ``res`` where they were computed."""
+        d = relative(centre, res.pose)
+        if not self._within(d, sig):
+            return self.prediction.set_aside(res), sig, None
+        # a registration explaining too little of its scan must stay within the learned model's gate too
+        tight = self.prediction.predict(False)
+        if tight is None or self._within(d, tight[1]):
+            return True, sig, None
+        r_first = residuals(scan, target, res.pose, self.config.registration.threshold)
+        return matched_share(r_first) >= STRICT_MIN_MATCHED, tight[1], r_first
+
+    def _retry(self, scan: NDArray[np.float64], target: RegistrationTarget, centre: NDArray[np.float64],
+               sig: NDArray[np.float64], rng: np.random.Generator) -> tuple[RegistrationResult, RegistrationResult]:
+        """A longer search from the prediction ``centre`` in a box of its uncertainty ``sig`` (within the tracking
+        box, at least two scan voxels wide): its result, and that result brought back into the box
+        (:func:`within_box`)."""
+        cfg = self.config
+        reg = cfg.registration
         hs = reg.harmony
         retry_cfg = replace(reg, refine_seeds=1,
                             harmony=replace(hs, max_iterations=2 * hs.max_iterations,
                                             patience=None if hs.patience is None else 2 * hs.patience))
-        half = half.copy()
+        half = self.prediction.tracking_box().copy()
         half[:2] = np.minimum(half[:2], cfg.verify_sigmas * sig[0])
         half[-1] = min(half[-1], cfg.verify_sigmas * sig[1])
         half[:2] = np.maximum(half[:2], 2 * cfg.effective_scan_voxel())
@@ -176,45 +189,34 @@ class Verifier:
         alt = harmony_icp(scan, target, bounds=bounds, initial_guesses=guesses, config=retry_cfg, rng=rng)
         self.costs.registration(alt.evaluations)
         self.costs.add(retries=1)
-        boxed = within_box(alt, centre, half, self.dim)
-        if r_first is None:
-            r_first = residuals(scan, target, res.pose, reg.threshold)
-        r_alt = residuals(scan, target, boxed.pose, reg.threshold)
-        # the prediction itself may stand for the retry: a prior's prediction, which does not slip as wheels do,
-        # wherever the retry ended beyond the gate (sliding along a direction the scan hardly constrains, the box
-        # being at least two voxels wide) without the evidence the first registration needs or without
-        # ``overrule``'s consent; else where the retry slid out of its box (the box's edge is no pose the scan
-        # chose) and the prediction aligns the scan better
-        consents = overrule if overrule is not None else (lambda _: True)
-        out_of_box = boxed is not alt
-        beyond = self.prior and not within(sig, relative(centre, boxed.pose))
-        at_prediction = False
-        if out_of_box or beyond:
-            r_centre = residuals(scan, target, centre, reg.threshold)
-            if beyond:
-                prediction_stands = not (at_least_as_good(r_alt, r_centre, self.dim, strict=True) and consents(boxed))
-            else:
-                prediction_stands = (truncated_residual(r_centre, reg.threshold)
-                                     < truncated_residual(r_alt, reg.threshold))
-            if prediction_stands:
-                boxed, r_alt = replace(alt, pose=centre.copy(), transformation=pose_to_matrix(centre)), r_centre
-                at_prediction = True
-        alt = boxed
-        # the first registration stands only if it aligns the scan clearly better (the odometry slipped), or,
-        # against the prediction itself, explains it at least twice as well
-        first_matched = matched_share(r_first)
-        if (at_least_as_good(r_first, r_alt, self.dim, strict=True) or (
-                at_prediction and first_matched >= STRICT_MIN_MATCHED
-                and truncated_residual(r_first, reg.threshold) < 0.5 * truncated_residual(r_alt, reg.threshold))
-                ) and consents(res):
-            return res, True, True
-        # a registration that explains too little of its scan cannot veto the prediction either: the scan sees
-        # space the map does not hold
-        return alt, True, first_matched < STRICT_MIN_MATCHED or at_least_as_good(r_alt, r_first, self.dim)
+        return alt, within_box(alt, centre, half, self.dim)
 
-    def fuse(self, res: RegistrationResult, pred: Prediction
-             ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-        """The registration fused with the prediction ``pred``, weighted by their information matrices.
+    def _or_prediction(self, scan: NDArray[np.float64], target: RegistrationTarget, alt: RegistrationResult,
+                       boxed: RegistrationResult, r_alt: NDArray[np.float64], centre: NDArray[np.float64],
+                       sig: NDArray[np.float64]) -> tuple[RegistrationResult, NDArray[np.float64], bool]:
+        """The retry (``alt``, ``boxed`` into its box, the scan's residuals ``r_alt`` there) or the prediction
+        ``centre`` standing for it: a prior's prediction, which does not slip as wheels do, wherever the retry
+        ended beyond the gate ``sig`` (sliding along a direction the scan hardly constrains, the box being at least
+        two voxels wide) without the evidence the first registration needs or without the prediction's consent;
+        else where the retry slid out of its box (the box's edge is no pose the scan chose) and the prediction
+        aligns the scan better. Returns the registration, its residuals and whether it is the prediction."""
+        threshold = self.config.registration.threshold
+        out_of_box = boxed is not alt
+        beyond = self.prediction.prior is not None and not self._within(relative(centre, boxed.pose), sig)
+        if not (out_of_box or beyond):
+            return boxed, r_alt, False
+        r_centre = residuals(scan, target, centre, threshold)
+        if beyond:
+            stands = not (at_least_as_good(r_alt, r_centre, self.dim, strict=True) and self.prediction.consents(boxed))
+        else:
+            stands = truncated_residual(r_centre, threshold) < truncated_residual(r_alt, threshold)
+        if not stands:
+            return boxed, r_alt, False
+        return replace(alt, pose=centre.copy(), transformation=pose_to_matrix(centre)), r_centre, True
+
+    def fuse(self, res: RegistrationResult) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """The registration fused with the prediction (:meth:`MotionPrediction.predict`), weighted by their
+        information matrices.
 
         Along a direction the scene does not constrain (a corridor's axis, z where the 3D LiDAR sees walls only)
         the prediction carries the pose; a prediction beyond the chi-square gate (a wheel slip) is down-weighted.
@@ -226,6 +228,7 @@ class Verifier:
         info_reg = (information_with_floor(drop_degenerate(res.information, cfg.degenerate_ratio),
                                            lc.edge_sigma_translation, lc.edge_sigma_rotation)
                     if res.information is not None else np.zeros((cfg.dof, cfg.dof)))
+        pred = self.prediction.predict()
         if pred is None:
             return res.pose, info_reg, info_reg
         centre, sig = pred

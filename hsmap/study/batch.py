@@ -259,6 +259,33 @@ def run_notebooks(
     if not specs:
         raise InputError(f"no study notebooks (NN-name.ipynb) in {notebooks_dir}")
     chosen = select(specs, only)
+    common, per_nb = _notebook_parameters(specs, chosen, parameters, notebook_parameters)
+    out = prepare_output_dir(Path(out_dir).resolve(), "reports folder")
+    batch = _Batch(out, specs, chosen, quick, jobs, environment_info(Path(notebooks_dir).resolve()), log)
+    order = sorted(chosen, key=lambda s: _previous_duration(out, s)) if jobs > 1 else list(chosen)
+    # leftovers of a killed batch (staging folders, temporaries) nobody holds any more
+    sweep_stale_temporaries(out, ["index.html", "index.json", *(s.name for s in specs)])
+    batch.write_index(final=False)
+    progress.stage("notebooks", f"{len(chosen)} to run, {jobs} at a time")
+    try:
+        with progress.describing(batch.status):
+            _run_all(batch, order, common, per_nb, timeout, verify_recordings)
+    except KeyboardInterrupt:
+        batch.interrupted()
+        raise
+    merged = batch.write_index(final=True)
+    return BatchResult(runs=[batch.runs[s.name] for s in chosen], entries=merged, started=batch.started,
+                       duration_s=time.perf_counter() - batch.t0, quick=quick, versions=batch.versions,
+                       index=batch.index_path)
+
+
+def _notebook_parameters(specs: list[NotebookSpec], chosen: list[NotebookSpec],
+                         parameters: Mapping[str, Any] | None,
+                         notebook_parameters: Mapping[str, Mapping[str, Any]] | None
+                         ) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
+    """The parameters for every chosen notebook and for each one (:func:`run_notebooks`' ``parameters`` and
+    ``notebook_parameters``), checked against the names and types the notebooks declare, their relative paths
+    made absolute."""
     common = dict(parameters or {})
     clash = sorted(set(common) & set(STANDARD_PARAMETERS))
     if clash:
@@ -277,112 +304,98 @@ def run_notebooks(
 
     if common or any(per_nb.values()):  # each against the names and types the notebooks declare
         check_parameters({s.name: declared_parameters(s) for s in chosen}, common, per_nb)
-    common = _absolute_paths(common)
-    per_nb = {k: _absolute_paths(v) for k, v in per_nb.items()}
+    return _absolute_paths(common), {k: _absolute_paths(v) for k, v in per_nb.items()}
 
-    out = prepare_output_dir(Path(out_dir).resolve(), "reports folder")
-    versions = environment_info(Path(notebooks_dir).resolve())
-    started = now_text()
-    t0 = time.perf_counter()
-    me = os.getpid()
 
-    entries: dict[str, NotebookRun] = {
-        s.name: NotebookRun(name=s.name, notebook=str(s.path), title=s.title(), status="pending", pid=me)
-        for s in chosen}
-    index_path = out / "index.html"
+def _previous_duration(out: Path, s: NotebookSpec) -> float:
+    """The sort key that runs the longest notebooks first (by the previous run's duration, else the notebook's
+    metadata ``hsmap.expected_seconds``), which keeps a parallel batch short."""
+    prev = _previous_run(out, s)
+    if prev and prev.duration_s:
+        return -prev.duration_s
+    try:
+        meta = json.loads(s.path.read_text(encoding="utf-8")).get("metadata", {})
+        return -float(meta.get("hsmap", {}).get("expected_seconds", 0.0))
+    except (OSError, ValueError, AttributeError):
+        return 0.0
 
-    def write_index(final: bool) -> list[NotebookRun]:
+
+class _Batch:
+    """One batch of notebooks run into ``out``: its entries in the index, the notebooks running and done, the
+    heartbeat's status and the ``log`` lines."""
+
+    def __init__(self, out: Path, specs: list[NotebookSpec], chosen: list[NotebookSpec], quick: bool, jobs: int,
+                 versions: dict, log: Callable[[str], None] | None) -> None:
+        self.out, self.specs, self.chosen, self.quick, self.jobs = out, specs, chosen, quick, jobs
+        self.versions, self.log = versions, log
+        self.started = now_text()
+        self.t0 = time.perf_counter()
+        me = os.getpid()
+        self.entries: dict[str, NotebookRun] = {
+            s.name: NotebookRun(name=s.name, notebook=str(s.path), title=s.title(), status="pending", pid=me)
+            for s in chosen}
+        self.index_path = out / "index.html"
+        self.runs: dict[str, NotebookRun] = {}
+        self.running: dict[str, float] = {}  # notebook -> when it started (monotonic seconds)
+
+    def write_index(self, final: bool) -> list[NotebookRun]:
         """Rewrite the index under the folder's lock, merging what other batches wrote: this batch's entries for
         the notebooks it runs, for the others the newer of the index's entry (unless its batch died) and the
         notebook's run.json."""
-
-        meta = {"started": started, "duration_s": time.perf_counter() - t0, "quick": quick, "jobs": jobs,
-                "final": final, "versions": versions, "ran": [s.name for s in chosen]}
+        out = self.out
+        meta = {"started": self.started, "duration_s": time.perf_counter() - self.t0, "quick": self.quick,
+                "jobs": self.jobs, "final": final, "versions": self.versions, "ran": [s.name for s in self.chosen]}
         with folder_lock(out):
             listed = _read_index(out)
-            ordered = [entries[s.name] if s.name in entries else _latest(out, s, listed.get(s.name)) for s in specs]
-            write_text(index_path, render_index([e.to_dict() for e in ordered], meta))
+            ordered = [self.entries[s.name] if s.name in self.entries else _latest(out, s, listed.get(s.name))
+                       for s in self.specs]
+            write_text(self.index_path, render_index([e.to_dict() for e in ordered], meta))
             write_json(out / "index.json", {**meta, "notebooks": [e.to_dict() for e in ordered]})
         return ordered
 
-    # longest first (by the previous run's duration, else the notebook's metadata hsmap.expected_seconds) keeps
-    # the parallel batch short
-    def previous_duration(s: NotebookSpec) -> float:
-        prev = _previous_run(out, s)
-        if prev and prev.duration_s:
-            return -prev.duration_s
-        try:
-            meta = json.loads(s.path.read_text(encoding="utf-8")).get("metadata", {})
-            return -float(meta.get("hsmap", {}).get("expected_seconds", 0.0))
-        except (OSError, ValueError, AttributeError):
-            return 0.0
-
-    order = sorted(chosen, key=previous_duration) if jobs > 1 else list(chosen)
-    runs: dict[str, NotebookRun] = {}
-    # leftovers of a killed batch (staging folders, temporaries) nobody holds any more
-    sweep_stale_temporaries(out, ["index.html", "index.json", *(s.name for s in specs)])
-    write_index(final=False)
-
-    running: dict[str, float] = {}  # notebook -> when it started (monotonic seconds)
-
-    def notebook_started(name: str) -> None:
-        if name in running or name in runs:
+    def notebook_started(self, name: str) -> None:
+        if name in self.running or name in self.runs:
             return
-        running[name] = time.monotonic()
-        if log is not None:
-            log(f"[{len(runs) + len(running)}/{len(chosen)}] {name}: started")
+        self.running[name] = time.monotonic()
+        if self.log is not None:
+            self.log(f"[{len(self.runs) + len(self.running)}/{len(self.chosen)}] {name}: started")
 
-    def status() -> str:
+    def status(self) -> str:
         now = time.monotonic()
         parts = []
-        for name, since in running.items():
-            cells = cell_progress(out, name)
+        for name, since in self.running.items():
+            cells = cell_progress(self.out, name)
             where = f"cell {min(cells[0] + 1, cells[1])}/{cells[1]}, " if cells and cells[1] else ""
             parts.append(f"{name} ({where}{progress.format_seconds(now - since)})")
-        return f"running {', '.join(parts) or 'nothing'}; {len(runs)} of {len(chosen)} notebooks done"
+        return f"running {', '.join(parts) or 'nothing'}; {len(self.runs)} of {len(self.chosen)} notebooks done"
 
-    def finished(run: NotebookRun) -> None:
-        running.pop(run.name, None)
-        runs[run.name] = entries[run.name] = run
-        write_index(final=False)
-        if log is not None:
-            msg = f"[{len(runs)}/{len(chosen)}] {run.name}: {run.status} in {run.duration_s or 0:.1f} s"
+    def finished(self, run: NotebookRun) -> None:
+        self.running.pop(run.name, None)
+        self.runs[run.name] = self.entries[run.name] = run
+        self.write_index(final=False)
+        if self.log is not None:
+            msg = f"[{len(self.runs)}/{len(self.chosen)}] {run.name}: {run.status} in {run.duration_s or 0:.1f} s"
             if run.status != "ok" and run.error:
                 msg += f": {run.error}"
             for w in run.warnings:
                 msg += f"\n    warning: {w}"
-            log(msg)
+            self.log(msg)
 
-    progress.stage("notebooks", f"{len(chosen)} to run, {jobs} at a time")
-    try:
-        with progress.describing(status):
-            _run_all(order, out, common, per_nb, quick, jobs, timeout, verify_recordings, versions, entries,
-                     started, finished, write_index, on_start=notebook_started)
-    except KeyboardInterrupt:
-        for s in chosen:
-            if s.name not in runs:
-                prev = _previous_run(out, s)
+    def interrupted(self) -> None:
+        """The batch was interrupted: each notebook not done keeps its previous report (with a warning) or is
+        marked interrupted, in the final index."""
+        for s in self.chosen:
+            if s.name not in self.runs:
+                prev = _previous_run(self.out, s)
                 if prev is not None:  # its previous report is still there, untouched
-                    prev.warnings = [*prev.warnings, f"a rerun started {started} was interrupted; this is the "
+                    prev.warnings = [*prev.warnings, f"a rerun started {self.started} was interrupted; this is the "
                                                      "previous run"]
-                    entries[s.name] = prev
+                    self.entries[s.name] = prev
                 else:
-                    entries[s.name] = NotebookRun(name=s.name, notebook=str(s.path), title=s.title(),
-                                                  status="interrupted", error="the run was interrupted")
-                runs[s.name] = entries[s.name]
-        write_index(final=True)
-        raise
-
-    merged = write_index(final=True)
-    return BatchResult(
-        runs=[runs[s.name] for s in chosen],
-        entries=merged,
-        started=started,
-        duration_s=time.perf_counter() - t0,
-        quick=quick,
-        versions=versions,
-        index=index_path,
-    )
+                    self.entries[s.name] = NotebookRun(name=s.name, notebook=str(s.path), title=s.title(),
+                                                       status="interrupted", error="the run was interrupted")
+                self.runs[s.name] = self.entries[s.name]
+        self.write_index(final=True)
 
 
 def _absolute_paths(params: dict[str, Any]) -> dict[str, Any]:
@@ -395,8 +408,10 @@ def _absolute_paths(params: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def _run_all(order, out, common, per_nb, quick, jobs, timeout, verify_recordings, versions, entries, started,
-             finished, write_index, on_start) -> None:
+def _run_all(batch: _Batch, order: list[NotebookSpec], common: dict[str, Any], per_nb: dict[str, dict[str, Any]],
+             timeout: float | None, verify_recordings: bool) -> None:
+    out, quick, jobs, versions, entries = batch.out, batch.quick, batch.jobs, batch.versions, batch.entries
+    started, finished, write_index, on_start = batch.started, batch.finished, batch.write_index, batch.notebook_started
     with tempfile.TemporaryDirectory(prefix="hsmap-kernel-") as kdir:
         write_kernelspec(kdir)
         jupyter_path = os.pathsep.join([kdir] + [p for p in [os.environ.get("JUPYTER_PATH")] if p])

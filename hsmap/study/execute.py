@@ -225,9 +225,8 @@ def execute_notebook(
     """
     lighten_jupyter_imports()
     quiet_papermill_log()
-    import nbformat
-    import papermill
-
+    import nbformat  # noqa: F401 - here: a missing one fails before the staging folder is made
+    import papermill  # noqa: F401
 
     out_dir = Path(out_dir).resolve()
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -242,95 +241,124 @@ def execute_notebook(
     staged_parameters = {**parameters, "out_dir": str(stage)} if "out_dir" in parameters else dict(parameters)
     try:
         t0 = time.perf_counter()
-        for attempt in (1, 2):
-            try:
-                papermill.execute_notebook(
-                    str(spec.path), str(tmp_ipynb), parameters=staged_parameters, kernel_name=kernel_name,
-                    language="python", cwd=str(spec.path.parent), progress_bar=False, log_output=False,
-                    execution_timeout=timeout, kernel_manager_class=_kernel_manager_class(kernel_log),
-                )
-                run.status = "ok"
-            except Exception as exc:  # the notebook failed (or its kernel died): record it, carry on
-                if attempt == 1 and _died_at_start(exc):
-                    # no cell ran: a kernel that could not start (on a busy machine, parallel kernels can race
-                    # for the same ports) gets one more try
-                    run.warnings.append(f"the kernel died before it started ({exc}); started again")
-                    continue
-                run.status = "failed"
-                run.error, run.error_cell = _error_text(exc)
-            break
+        _papermill(run, spec, tmp_ipynb, staged_parameters, kernel_name, timeout, kernel_log)
         run.duration_s = round(time.perf_counter() - t0, 3)
-
-        left = _sweep_temporaries(folder)
-        if left:
-            run.warnings.append(f"temporary files left behind and removed (an output not closed?): {left}")
-        if kernel_log.is_file() and kernel_log.stat().st_size > 0:
-            folder.mkdir(exist_ok=True)
-            os.replace(kernel_log, folder / kernel_log.name)
-            if not run.ok:
-                run.warnings.append(f"the kernel wrote to stderr: {spec.name}/{kernel_log.name}")
-        if folder.is_dir():
-            run.figures = sorted(str(p.relative_to(stage)) for p in folder.rglob("*.png"))
-            run.recordings = sorted(str(p.relative_to(stage)) for p in folder.rglob("*.rrd"))
-        run.metrics = read_metrics(folder / "metrics.json")
-        if run.ok and run.metrics is None:
-            run.warnings.append("the notebook wrote no metrics.json (study.metrics(...))")
-        if run.ok and run.metrics is not None:
-            if run.metrics.get("skipped"):
-                run.status, run.error = "skipped", str(run.metrics["skipped"])
-            for part, why in (run.metrics.get("skipped_parts") or {}).items():
-                run.warnings.append(f"skipped {part}: {why}")
+        _collect_outputs(run, folder, stage, kernel_log)
         if run.recordings and verify_recordings:
-            from ..viz.rerun import rerun_binary, verify_rrd
-
-            if rerun_binary() is None:
-                run.warnings.append("rerun binary not found: recordings not verified")
-            else:
-                for rel in run.recordings:
-                    try:
-                        verify_rrd(stage / rel)
-                    except Exception as exc:
-                        if run.ok:
-                            msg = str(exc).replace(f"{stage / rel}: ", "")
-                            run.status, run.error = "failed", f"recording {rel} does not verify: {msg}"
-            if run.ok:
-                _open_recordings_in_viewer(run, stage, out_dir)  # not published yet: in the staging folder
-
-        # the executed notebook and its HTML, marked with the run's status
-        nb = None
-        if tmp_ipynb.exists() and tmp_ipynb.stat().st_size > 0:
-            try:
-                nb = _retarget(nbformat.read(str(tmp_ipynb), as_version=4), stage, out_dir)
-            except Exception as exc:  # papermill died before writing a whole notebook
-                run.warnings.append(f"executed notebook unreadable: {exc}")
-        if nb is None:
-            nb = nbformat.read(str(spec.path), as_version=4)
-        nb.metadata["hsmap"] = {k: v for k, v in run.to_dict().items() if k != "metrics"}
-        try:
-            html = notebook_to_html(nb, run, versions)
-        except Exception as exc:
-            if run.ok:
-                run.status = "failed"
-                run.error = f"HTML conversion failed: {type(exc).__name__}: {exc}"
-            html = (f"<html><body><h1>{run.name}: FAILED</h1><pre>{escape(run.error or '')}</pre>"
-                    f"<p>HTML conversion failed too: {escape(str(exc))}</p></body></html>")
-        nb.metadata["hsmap"]["status"] = run.status
-        nb.metadata["hsmap"]["error"] = run.error
-        run.ipynb, run.html = f"{spec.name}.ipynb", f"{spec.name}.html"
-        try:
-            with atomic_open(tmp_ipynb, "w", encoding="utf-8") as fh:
-                nbformat.write(nb, fh)
-            write_text(stage / f"{spec.name}.html", html)
-            write_json(folder / "run.json", run.to_dict())
-            _publish(stage, out_dir, spec.name)
-        except OSError as exc:  # name the report where it was to appear, not its staging copy
-            if not isinstance(exc, OutputError):
-                exc = OutputError(f"{out_dir / spec.name}: cannot publish the report ({exc.strerror or exc})")
-            raise OutputError(str(exc).replace(str(stage), str(out_dir))) from None
+            _verify_recordings(run, stage, out_dir)
+        _write_report(run, spec, stage, out_dir, versions)
         return run
     finally:  # published, or interrupted (Ctrl-C) or the machinery failed: no temporary is left behind
         shutil.rmtree(stage, ignore_errors=True)
         os.close(lock_fd)
+
+
+def _papermill(run: NotebookRun, spec: NotebookSpec, tmp_ipynb: Path, parameters: Mapping[str, Any],
+               kernel_name: str, timeout: float | None, kernel_log: Path) -> None:
+    """Execute the notebook with papermill into ``tmp_ipynb`` (the kernel's stderr into ``kernel_log``): ``run``
+    says ``ok``, or ``failed`` with the error; a kernel that died before any cell ran is started once more."""
+    import papermill
+
+    for attempt in (1, 2):
+        try:
+            papermill.execute_notebook(
+                str(spec.path), str(tmp_ipynb), parameters=parameters, kernel_name=kernel_name,
+                language="python", cwd=str(spec.path.parent), progress_bar=False, log_output=False,
+                execution_timeout=timeout, kernel_manager_class=_kernel_manager_class(kernel_log),
+            )
+            run.status = "ok"
+        except Exception as exc:  # the notebook failed (or its kernel died): record it, carry on
+            if attempt == 1 and _died_at_start(exc):
+                # no cell ran: a kernel that could not start (on a busy machine, parallel kernels can race
+                # for the same ports) gets one more try
+                run.warnings.append(f"the kernel died before it started ({exc}); started again")
+                continue
+            run.status = "failed"
+            run.error, run.error_cell = _error_text(exc)
+        break
+
+
+def _collect_outputs(run: NotebookRun, folder: Path, stage: Path, kernel_log: Path) -> None:
+    """What the notebook left in ``folder`` (in the staging folder ``stage``) into ``run``: its figures,
+    recordings and metrics (a skipped notebook, its skipped parts), the kernel's stderr, warnings for temporary
+    files left behind."""
+    left = _sweep_temporaries(folder)
+    if left:
+        run.warnings.append(f"temporary files left behind and removed (an output not closed?): {left}")
+    if kernel_log.is_file() and kernel_log.stat().st_size > 0:
+        folder.mkdir(exist_ok=True)
+        os.replace(kernel_log, folder / kernel_log.name)
+        if not run.ok:
+            run.warnings.append(f"the kernel wrote to stderr: {run.name}/{kernel_log.name}")
+    if folder.is_dir():
+        run.figures = sorted(str(p.relative_to(stage)) for p in folder.rglob("*.png"))
+        run.recordings = sorted(str(p.relative_to(stage)) for p in folder.rglob("*.rrd"))
+    run.metrics = read_metrics(folder / "metrics.json")
+    if run.ok and run.metrics is None:
+        run.warnings.append("the notebook wrote no metrics.json (study.metrics(...))")
+    if run.ok and run.metrics is not None:
+        if run.metrics.get("skipped"):
+            run.status, run.error = "skipped", str(run.metrics["skipped"])
+        for part, why in (run.metrics.get("skipped_parts") or {}).items():
+            run.warnings.append(f"skipped {part}: {why}")
+
+
+def _verify_recordings(run: NotebookRun, stage: Path, out_dir: Path) -> None:
+    """Check the run's recordings (in ``stage``, to be published into ``out_dir``) with rerun's verifier (where
+    its binary is found) and open them in its viewer: the run fails on the first that does not verify or open."""
+    from ..viz.rerun import rerun_binary, verify_rrd
+
+    if rerun_binary() is None:
+        run.warnings.append("rerun binary not found: recordings not verified")
+    else:
+        for rel in run.recordings:
+            try:
+                verify_rrd(stage / rel)
+            except Exception as exc:
+                if run.ok:
+                    msg = str(exc).replace(f"{stage / rel}: ", "")
+                    run.status, run.error = "failed", f"recording {rel} does not verify: {msg}"
+    if run.ok:
+        _open_recordings_in_viewer(run, stage, out_dir)  # not published yet: in the staging folder
+
+
+def _write_report(run: NotebookRun, spec: NotebookSpec, stage: Path, out_dir: Path,
+                  versions: Mapping[str, str] | None) -> None:
+    """The executed notebook and its HTML, marked with the run's status, and ``run.json``, published from
+    ``stage`` into ``out_dir``."""
+    import nbformat
+
+    tmp_ipynb, folder = stage / f"{spec.name}.ipynb", stage / spec.name
+    nb = None
+    if tmp_ipynb.exists() and tmp_ipynb.stat().st_size > 0:
+        try:
+            nb = _retarget(nbformat.read(str(tmp_ipynb), as_version=4), stage, out_dir)
+        except Exception as exc:  # papermill died before writing a whole notebook
+            run.warnings.append(f"executed notebook unreadable: {exc}")
+    if nb is None:
+        nb = nbformat.read(str(spec.path), as_version=4)
+    nb.metadata["hsmap"] = {k: v for k, v in run.to_dict().items() if k != "metrics"}
+    try:
+        html = notebook_to_html(nb, run, versions)
+    except Exception as exc:
+        if run.ok:
+            run.status = "failed"
+            run.error = f"HTML conversion failed: {type(exc).__name__}: {exc}"
+        html = (f"<html><body><h1>{run.name}: FAILED</h1><pre>{escape(run.error or '')}</pre>"
+                f"<p>HTML conversion failed too: {escape(str(exc))}</p></body></html>")
+    nb.metadata["hsmap"]["status"] = run.status
+    nb.metadata["hsmap"]["error"] = run.error
+    run.ipynb, run.html = f"{spec.name}.ipynb", f"{spec.name}.html"
+    try:
+        with atomic_open(tmp_ipynb, "w", encoding="utf-8") as fh:
+            nbformat.write(nb, fh)
+        write_text(stage / f"{spec.name}.html", html)
+        write_json(folder / "run.json", run.to_dict())
+        _publish(stage, out_dir, spec.name)
+    except OSError as exc:  # name the report where it was to appear, not its staging copy
+        if not isinstance(exc, OutputError):
+            exc = OutputError(f"{out_dir / spec.name}: cannot publish the report ({exc.strerror or exc})")
+        raise OutputError(str(exc).replace(str(stage), str(out_dir))) from None
 
 
 def write_kernelspec(root: str | os.PathLike) -> Path:

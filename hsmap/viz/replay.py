@@ -186,40 +186,18 @@ def record_slam_run(
     if int(grid_updates) < 1 or int(path_updates) < 1:
         raise InputError(f"grid_updates and path_updates must be >= 1, got {grid_updates} and {path_updates}")
     dof = run.dof
-    cfg = run.config
     index_of = {int(i): k for k, i in enumerate(run.frame_indices)}
-    key = run.keyframes
-    poses = run.trajectory.poses
-    map_vox = map_voxel or (0.05 if dof == 3 else 0.15)
-    logger = hv.PointMapLogger(rec, block=int(map_block), voxel=map_vox,
-                               z_range=(-0.2, 3.0) if dof == 6 else None, radius=0.02 if dof == 3 else 0.015)
-    logged = 0
     n_frames = len(run.trajectory)
-    geometry = None if grid is None else grid.geometry
     paths = {"estimate": run.trajectory}
     if groundtruth is not None:
         paths["groundtruth"] = groundtruth
     if odometry is not None:
         paths["odometry"] = odometry
-    path_at = {name: _aligned(t, run.trajectory) for name, t in paths.items()}
+    replay = _Replay(rec, run, map_voxel or (0.05 if dof == 3 else 0.15), int(map_block), grid,
+                     {name: _aligned(t, run.trajectory) for name, t in paths.items()}, cloud_voxel, map_z_range)
     grid_every = max(1, -(-n_frames // int(grid_updates)))
     path_every = max(1, -(-n_frames // int(path_updates)))
-    scans, scan_poses, extrinsics = [], [], []
-    grids_logged = 0
     hv.log_legend(rec, _slam_legend(dof, list(paths), grid is not None))
-
-    thin = first_per_voxel  # one point per voxel; the viewer-side thinning then has little left to do
-
-    def log_paths(k: int) -> None:
-        for name, p in path_at.items():
-            upto = p[: k + 1]
-            if len(upto) < 2:
-                continue
-            wide = 1.8 if name == "groundtruth" else 1.0  # under the estimate, which mostly lies on it
-            hv.log_path(rec, name, upto, static=False, radius=wide * (0.04 if dof == 3 else 0.05))
-            if geometry is not None:
-                hv.log_map2d_path(rec, name, upto, geometry, static=False, radius=wide * 1.5)
-
     last = -1
     for f in (dataset.frames(clouds=dof == 6) if isinstance(dataset, Dataset) else iter(dataset)):
         k = index_of.get(int(f.index))
@@ -229,45 +207,95 @@ def record_slam_run(
             continue
         final = k == n_frames - 1
         show = k % int(every) == 0 or final
-        update_grid = geometry is not None and (k % grid_every == 0 or final)
+        update_grid = replay.geometry is not None and (k % grid_every == 0 or final)
         update_path = k % path_every == 0 or final
-        if not (show or key[k] or update_grid or update_path):
+        if not (show or run.keyframes[k] or update_grid or update_path):
             continue
-        if dof == 6 and f.cloud3d is not None:
-            f = dataclasses.replace(f, cloud3d=thin(np.asarray(f.cloud3d, dtype=float), min(cloud_voxel, map_vox)))
-        hv.set_frame_time(rec, k, f.stamp)
-        if show:
-            shown = f if dof == 6 else dataclasses.replace(f, cloud3d=None)
-            hv.log_frame(rec, shown, poses[k], index=k, cloud_voxel=cloud_voxel)
-            logged += 1
-            if geometry is not None:
-                hv.log_map2d_robot(rec, poses[k], geometry)
-                if f.scan2d is not None and dof == 3:
-                    sensor = pose_to_matrix(poses[k]) @ pose_to_matrix(f.extrinsic2d)
-                    hv.log_map2d_points(rec, "scan", transform_points(sensor, f.scan2d.points()), geometry)
-        if key[k]:
-            pts = frame_points(f, dof, cfg.min_range, cfg.max_range)
-            world = thin(transform_points(pose_to_matrix(poses[k]), pts), map_vox)
-            if map_z_range is not None and world.shape[1] == 3:
-                world = world[(world[:, 2] >= map_z_range[0]) & (world[:, 2] <= map_z_range[1])]
-            logger.add(world)
-            if geometry is not None and f.scan2d is not None:
-                scans.append(f.scan2d)
-                scan_poses.append(poses[k][:3] if dof == 3 else poses[k][[0, 1, 5]])
-                extrinsics.append(f.extrinsic2d)
-        if update_grid and scans:
-            g = grid if final else grid_from_scans(scans, np.array(scan_poses), extrinsic=np.array(extrinsics),
-                                                   geometry=geometry)
-            hv.log_occupancy_grid(rec, g.data, geometry, static=False)
-            grids_logged += 1
-        if update_path:
-            log_paths(k)
+        replay.log(k, f, show, update_grid, update_path)
         last = k
-    logger.flush()
+    replay.logger.flush()
     if last >= 0 and last != n_frames - 1:
-        log_paths(last)
-    return {"frames": logged, "map_blocks": logger.blocks, "map_points": logger.points_logged,
-            "grid_updates": grids_logged}
+        replay.log_paths(last)
+    return {"frames": replay.frames, "map_blocks": replay.logger.blocks, "map_points": replay.logger.points_logged,
+            "grid_updates": replay.grids}
+
+
+class _Replay:
+    """What :func:`record_slam_run` logs of a run's frames into ``rec``: each shown frame, the keyframes' points
+    (thinned to ``map_voxel``, in blocks of ``map_block`` keyframes), the growing grid over ``grid``'s geometry
+    and the paths (``path_at``: each path's poses at the run's frames)."""
+
+    def __init__(self, rec: Any, run: Any, map_voxel: float, map_block: int, grid: Any,
+                 path_at: dict[str, np.ndarray], cloud_voxel: float, z_range: tuple[float, float] | None) -> None:
+        self.rec, self.run, self.dof, self.grid, self.path_at = rec, run, run.dof, grid, path_at
+        self.poses = run.trajectory.poses
+        self.map_voxel, self.cloud_voxel, self.z_range = map_voxel, cloud_voxel, z_range
+        self.logger = hv.PointMapLogger(rec, block=map_block, voxel=map_voxel,
+                                        z_range=(-0.2, 3.0) if self.dof == 6 else None,
+                                        radius=0.02 if self.dof == 3 else 0.015)
+        self.geometry = None if grid is None else grid.geometry
+        self.scans, self.scan_poses, self.extrinsics = [], [], []  # the keyframes' 2D scans, for the grid
+        self.frames = self.grids = 0  # logged
+
+    def log(self, k: int, f: Frame, show: bool, update_grid: bool, update_path: bool) -> None:
+        """Frame ``k`` (``f``) at its time: itself where ``show``, its points where it is a keyframe, the grid
+        (``update_grid``) and the paths (``update_path``)."""
+        if self.dof == 6 and f.cloud3d is not None:
+            f = dataclasses.replace(f, cloud3d=first_per_voxel(np.asarray(f.cloud3d, dtype=float),
+                                                               min(self.cloud_voxel, self.map_voxel)))
+        hv.set_frame_time(self.rec, k, f.stamp)
+        if show:
+            self.log_frame(k, f)
+        if self.run.keyframes[k]:
+            self.log_keyframe(k, f)
+        if update_grid and self.scans:
+            self.log_grid(k == len(self.poses) - 1)
+        if update_path:
+            self.log_paths(k)
+
+    def log_frame(self, k: int, f: Frame) -> None:
+        """Frame ``k`` (``f``) at its pose: the robot, its scan and cloud; over the grid, the robot and its scan."""
+        pose = self.poses[k]
+        shown = f if self.dof == 6 else dataclasses.replace(f, cloud3d=None)
+        hv.log_frame(self.rec, shown, pose, index=k, cloud_voxel=self.cloud_voxel)
+        self.frames += 1
+        if self.geometry is not None:
+            hv.log_map2d_robot(self.rec, pose, self.geometry)
+            if f.scan2d is not None and self.dof == 3:
+                sensor = pose_to_matrix(pose) @ pose_to_matrix(f.extrinsic2d)
+                hv.log_map2d_points(self.rec, "scan", transform_points(sensor, f.scan2d.points()), self.geometry)
+
+    def log_keyframe(self, k: int, f: Frame) -> None:
+        """Keyframe ``k``'s points (within ``z_range`` of height) into the map; its 2D scan kept for the grid."""
+        z_range = self.z_range
+        cfg, pose = self.run.config, self.poses[k]
+        pts = frame_points(f, self.dof, cfg.min_range, cfg.max_range)
+        world = first_per_voxel(transform_points(pose_to_matrix(pose), pts), self.map_voxel)
+        if z_range is not None and world.shape[1] == 3:
+            world = world[(world[:, 2] >= z_range[0]) & (world[:, 2] <= z_range[1])]
+        self.logger.add(world)
+        if self.geometry is not None and f.scan2d is not None:
+            self.scans.append(f.scan2d)
+            self.scan_poses.append(pose[:3] if self.dof == 3 else pose[[0, 1, 5]])
+            self.extrinsics.append(f.extrinsic2d)
+
+    def log_grid(self, final: bool) -> None:
+        """The grid of the keyframes' scans so far (at the last frame, the run's own grid)."""
+        g = self.grid if final else grid_from_scans(self.scans, np.array(self.scan_poses),
+                                                    extrinsic=np.array(self.extrinsics), geometry=self.geometry)
+        hv.log_occupancy_grid(self.rec, g.data, self.geometry, static=False)
+        self.grids += 1
+
+    def log_paths(self, k: int) -> None:
+        """Every path up to frame ``k``, in 3D and over the grid."""
+        for name, p in self.path_at.items():
+            upto = p[: k + 1]
+            if len(upto) < 2:
+                continue
+            wide = 1.8 if name == "groundtruth" else 1.0  # under the estimate, which mostly lies on it
+            hv.log_path(self.rec, name, upto, static=False, radius=wide * (0.04 if self.dof == 3 else 0.05))
+            if self.geometry is not None:
+                hv.log_map2d_path(self.rec, name, upto, self.geometry, static=False, radius=wide * 1.5)
 
 
 def _aligned(t: Trajectory, ref: Trajectory) -> np.ndarray:

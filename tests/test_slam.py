@@ -978,3 +978,24 @@ def test_the_yaw_sectors_cover_the_circle_beyond_the_box():
         np.testing.assert_array_equal(s[:5], box[:5])
     box[5] = [-np.pi, np.pi]
     assert SearchBox._yaw_sectors(box) == []
+
+
+def test_a_hand_held_registration_that_passes_the_inlier_check_stands_against_a_failing_retry():
+    """A sensor carried by hand: a registration that matches the recent frames' inlier ratio is kept (confirmed)
+    where the retry around the motion prediction fails that check; a retry that passes it, and every retry of a
+    ground robot (3-DOF, or seeded by a 2D run), stand as the motion check left them."""
+    from hsmap.slam.costs import Costs
+    from hsmap.slam.search import SearchBox
+
+    def box(**kw):
+        b = SearchBox(SlamConfig(dof=kw.pop("dof", 6)), Costs(), **kw)
+        for _ in range(5):
+            b.record(0.8, True)
+        return b
+
+    good, bad, fine = (types.SimpleNamespace(inlier_ratio=r) for r in (0.8, 0.4, 0.78))
+    assert box().settled(good, bad, False) == (good, True)
+    assert box().settled(good, fine, False) == (fine, False)
+    assert box().settled(good, good, False) == (good, False)
+    assert box(prior=True).settled(good, bad, False) == (bad, False)
+    assert box(dof=3).settled(good, bad, False) == (bad, False)

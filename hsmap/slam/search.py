@@ -117,6 +117,17 @@ class SearchBox:
         agree = sum(same_pose(best.pose, r.pose) for r in tried) >= 2
         return best, True, self.passes(best) or agree
 
+    def settled(self, searched: RegistrationResult, checked: RegistrationResult, verified: bool
+                ) -> tuple[RegistrationResult, bool]:
+        """Between the box's registration ``searched`` and the one the motion check kept, ``checked`` (confirmed
+        or not: ``verified``): with :attr:`follows_motion`, a registration that passes the inlier check stands
+        against a retry around the prediction that fails it (the prediction of a sensor carried by hand is
+        weaker evidence than the recent frames' inliers); else ``checked`` as it is."""
+        if (self.follows_motion and checked is not searched and self.passes(searched)
+                and not self.passes(checked)):
+            return searched, True
+        return checked, verified
+
     def _search(self, scan: NDArray[np.float64], target: RegistrationTarget, bounds: NDArray[np.float64],
                 guesses: NDArray[np.float64], config: RegistrationConfig, rng: np.random.Generator
                 ) -> RegistrationResult:

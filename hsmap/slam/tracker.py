@@ -273,7 +273,8 @@ class HsSlam:
             res, widened, matched = self.search.widened(scan, target, res, guesses, half, self.rng)
             self.odometry.learn_bias(frame, res, self.poses[-1])
             use_prior = not self._prior_contradicted(frame, res)
-            res, retried, verified = self._verify(frame, scan, res, use_prior)
+            checked, retried, verified = self._verify(frame, scan, res, use_prior)
+            res, verified = self.search.settled(res, checked, verified)
             retried, verified = retried or widened, verified and (matched or self.search.passes(res))
             if times is not None:
                 res, scan = self._refine_sweep(scan, times, target, res)

@@ -955,3 +955,78 @@ def test_a_handheld_turn_with_roll_is_tracked_without_a_prior():
         d = relative(truth, est)
         assert np.linalg.norm(d[:3]) < 0.05
         assert np.rad2deg(np.abs(wrap_angle(d[3:]))).max() < 1.0
+
+
+def _handheld_run(turn_deg: float, **config) -> tuple[HsSlam, list[np.ndarray]]:
+    """A sensor carried by hand through the room (no odometry, no prior): five smooth steps, then a
+    sweep turned by ``turn_deg`` in yaw with 6 deg of roll."""
+    rng = np.random.default_rng(4)
+    poses = []
+    for i in range(6):
+        turn = 1.0 if i >= 5 else 0.0
+        poses.append(np.array([2.5 + 0.2 * i, 2.0 + 0.05 * i, 1.5 + 0.02 * np.sin(i),
+                               np.deg2rad(6.0) * turn + np.deg2rad(1.0) * np.sin(i), 0.0,
+                               0.1 + 0.03 * i + np.deg2rad(turn_deg) * turn]))
+    frames = [Frame(stamp=float(i), index=i, extrinsic3d=np.zeros(6),
+                    cloud3d=sensor_cloud(room_cloud_3d(3000, viewpoint=p[:3], noise=0.01, rng=rng), p))
+              for i, p in enumerate(poses)]
+    slam = HsSlam(SlamConfig(dof=6, use_odometry=False, **config), rng=0, initial_pose=poses[0])
+    for f in frames:
+        slam.process(f)
+    return slam, poses
+
+
+def test_a_handheld_turn_beyond_the_widest_box_is_found_on_the_yaw_circle():
+    """A 110 deg turn in one sweep lies beyond every widened box around the constant-velocity prediction: the
+    search over the rest of the yaw circle finds it, and every frame is tracked to within 5 cm and 1 deg; without
+    that search the turn is lost."""
+    slam, poses = _handheld_run(110.0)
+    assert slam.results[5].retried and slam.results[5].verified
+    for est, truth in zip(slam.poses, poses, strict=True):
+        d = relative(truth, est)
+        assert np.linalg.norm(d[:3]) < 0.05
+        assert np.rad2deg(np.abs(wrap_angle(d[3:]))).max() < 1.0
+    lost, _ = _handheld_run(110.0, global_search=False)
+    d = relative(poses[5], lost.poses[5])
+    assert np.rad2deg(np.abs(wrap_angle(d[5]))) > 5.0
+
+
+def test_the_yaw_sectors_cover_the_circle_beyond_the_box():
+    """The sectors a box leaves of the yaw circle: contiguous from its upper yaw bound around to its lower one,
+    none wider than the box, the other bounds as the box's; none where the box spans the circle."""
+    from hsmap.slam.search import SearchBox
+
+    box = np.column_stack([-np.ones(6), np.ones(6)])
+    box[5] = [0.2, 0.2 + np.deg2rad(100.0)]
+    sectors = SearchBox._yaw_sectors(box)
+    assert len(sectors) == 3
+    np.testing.assert_allclose(sectors[0][5, 0], box[5, 1])
+    np.testing.assert_allclose(sectors[-1][5, 1], box[5, 0] + 2 * np.pi)
+    for a, b in zip(sectors[:-1], sectors[1:], strict=True):
+        np.testing.assert_allclose(a[5, 1], b[5, 0])
+    for s in sectors:
+        assert s[5, 1] - s[5, 0] <= np.deg2rad(100.0) + 1e-9
+        np.testing.assert_array_equal(s[:5], box[:5])
+    box[5] = [-np.pi, np.pi]
+    assert SearchBox._yaw_sectors(box) == []
+
+
+def test_a_hand_held_registration_that_passes_the_inlier_check_stands_against_a_failing_retry():
+    """A sensor carried by hand: a registration that matches the recent frames' inlier ratio is kept (confirmed)
+    where the retry around the motion prediction fails that check; a retry that passes it, and every retry of a
+    ground robot (3-DOF, or seeded by a 2D run), stand as the motion check left them."""
+    from hsmap.slam.costs import Costs
+    from hsmap.slam.search import SearchBox
+
+    def box(**kw):
+        b = SearchBox(SlamConfig(dof=kw.pop("dof", 6)), Costs(), **kw)
+        for _ in range(5):
+            b.record(0.8, True)
+        return b
+
+    good, bad, fine = (types.SimpleNamespace(inlier_ratio=r) for r in (0.8, 0.4, 0.78))
+    assert box().settled(good, bad, False) == (good, True)
+    assert box().settled(good, fine, False) == (fine, False)
+    assert box().settled(good, good, False) == (good, False)
+    assert box(prior=True).settled(good, bad, False) == (bad, False)
+    assert box(dof=3).settled(good, bad, False) == (bad, False)

@@ -443,3 +443,56 @@ def test_far_matches_that_disagree_are_not_corroborated():
     assert closer.corroborate(first, g) == []
     assert closer.corroborate(fake, g) == []
     assert closer.rejections["far_uncorroborated"] == 2
+
+
+def _room_keyframes_3d(poses):
+    """A pose graph of 6-DOF keyframes at ``poses`` and their sweeps of the synthetic room."""
+    from hsmap.testing import room_cloud_3d, sensor_cloud
+
+    rng = np.random.default_rng(0)
+    g = PoseGraph(6)
+    kfs = []
+    for k, p in enumerate(poses):
+        g.add_node(p)
+        pts = sensor_cloud(room_cloud_3d(3000, viewpoint=p[:3], noise=0.01, rng=rng), p)
+        kfs.append(Keyframe(k, float(k), pts, estimate_normals(pts)))
+    return g, kfs
+
+
+def test_a_hand_held_loop_match_needs_the_recent_inliers_and_a_second_search_that_agrees():
+    """A 6-DOF loop match that passed the checks becomes an edge only if it matches at least ``recent_share`` of
+    the inliers its source matches against the keyframes just before it, and a second search lands within the
+    largest sigma a match may have; each rejection is counted."""
+    import types
+
+    poses = [np.array([2.5 + 0.3 * k, 2.0 + 0.1 * k, 1.5, 0.0, 0.0, 0.1 * k]) for k in range(5)]
+    g, kfs = _room_keyframes_3d(poses)
+    cfg = LoopClosureConfig(submap_keyframes=2, source_keyframes=1, min_separation=1)
+    closer = LoopCloser(cfg, 6, 0.1, recent_share=0.85)
+    source = kfs[4].points
+    reference = closer.recent_inliers(g, kfs, 4, source)
+    assert reference > 0.5
+    match = types.SimpleNamespace(pose=poses[4].copy(), inlier_ratio=reference, evaluations=10)
+    again_same = lambda: match  # noqa: E731
+    assert closer.confirmed(match, g, kfs, 4, source, again_same)
+    weak = types.SimpleNamespace(pose=poses[4].copy(), inlier_ratio=0.8 * reference)
+    assert not closer.confirmed(weak, g, kfs, 4, source, again_same)
+    off = types.SimpleNamespace(pose=poses[4] + np.array([0.2, 0, 0, 0, 0, 0]), evaluations=10)
+    assert not closer.confirmed(match, g, kfs, 4, source, lambda: off)
+    assert closer.rejections == {"recent_inliers": 1, "disagreement": 1}
+    # the keyframes before the source misplaced in the graph: the source matches less of them
+    g.poses[3] = g.poses[3] + np.array([0.3, 0.3, 0.3, 0.0, 0.0, 0.2])
+    g.poses[2] = g.poses[2] + np.array([0.3, 0.3, 0.3, 0.0, 0.0, 0.2])
+    assert closer.recent_inliers(g, kfs, 4, source) < 0.7 * reference
+
+
+def test_only_hand_held_runs_confirm_their_loop_matches():
+    """Loop matches are confirmed (``recent_share``) in 6-DOF runs without a prior only: 2D runs and 6-DOF runs
+    seeded by a 2D run keep their loop closure as it is."""
+    from hsmap.slam import HsSlam
+    from hsmap.trajectory import Trajectory
+
+    assert HsSlam(SlamConfig(dof=6)).keyframe_graph.closer.recent_share == SlamConfig().min_inlier_share
+    assert HsSlam(SlamConfig(dof=3)).keyframe_graph.closer.recent_share is None
+    prior = Trajectory(np.arange(3.0), np.zeros((3, 3)))
+    assert HsSlam(SlamConfig(dof=6), prior=prior).keyframe_graph.closer.recent_share is None

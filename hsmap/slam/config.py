@@ -150,6 +150,10 @@ class SlamConfig:
     widen_factors : tuple of floats
         The search box's half-widths are multiplied by these in turn (1: the same box searched again, longer;
         each search is refined) for a registration that fails the inlier check, until one passes.
+    global_search : bool
+        6-DOF runs without a prior: a registration that fails the inlier check in every widened box is searched
+        over the rest of the yaw circle (:meth:`hsmap.slam.search.SearchBox.widened`), in sectors as wide as the
+        widest box, before it is given up (a turn faster than the motion predicts).
     loop_closure : LoopClosureConfig
         Loop-closure candidates, matching and verification.
     graph : KeyframeGraphConfig
@@ -193,6 +197,7 @@ class SlamConfig:
     motion_window: int = 10
     min_inlier_share: float = 0.85
     widen_factors: tuple[float, ...] = (1.0, 2.0, 4.0)
+    global_search: bool = True
     degenerate_ratio: float = 0.05
     loop_closure: LoopClosureConfig = field(default_factory=LoopClosureConfig)
     graph: KeyframeGraphConfig = field(default_factory=KeyframeGraphConfig)

@@ -94,8 +94,10 @@ class KeyframeGraph:
         self._anchor: list[int] = []  # per frame: the keyframe its pose is expressed in
         self._offset: list[NDArray[np.float64]] = []  # per frame: its pose in that keyframe's frame
         self._tracking_chain: list[NDArray[np.float64]] = []  # per keyframe: the tracking edge's measurement
-        self.closer = (LoopCloser(lc, cfg.dof, cfg.effective_map_voxel(), map_average=cfg.map_average)
-                       if lc.enabled else None)
+        # a sensor carried by hand (6-DOF, no prior): every loop match confirmed before it becomes an edge
+        share = cfg.min_inlier_share if cfg.dof == 6 and not odometry.prior else None
+        self.closer = (LoopCloser(lc, cfg.dof, cfg.effective_map_voxel(), map_average=cfg.map_average,
+                                  recent_share=share) if lc.enabled else None)
         self._path: NDArray[np.float64] | None = None  # graph distances from the newest keyframe
         self._map_stale = False
         self._pending = 0  # loop and pair edges added since the last optimisation

@@ -499,15 +499,20 @@ class LoopCloser:
         Voxel size at which submaps thin their points.
     map_average : bool
         Submaps keep each voxel's mean point (:class:`hsmap.maps.mapping.VoxelMap`), like the tracking map.
+    recent_share : float, optional
+        Confirm every match that passes the checks before it becomes a loop edge (:meth:`confirmed`): it must
+        match at least this share of the inliers that the source matches against the keyframes just before it,
+        and a second search of the same window must agree with it. None: no confirmation.
     """
 
     def __init__(self, config: LoopClosureConfig, dof: int, map_voxel: float, cache_size: int = 48, *,
-                 map_average: bool = False) -> None:
+                 map_average: bool = False, recent_share: float | None = None) -> None:
         self.config = config
         self.dof = dof
         self.dim = 2 if dof == 3 else 3
         self.map_voxel = map_voxel
         self.map_average = map_average
+        self.recent_share = recent_share
         self._cache: OrderedDict[int, tuple[NDArray[np.float64], RegistrationTarget]] = OrderedDict()
         self._cache_size = cache_size
         self._last_try: dict[int, int] = {}
@@ -628,8 +633,53 @@ class LoopCloser:
         res = harmony_icp(source, target, bounds=bounds, initial_guesses=np.asarray(guesses),
                           config=cfg.registration, rng=rng)
         self.registrations, self.evaluations = self.registrations + 1, self.evaluations + res.evaluations
-        return self._checked(res, anchor, newest, predicted, predicted, half,
-                             sides=(source, origins, target) if sides else None)
+        closure = self._checked(res, anchor, newest, predicted, predicted, half,
+                                sides=(source, origins, target) if sides else None)
+        if closure is None or self.recent_share is None:
+            return closure
+        if not self.confirmed(res, graph, keyframes, newest, source,
+                              lambda: harmony_icp(source, target, bounds=bounds, initial_guesses=np.asarray(guesses),
+                                                  config=cfg.registration, rng=rng)):
+            self.accepted -= 1
+            return None
+        return closure
+
+    def recent_inliers(self, graph: PoseGraph, keyframes: list[Keyframe], newest: int,
+                       source: NDArray[np.float64]) -> float | None:
+        """The share of ``source`` (keyframe ``newest``'s frame) within the loop registration's threshold of the
+        ``submap_keyframes`` keyframes before the source's own, at the graph's poses: what a match of this source
+        against a map of its own place reaches. None where no keyframe precedes the source's."""
+        cfg = self.config
+        first = max(0, newest - cfg.source_keyframes + 1)
+        recent = range(max(0, first - cfg.submap_keyframes), first)
+        if not len(recent):
+            return None
+        P = graph.poses
+        vm = keyframe_voxel_map([relative(P[newest], P[k]) for k in recent], keyframes, recent, self.dim,
+                                self.map_voxel, average=self.map_average)
+        threshold = cfg.registration.threshold
+        d, _ = RegistrationTarget(vm.points, cfg.registration, normals=vm.normals).nearest(source, threshold)
+        return float(np.mean(d < threshold * (1 - 1e-6)))
+
+    def confirmed(self, res: RegistrationResult, graph: PoseGraph, keyframes: list[Keyframe], newest: int,
+                  source: NDArray[np.float64], again) -> bool:
+        """Whether a match ``res`` that passed the checks is confirmed (with ``recent_share``): its inlier ratio
+        at least ``recent_share`` times :meth:`recent_inliers`, and a second search (``again()``, the same window
+        searched with the next random numbers) landing within ``max_sigma_translation`` and
+        ``max_sigma_rotation`` of it; else the rejection is counted."""
+        cfg = self.config
+        reference = self.recent_inliers(graph, keyframes, newest, source)
+        if reference is not None and res.inlier_ratio < self.recent_share * reference:
+            self._reject("recent_inliers")
+            return False
+        second = again()
+        self.registrations, self.evaluations = self.registrations + 1, self.evaluations + second.evaluations
+        d = relative(res.pose, second.pose)
+        if not (np.linalg.norm(d[: self.dim]) <= cfg.max_sigma_translation
+                and np.abs(wrap_angle(d[self.dim:])).max() <= cfg.max_sigma_rotation):
+            self._reject("disagreement")
+            return False
+        return True
 
     def _checked(self, res: RegistrationResult, anchor: int, newest: int, predicted: NDArray[np.float64],
                  centre: NDArray[np.float64], half: NDArray[np.float64], prefix: str = "",

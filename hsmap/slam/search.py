@@ -90,8 +90,9 @@ class SearchBox:
         """A registration that fails the inlier check (:meth:`passes`) searched again in boxes of ``half`` times
         each of ``widen_factors`` around ``guesses`` (each half-width at most the larger of ``half``'s and the box
         :func:`hsmap.registration.icp.harmony_icp` searches without a guess), with a longer search, until one
-        passes. Returns the registration that aligns the scan best (point-to-plane cost), whether a search was
-        repeated, and whether the kept one passes the check or two searches agree on it."""
+        passes; where none does, with ``global_search``, the rest of the yaw circle (:meth:`_yaw_sectors`). Returns
+        the registration that aligns the scan best (point-to-plane cost), whether a search was repeated, and
+        whether the kept one passes the check or two searches agree on it."""
         cfg = self.config
         if not self.follows_motion or self.passes(res):
             return res, False, True
@@ -100,15 +101,56 @@ class SearchBox:
             hs, max_iterations=2 * hs.max_iterations, patience=None if hs.patience is None else 2 * hs.patience))
         tried = [res]
         reach = np.maximum(half, default_bounds(np.zeros((1, 6)), RegistrationConfig())[:, 1])
+        bounds = np.column_stack([guesses.min(0), guesses.max(0)])
         for factor in cfg.widen_factors:
             h = np.minimum(half * factor, reach)
             bounds = np.column_stack([guesses.min(0) - h, guesses.max(0) + h])
-            alt = harmony_icp(scan, target, bounds=bounds, initial_guesses=guesses, config=wide_cfg, rng=rng)
-            self.costs.registration(alt.evaluations)
-            self.costs.add(retries=1)
-            tried.append(alt)
-            if self.passes(alt):
+            tried.append(self._search(scan, target, bounds, guesses, wide_cfg, rng))
+            if self.passes(tried[-1]):
                 break
+        if cfg.global_search and not self.passes(tried[-1]):
+            for box in self._yaw_sectors(bounds):
+                centre = guesses.copy()
+                centre[:, 5] = box[5].mean()
+                tried.append(self._search(scan, target, box, centre, wide_cfg, rng))
         best = min(tried, key=lambda r: r.cost)
         agree = sum(same_pose(best.pose, r.pose) for r in tried) >= 2
         return best, True, self.passes(best) or agree
+
+    def settled(self, searched: RegistrationResult, checked: RegistrationResult, verified: bool
+                ) -> tuple[RegistrationResult, bool]:
+        """Between the box's registration ``searched`` and the one the motion check kept, ``checked`` (confirmed
+        or not: ``verified``): with :attr:`follows_motion`, a registration that passes the inlier check stands
+        against a retry around the prediction that fails it (the prediction of a sensor carried by hand is
+        weaker evidence than the recent frames' inliers); else ``checked`` as it is."""
+        if (self.follows_motion and checked is not searched and self.passes(searched)
+                and not self.passes(checked)):
+            return searched, True
+        return checked, verified
+
+    def _search(self, scan: NDArray[np.float64], target: RegistrationTarget, bounds: NDArray[np.float64],
+                guesses: NDArray[np.float64], config: RegistrationConfig, rng: np.random.Generator
+                ) -> RegistrationResult:
+        res = harmony_icp(scan, target, bounds=bounds, initial_guesses=guesses, config=config, rng=rng)
+        self.costs.registration(res.evaluations)
+        self.costs.add(retries=1)
+        return res
+
+    @staticmethod
+    def _yaw_sectors(bounds: NDArray[np.float64]) -> list[NDArray[np.float64]]:
+        """The part of the yaw circle that the box ``bounds`` (6, 2) leaves out, cut into the fewest sectors no
+        wider than the box's yaw span, each a box of its own with ``bounds``' other half-widths; none where the
+        box spans the circle."""
+        lo, hi = bounds[5]
+        width = float(hi - lo)
+        rest = 2 * np.pi - width
+        if rest <= 1e-9 or width <= 0:
+            return []
+        n = int(np.ceil(rest / width - 1e-9))
+        step = rest / n
+        out = []
+        for k in range(n):
+            box = bounds.copy()
+            box[5] = [hi + k * step, hi + (k + 1) * step]
+            out.append(box)
+        return out

@@ -207,7 +207,9 @@ class HsSlam:
         self.costs.registration(res.evaluations)
         res, widened, matched = self.search.widened(scan, target, res, guesses, half, self.rng)
         self.prediction.first_registration(res)
+        searched = res
         res, retried, verified = self.verifier.verify(scan, target, res, self.rng)
+        res, verified = self.search.settled(searched, res, verified)
         checked = (retried or widened, verified and (matched or self.search.passes(res)))
         if times is not None:
             res, scan = self.deskewing.refined(scan, times, target, res)

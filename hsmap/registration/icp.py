@@ -136,9 +136,10 @@ class RegistrationConfig:
     polish_iterations : int
         The final refinement's iterations at most (0: none).
     stop_within_cell : bool
-        Count, for the Harmony Search's ``patience``, only the improvements that move its best pose by more than
-        one cell of the search's distance field (translation; rotation: the angle that moves the sample's typical
-        point by a cell): the fitness cannot tell poses within a cell apart, and the refinement polishes the best.
+        2D: count, for the Harmony Search's ``patience``, only the improvements that move its best pose by more
+        than one cell of the search's distance field (translation; rotation: the angle that moves the sample's
+        typical point by a cell): the fitness cannot tell poses within a cell apart, and the refinement polishes
+        the best. 3D searches, whose field cells are several times coarser, count every improvement.
     """
 
     harmony: HarmonyConfig = field(default_factory=_default_harmony)
@@ -777,7 +778,7 @@ def harmony_icp(
                 return score(X, sample, lookup, cfg.inlier_weight).value
 
         spread = None
-        if cfg.stop_within_cell:
+        if cfg.stop_within_cell and dim == 2:
             cell = lookup.resolution if isinstance(lookup, DistanceField) else max(0.02, tau / 10.0)
             spread = np.full(dof, cell / radius)
             spread[:dim] = cell

@@ -1,11 +1,10 @@
-"""Does limiting BLAS only where hsmap's hot loops run keep them as fast as the old import-time limit?
+"""Does limiting BLAS only where hsmap's hot loops run keep them as fast as a limit for the whole process?
 
-Until issue 11, ``import hsmap`` called ``threadpool_limits(1)`` for the whole host process. Now hsmap takes
-the limit around ``harmony_icp``, ``estimate_normals`` and ``run_slam`` and gives it back (``hsmap._blas``). This
-script times the same workloads, in one process, interleaved round by round, under three settings:
+hsmap takes the limit around ``harmony_icp``, ``estimate_normals`` and ``run_slam`` and gives it back
+(``hsmap._blas``). This script times the same workloads, in one process, interleaved round by round, under three settings:
 
-- ``process``: the old behaviour, BLAS on one thread for the whole process (hsmap's own limit switched off);
-- ``scoped``: the new behaviour, nothing set by the caller, hsmap's limit around its hot loops;
+- ``process``: BLAS on one thread for the whole process (hsmap's own limit switched off);
+- ``scoped``: hsmap's behaviour, nothing set by the caller, hsmap's limit around its hot loops;
 - ``none``: no limit at all (the host's BLAS threads), to show what the limit is for.
 
 Workloads: the registration benchmark's 2D (1081-beam scans, offsets up to 1 m / 45 deg) and 3D (~5,000-point

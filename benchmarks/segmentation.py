@@ -9,7 +9,7 @@ per map and as the mean over maps, beside the number of segments and of ground-t
 
 Methods, in this process, on the same maps:
 - ``critical`` (hsmap default): critical points on the skeleton judged by the narrowing test, and gaps in
-  walls narrow relative to the spaces they join (issue 17);
+  walls narrow relative to the spaces they join;
 - ``narrowing-only``: the previous default, critical points and the narrowing test only (half widths up to
   0.75 m, ratio 0.7): rooms opening onto a corridor through wider gaps are merged with it;
 - ``paper``: the paper's Algorithm 2 as published (band of half door widths 40 +/- 5 cm), same merging of
@@ -19,8 +19,8 @@ Methods, in this process, on the same maps:
 
 Times are wall-clock medians over ``--repeats`` runs of ``segment_rooms`` per map (map already in memory, the
 numba kernels loaded by a first call on a small map), one map at a time, single process. Writes reports/benchmarks/segmentation.json (atomically), the step
-figure of one map (reports/benchmarks/segmentation_steps_<map>.png) and prints the tables, with the targets of
-issue 17 checked for the default method.
+figure of one map (reports/benchmarks/segmentation_steps_<map>.png) and prints the tables, with the targets
+(``TARGETS``) checked for the default method.
 
     .venv/bin/python benchmarks/segmentation.py [--repeats N] [--maps a,b] [--methods critical,paper]
 """
@@ -48,7 +48,7 @@ from hsmap.study.benchmarks import BORMANN_BUILDINGS, room_segmentation_benchmar
 from hsmap.study.paths import datasets_dir  # noqa: E402
 
 NAMES = list(BORMANN_BUILDINGS)
-# issue 17: means over the 15 buildings; times per map
+#: The targets checked: means over the 15 buildings; times per map
 TARGETS = {
     "plain": {"precision": 0.977, "recall": 0.985, "precision_area": 0.95},
     "furnished": {"precision": 0.975, "recall": 0.915, "precision_area": 0.95},
@@ -69,7 +69,7 @@ def run_method(name: str, cfg: SegmentationConfig, folder: Path, maps: list[str]
 
 
 def check_targets(summary: dict) -> dict[str, bool]:
-    """Which of issue 17's acceptance targets a method's summary meets."""
+    """Which of the ``TARGETS`` a method's summary meets."""
     ok = {}
     for kind in ("plain", "furnished"):
         if kind not in summary:
@@ -161,7 +161,7 @@ def main(argv=None) -> int:
                   f"{s['recall_area']:7.3f} {s['segments']:5d}/{s['rooms']:<5d} {s['seconds_median']:6.2f} "
                   f"{s['seconds_max']:6.2f}")
     if "targets_met" in result["methods"].get(methods[0], {}):
-        print(f"\nissue 17 targets, {methods[0]}:")
+        print(f"\ntargets, {methods[0]}:")
         for what, ok in result["methods"][methods[0]]["targets_met"].items():
             print(f"  {'met    ' if ok else 'MISSED '} {what}")
     return 0

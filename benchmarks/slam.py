@@ -138,7 +138,7 @@ def _relations(traj, rel, skip_unmatched: bool) -> dict:
 
 
 def summarise_seeds(runs: list[dict], spec: dict) -> dict:
-    """Mean, sd and worst over the seeds of each relations error; the targets of the loop-closure issue."""
+    """Mean, sd and worst over the seeds of each relations error; the loop closure's targets."""
     out = {}
     for part in ("all", "dt_le_10s", "dt_gt_60s"):
         for q in ("translation_m", "rotation_deg"):

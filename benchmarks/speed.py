@@ -1,14 +1,14 @@
-"""Speed benchmark (issue 15): HS-SLAM at sensor rate, every number measured side by side in one process.
+"""Speed benchmark: HS-SLAM at sensor rate, every number measured side by side in one process.
 
 1. ``3d``: 6-DOF HS-SLAM (seeded by the 2D run, as in the paper) and KISS-ICP on the same simulated 128 x 1024
    clouds (slam-office, seed 1; ``benchmarks/slam.py``'s comparison): median and p95 ms per cloud of both, their
-   ratio (HS-SLAM / KISS-ICP, the issue's target <= 1.0), both methods' errors against the ground truth. Then the
+   ratio (HS-SLAM / KISS-ICP, target <= 1.0), both methods' errors against the ground truth. Then the
    6-DOF run again with 1 and with 2 compute threads (``--threads-compare``), alternated ``--repeats`` times:
    the median ms per cloud of each and the speed-up, and whether the trajectories are identical (they must be).
 2. ``intel``, ``fr079``, ``fr-clinic``: the ``hsmap slam`` command in this process (odometry, loop closure and
    ``slam.rrd`` on, the command line's defaults; fr079 with ``--extrinsic2d -0.04,0,0``), alternated with the
    same command with ``--no-recording``, ``--repeats`` times each: the command's wall time (reading the bag,
-   SLAM, recording, writing), the real-time factor (log duration / wall time; the issue's target >= 40x with
+   SLAM, recording, writing), the real-time factor (log duration / wall time; target >= 40x with
    the recording on), and the recording's share of the wall time (the target <= 10 %).
 
 Every run records ``os.getloadavg()`` beside it: the machine is shared, so only ratios within one run mean much.

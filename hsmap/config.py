@@ -8,12 +8,13 @@ import inspect
 import os
 import types
 import typing
+import warnings
 from pathlib import Path
 from typing import Any, TypeVar
 
 import yaml
 
-from .errors import ConfigError, InputError
+from .errors import ConfigError, HsmapWarning, InputError
 from .io import to_plain, write_text
 from .limits import load_yaml, quote, read_bounded
 
@@ -69,6 +70,39 @@ def _check_type(value: Any, hint: Any, where: str) -> None:
         raise ConfigError(f"{where} must be a number, got NaN")
 
 
+def _moved_keys(cls: type, data: dict[str, Any], where: str) -> dict[str, Any]:
+    """``data`` with each key that ``cls.MOVED_KEYS`` maps (dotted path -> dotted path) read at its new place,
+    with a warning; both places given is an error. ``data`` itself is left as it is."""
+    for old, new in getattr(cls, "MOVED_KEYS", {}).items():
+        *old_parents, old_key = old.split(".")
+        node = data
+        for part in old_parents:
+            node = node.get(part) if isinstance(node, dict) else None
+        if not isinstance(node, dict) or old_key not in node:
+            continue
+        value = node[old_key]
+        data = _set_path(_set_path(data, old.split("."), None, remove=True), new.split("."), value, where)
+        warnings.warn(f"{where}.{old} is read as {where}.{new}; write it there", HsmapWarning, stacklevel=3)
+    return data
+
+
+def _set_path(data: dict[str, Any], path: list[str], value: Any, where: str = "", remove: bool = False
+              ) -> dict[str, Any]:
+    """A copy of ``data`` with ``path`` set to ``value`` (``remove``: taken out), copying the mappings on the way."""
+    out = dict(data)
+    if len(path) == 1:
+        if remove:
+            out.pop(path[0], None)
+        elif path[0] in out:
+            raise ConfigError(f"{where}.{path[0]} is given twice, under its old and its new name")
+        else:
+            out[path[0]] = value
+        return out
+    child = out.get(path[0])
+    out[path[0]] = _set_path(child if isinstance(child, dict) else {}, path[1:], value, f"{where}.{path[0]}", remove)
+    return out
+
+
 def from_dict(cls: type[T], data: dict[str, Any] | None, where: str = "config") -> T:
     """Build dataclass ``cls`` from ``data``; unknown keys raise :class:`ConfigError` naming them, and so do values
     of the wrong kind (text where a number is expected, ...)."""
@@ -76,6 +110,7 @@ def from_dict(cls: type[T], data: dict[str, Any] | None, where: str = "config") 
         return cls()
     if not isinstance(data, dict):
         raise ConfigError(f"{where}: expected a mapping of {cls.__name__} fields, got {type(data).__name__}")
+    data = _moved_keys(cls, data, where)
     fields = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
     hints = typing.get_type_hints(cls)
     odd = [k for k in data if not isinstance(k, str)]

@@ -4,28 +4,9 @@ what it takes (exit 2), or the right answer."""
 
 from __future__ import annotations
 
-import contextlib
-import io
-import warnings
-
 import pytest
-
-from hsmap.cli import main
-
-
-def run_cli(*argv) -> tuple[int, str, str]:
-    """``hsmap ARGV`` in this process: exit status, stdout and stderr."""
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err), warnings.catch_warnings():
-        warnings.simplefilter("always")
-        code = main([str(a) for a in argv])
-    return code, out.getvalue(), err.getvalue()
-
-
-def error_line(err: str) -> str:
-    lines = [line for line in err.splitlines() if not line.startswith("hsmap: warning:")]
-    assert len(lines) == 1 and lines[0].startswith("hsmap: error: "), err[:2000]
-    return lines[0][len("hsmap: error: "):]
+from _cli import error_line
+from _cli import run_cli_out as run_cli
 
 
 @pytest.mark.parametrize("section, headers", [

@@ -4,35 +4,18 @@ wrong result reported as a success."""
 
 from __future__ import annotations
 
-import contextlib
-import io
 import os
 import time
-import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
+from _cli import error_line, run_cli
 from _worlds import two_rooms
-
-from hsmap.cli import main
 
 octomap = pytest.importorskip("octomap")
 
 
-def run_cli(*argv) -> tuple[int, str]:
-    """``hsmap ARGV`` in this process: exit status and stderr."""
-    err = io.StringIO()
-    with contextlib.redirect_stderr(err), warnings.catch_warnings():
-        warnings.simplefilter("always")
-        code = main([str(a) for a in argv])
-    return code, err.getvalue()
-
-
-def error_line(err: str) -> str:
-    lines = [line for line in err.splitlines() if not line.startswith("hsmap: warning:")]
-    assert len(lines) == 1 and lines[0].startswith("hsmap: error: "), err[:2000]
-    return lines[0][len("hsmap: error: "):]
 
 
 @pytest.fixture(scope="module")

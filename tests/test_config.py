@@ -89,3 +89,18 @@ def test_config_show_prints_a_section_and_refuses_an_unknown_one(capsys):
     assert "  slice: [1.7, 1.8]\n" in out and "  resolution: 0.05\n" in out
     assert main(["config", "show", "slams"]) == 2
     assert "no section 'slams'" in capsys.readouterr().err
+
+
+def test_the_loop_search_settings_are_read_from_their_earlier_place_with_a_warning(tmp_path):
+    from hsmap.errors import HsmapWarning
+    from hsmap.slam.config import SlamConfig
+
+    data = {"graph": {"search_every": 3, "far_every": 7, "pair_edges": 2}}
+    with pytest.warns(HsmapWarning, match=r"slam\.graph\.(search|far)_every is read as slam\.loop_closure\.\1_every"):
+        cfg = from_dict(SlamConfig, data, "slam")
+    assert (cfg.loop_closure.search_every, cfg.loop_closure.far_every, cfg.graph.pair_edges) == (3, 7, 2)
+    assert data == {"graph": {"search_every": 3, "far_every": 7, "pair_edges": 2}}  # the caller's mapping unchanged
+    with pytest.raises(ConfigError, match=r"slam\.loop_closure\.far_every is given twice"):
+        from_dict(SlamConfig, {"graph": {"far_every": 3}, "loop_closure": {"far_every": 2}}, "slam")
+    dump_config(cfg, tmp_path / "slam.yaml")
+    assert load_config(SlamConfig, tmp_path / "slam.yaml") == cfg

@@ -6,35 +6,14 @@ result. The property-based search over configuration files and map YAMLs is in `
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 import struct
-import warnings
 import zlib
 from pathlib import Path
 
 import numpy as np
 import pytest
-
-from hsmap.cli import main
-
-
-def run_cli(*argv: str) -> tuple[int, str]:
-    """``hsmap ARGV`` in this process: exit status and stderr."""
-    err = io.StringIO()
-    with contextlib.redirect_stderr(err), warnings.catch_warnings():
-        warnings.simplefilter("always")
-        code = main([str(a) for a in argv])
-    return code, err.getvalue()
-
-
-def error_line(err: str) -> str:
-    """The one ``hsmap: error:`` line of ``err`` (warnings aside), at most 1000 characters after the prefix."""
-    lines = [line for line in err.splitlines() if not line.startswith("hsmap: warning:")]
-    assert len(lines) == 1 and lines[0].startswith("hsmap: error: "), err[:2000]
-    assert len(lines[0]) <= 1000 + len("hsmap: error: ")
-    return lines[0][len("hsmap: error: "):]
+from _cli import error_line, run_cli
 
 
 def alias_bomb(levels: int, key: str = "odometry_sigma") -> str:

@@ -170,8 +170,8 @@ def test_compiled_harmony_rounds_match_the_python_loop(rng, dim, variant, spread
 def test_parallel_fitness_is_the_same_for_any_number_of_threads(rng, dim):
     """Harmony rounds large enough to be scored in parallel (batch x points above the kernel's threshold) give
     the same search, bit for bit, on one thread and on two: each harmony is summed by one thread."""
-    from hsmap import _kernels
     from hsmap._threads import using_threads
+    from hsmap.registration import _kernels
     from hsmap.registration.fitness import FieldObjective
     from hsmap.registration.harmony import HarmonyConfig, harmony_search
 

@@ -11,7 +11,6 @@ of CPU in all.
 from __future__ import annotations
 
 import contextlib
-import io
 import json
 import re
 import warnings
@@ -20,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from _cli import run_cli
 from PIL import Image
 
 from hsmap.cli import main
@@ -29,14 +29,6 @@ from hsmap.trajectory import read_tum
 
 pytest.importorskip("open3d")
 
-
-def run_cli(*argv: str) -> tuple[int, str]:
-    """``hsmap ARGV`` in this process: exit status and stderr (warnings printed as the command prints them)."""
-    err = io.StringIO()
-    with contextlib.redirect_stderr(err), warnings.catch_warnings():
-        warnings.simplefilter("always")
-        code = main(list(argv))
-    return code, err.getvalue()
 
 
 @pytest.fixture(scope="module")
@@ -183,6 +175,7 @@ def test_map_failing_midway_keeps_the_stages_done_and_the_previous_outputs(recor
     import shutil
 
     import hsmap.pipeline.chain
+    import hsmap.pipeline.stages
     import hsmap.rooms.segmentation
 
     bag, done, _ = recording
@@ -199,12 +192,12 @@ def test_map_failing_midway_keeps_the_stages_done_and_the_previous_outputs(recor
                 raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), "rooms.npz")
             return real(*a, **k)
 
-        monkeypatch.setattr(hsmap.pipeline.chain, "segment_rooms", segment_rooms)
+        monkeypatch.setattr(hsmap.pipeline.stages, "segment_rooms", segment_rooms)
     else:  # the figures, after the trajectories, grids, rooms and point maps were written
-        def figures(figdir, *a, **k):
+        def figures(save, *a, **k):
             assert {"trajectory2d.tum", "slice.yaml", "rooms.png", "map3d.ply"} <= {p.name for p in
-                                                                                   figdir.parent.iterdir()}
-            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(figdir / "trajectories.png"))
+                                                                                   save.figdir.parent.iterdir()}
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(save.figdir / "trajectories.png"))
 
         monkeypatch.setattr(hsmap.pipeline.chain, "_figures", figures)
     args = ("map", str(bag.path), "--out", str(out), "--sync-tolerance", "0.2", "--quiet", "--no-recording")
@@ -390,21 +383,24 @@ def test_map_config_file_sets_every_stage_and_flags_override_it(tiny_bag, tmp_pa
     import hsmap.pipeline
 
     seen = {}
-    monkeypatch.setattr(hsmap.pipeline, "map_recording", lambda dataset, out, **kw: seen.update(kw) or {})
+    monkeypatch.setattr(hsmap.pipeline, "map_recording", lambda dataset, out, config, **kw: seen.update(config=config)
+                        or {})
     cfg = tmp_path / "chain.yaml"
     cfg.write_text(yaml.safe_dump({"slam2d": {"keyframe_distance": 0.4}, "slam3d": {"use_odometry": False},
                                    "grids": {"resolution": 0.1, "slice": [1.5, 1.6]},
                                    "segmentation": {"method": "paper"}}))
     code, err = run_cli("map", str(tiny_bag.path), "--out", str(tmp_path / "o"), "--quiet", "--config", str(cfg))
     assert code == 0, err
-    assert seen["slam2d"].dof == 3 and seen["slam2d"].keyframe_distance == 0.4
-    assert seen["slam3d"].dof == 6 and not seen["slam3d"].use_odometry and seen["slam2d"].use_odometry
-    assert seen["z_range"] == (1.5, 1.6) and seen["resolution"] == 0.1 and seen["segmentation"].method == "paper"
+    c = seen["config"]
+    assert c.slam2d.dof == 3 and c.slam2d.keyframe_distance == 0.4
+    assert c.slam3d.dof == 6 and not c.slam3d.use_odometry and c.slam2d.use_odometry
+    assert c.grids.slice == (1.5, 1.6) and c.grids.resolution == 0.1 and c.segmentation.method == "paper"
     code, err = run_cli("map", str(tiny_bag.path), "--out", str(tmp_path / "o"), "--quiet", "--config", str(cfg),
                         "--resolution", "0.2", "--method", "critical", "--no-odometry")
     assert code == 0, err
-    assert seen["resolution"] == 0.2 and seen["segmentation"].method == "critical"
-    assert not seen["slam2d"].use_odometry and seen["slam2d"].keyframe_distance == 0.4
+    c = seen["config"]
+    assert c.grids.resolution == 0.2 and c.segmentation.method == "critical"
+    assert not c.slam2d.use_odometry and c.slam2d.keyframe_distance == 0.4
 
 
 @pytest.mark.parametrize("text, message", [

@@ -7,16 +7,12 @@ the sensor is carried 1.6 m above the floor under it along a path through both r
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
-import warnings
 
 import numpy as np
 import pytest
+from _cli import run_cli
 from PIL import Image
-
-from hsmap.cli import main
 
 pytest.importorskip("open3d")
 
@@ -24,13 +20,6 @@ PLATFORM = 0.5  # the second room's floor, metres above the first's
 SENSOR_HEIGHT = 1.6
 DOOR = (6.0, 2.5)
 
-
-def run_cli(*argv: str) -> tuple[int, str]:
-    err = io.StringIO()
-    with contextlib.redirect_stderr(err), warnings.catch_warnings():
-        warnings.simplefilter("always")
-        code = main(list(argv))
-    return code, err.getvalue()
 
 
 def _world():

@@ -227,6 +227,7 @@ def test_lock_held_by_another_process(tmp_path):
 PROBE = """
 import json, sys
 import hsmap, hsmap.sim.writer, hsmap.slam
+from hsmap.pipeline import GridsConfig
 from hsmap.study import two_lidar_maps
 
 counts = {"simulate": 0, "run_slam": 0}
@@ -237,7 +238,7 @@ for mod, name in ((hsmap.sim.writer, "simulate"), (hsmap.slam, "run_slam")):
         return _real(*a, **k)
     setattr(mod, name, counting)
 
-maps = two_lidar_maps(sys.argv[1], 2, z_range=(0.5, 0.7))
+maps = two_lidar_maps(sys.argv[1], 2, grids=GridsConfig(slice=(0.5, 0.7)))
 ds_key = json.load(open(f"{maps.dataset.path}/cache.json"))["key"]
 print(json.dumps({"package": hsmap.__file__, "counts": counts, "dataset": ds_key, "maps": maps.key,
                   "maps_cached": maps.cached, "maps_folder": str(maps.folder)}))

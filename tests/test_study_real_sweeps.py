@@ -1,5 +1,6 @@
-"""hsmap.study.real_sweeps' map of posed sweeps: the sweeps placed by their poses, the floor under the walked
-trajectory (not a ceiling, not a raised floor walked on less) and a band's rooms."""
+"""hsmap.study.real_sweeps' map of posed sweeps: the sweeps placed by their poses, and through the 3D-only chain's
+stages the floor under the walked trajectory (not a ceiling, not a raised floor beside the walk) and a band's
+rooms."""
 
 from __future__ import annotations
 
@@ -58,12 +59,17 @@ def test_posed_points_put_every_sweep_back_into_the_world(rng):
 
 
 def test_the_floor_is_the_one_under_the_walk_and_the_slice_is_one_room(rng):
-    from hsmap.study.real_sweeps import floor_under, slice_rooms
+    from hsmap.study.real_sweeps import slice_rooms
 
     world = _hall(rng)
     traj = _walk()
     sr = slice_rooms(_sweeps(world, traj), traj, (1.2, 1.4), voxel=0.1)
-    assert sr.floor == pytest.approx(0.05, abs=0.1)  # the lower floor's layer, not the raised one nor the ceiling
-    assert floor_under(sr.map, traj.poses[:, :3] + [3.0, 0.0, 0.0]) == pytest.approx(sr.floor, abs=0.1)
+    # under every pose the lower floor's layer, not the raised one nor the ceiling
+    assert len(sr.floors) == len(traj.poses) and np.all(np.abs(sr.floors - 0.05) < 0.1)
+    assert sr.floor == pytest.approx(0.05, abs=0.1)
     assert sr.rooms.segmentation.n_rooms == 1
     assert sr.rooms.row()["in_rooms_m2"] > 0.6 * 10 * 6
+    from hsmap.errors import InputError
+
+    with pytest.raises(InputError, match="one pose a sweep"):
+        slice_rooms(_sweeps(world, traj)[:3], traj, (1.2, 1.4))

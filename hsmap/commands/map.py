@@ -84,17 +84,48 @@ def _log_line(line: str) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    import dataclasses
-
     from ..datasets.carmen import CarmenDataset
     from ..errors import DatasetError, InputError
     from ..io import prepare_output_dir, refuse_overwriting_input
-    from ..pipeline import load_chain_config, map_recording
+    from ..pipeline import map_recording
     from ..progress import stage
-    from .inputs import open_input, parse_vector, slam_overrides
+    from .inputs import open_input
 
     if args.seed < 0:
         raise InputError(f"--seed must be >= 0, got {args.seed}")
+    config = _chain_config(args)
+    # before the long work: a file, a folder that cannot be created or written is reported now
+    refuse_overwriting_input(args.out, [args.input, args.scans, args.poses], MAP_OUTPUTS)
+    out = prepare_output_dir(args.out, "--out", create=False)
+    progress = False if args.quiet else None
+    stage("read", announce=False)  # a heartbeat names it when reading takes long; bad input stays one line
+    dataset = open_input(args, progress=progress)
+    if isinstance(dataset, CarmenDataset):
+        raise DatasetError(f"{args.input}: a CARMEN log has 2D scans only; hsmap map needs 3D clouds")
+    if not _has_scans(dataset):
+        return _run_3d(args, dataset, out, config, progress)
+    if args.poses is not None:
+        raise InputError(f"--poses applies to recordings with a 3D LiDAR only; {args.input} has 2D scans")
+    for sensor in ("scan", "cloud"):
+        try:
+            dataset.driven_by(sensor)
+        except DatasetError as exc:
+            raise DatasetError(f"hsmap map needs 2D scans and 3D clouds: {exc}") from None
+    m = map_recording(dataset, out, config, seed=args.seed, recording=not args.no_recording, progress=progress,
+                      configuration=_configuration(args))
+    if not args.quiet:
+        _report_2d(m, out, args.no_recording)
+    return 0
+
+
+def _chain_config(args: argparse.Namespace):
+    """The chain's configuration: the ``--config`` file (or the defaults) with the flags over it."""
+    import dataclasses
+
+    from ..errors import InputError
+    from ..pipeline import load_chain_config
+    from .inputs import parse_vector, slam_overrides
+
     cfg = load_chain_config(args.config)
     grids = cfg.grids
     if args.slice is not None:
@@ -107,32 +138,8 @@ def _run(args: argparse.Namespace) -> int:
             raise InputError(f"--resolution must be > 0 metres per cell, got {args.resolution}")
         grids = dataclasses.replace(grids, resolution=float(args.resolution))
     seg = cfg.segmentation if args.method is None else dataclasses.replace(cfg.segmentation, method=args.method)
-    # before the long work: a file, a folder that cannot be created or written is reported now
-    refuse_overwriting_input(args.out, [args.input, args.scans, args.poses], MAP_OUTPUTS)
-    out = prepare_output_dir(args.out, "--out", create=False)
-    slam2d, slam3d = slam_overrides(cfg.slam2d, args, deskew=True), slam_overrides(cfg.slam3d, args, deskew=True)
-    progress = False if args.quiet else None
-    stage("read", announce=False)  # a heartbeat names it when reading takes long; bad input stays one line
-    dataset = open_input(args, progress=progress)
-    if isinstance(dataset, CarmenDataset):
-        raise DatasetError(f"{args.input}: a CARMEN log has 2D scans only; hsmap map needs 3D clouds")
-    if not _has_scans(dataset):
-        return _run_3d(args, dataset, out, dataclasses.replace(cfg, slam3d=slam3d, grids=grids, segmentation=seg),
-                       progress)
-    if args.poses is not None:
-        raise InputError(f"--poses applies to recordings with a 3D LiDAR only; {args.input} has 2D scans")
-    for sensor in ("scan", "cloud"):
-        try:
-            dataset.driven_by(sensor)
-        except DatasetError as exc:
-            raise DatasetError(f"hsmap map needs 2D scans and 3D clouds: {exc}") from None
-    m = map_recording(dataset, out, seed=args.seed, slam2d=slam2d, slam3d=slam3d, segmentation=seg,
-                      z_range=grids.slice, resolution=grids.resolution, slice_bins=grids.slice_bins,
-                      door_depth=grids.door_depth, door_margin=grids.door_margin,
-                      recording=not args.no_recording, progress=progress, configuration=_configuration(args))
-    if not args.quiet:
-        _report_2d(m, out, args.no_recording)
-    return 0
+    return dataclasses.replace(cfg, slam2d=slam_overrides(cfg.slam2d, args, deskew=True),
+                               slam3d=slam_overrides(cfg.slam3d, args, deskew=True), grids=grids, segmentation=seg)
 
 
 def _has_scans(dataset) -> bool:

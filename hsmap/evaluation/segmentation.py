@@ -1,6 +1,6 @@
 """Room-segmentation precision and recall as in the benchmark of Bormann et al. (ICRA 2016).
 
-Definitions (the IPA evaluation's, as the issue and ``datasets/ipa_room_segmentation/README.md`` give them):
+Definitions (the IPA evaluation's, as ``datasets/ipa_room_segmentation/README.md`` give them):
 
 * ground-truth rooms are the 8-connected regions of ground-truth pixels ``> 250`` (the ground truth is the
   map with room borders drawn across the doorways); only regions of more than ``min_area`` (100) pixels

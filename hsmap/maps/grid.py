@@ -34,6 +34,8 @@ __all__ = [
     "OCCUPIED",
     "read_map",
     "write_map",
+    "grid_arrays",
+    "grid_from_arrays",
     "read_image_gray",
     "read_label_image",
     "write_label_image",
@@ -420,6 +422,20 @@ def write_map(path: str | os.PathLike, grid: OccupancyGrid) -> tuple[Path, Path]
     }
     write_text(yaml_path, yaml.safe_dump(meta, sort_keys=False))
     return yaml_path, pgm_path
+
+
+def grid_arrays(prefix: str, grid: OccupancyGrid) -> dict[str, NDArray]:
+    """``grid`` as two arrays to store in an ``.npz`` (``PREFIX_data``, ``PREFIX_geometry``: resolution and
+    origin); :func:`grid_from_arrays` reads them back."""
+    geo = grid.geometry
+    return {f"{prefix}_data": grid.data, f"{prefix}_geometry": np.array([geo.resolution, *geo.origin])}
+
+
+def grid_from_arrays(arrays, prefix: str) -> OccupancyGrid:
+    """The grid that :func:`grid_arrays` stored under ``prefix`` in ``arrays`` (an open ``.npz`` or a mapping)."""
+    data = arrays[f"{prefix}_data"]
+    res, ox, oy = (float(v) for v in arrays[f"{prefix}_geometry"])
+    return OccupancyGrid(data, GridGeometry(data.shape, res, (ox, oy)))
 
 
 # --------------------------------------------------------------------------------------------------------------

@@ -55,7 +55,7 @@ def voxel_downsample(points: NDArray[np.floating], voxel: float, min_range: floa
     Points that are not finite, or whose distance from the origin is outside [min_range, max_range], are dropped
     first. The points kept must lie within +/- 2^20 voxels of the origin (about +/- 100 km at 0.1 m).
     """
-    from .. import _kernels  # numba: compiled on first use
+    from . import _kernels  # numba: compiled on first use
     pts = np.asarray(points, dtype=float)
     if voxel <= 0 or len(pts) == 0:
         return pts
@@ -79,7 +79,7 @@ def voxel_downsample_with(points: NDArray[np.floating], values: NDArray[np.float
 
     Returns the centroids (M, d), the same as :func:`voxel_downsample`'s, and each voxel's mean value (M,).
     """
-    from .. import _kernels  # numba: compiled on first use
+    from . import _kernels  # numba: compiled on first use
     pts = np.asarray(points, dtype=float)
     vals = np.asarray(values, dtype=float).reshape(-1)
     if len(vals) != len(pts):
@@ -99,7 +99,7 @@ def _voxel_reduction(parts: Iterable[tuple[ArrayLike, ArrayLike | None]], dim: i
     """The voxels (side ``voxel``) of the finite points (N, dim) of ``parts`` and their normals (or None), taken in
     order a part at a time, in the order of their keys (:func:`voxel_keys`): (keys, first points, first normals,
     point sums in input order, counts). Memory grows with the voxels, not with the points of all the parts."""
-    from .. import _kernels  # numba: compiled on first use
+    from . import _kernels  # numba: compiled on first use
     cap, m = 0, 0
     table = keys = sums = counts = first = first_normals = None
     for points, normals in parts:
@@ -180,7 +180,7 @@ class VoxelMap:
 
         Returns the points of the voxels that were new, (K, dim) (and their normals, with ``return_normals``).
         """
-        from .. import _kernels  # numba: compiled on first use
+        from . import _kernels  # numba: compiled on first use
         keys, pts, nrm, sums, counts = _voxel_reduction([(points, normals)], self.dim, self.voxel)
         if len(keys) == 0:
             return (pts, nrm) if return_normals else pts
@@ -239,6 +239,6 @@ class VoxelMap:
 
     def crop_with_normals(self, centre: ArrayLike, radius: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Map points within ``radius`` metres of ``centre`` and their normals."""
-        from .. import _kernels  # numba: compiled on first use
+        from . import _kernels  # numba: compiled on first use
         c = np.asarray(centre, dtype=float)
         return _kernels.crop_rows(self._points, self._normals, float(c[0]), float(c[1]), float(radius) * radius)

@@ -37,16 +37,8 @@ from ..datasets.frames import Dataset
 from ..deskew import deskew_frame
 from ..errors import InputError
 from ..geometry import pose_to_matrix
-from ..io import (
-    atomic_path,
-    prepare_output_dir,
-    staged_outputs,
-    sweep_stale_temporaries,
-    to_plain,
-    write_json,
-    write_text,
-)
-from ..maps.grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid, write_label_image, write_map
+from ..io import prepare_output_dir, sweep_stale_temporaries, to_plain, write_json, write_text
+from ..maps.grid import FREE, OCCUPIED, UNKNOWN, OccupancyGrid, grid_arrays, grid_from_arrays
 from ..maps.mapping import voxel_downsample
 from ..maps.maps3d import Map3D, band_grid, segmentation_free
 from ..maps.occupancy3d import (
@@ -58,23 +50,24 @@ from ..maps.occupancy3d import (
     write_octomap,
 )
 from ..rooms.segmentation import Segmentation, points_in_doors
-from ..rooms.topology import room_graph, write_topology
 from ..trajectory import Trajectory, write_tum
 from .cache import FolderCache, description_digest
-from .chain import (
-    _grid_arrays,
-    _grid_from,
-    _read_metrics,
-    _rooms_stage,
-    _segmentation_record,
-    _slam_summary,
-    _Stages,
-    _write_ply,
+from .config import ChainConfig, GridsConfig
+from .outputs import (
+    FigureSaver,
+    grid_record,
+    summary_page,
+    write_door_points,
+    write_grids,
+    write_outputs_once,
+    write_ply,
+    write_rooms,
 )
-from .config import ChainConfig
 from .runs import cached_slam, dataset_fingerprint
+from .stages import StageLog, cached_stage, rooms_stage, slam_summary
 
-__all__ = ["map_recording_3d", "given_poses", "GivenPoses", "OUTPUTS", "SKIPPED"]
+__all__ = ["map_recording_3d", "given_poses", "GivenPoses", "posed_sweep", "carve_map", "band_grids", "levelled_bands",
+           "OUTPUTS", "SKIPPED"]
 
 #: What :func:`map_recording_3d` writes (besides ``figures/`` and ``.stages/``).
 OUTPUTS = ("trajectory3d.tum", "map3d.bt", "map3d.ply", "floor.pgm", "floor.yaml", "floor.png", "slice.pgm",
@@ -136,23 +129,43 @@ def _sweeps(ds: Dataset, traj: Trajectory, voxel: float, deskew: bool) -> Iterat
         if not ok or f.cloud3d is None:
             continue
         f = deskew_frame(f, prior=traj)[0] if deskew else f
-        T = pose_to_matrix(pose) @ pose_to_matrix(f.extrinsic3d)
-        pts = voxel_downsample(np.asarray(f.cloud3d, dtype=float), voxel)
-        yield pts @ T[:3, :3].T + T[:3, 3], T[:3, 3].copy()
+        yield posed_sweep(f.cloud3d, pose_to_matrix(pose) @ pose_to_matrix(f.extrinsic3d), voxel)
 
 
-def _voxels_stage(ds: Dataset, traj: Trajectory, cfg: ChainConfig, stages: _Stages):
+def posed_sweep(cloud: np.ndarray, sensor_to_world: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarray]:
+    """A cloud in its sensor's frame, thinned to ``voxel``, placed in the world by the (4, 4) ``sensor_to_world``:
+    (world points, the sensor's world position), what :func:`carve_map` takes."""
+    T = np.asarray(sensor_to_world, dtype=float)
+    pts = voxel_downsample(np.asarray(cloud, dtype=float), voxel)
+    return pts @ T[:3, :3].T + T[:3, 3], T[:3, 3].copy()
+
+
+def carve_map(sweeps, grids: GridsConfig, bar=None, source: str = "the posed clouds") -> tuple[Map3D, np.ndarray]:
+    """The 3D occupancy map of posed sweeps (:func:`posed_sweep`), free space carved along every ray
+    (:func:`hsmap.maps.occupancy3d.carve_sweeps`, ``grids.voxel``, ``grids.max_range``), and the sensor positions.
+
+    ``sweeps`` is read twice (the map's bounds, then the carving): a sequence, or a callable giving a new
+    iterator each time.
+    """
+    def each():
+        return sweeps() if callable(sweeps) else iter(sweeps)
+
+    lo, hi = sweep_bounds(_counted(each(), bar), grids.max_range)
+    sensors: list[np.ndarray] = []
+    m = carve_sweeps(_counted(each(), bar, sensors), lo, hi, resolution=grids.voxel, max_range=grids.max_range,
+                     source=source)
+    return m, np.asarray(sensors, dtype=float).reshape(-1, 3)
+
+
+def _voxels_stage(ds: Dataset, traj: Trajectory, cfg: ChainConfig, stages: StageLog):
     g, deskew = cfg.grids, cfg.slam3d.deskew
 
     def compute(folder: Path) -> None:
         bar = stages.bar("voxels", 2 * len(ds), "cloud")
-        lo, hi = sweep_bounds(_counted(_sweeps(ds, traj, g.voxel, deskew), bar), g.max_range)
-        sensors: list[np.ndarray] = []
-        m = carve_sweeps(_counted(_sweeps(ds, traj, g.voxel, deskew), bar, sensors), lo, hi, resolution=g.voxel,
-                         max_range=g.max_range, source="the posed clouds")
+        m, sensors = carve_map(lambda: _sweeps(ds, traj, g.voxel, deskew), g, bar)
         bar.close()
         np.savez_compressed(folder / "voxels.npz", state=m.state, origin=m.origin, resolution=m.resolution,
-                            sensors=np.asarray(sensors, dtype=float).reshape(-1, 3))
+                            sensors=sensors)
 
     def load(folder: Path) -> tuple[Map3D, np.ndarray]:
         with np.load(folder / "voxels.npz") as z:
@@ -165,25 +178,34 @@ def _counted(items, bar, sensors: list | None = None):
     """The sweeps, counted on ``bar``; their sensor positions appended to ``sensors``."""
     for item in items:
         yield item
-        bar.update(1)
+        if bar is not None:
+            bar.update(1)
         if sensors is not None:
             sensors.append(item[1])
 
 
+def band_grids(m: Map3D, band: tuple[float, float], *, floor: float | None, min_passage: float
+               ) -> tuple[OccupancyGrid, OccupancyGrid]:
+    """A height band of a 3D map (metres above ``floor``): its occupancy grid as the map knows it
+    (:func:`hsmap.maps.maps3d.band_grid`) and the grid to segment, free where
+    :func:`hsmap.maps.maps3d.segmentation_free` finds free space."""
+    lo, hi = float(band[0]), float(band[1])
+    grid = band_grid(m, lo, hi, floor=floor)
+    free = segmentation_free(m, lo, hi, floor=floor, min_passage=min_passage)
+    data = np.where(free, FREE, np.where(grid.occupied, OCCUPIED, UNKNOWN)).astype(np.int8)
+    return grid, OccupancyGrid(data, grid.geometry)
+
+
 def levelled_bands(m: Map3D, positions: np.ndarray, cfg: ChainConfig) -> dict:
     """The floor under each position, and per band (``floor``, ``slice``) its occupancy grid and the grid
-    segmented (free: :func:`hsmap.maps.maps3d.segmentation_free` of the map levelled to the floor)."""
+    segmented (:func:`band_grids` of the map levelled to the floor)."""
     g = cfg.grids
     floors = floor_under_path(m, positions, radius=g.floor_radius, depth=g.floor_depth)
     level = level_map(m, floor_field(m, positions, floors, reach=g.floor_reach))
     out: dict[str, Any] = {"floors": floors}
     passage = 2.0 * cfg.segmentation.min_door_half_width
-    for name, (lo, hi) in (("floor", g.floor_band), ("slice", g.slice)):
-        grid = band_grid(level, lo, hi, floor=0.0)
-        free = segmentation_free(level, lo, hi, floor=0.0, min_passage=passage)
-        data = np.where(free, FREE, np.where(grid.occupied, OCCUPIED, UNKNOWN)).astype(np.int8)
-        out[name] = grid
-        out[f"{name}_segmented"] = OccupancyGrid(data, grid.geometry)
+    for name, band in (("floor", g.floor_band), ("slice", g.slice)):
+        out[name], out[f"{name}_segmented"] = band_grids(level, band, floor=0.0, min_passage=passage)
     return out
 
 
@@ -194,19 +216,19 @@ def _grids_stage(m: Map3D, positions: np.ndarray, cfg: ChainConfig):
         bands = levelled_bands(m, positions, cfg)
         arrays = {}
         for name in names:
-            arrays |= _grid_arrays(name, bands[name])
+            arrays |= grid_arrays(name, bands[name])
         np.savez(folder / "grids.npz", floors=bands["floors"], **arrays)
 
     def load(folder: Path) -> dict:
         with np.load(folder / "grids.npz") as z:
-            return {"floors": z["floors"]} | {name: _grid_from(z, name) for name in names}
+            return {"floors": z["floors"]} | {name: grid_from_arrays(z, name) for name in names}
 
     return compute, load
 
 
 # --- the whole chain ----------------------------------------------------------------------------------------
 
-def _run_slam(ds3: Dataset, cfg: ChainConfig, seed: int, poses: GivenPoses | None, root: Path, stages: _Stages,
+def _run_slam(ds3: Dataset, cfg: ChainConfig, seed: int, poses: GivenPoses | None, root: Path, stages: StageLog,
               progress: bool | None):
     t = time.perf_counter()
     if poses is not None:
@@ -215,14 +237,6 @@ def _run_slam(ds3: Dataset, cfg: ChainConfig, seed: int, poses: GivenPoses | Non
         run = cached_slam(ds3, cfg.slam3d, seed, cache_dir=root / "slam", progress=progress)
     stages.done("slam3d", run.cached, time.perf_counter() - t, stages.bar("slam3d", 1) if run.cached else None)
     return run
-
-
-def _stage(cache: FolderCache, stages: _Stages, name: str, description: dict, compute_load) -> tuple[Any, str]:
-    t = time.perf_counter()
-    bar = stages.bar(name, 1) if name != "voxels" else None
-    got = cache.get(name, description, *compute_load)
-    stages.done(name, got.cached, time.perf_counter() - t, bar)
-    return got.value, got.key
 
 
 def map_recording_3d(dataset: Dataset, out: str | Path, *, config: ChainConfig | None = None, seed: int = 0,
@@ -257,39 +271,25 @@ def map_recording_3d(dataset: Dataset, out: str | Path, *, config: ChainConfig |
     out = prepare_output_dir(out)
     sweep_stale_temporaries(out, OUTPUTS)
     ds3 = dataset.driven_by("cloud")
-    stages, root = _Stages(progress), out / ".stages"
+    stages, root = StageLog(progress), out / ".stages"
     cache = FolderCache(root)
     run = _run_slam(ds3, cfg, int(seed), poses, root, stages, progress)
     g = cfg.grids
-    (vox, positions), vkey = _stage(cache, stages, "voxels", {"slam": run.key, "voxel": g.voxel, "max_range": g.max_range,
-                                                  "deskew": cfg.slam3d.deskew},
-                       _voxels_stage(ds3, run.trajectory, cfg, stages))
-    grids, gkey = _stage(cache, stages, "grids", {"voxels": vkey, "grids": to_dict(g),
-                                                  "segmentation": to_dict(cfg.segmentation)},
-                         _grids_stage(vox, positions, cfg))
+    (vox, positions), vkey = cached_stage(cache, stages, "voxels", {"slam": run.key, "voxel": g.voxel,
+                                                                    "max_range": g.max_range,
+                                                                    "deskew": cfg.slam3d.deskew},
+                                          _voxels_stage(ds3, run.trajectory, cfg, stages), own_bar=True)
+    grids, gkey = cached_stage(cache, stages, "grids", {"voxels": vkey, "grids": to_dict(g),
+                                                        "segmentation": to_dict(cfg.segmentation)},
+                               _grids_stage(vox, positions, cfg))
     segmented = {"slice": grids["slice_segmented"], "floor": grids["floor_segmented"]}
-    segs, rkey = _stage(cache, stages, "rooms", {"grids": gkey, "segmentation": to_dict(cfg.segmentation)},
-                        _rooms_stage(segmented, cfg.segmentation))
+    segs, rkey = cached_stage(cache, stages, "rooms", {"grids": gkey, "segmentation": to_dict(cfg.segmentation)},
+                              rooms_stage(segmented, cfg.segmentation))
     final_key = description_digest({"stages": [run.key, vkey, gkey, rkey], "recording": bool(recording),
                                     "doors": [g.door_depth, g.door_margin]})
-    previous = _read_metrics(out / "metrics.json")
-    if previous is not None and previous.get("key") == final_key and all(
-            (out / n).is_file() for n in OUTPUTS if recording or n != "map.rrd"):
-        previous["stages"] = stages.info | {"outputs": {"unchanged": True, "seconds": 0.0}}
-        write_json(out / "metrics.json", previous)
-        return previous
-    t = time.perf_counter()
-    bar = stages.bar("outputs", 6)
     ctx = _Context(dataset, ds3, run, vox, grids, segs, positions, cfg, recording)
-    with staged_outputs(out, last="metrics.json", folders=True) as stage:
-        metrics = _write_outputs(stage, ctx, bar)
-        stages.done("outputs", False, time.perf_counter() - t, bar)
-        metrics |= {"stages": stages.info, "key": final_key,
-                    "seconds_total": round(time.perf_counter() - t_start, 3)}
-        write_json(stage / "metrics.json", metrics)
-    if not recording:
-        (out / "map.rrd").unlink(missing_ok=True)
-    return metrics
+    return write_outputs_once(out, OUTPUTS, final_key, recording, stages,
+                              lambda stage, bar: _write_outputs(stage, ctx, bar), t_start)
 
 
 # --- the outputs ----------------------------------------------------------------------------------------------
@@ -309,17 +309,11 @@ class _Context:
     recording: bool
 
 
-def _write_maps(out: Path, c: _Context) -> dict:
-    from PIL import Image
-
+def _write_maps(out: Path, c: _Context, map_points: np.ndarray) -> dict:
     write_tum(out / "trajectory3d.tum", c.run.trajectory)
     nodes = write_octomap(c.voxels, out / "map3d.bt")
-    pts = np.asarray(c.run.map_points, dtype=float).reshape(-1, 3)
-    _write_ply(out / "map3d.ply", pts if len(pts) else c.voxels.centres())
-    for name in ("floor", "slice"):
-        write_map(out / f"{name}.yaml", c.grids[name])
-        with atomic_path(out / f"{name}.png") as tmp:
-            Image.fromarray(c.grids[name].to_image()).save(tmp, format="PNG")
+    write_ply(out / "map3d.ply", map_points)
+    write_grids(out, {name: c.grids[name] for name in ("floor", "slice")})
     floors = c.grids["floors"]
     write_json(out / "floor_levels.json", {
         "frame": "world z of the floor under each sensor pose, metres", "stamps": c.run.trajectory.stamps.tolist(),
@@ -330,68 +324,51 @@ def _write_maps(out: Path, c: _Context) -> dict:
             "sensor_above_floor_median": float(np.median(c.positions[:, 2] - floors))}
 
 
-def _write_rooms(out: Path, c: _Context) -> tuple[dict, dict]:
-    from PIL import Image
-
+def _overlay_picture(seg: Segmentation, g: OccupancyGrid) -> np.ndarray:
     from ..viz.colors import label_overlay
 
-    graphs, records = {}, {}
-    for name, prefix in (("slice", ""), ("floor", "floor_")):
-        seg: Segmentation = c.segs[name]
-        g = c.grids[f"{name}_segmented"]
-        graphs[name] = room_graph(seg)
-        write_label_image(out / f"{prefix}rooms.png", seg.labels)
-        write_json(out / f"{prefix}doors.json", {
-            "map": f"{name}.yaml", "frame": "map (world x, y in metres; map_server origin convention)",
-            "resolution": g.geometry.resolution, "origin": list(g.geometry.origin),
-            "doors": [d.as_dict() for d in seg.doors]})
-        write_topology(graphs[name], out, stem=f"{prefix}topology")
-        with atomic_path(out / f"{prefix}segmentation.png") as tmp:
-            Image.fromarray(label_overlay(seg.labels, g.free, doors=seg.doors)).save(tmp, format="PNG")
-        records[name] = _segmentation_record(seg, graphs[name])
-    return graphs, records
+    return label_overlay(seg.labels, g.free, doors=seg.doors)
 
 
 def _door_points(out: Path, c: _Context, map_points: np.ndarray) -> list:
     g = c.config.grids
     doors = c.segs["slice"].doors
     pts = points_in_doors(map_points, doors, depth=g.door_depth, margin=g.door_margin)
-    write_json(out / "door_points.json", {
-        "frame": "map (world x, y, z in metres)", "depth": g.door_depth, "margin": g.door_margin,
-        "doors": [{"door": f"D{k}", "centre": [float(v) for v in d.centre], "points2d": [],
-                   "points3d": np.round(p, 4).tolist()} for k, (d, p) in enumerate(zip(doors, pts, strict=True), 1)]})
+    write_door_points(out, doors, [np.zeros((0, 2))] * len(pts), pts, depth=g.door_depth, margin=g.door_margin,
+                      frame="map (world x, y, z in metres)")
     return pts
 
 
-def _write_outputs(out: Path, c: _Context, bar) -> dict:
-    voxels = _write_maps(out, c)
-    bar.update(1)
-    graphs, records = _write_rooms(out, c)
-    bar.update(1)
-    pts = np.asarray(c.run.map_points, dtype=float).reshape(-1, 3)
-    map_points = pts if len(pts) else c.voxels.centres()
-    pts3 = _door_points(out, c, map_points)
-    bar.update(1)
-    figs = _figures(out / "figures", c, graphs)
-    bar.update(1)
+def _metrics(c: _Context, voxels: dict, records: dict, pts3: list, figs: dict) -> dict[str, Any]:
     info = c.ds3.describe()
     g = c.config.grids
-    metrics: dict[str, Any] = {
+    bands = {"floor": g.floor_band, "slice": g.slice}
+    return {
         "input": str(c.dataset.path), "input_info": {"clouds": info},
         "warnings": list(dict.fromkeys(info.get("warnings", []))),
         "recording": "3D LiDAR only",
-        "slam3d": _slam_summary(c.run) if not isinstance(c.run, GivenPoses) else c.run.metrics,
+        "slam3d": slam_summary(c.run) if not isinstance(c.run, GivenPoses) else c.run.metrics,
         "voxels": voxels,
-        "grids": {name: {"shape": list(c.grids[name].geometry.shape), "resolution": c.grids[name].geometry.resolution,
-                         "origin": list(c.grids[name].geometry.origin),
-                         "occupied_cells": int(c.grids[name].occupied.sum()),
-                         "free_m2": float(c.grids[name].free.sum() * c.grids[name].geometry.resolution ** 2),
-                         "band_above_floor": list(g.floor_band if name == "floor" else g.slice)}
-                  for name in ("floor", "slice")},
+        "grids": {name: grid_record(c.grids[name]) | {"band_above_floor": list(band)} for name, band in bands.items()},
         "slice": records["slice"], "floor": records["floor"],
         "door_points": [{"door": f"D{k}", "points3d": len(p)} for k, p in enumerate(pts3, 1)],
         "skipped": dict(SKIPPED), "figures": figs,
     }
+
+
+def _write_outputs(out: Path, c: _Context, bar) -> dict:
+    pts = np.asarray(c.run.map_points, dtype=float).reshape(-1, 3)
+    map_points = pts if len(pts) else c.voxels.centres()
+    voxels = _write_maps(out, c, map_points)
+    bar.update(1)
+    segmented = {name: c.grids[f"{name}_segmented"] for name in ("slice", "floor")}
+    graphs, records = write_rooms(out, c.segs, segmented, _overlay_picture)
+    bar.update(1)
+    pts3 = _door_points(out, c, map_points)
+    bar.update(1)
+    figs = _figures(FigureSaver(out / "figures"), c, graphs)
+    bar.update(1)
+    metrics = _metrics(c, voxels, records, pts3, figs)
     write_text(out / "summary.html", _summary_html(metrics))
     bar.update(1)
     if c.recording:
@@ -410,19 +387,8 @@ class _WithMap:
     map_points: np.ndarray
 
 
-def _figures(figdir: Path, c: _Context, graphs: dict) -> dict:
-    import matplotlib.pyplot as plt
-
+def _figures(save: FigureSaver, c: _Context, graphs: dict) -> dict:
     from ..viz import figures, map_figures
-
-    figdir.mkdir(exist_ok=True)
-    names: dict[str, str] = {}
-
-    def save(fig, name: str, caption: str) -> None:
-        with atomic_path(figdir / f"{name}.png") as tmp:
-            fig.savefig(tmp, dpi=100, format="png", bbox_inches="tight")
-        plt.close(fig)
-        names[name] = caption
 
     g, grids, segs = c.config.grids, c.grids, c.segs
     ax = figures.plot_trajectories({"6-DOF": c.run.trajectory}, title="the sensor's path")
@@ -448,16 +414,11 @@ def _figures(figdir: Path, c: _Context, graphs: dict) -> dict:
         [(grids[f"{n}_segmented"], segs[n], f"{n}: {segs[n].n_rooms} rooms, {len(segs[n].doors)} doors")
          for n in ("floor", "slice")], title="one segmentation, two bands of the 3D map")
     save(fig, "comparison", "The same segmentation on the floor-level band and on the slice (Fig. 18).")
-    return names
+    return save.names
 
 
 def _summary_html(m: dict) -> str:
     import html
-
-    esc = html.escape
-
-    def rows(d: dict) -> str:
-        return "".join(f"<tr><th>{esc(str(k))}</th><td>{esc(str(v))}</td></tr>" for k, v in d.items())
 
     s3, v = m["slam3d"], m["voxels"]
     run = (f"poses from {s3['poses_from']} ({s3['frames']} clouds)" if "poses_from" in s3 else
@@ -475,24 +436,9 @@ def _summary_html(m: dict) -> str:
         "slice": f"{m['slice']['rooms']} rooms, {m['slice']['doors']} doors; graph {m['slice']['graph']}",
         "floor-level band": f"{m['floor']['rooms']} rooms, {m['floor']['doors']} doors; graph {m['floor']['graph']}",
     }
-    skipped = "".join(f"<li><code>{esc(k)}</code>: {esc(r)}</li>" for k, r in m["skipped"].items())
-    warn = "".join(f"<li>{esc(w)}</li>" for w in m["warnings"])
-    figs = "".join(f'<figure><img src="figures/{esc(n)}.png" alt="{esc(n)}"><figcaption>{esc(c)}</figcaption>'
-                   "</figure>" for n, c in m["figures"].items())
-    files = ", ".join(f'<a href="{esc(f)}">{esc(f)}</a>' for f in OUTPUTS if f != "summary.html")
-    return f"""<!doctype html>
-<html lang="en"><head><meta charset="utf-8"><title>hsmap map: {esc(Path(m['input']).name)}</title>
-<style>body{{font-family:sans-serif;max-width:1100px;margin:2em auto;padding:0 1em}}
-table{{border-collapse:collapse}}th,td{{text-align:left;padding:.25em .8em;border-bottom:1px solid #ddd;vertical-align:top}}
-img{{max-width:100%}}figure{{margin:1.5em 0}}.warn{{color:#a40}}</style></head><body>
-<h1>{esc(Path(m['input']).name)}: the paper's chain, 3D LiDAR only</h1>
-<table>{rows(numbers)}</table>
-<h2>Skipped (no 2D LiDAR)</h2><ul>{skipped}</ul>
-{f'<h2 class="warn">Warnings</h2><ul class="warn">{warn}</ul>' if warn else ''}
-{figs}
-<h2>Files</h2><p>{files}. Open the 3D map with <code>octovis map3d.bt</code>, the recording with
-<code>rerun map.rrd</code>; load a map in Nav2 with
-<code>ros2 run nav2_map_server map_server --ros-args -p yaml_filename:=slice.yaml</code>.</p>
-</body></html>
-"""
-
+    skipped = "".join(f"<li><code>{html.escape(k)}</code>: {html.escape(r)}</li>" for k, r in m["skipped"].items())
+    return summary_page(m, heading="the paper's chain, 3D LiDAR only", numbers=numbers,
+                        sections=f"<h2>Skipped (no 2D LiDAR)</h2><ul>{skipped}</ul>\n", files=OUTPUTS,
+                        opening="Open the 3D map with <code>octovis map3d.bt</code>, the recording with\n"
+                                "<code>rerun map.rrd</code>; load a map in Nav2 with\n<code>ros2 run nav2_map_server "
+                                "map_server --ros-args -p yaml_filename:=slice.yaml</code>.")

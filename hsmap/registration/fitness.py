@@ -185,7 +185,7 @@ class DistanceField:
         Each node within the truncation band of a point takes the exact distance from its centre to the point if
         that is smaller (cheaper than a Euclidean distance transform when only short distances matter).
         """
-        from .. import _kernels  # numba: compiled on first use
+        from . import _kernels  # numba: compiled on first use
 
         pts = np.ascontiguousarray(points, dtype=float)
         if len(pts) == 0:
@@ -234,7 +234,7 @@ class DistanceField:
 
     def score_batch(self, poses: NDArray[np.float64], points: NDArray[np.float64]) -> tuple[NDArray, NDArray]:
         """Mean truncated distance (B,) and inlier ratio (B,) of ``points`` moved by each of the B ``poses``."""
-        from .. import _kernels  # numba: compiled on first use
+        from . import _kernels  # numba: compiled on first use
 
         start_threading_layer()
         poses = np.ascontiguousarray(poses, dtype=np.float64)
@@ -310,7 +310,7 @@ class FieldObjective:
 
     def run_chunk(self, *args) -> None:
 
-        from .. import _kernels  # numba: compiled on first use
+        from . import _kernels  # numba: compiled on first use
         start_threading_layer()
         f = self.field
         _kernels.hs_chunk_field(*args, self.source, f._flat, f._pshape, f.origin, 1.0 / f.resolution,

@@ -314,7 +314,7 @@ def spans_its_space(points: NDArray[np.float64], rank: int | None = None) -> boo
     A cloud that does not span its space has no unique registration: it can slide or turn without changing its
     fit (:func:`harmony_icp` raises :class:`~hsmap.errors.DegenerateInputError` for one).
     """
-    from .. import _kernels  # numba: compiled on first use
+    from . import _kernels  # numba: compiled on first use
     pts = np.ascontiguousarray(points, dtype=float)
     d = pts.shape[1]
     rank = d if rank is None else rank
@@ -510,7 +510,7 @@ def refine_icp(
     point-to-point takes the closed-form SVD (Kabsch) step. ``hint`` (N,): target rows near the source points at
     a pose close to ``pose`` (:meth:`RegistrationTarget.nearest`), which speed the first search.
     """
-    from .. import _kernels  # numba: compiled on first use
+    from . import _kernels  # numba: compiled on first use
 
     dim = source.shape[1]
     schedule = _trim_schedule(start_distance or max_distance, max_distance)
@@ -621,7 +621,7 @@ def alignment_information(source: NDArray[np.float64], target: RegistrationTarge
 def _information_and_cost(source, target, pose, threshold, robust_kernel=0.0, min_sigma=1e-3, match=None):
     """:func:`alignment_information` and :func:`alignment_cost` (point-to-plane) from one correspondence search
     (``match``: :func:`_match`'s at ``pose``, when already made)."""
-    from .. import _kernels  # numba: compiled on first use
+    from . import _kernels  # numba: compiled on first use
 
     dim = source.shape[1]
     dof = dof_of_dim(dim)

@@ -39,7 +39,7 @@ PARALLEL_MIN_QUERIES = 2000
 
 def _grid_shape(points: NDArray[np.float64], cell: float) -> tuple[NDArray[np.float64], NDArray[np.int64], float]:
     """(origin, cells per axis, total cells) of a grid of side ``cell`` over the points' bounding box."""
-    from .. import _kernels  # numba: compiled on first use
+    from . import _kernels  # numba: compiled on first use
 
     if len(points) == 0:
         return np.zeros(points.shape[1]), np.ones(points.shape[1], dtype=np.int64), 1.0
@@ -76,7 +76,7 @@ class NeighbourGrid:
 
     def __init__(self, points: ArrayLike, cell: float) -> None:
 
-        from .. import _kernels  # numba: compiled on first use
+        from . import _kernels  # numba: compiled on first use
         pts = np.ascontiguousarray(points, dtype=np.float64)
         if pts.ndim != 2 or pts.shape[1] not in (2, 3):
             raise ShapeError(f"grid points must have shape (M, 2) or (M, 3), got {pts.shape}")

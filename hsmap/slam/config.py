@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 
@@ -50,12 +51,6 @@ class KeyframeGraphConfig:
         with the learned model's covariance, down-weighted where a wheel slipped.
     tracking_path_distance : float
         The tracking map holds the keyframes within this graph distance of the newest keyframe.
-    attempts_per_keyframe : int
-        Loop-closure submaps matched per new keyframe at most (the nearest first).
-    search_every : int
-        Search for loops at every this many keyframes.
-    far_every : int
-        Far loop search (``loop_closure.far_search``) at every this many keyframes.
     optimize_threshold_translation, optimize_threshold_rotation : float
         A closure that corrects the graph's estimate by more than these optimises the graph at once.
     optimize_every : int
@@ -70,9 +65,6 @@ class KeyframeGraphConfig:
     pair_iterations: int = 10
     odometry_edges: bool = True
     tracking_path_distance: float = 20.0
-    attempts_per_keyframe: int = 1
-    search_every: int = 1
-    far_every: int = 5
     optimize_threshold_translation: float = 0.02
     optimize_threshold_rotation: float = float(np.deg2rad(0.3))
     optimize_every: int = 25
@@ -84,8 +76,7 @@ class KeyframeGraphConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float, np.floating)) and np.isfinite(v) and v >= 0):
                 raise ConfigError(f"slam.graph.{name} must be a finite number >= 0, got {v!r}")
-        for name in ("pair_edges", "pair_iterations", "attempts_per_keyframe", "search_every", "optimize_every",
-                     "far_every"):
+        for name in ("pair_edges", "pair_iterations", "optimize_every"):
             v, low = getattr(self, name), 0 if name == "pair_edges" else 1
             if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < low:
                 raise ConfigError(f"slam.graph.{name} must be an integer >= {low}, got {v!r}")
@@ -205,6 +196,10 @@ class SlamConfig:
     degenerate_ratio: float = 0.05
     loop_closure: LoopClosureConfig = field(default_factory=LoopClosureConfig)
     graph: KeyframeGraphConfig = field(default_factory=KeyframeGraphConfig)
+
+    #: Keys a configuration file may still give at their earlier place (that place -> the key), read with a warning.
+    MOVED_KEYS: ClassVar[dict[str, str]] = {
+        f"graph.{name}": f"loop_closure.{name}" for name in ("attempts_per_keyframe", "search_every", "far_every")}
     smoothing: bool = True
     deskew: bool = True
     level_floor: bool = True

@@ -224,8 +224,9 @@ class KeyframeGraph:
         urgent = False
         searches, far, registrations, evaluations = (closer.attempts, closer.far_attempts, closer.registrations,
                                                      closer.evaluations)
-        search = k % gc.search_every == 0
-        for cand in closer.candidates(self.graph, k, self._path)[: gc.attempts_per_keyframe if search else 0]:
+        lc = self.config.loop_closure
+        search = k % lc.search_every == 0
+        for cand in closer.candidates(self.graph, k, self._path)[: lc.attempts_per_keyframe if search else 0]:
             closure = closer.attempt(self.graph, self.keyframes, k, cand, self._loop_rng)
             if closure is None:
                 continue
@@ -233,7 +234,7 @@ class KeyframeGraph:
             self._pending += 1
             urgent |= (closure.correction_translation > gc.optimize_threshold_translation
                        or closure.correction_rotation > gc.optimize_threshold_rotation)
-        if k % gc.far_every == 0:
+        if k % lc.far_every == 0:
             closure = closer.attempt_far(self.graph, self.keyframes, k,
                                          closer.far_candidates(self.graph, k, self._path), self._path,
                                          self._loop_rng)

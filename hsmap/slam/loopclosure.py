@@ -63,6 +63,12 @@ class LoopClosureConfig:
     ----------
     enabled : bool
         Search for loop closures and optimise the pose graph (off: tracking only, against one global map).
+    attempts_per_keyframe : int
+        Loop-closure submaps matched per new keyframe at most (the nearest first).
+    search_every : int
+        Search for loops at every this many keyframes.
+    far_every : int
+        Far loop search (``far_search``) at every this many keyframes.
     submap_keyframes : int
         Keyframes per submap (the loop-closure targets).
     source_keyframes : int
@@ -119,6 +125,9 @@ class LoopClosureConfig:
     """
 
     enabled: bool = True
+    attempts_per_keyframe: int = 1
+    search_every: int = 1
+    far_every: int = 5
     submap_keyframes: int = 10
     source_keyframes: int = 3
     min_separation: int = 20
@@ -173,8 +182,8 @@ class LoopClosureConfig:
             raise ConfigError(f"slam.loop_closure.far_ambiguity must be in (0, 1], got {self.far_ambiguity!r}")
         if not 0.0 <= self.min_inlier_ratio <= 1.0:
             raise ConfigError(f"slam.loop_closure.min_inlier_ratio must be in [0, 1], got {self.min_inlier_ratio!r}")
-        for name in ("submap_keyframes", "source_keyframes", "min_separation", "retry_after",
-                     "far_corroborate_within"):
+        for name in ("attempts_per_keyframe", "search_every", "far_every", "submap_keyframes", "source_keyframes",
+                     "min_separation", "retry_after", "far_corroborate_within"):
             v, low = getattr(self, name), 1
             if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < low:
                 raise ConfigError(f"slam.loop_closure.{name} must be an integer >= {low}, got {v!r}")

@@ -11,21 +11,22 @@ simulated run shared by notebooks 04-07 (computed once, then cached).
    floor-level LiDAR, and 6-DOF on the 3D LiDAR seeded by the 2D poses, as in the paper; without odometry by
    default, the paper's claim; both started at the first ground-truth pose so that their maps share the world
    frame of the ground truth, its rooms, doors and labels);
-2. the maps made from them: the 2D and 3D HS-SLAM point maps, the floor-level occupancy grid (every 2D scan at
-   its 2D HS-SLAM pose, :func:`hsmap.maps.grid.grid_from_scans`) and the grid of the 3D map's slice at 1.7-1.8 m
-   (every 3D cloud at its 6-DOF HS-SLAM pose, :func:`hsmap.maps.fusion.slice_scans`), with the points behind both.
+2. the maps made from them: the 2D and 3D HS-SLAM point maps, and the chain's grids
+   (:func:`hsmap.pipeline.stages.chain_grids`): the floor-level occupancy grid (every 2D scan at its 2D HS-SLAM
+   pose) and the grid of the 3D map's slice at 1.7-1.8 m (every 3D cloud at its 6-DOF HS-SLAM pose), with the
+   points behind both.
 
 The maps are a folder of :class:`hsmap.pipeline.cache.FolderCache` under ``data/generated/maps/`` (``maps.npz``),
 keyed on the dataset, the SLAM runs' keys, the grid parameters and the code; the SLAM runs are the cached runs
 every other notebook shares.
 
-``two_lidar_maps(dataset=PATH)`` makes the same maps of a recording instead of a scenario: any input
-:func:`hsmap.datasets.open.open_dataset` reads (a folder written by ``hsmap simulate``, a ROS1 or ROS2 bag, ...)
-with 2D scans and 3D clouds. Its 2D and 6-DOF HS-SLAM runs (the 6-DOF one seeded by the 2D poses) use the
-command line's default configuration (``hsmap slam``: the odometry when the recording has it) and start at its
-first ground-truth pose when it has a ground truth (a simulator folder), else at the origin. A recording without
-ground truth has no true rooms or doors (:meth:`TwoLidarMaps.true_doors` is None): the notebooks then show the
-maps and their segmentation without scoring them.
+``two_lidar_maps(dataset=PATH)`` makes the same maps of a recording instead of a scenario, as ``hsmap map`` makes
+them: any input :func:`hsmap.datasets.open.open_dataset` reads (a folder written by ``hsmap simulate``, a ROS1 or
+ROS2 bag, ...) with 2D scans and 3D clouds goes through the chain's stages (:func:`hsmap.pipeline.stages.slam_runs`
+at ``hsmap map``'s defaults, :func:`hsmap.pipeline.stages.chain_grids` with deskewing), so its grids are those of
+``hsmap map`` of the recording. A recording without ground truth has no true rooms or doors
+(:meth:`TwoLidarMaps.true_doors` is None): the notebooks then show the maps and their segmentation without scoring
+them.
 """
 
 from __future__ import annotations
@@ -43,6 +44,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
+from ..config import to_dict
 from ..datasets.frames import Dataset, Frame
 from ..datasets.open import open_dataset
 from ..datasets.simulated import SimulatedDataset
@@ -50,16 +52,18 @@ from ..errors import InputError
 from ..evaluation import segmentation_scores
 from ..geometry import pose_to_matrix, transform_points
 from ..io import write_json
-from ..maps.fusion import resample_grid, slice_scans
-from ..maps.grid import GridGeometry, OccupancyGrid, ScanGridConfig, grid_from_scans, scans_to_points
-from ..maps.mapping import VoxelMap, first_per_voxel, voxel_downsample
+from ..maps.fusion import resample_grid
+from ..maps.grid import GridGeometry, OccupancyGrid, ScanGridConfig, grid_from_scans
+from ..maps.mapping import VoxelMap, first_per_voxel
 from ..pipeline.cache import FolderCache, description_digest, slug
+from ..pipeline.config import ChainConfig, GridsConfig
+from ..pipeline.stages import ChainGrids, chain_grids, slam_runs, slam_summary
 from ..rooms.segmentation import segment_rooms
-from ..slam import SlamConfig, frame_points
+from ..slam import frame_points
 from ..trajectory import Trajectory
 from .datasets import simulated_dataset
 from .paths import generated_dir
-from .runs import SimulatedRuns, cached_slam, dataset_fingerprint, simulated_slam_runs
+from .runs import SimulatedRuns, dataset_fingerprint, default_slam_dir, simulated_slam_runs
 
 __all__ = ["point_maps", "point_map", "scan_grid", "map_distances", "TwoLidarMaps", "two_lidar_maps",
            "recording_maps", "default_maps_dir", "MapSegmentations", "segment_maps", "door_errors",
@@ -272,7 +276,7 @@ class TwoLidarMaps:
         the slice grid in any frame.
     z_range : (float, float)
     seconds : dict
-        Wall time of each step when it was computed (``slam2d``, ``slam3d``, ``floor``, ``slice``).
+        Wall time of each step when it was computed (``slam2d``, ``slam3d``, ``grids``).
     slam_metrics : dict
         Per run (``"2d"``, ``"3d"``): frames, keyframes, seconds, median inlier ratio.
     key : str
@@ -321,183 +325,103 @@ class TwoLidarMaps:
             return None
 
 
-def _grid_arrays(prefix: str, g: OccupancyGrid) -> dict[str, np.ndarray]:
-    geo = g.geometry
-    return {f"{prefix}_data": g.data, f"{prefix}_geometry": np.array([geo.resolution, *geo.origin])}
+def _save_maps(folder: Path, grids: ChainGrids, trajectories: dict[str, tuple], point_maps: dict,
+               meta: dict) -> None:
+    """``maps.npz`` (the grids, the trajectories (stamps, poses) as ``NAME_stamps`` and ``NAME``, the point maps)
+    and ``meta.json``."""
+    arrays = {f"{k}{suffix}": v for k, (stamps, poses) in trajectories.items()
+              for suffix, v in (("", poses), ("_stamps", stamps))}
+    np.savez(folder / "maps.npz", **grids.arrays(), **arrays, **point_maps)
+    write_json(folder / "meta.json", meta)
 
 
-def _grid_from(z, prefix: str) -> OccupancyGrid:
-    data = z[f"{prefix}_data"]
-    res, ox, oy = (float(v) for v in z[f"{prefix}_geometry"])
-    return OccupancyGrid(data, GridGeometry(data.shape, res, (ox, oy)))
-
-
-def _thin(points: NDArray[np.float64], voxel: float) -> NDArray[np.float64]:
-
-    return voxel_downsample(np.asarray(points, dtype=float), voxel)
-
-
-def _slam_summary(run) -> dict:
-    m = run.metrics
-    return {k: m[k] for k in ("frames", "keyframes", "map_points", "seconds_total", "inlier_ratio_median",
-                              "real_time_factor")}
-
-
-def _compute_maps(ds: SimulatedDataset, n: int, runs: SimulatedRuns | None, z_range: tuple[float, float],
-                  resolution: float, bins: int, every: int):
-    """The maps' folder writer: ``maps.npz`` (poses, point maps, grids, slice scans) and ``meta.json``."""
-
-    def compute(folder: Path) -> None:
-
-        gt = ds.groundtruth.poses[:n]
-        seconds: dict[str, float] = {}
-        if runs is not None:
-            p2, p3 = runs.run3.trajectory.poses, runs.run6.trajectory.poses
-            map2d, map3d = runs.run3.map_points, runs.run6.map_points
-            seconds.update(slam2d=runs.run3.seconds, slam3d=runs.run6.seconds)
-            slam_metrics = {"2d": _slam_summary(runs.run3), "3d": _slam_summary(runs.run6)}
-        else:
-            p2 = gt
-            p3 = np.column_stack([gt[:, :2], np.zeros((n, 3)), gt[:, 2]])
-            map2d, map3d = np.empty((0, 2)), np.empty((0, 3))
-            slam_metrics = {}
-
-        t = time.perf_counter()
-        idx = np.arange(0, n, every)
-        scans = [ds.scan2d(int(i)) for i in idx]
-        floor = grid_from_scans(scans, p2[idx], resolution, extrinsic=ds.extrinsic2d)
-        floor_pts = _thin(scans_to_points(scans, p2[idx], ds.extrinsic2d), 0.02)
-        seconds["floor"] = time.perf_counter() - t
-        t = time.perf_counter()
-        sscans, spos = slice_scans(ds.frames(stop=n, step=every), p3[idx], z_min=z_range[0], z_max=z_range[1],
-                                   bins=bins)
-        slice_ = grid_from_scans(sscans, spos, resolution)
-        slice_pts = _thin(scans_to_points(sscans, spos), 0.02)
-        seconds["slice"] = time.perf_counter() - t
-        np.savez(folder / "maps.npz", stamps=ds.stamps[:n], groundtruth=gt, slam2d=p2, slam3d=p3, map2d=map2d,
-                 map3d=map3d, floor_points=floor_pts, slice_points=slice_pts,
-                 slice_scan_points=np.vstack(sscans) if sscans else np.empty((0, 2)),
-                 slice_scan_sizes=np.array([len(a) for a in sscans], dtype=np.int64), slice_poses=spos,
-                 **_grid_arrays("floor", floor), **_grid_arrays("slice", slice_))
-        write_json(folder / "meta.json", {"seconds": seconds, "slam_metrics": slam_metrics})
-
-    return compute
-
-
-def _maps_loader(ds: SimulatedDataset, z_range: tuple[float, float], poses: str):
+def _maps_loader(ds: Dataset, z_range: tuple[float, float], poses: str):
     def load(folder: Path) -> TwoLidarMaps:
         meta = json.loads((folder / "meta.json").read_text(encoding="utf-8"))
         with np.load(folder / "maps.npz") as z:
-            stamps = z["stamps"]
-            return TwoLidarMaps(
-                dataset=ds, frames=len(stamps), groundtruth=Trajectory(stamps, z["groundtruth"]),
-                slam2d=Trajectory(stamps, z["slam2d"]), slam3d=Trajectory(stamps, z["slam3d"]),
-                map2d=z["map2d"], map3d=z["map3d"], floor=_grid_from(z, "floor"), slice=_grid_from(z, "slice"),
-                floor_points=z["floor_points"], slice_points=z["slice_points"],
-                slice_scans=np.split(z["slice_scan_points"], np.cumsum(z["slice_scan_sizes"])[:-1]),
-                slice_poses=z["slice_poses"], z_range=z_range, poses=poses, seconds=meta["seconds"],
-                slam_metrics=meta["slam_metrics"], folder=folder)
-
-    return load
-
-
-def _compute_recording_maps(dataset, open_kwargs: Mapping[str, Any] | None, n: int, runs: tuple,
-                            z_range: tuple[float, float], resolution: float, bins: int, every: int):
-    """The maps' folder writer for a recording (any Dataset, matched to the SLAM poses by stamp)."""
-
-    def compute(folder: Path) -> None:
-
-        ds = dataset if isinstance(dataset, Dataset) else open_dataset(dataset, **dict(open_kwargs or {}))
-        run3, run6 = runs
-        seconds = {"slam2d": run3.seconds, "slam3d": run6.seconds}
-        t = time.perf_counter()
-        stamps, scans, ext2, idx = [], [], [], []
-        for k, f in enumerate(_frames(ds, clouds=False, every=1, max_frames=n)):
-            if k % every == 0 and f.scan2d is not None:
-                stamps.append(f.stamp)
-                scans.append(f.scan2d)
-                ext2.append(f.extrinsic2d)
-                idx.append(k)
-        if not scans:
-            raise InputError(f"{ds.name}: no frame with a 2D scan among the first {n}: the floor map needs them")
-        stamps_a = np.asarray(stamps, dtype=float)
-        p2, ok2 = run3.trajectory.at(stamps_a)
-        if not ok2.any():
-            raise InputError(f"{ds.name}: no 2D scan has a 2D HS-SLAM pose (stamps differ?)")
-        keep2 = np.flatnonzero(ok2)
-        floor_scans = [scans[i] for i in keep2]
-        ext = np.asarray([ext2[i] for i in keep2], dtype=float)
-        floor = grid_from_scans(floor_scans, p2, resolution, extrinsic=ext)
-        floor_pts = _thin(scans_to_points(floor_scans, p2, ext), 0.02)
-        seconds["floor"] = time.perf_counter() - t
-
-        t = time.perf_counter()
-        p3, ok3 = run6.trajectory.at(stamps_a)
-        if not ok3.any():
-            raise InputError(f"{ds.name}: no frame has a 6-DOF HS-SLAM pose (stamps differ?)")
-        wanted = {idx[i] for i in np.flatnonzero(ok3)}
-        sliced = (f for k, f in enumerate(_frames(ds, clouds=True, every=1, max_frames=n)) if k in wanted)
-        sscans, spos = slice_scans(sliced, p3, z_min=z_range[0], z_max=z_range[1], bins=bins)
-        slice_ = grid_from_scans(sscans, spos, resolution)
-        slice_pts = _thin(scans_to_points(sscans, spos), 0.02)
-        seconds["slice"] = time.perf_counter() - t
-
-        gt = getattr(ds, "groundtruth", None)
-        gt_poses, gt_stamps = np.empty((0, 3)), np.empty(0)
-        if gt is not None:
-            gt_poses, ok = gt.as_3dof().at(stamps_a)
-            gt_stamps = stamps_a[ok]
-        np.savez(folder / "maps.npz", slam2d_stamps=stamps_a[ok2], slam2d=p2, slam3d_stamps=stamps_a[ok3],
-                 slam3d=p3, groundtruth_stamps=gt_stamps, groundtruth=gt_poses, map2d=run3.map_points,
-                 map3d=run6.map_points, floor_points=floor_pts, slice_points=slice_pts,
-                 slice_scan_points=np.vstack(sscans) if sscans else np.empty((0, 2)),
-                 slice_scan_sizes=np.array([len(a) for a in sscans], dtype=np.int64), slice_poses=spos,
-                 **_grid_arrays("floor", floor), **_grid_arrays("slice", slice_))
-        write_json(folder / "meta.json", {"seconds": seconds, "frames": int(n), "dataset": ds.name,
-                                          "slam_metrics": {"2d": _slam_summary(run3), "3d": _slam_summary(run6)}})
-
-    return compute
-
-
-def _recording_loader(ds: Dataset, z_range: tuple[float, float]):
-    def load(folder: Path) -> TwoLidarMaps:
-        meta = json.loads((folder / "meta.json").read_text(encoding="utf-8"))
-        with np.load(folder / "maps.npz") as z:
-            gt = (Trajectory(z["groundtruth_stamps"], z["groundtruth"]) if len(z["groundtruth_stamps"]) else None)
+            g = ChainGrids.from_arrays(z)
+            gt = Trajectory(z["groundtruth_stamps"], z["groundtruth"]) if len(z["groundtruth_stamps"]) else None
             return TwoLidarMaps(
                 dataset=ds, frames=int(meta["frames"]), groundtruth=gt,
                 slam2d=Trajectory(z["slam2d_stamps"], z["slam2d"]), slam3d=Trajectory(z["slam3d_stamps"], z["slam3d"]),
-                map2d=z["map2d"], map3d=z["map3d"], floor=_grid_from(z, "floor"), slice=_grid_from(z, "slice"),
-                floor_points=z["floor_points"], slice_points=z["slice_points"],
-                slice_scans=np.split(z["slice_scan_points"], np.cumsum(z["slice_scan_sizes"])[:-1]),
-                slice_poses=z["slice_poses"], z_range=z_range, poses="slam", seconds=meta["seconds"],
-                slam_metrics=meta["slam_metrics"], folder=folder)
+                map2d=z["map2d"], map3d=z["map3d"], floor=g.floor, slice=g.slice, floor_points=g.floor_points,
+                slice_points=g.slice_points, slice_scans=g.slice_scans, slice_poses=g.slice_poses, z_range=z_range,
+                poses=poses, seconds=meta["seconds"], slam_metrics=meta["slam_metrics"], folder=folder)
 
     return load
+
+
+def _compute_maps(ds: SimulatedDataset, n: int, runs: SimulatedRuns | None, grids_cfg: GridsConfig, every: int):
+    """The maps' folder writer of a simulated run: the chain's grids (:func:`hsmap.pipeline.stages.chain_grids`)
+    at the SLAM poses or the true ones."""
+
+    def compute(folder: Path) -> None:
+        stamps, gt = ds.stamps[:n], ds.groundtruth.poses[:n]
+        if runs is not None:
+            p2, p3 = runs.run3.trajectory.poses, runs.run6.trajectory.poses
+            point_maps = {"map2d": runs.run3.map_points, "map3d": runs.run6.map_points}
+            seconds = {"slam2d": runs.run3.seconds, "slam3d": runs.run6.seconds}
+            slam_metrics = {"2d": slam_summary(runs.run3), "3d": slam_summary(runs.run6)}
+        else:
+            p2, p3 = gt, np.column_stack([gt[:, :2], np.zeros((n, 3)), gt[:, 2]])
+            point_maps, seconds, slam_metrics = {"map2d": np.empty((0, 2)), "map3d": np.empty((0, 3))}, {}, {}
+        t = time.perf_counter()
+        traj2, traj3 = Trajectory(stamps, p2), Trajectory(stamps, p3)
+        grids = chain_grids(ds, ds, traj2, traj3, grids_cfg, every=every, max_frames=n)
+        seconds["grids"] = time.perf_counter() - t
+        _save_maps(folder, grids, {"groundtruth": (stamps, gt), "slam2d": (stamps, p2), "slam3d": (stamps, p3)},
+                   point_maps, {"seconds": seconds, "frames": int(n), "slam_metrics": slam_metrics})
+
+    return compute
+
+
+def _compute_recording_maps(ds: Dataset, n: int, runs: tuple, grids_cfg: GridsConfig, deskew: bool, every: int,
+                            max_frames: int | None):
+    """The maps' folder writer of a recording: the chain's grids (:func:`hsmap.pipeline.stages.chain_grids`) of
+    its frames at the chain's runs' poses, as ``hsmap map`` makes them."""
+
+    def compute(folder: Path) -> None:
+        run2, run3 = runs
+        seconds = {"slam2d": run2.seconds, "slam3d": run3.seconds}
+        t = time.perf_counter()
+        grids = chain_grids(ds.driven_by("scan"), ds.driven_by("cloud"), run2.trajectory, run3.trajectory,
+                            grids_cfg, deskew=deskew, every=every, max_frames=max_frames)
+        seconds["grids"] = time.perf_counter() - t
+        gt = getattr(ds, "groundtruth", None)
+        stamps = run2.trajectory.stamps
+        truth = (np.empty(0), np.empty((0, 3)))
+        if gt is not None:
+            gt_poses, ok = gt.as_3dof().at(stamps)
+            truth = (stamps[ok], gt_poses)
+        _save_maps(folder, grids, {"groundtruth": truth, "slam2d": (stamps, run2.trajectory.poses),
+                                   "slam3d": (run3.trajectory.stamps, run3.trajectory.poses)},
+                   {"map2d": run2.map_points, "map3d": run3.map_points},
+                   {"seconds": seconds, "frames": int(n), "dataset": ds.name,
+                    "slam_metrics": {"2d": slam_summary(run2), "3d": slam_summary(run3)}})
+
+    return compute
 
 
 def recording_maps(
     dataset: str | os.PathLike | Dataset,
     seed: int = 1,
     *,
+    config: ChainConfig | None = None,
     max_frames: int | None = None,
-    z_range: tuple[float, float] = (1.7, 1.8),
-    resolution: float = 0.05,
-    slice_bins: int = 720,
     every: int = 1,
-    use_odometry: bool | None = None,
     open_kwargs: Mapping[str, Any] | None = None,
     cache_dir: str | os.PathLike | None = None,
 ) -> TwoLidarMaps:
-    """The maps of :func:`two_lidar_maps` made from a recording (see the module docstring).
+    """The maps of :func:`two_lidar_maps` made from a recording as ``hsmap map`` makes them (see the module
+    docstring).
 
     Parameters
     ----------
     dataset : path or Dataset
         Anything :func:`hsmap.datasets.open.open_dataset` opens (``open_kwargs`` are its keywords) that has 2D
         scans and 3D clouds.
-    use_odometry : bool, optional
-        Default: the command line's (:class:`hsmap.slam.SlamConfig`), which uses the odometry when there is one.
+    config : ChainConfig, optional
+        The chain's settings (both runs, the grids); default ``hsmap map``'s.
 
     Other parameters are those of :func:`two_lidar_maps`.
     """
@@ -508,31 +432,22 @@ def recording_maps(
         raise InputError(f"every must be >= 1, got {every}")
     if max_frames is not None and int(max_frames) < 1:
         raise InputError(f"max_frames must be >= 1, got {max_frames}")
+    config = ChainConfig() if config is None else config
     ds = dataset if isinstance(dataset, Dataset) else open_dataset(dataset, **dict(open_kwargs or {}))
     n = len(ds) if max_frames is None else min(int(max_frames), len(ds))
     if n < 1:
         raise InputError(f"{ds.name}: the recording has no frames")
+    runs = slam_runs(ds.driven_by("scan"), ds.driven_by("cloud"), config, int(seed), cache_dir=default_slam_dir(),
+                     max_frames=max_frames)
     # the key names the input as given (a path: its contents and options), the runs and maps share it
     src = ds if isinstance(dataset, Dataset) else dataset
-    kw = None if isinstance(dataset, Dataset) else open_kwargs
-    base = SlamConfig()
-    odo = base.use_odometry if use_odometry is None else bool(use_odometry)
-    gt = getattr(ds, "groundtruth", None)
-    start = None if gt is None else gt.as_3dof().poses[0]
-    run3 = cached_slam(src, SlamConfig(dof=3, use_odometry=odo), seed, max_frames=n, initial_pose=start,
-                       open_kwargs=kw)
-    start6 = None if gt is None else gt.as_6dof().poses[0]
-    run6 = cached_slam(src, SlamConfig(dof=6, use_odometry=odo), seed, max_frames=n, initial_pose=start6,
-                       prior=run3.trajectory, open_kwargs=kw)
-    z = (float(z_range[0]), float(z_range[1]))
-    params = {"z_range": list(z), "resolution": float(resolution), "slice_bins": int(slice_bins),
-              "every": int(every), "use_odometry": odo, "frames": int(n), "seed": int(seed)}
-    desc = {"dataset": dataset_fingerprint(src, kw), "params": params, "slam": [run3.key, run6.key]}
+    params = {"grids": to_dict(config.grids), "every": int(every), "frames": int(n), "seed": int(seed)}
+    desc = {"dataset": dataset_fingerprint(src, None if isinstance(dataset, Dataset) else open_kwargs),
+            "params": params, "slam": [r.key for r in runs]}
     slot = f"{slug(ds.name.split('.')[0])}-rec-seed{int(seed)}-{n}f-{description_digest(desc)[:16]}"
     cache = FolderCache(cache_dir if cache_dir is not None else default_maps_dir())
-    got = cache.get(slot, desc, _compute_recording_maps(src, kw, n, (run3, run6), z, float(resolution),
-                                                        int(slice_bins), int(every)),
-                    _recording_loader(ds, z))
+    compute = _compute_recording_maps(ds, n, runs, config.grids, config.slam3d.deskew, int(every), max_frames)
+    got = cache.get(slot, desc, compute, _maps_loader(ds, config.grids.slice, "slam"))
     return dataclasses.replace(got.value, key=got.key, cached=got.cached)
 
 
@@ -541,9 +456,7 @@ def two_lidar_maps(
     seed: int = 1,
     *,
     max_frames: int | None = None,
-    z_range: tuple[float, float] = (1.7, 1.8),
-    resolution: float = 0.05,
-    slice_bins: int = 720,
+    grids: GridsConfig | None = None,
     poses: str = "slam",
     every: int = 1,
     use_odometry: bool = False,
@@ -564,12 +477,9 @@ def two_lidar_maps(
         Simulator seed and HS-SLAM seed.
     max_frames : int, optional
         Use only the first frames (quick runs).
-    z_range : (float, float)
-        The slice of the 3D map (the paper: 1.7-1.8 m).
-    resolution : float
-        Metres per cell of both grids.
-    slice_bins : int
-        Azimuth bins of the virtual slice scans.
+    grids : GridsConfig, optional
+        The grids: ``resolution`` (metres per cell of both), ``slice`` (the slice of the 3D map; the paper's
+        1.7-1.8 m), ``slice_bins`` (azimuth bins of the virtual slice scans); default ``hsmap map``'s.
     poses : str
         ``"slam"`` (the paper's pipeline: HS-SLAM in 2D and 6-DOF) or ``"groundtruth"`` (no SLAM: the grids
         at the true poses; ``slam2d``/``slam3d`` then hold the true poses and ``map2d``/``map3d`` are empty).
@@ -586,16 +496,17 @@ def two_lidar_maps(
     TwoLidarMaps
     """
 
+    grids = GridsConfig() if grids is None else grids
     if poses not in ("slam", "groundtruth"):
         raise InputError(f"poses must be 'slam' or 'groundtruth', got {poses!r}")
     if dataset is not None and (isinstance(dataset, Dataset) or str(dataset).strip()):
         if poses != "slam":
             raise InputError("a recording's maps are made at its HS-SLAM poses: poses must be 'slam'")
-        return recording_maps(dataset, seed, max_frames=max_frames, z_range=z_range, resolution=resolution,
-                              slice_bins=slice_bins, every=every, cache_dir=cache_dir)
+        return recording_maps(dataset, seed, config=ChainConfig(grids=grids), max_frames=max_frames, every=every,
+                              cache_dir=cache_dir)
     if int(every) < 1:
         raise InputError(f"every must be >= 1, got {every}")
-    z = (float(z_range[0]), float(z_range[1]))
+    z = grids.slice
     if poses == "slam":
         runs = simulated_slam_runs(scenario, seed, max_frames=max_frames, use_odometry=use_odometry)
         ds, n = runs.dataset, runs.frames
@@ -603,13 +514,13 @@ def two_lidar_maps(
         runs = None
         ds = simulated_dataset(scenario, seed, max_frames=max_frames)
         n = len(ds) if max_frames is None else min(int(max_frames), len(ds))
-    params = {"z_range": list(z), "resolution": float(resolution), "slice_bins": int(slice_bins), "poses": poses,
+    params = {"z_range": list(z), "resolution": float(grids.resolution), "slice_bins": int(grids.slice_bins), "poses": poses,
               "every": int(every), "use_odometry": bool(use_odometry), "frames": int(n), "seed": int(seed)}
     desc = {"dataset": dataset_fingerprint(ds), "params": params,
             "slam": None if runs is None else [runs.run3.key, runs.run6.key]}
     slot = f"{slug(ds.name)}-seed{int(seed)}-{n}f-{'gt-' if runs is None else ''}{description_digest(params)[:16]}"
     cache = FolderCache(cache_dir if cache_dir is not None else default_maps_dir())
-    got = cache.get(slot, desc, _compute_maps(ds, n, runs, z, float(resolution), int(slice_bins), int(every)),
+    got = cache.get(slot, desc, _compute_maps(ds, n, runs, grids, int(every)),
                     _maps_loader(ds, z, poses))
     return dataclasses.replace(got.value, key=got.key, cached=got.cached)
 

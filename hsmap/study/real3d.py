@@ -25,9 +25,10 @@ from ..errors import EmptyInputError
 from ..evaluation.trajectory import pose_errors
 from ..io import write_json
 from ..maps.fusion import global_align, occupied_points
-from ..maps.grid import FREE, OCCUPIED, UNKNOWN, GridGeometry, OccupancyGrid
-from ..maps.maps3d import band_grid, segmentation_free
+from ..maps.grid import OCCUPIED, UNKNOWN, GridGeometry, OccupancyGrid
+from ..maps.maps3d import band_grid
 from ..pipeline.chain import map_recording
+from ..pipeline.chain3d import band_grids
 from ..rooms.segmentation import SegmentationConfig, segment_rooms
 from ..rooms.topology import room_graph
 from ..sim.voxelrun import load_voxel_world, simulate_world
@@ -99,10 +100,7 @@ def band_rooms(m, band: tuple[float, float], *, floor: float | None = None, conf
     t = time.perf_counter()
     cfg = config or SegmentationConfig()
     lo, hi = float(band[0]), float(band[1])
-    grid = band_grid(m, lo, hi, floor=floor)
-    free = segmentation_free(m, lo, hi, floor=floor, min_passage=2.0 * cfg.min_door_half_width)
-    segmented = OccupancyGrid(np.where(free, FREE, np.where(grid.occupied, OCCUPIED, UNKNOWN)).astype(np.int8),
-                              grid.geometry)
+    grid, segmented = band_grids(m, (lo, hi), floor=floor, min_passage=2.0 * cfg.min_door_half_width)
     seg = segment_rooms(segmented, config=cfg)
     return BandRooms((lo, hi), grid, segmented, seg, room_graph(seg), time.perf_counter() - t)
 

@@ -7,8 +7,10 @@ hall, ``$HSMAP_DATASETS/balm``: ``full0.pcd`` .. ``full176.pcd`` and ``alidarPos
   order and a ``times.txt`` of the reference stamps), so that HS-SLAM and the peers read the same clouds;
 - :func:`score_track`: one scoring for every odometry or SLAM on the sweeps (:class:`TrackScore`);
 - :func:`run_hs_slam`: HS-SLAM 6-DOF with the command line's defaults (``hsmap slam FOLDER --dof 6``);
-- :func:`posed_points`, :func:`posed_voxel_map`, :func:`floor_under`, :func:`slice_rooms`: the posed sweeps as a
-  voxel map (free along the rays), the floor under the walked trajectory, a height band above it and its rooms.
+- :func:`posed_points`: the posed sweeps as a point map, one point a voxel;
+- :func:`slice_rooms`: the posed sweeps through the 3D-only chain's stages (:mod:`hsmap.pipeline.chain3d`, as ``hsmap
+  map`` maps a 3D-only recording with ``--poses``): the voxel map carved along the rays, the floor under the walked
+  trajectory, a height band above it and its rooms.
 
 Scoring (:func:`score_track`):
 
@@ -51,7 +53,7 @@ from .paths import datasets_dir
 
 __all__ = ["BALM_FOLDER", "POSES_FILE", "LOST_TRACK_M", "balm_folder", "missing_balm_reason", "sweep_files",
            "read_reference", "sweep_folder", "open_sweeps", "TrackScore", "score_track", "run_hs_slam", "HsSlamRun",
-           "posed_points", "posed_voxel_map", "floor_under", "slice_rooms", "SliceRooms"]
+           "posed_points", "slice_rooms", "SliceRooms"]
 
 #: The sweeps' folder under the datasets folder.
 BALM_FOLDER = "balm"
@@ -317,68 +319,54 @@ def posed_points(sweeps, trajectory: Trajectory, *, voxel: float = 0.1, min_rang
     return p[np.sort(first)]
 
 
-def posed_voxel_map(points: NDArray[np.float64], trajectory: Trajectory, *, resolution: float = 0.1):
-    """A voxel map of posed points (:func:`posed_points`) as ``hsmap segment MAP.ply`` reads a point map with the
-    sensor's positions: every point's voxel occupied, the voxels on the segment from each point's nearest sensor
-    position to it free (:func:`hsmap.maps.maps3d.read_map3d`)."""
-    import tempfile
-
-    import open3d as o3d
-
-    from ..maps.maps3d import read_map3d
-
-    with tempfile.TemporaryDirectory(prefix="hsmap-sweeps-") as tmp:
-        path = Path(tmp) / "map.ply"
-        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, dtype=float)))
-        o3d.io.write_point_cloud(str(path), pc)
-        return read_map3d(path, poses=trajectory.as_6dof().poses, resolution=resolution)
-
-
-def floor_under(m, positions: NDArray[np.float64], *, radius: float = 1.0, depth: float = 3.0) -> float:
-    """The floor under a walked trajectory: for each position, the voxel layer with the most occupied voxels within
-    ``radius`` metres around it and up to ``depth`` metres below it; the median of those layers' top faces. A hall
-    with two floor levels gets the one walked on most; its ceiling is never below the sensor."""
-    from ..maps.maps3d import OCCUPIED
-
-    occ = m.state == OCCUPIED
-    r = int(np.ceil(radius / m.resolution))
-    nz = int(np.ceil(depth / m.resolution))
-    idx = m.index_of(positions)
-    tops = []
-    for i, j, k in idx:
-        lo_i, hi_i = max(i - r, 0), min(i + r + 1, occ.shape[0])
-        lo_j, hi_j = max(j - r, 0), min(j + r + 1, occ.shape[1])
-        lo_k, hi_k = max(k - nz, 0), min(k, occ.shape[2])
-        if lo_i >= hi_i or lo_j >= hi_j or lo_k >= hi_k:
-            continue
-        per_layer = occ[lo_i:hi_i, lo_j:hi_j, lo_k:hi_k].sum(axis=(0, 1))
-        if per_layer.max(initial=0) == 0:
-            continue
-        tops.append(m.origin[2] + (lo_k + int(np.argmax(per_layer)) + 1) * m.resolution)
-    if not tops:
-        raise InputError("no occupied voxel under the trajectory: no floor to find")
-    return float(np.median(tops))
-
-
 @dataclass
 class SliceRooms:
-    """The map of the posed sweeps and the rooms of one of its height bands."""
+    """The map of the posed sweeps and the rooms of one of its height bands.
+
+    Attributes
+    ----------
+    map : hsmap.maps.maps3d.Map3D
+        The posed sweeps' 3D occupancy map, free space carved along every ray.
+    floor : float
+        The median of :attr:`floors`.
+    floors : ndarray of shape (S,)
+        The floor's world height under each sweep's sensor.
+    rooms : hsmap.study.real3d.BandRooms
+        The band's grids (heights above the floor under the path), rooms and graph.
+    seconds : float
+    """
 
     map: object
     floor: float
-    rooms: object  # hsmap.study.real3d.BandRooms
+    floors: NDArray[np.float64]
+    rooms: object
     seconds: float
 
 
 def slice_rooms(sweeps, trajectory: Trajectory, band: tuple[float, float], *, voxel: float = 0.1) -> SliceRooms:
-    """The sweeps posed by ``trajectory`` as a voxel map (:func:`posed_points`, :func:`posed_voxel_map`), the floor
-    under the trajectory (:func:`floor_under`) and the rooms of ``band`` (metres above that floor) as ``hsmap
-    segment MAP3D --band`` finds them (:func:`hsmap.study.real3d.band_rooms`)."""
-    from .real3d import band_rooms
+    """The sweeps posed by ``trajectory`` (one pose a sweep, in order) through the 3D-only chain's stages, as
+    ``hsmap map`` maps a 3D-only recording with ``--poses``: the voxel map carved along every ray
+    (:func:`hsmap.pipeline.chain3d.carve_map`), the floor under each pose and the map levelled to it, the band
+    ``band`` (metres above that floor) and its rooms (:func:`hsmap.pipeline.chain3d.levelled_bands`, the chain's
+    defaults but ``grids.voxel`` and ``grids.slice``)."""
+    from ..pipeline.chain3d import carve_map, levelled_bands, posed_sweep
+    from ..pipeline.config import ChainConfig, GridsConfig
+    from ..rooms.segmentation import segment_rooms
+    from ..rooms.topology import room_graph
+    from .real3d import BandRooms
 
     t0 = time.perf_counter()
-    pts = posed_points(sweeps, trajectory, voxel=voxel)
-    m = posed_voxel_map(pts, trajectory, resolution=voxel)
-    floor = floor_under(m, trajectory.as_6dof().poses[:, :3])
-    rooms = band_rooms(m, band, floor=floor)
-    return SliceRooms(m, floor, rooms, time.perf_counter() - t0)
+    cfg = ChainConfig(grids=GridsConfig(voxel=float(voxel), slice=(float(band[0]), float(band[1]))))
+    poses = pose_to_matrix(trajectory.as_6dof().poses)
+    sweeps = list(sweeps)
+    if len(sweeps) != len(poses):
+        raise InputError(f"{len(sweeps)} sweeps but {len(poses)} poses: give one pose a sweep")
+    posed = [posed_sweep(s, T, cfg.grids.voxel) for s, T in zip(sweeps, poses, strict=True)]
+    m, positions = carve_map(posed, cfg.grids, source="the posed sweeps")
+    bands = levelled_bands(m, positions, cfg)
+    t = time.perf_counter()
+    seg = segment_rooms(bands["slice_segmented"], config=cfg.segmentation)
+    rooms = BandRooms(cfg.grids.slice, bands["slice"], bands["slice_segmented"], seg, room_graph(seg),
+                      time.perf_counter() - t)
+    floors = np.asarray(bands["floors"], dtype=float)
+    return SliceRooms(m, float(np.median(floors)), floors, rooms, time.perf_counter() - t0)

@@ -12,6 +12,8 @@ Conventions (used everywhere in hsmap):
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
@@ -134,8 +136,21 @@ def transform_points_batch(T: ArrayLike, points: ArrayLike) -> NDArray[np.float6
     return np.einsum("bij,nj->bni", T[:, :d, :d], points) + T[:, None, :d, d]
 
 
+def _one_se2(a: ArrayLike, b: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+    """``a`` and ``b`` as float arrays when both are one 2D pose (3,), else None (the matrix path)."""
+    if isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.shape == (3,) and b.shape == (3,):
+        return a.astype(float, copy=False), b.astype(float, copy=False)
+    return None
+
+
 def compose(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
     """Composition a ⊕ b of pose vectors (..., 3|6): b expressed in a's frame, mapped to a's parent."""
+    one = _one_se2(a, b)
+    if one is not None:  # one 2D pose each (hot in the tracker): the same arithmetic, written out
+        (ax, ay, at), (bx, by, bt) = one[0].tolist(), one[1].tolist()
+        c, s = math.cos(at), math.sin(at)
+        cb, sb = math.cos(bt), math.sin(bt)
+        return np.array([c * bx - s * by + ax, s * bx + c * by + ay, math.atan2(s * cb + c * sb, c * cb - s * sb)])
     return matrix_to_pose(pose_to_matrix(a) @ pose_to_matrix(b))
 
 
@@ -158,6 +173,13 @@ def invert(pose: ArrayLike) -> NDArray[np.float64]:
 
 def relative(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
     """Relative pose a⁻¹ ⊕ b of pose vectors: b expressed in the frame of a."""
+    one = _one_se2(a, b)
+    if one is not None:  # one 2D pose each (hot in the tracker): the same arithmetic, written out
+        (ax, ay, at), (bx, by, bt) = one[0].tolist(), one[1].tolist()
+        c, s = math.cos(at), math.sin(at)
+        cb, sb = math.cos(bt), math.sin(bt)
+        dx, dy = bx - ax, by - ay
+        return np.array([c * dx + s * dy, -s * dx + c * dy, math.atan2(c * sb - s * cb, c * cb + s * sb)])
     return matrix_to_pose(invert_matrix(pose_to_matrix(a)) @ pose_to_matrix(b))
 
 

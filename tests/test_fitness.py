@@ -142,9 +142,10 @@ def test_a_field_within_a_box_answers_as_the_whole_one_there(rng, dim):
     np.testing.assert_array_equal(field_bounds(pts, res, tau, box + 20.0), whole_bounds)
 
 
+@pytest.mark.parametrize("spread", [None, 0.05])
 @pytest.mark.parametrize("dim", [2, 3])
 @pytest.mark.parametrize("variant", ["classic", "ihs", "global-best"])
-def test_compiled_harmony_rounds_match_the_python_loop(rng, dim, variant):
+def test_compiled_harmony_rounds_match_the_python_loop(rng, dim, variant, spread):
     from hsmap.registration.fitness import FieldObjective
     from hsmap.registration.harmony import HarmonyConfig, harmony_search
 
@@ -154,8 +155,9 @@ def test_compiled_harmony_rounds_match_the_python_loop(rng, dim, variant):
     fast = FieldObjective(src, field, 1.0)
     bounds = [[-0.5, 0.5]] * (3 if dim == 2 else 6)
     cfg = HarmonyConfig(batch_size=8, max_iterations=100, patience=15, variant=variant)
-    a = harmony_search(fast, bounds, config=cfg, rng=4)
-    b = harmony_search(lambda X: fast(X), bounds, config=cfg, rng=4)  # a plain callable: the Python loop
+    sp = None if spread is None else [spread] * len(bounds)
+    a = harmony_search(fast, bounds, config=cfg, rng=4, spread=sp)
+    b = harmony_search(lambda X: fast(X), bounds, config=cfg, rng=4, spread=sp)  # a plain callable: the Python loop
     # the same random stream and decisions; the fitness sums are compiled with fastmath, whose vectorised
     # reductions may add in an order that depends on the arrays' memory alignment: full test runs in fresh
     # clones saw the two paths 1.1e-16 apart in 3-D

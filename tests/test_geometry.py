@@ -146,3 +146,17 @@ def test_compose_with_covariance_2d_matches_sampling():
     scale = np.sqrt(np.outer(np.diag(bc), np.diag(bc)))
     np.testing.assert_allclose(np.cov(body.T) / scale, bc / scale, atol=0.03)
     assert not np.allclose(bc, cov, rtol=0.2)  # the frames differ: the check above can tell them apart
+
+
+def test_one_pose_compose_and_relative_match_the_batched_matrices(rng):
+    """One 2D pose each takes a written-out path: it agrees with the batched matrix path to rounding, wraps the
+    angle to [-pi, pi] and returns a fresh (3,) array."""
+    a = np.column_stack([rng.uniform(-50, 50, (500, 2)), rng.uniform(-np.pi, np.pi, 500)])
+    b = np.column_stack([rng.uniform(-50, 50, (500, 2)), rng.uniform(-np.pi, np.pi, 500)])
+    one_c = np.array([g.compose(p, q) for p, q in zip(a, b, strict=True)])
+    one_r = np.array([g.relative(p, q) for p, q in zip(a, b, strict=True)])
+    np.testing.assert_allclose(one_c, g.compose(a, b), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(one_r, g.relative(a, b), rtol=0, atol=1e-12)
+    assert np.all(np.abs(one_c[:, 2]) <= np.pi) and np.all(np.abs(one_r[:, 2]) <= np.pi)
+    ints = np.array([1, 2, 0])  # integer poses are read as floats
+    np.testing.assert_allclose(g.relative(ints, ints), np.zeros(3), atol=1e-15)

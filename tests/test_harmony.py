@@ -57,6 +57,22 @@ def test_deterministic_and_seed_dependent():
     assert not np.array_equal(a.x, c.x)
 
 
+def test_improvements_within_the_spread_do_not_reset_patience():
+    """With a spread, a best that only creeps (moves less than the spread) counts as settled: the search ends
+    sooner than on every lower value, and its best lies where the patient search's does, within the spread."""
+    cfg = HarmonyConfig(batch_size=8, max_iterations=2000, patience=30, convergence_tol=-1, variant="ihs")
+    plain = harmony_search(sphere, [[-5, 5]] * 3, config=cfg, rng=2)
+    settled = harmony_search(sphere, [[-5, 5]] * 3, config=cfg, rng=2, spread=[0.2] * 3)
+    assert plain.stop_reason is StopReason.NO_IMPROVEMENT
+    assert settled.stop_reason is StopReason.SETTLED
+    assert settled.evaluations < plain.evaluations
+    assert np.abs(settled.x - plain.x).max() < 0.4
+    # the same random stream: identical up to the earlier stop
+    np.testing.assert_array_equal(settled.history, plain.history[: len(settled.history)])
+    with pytest.raises(ShapeError, match="spread"):
+        harmony_search(sphere, [[-5, 5]] * 3, config=cfg, rng=2, spread=[0.2, 0.2])
+
+
 def test_history_is_monotone_and_memory_sorted():
     res = harmony_search(ackley, [[-30, 30]] * 2, config=HarmonyConfig(batch_size=4, max_iterations=300), rng=1)
     assert np.all(np.diff(res.history) <= 0)

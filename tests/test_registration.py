@@ -411,3 +411,20 @@ def test_a_real_sweep_after_a_sharp_turn_registers_at_gicp_precision():
     err = np.linalg.inv(ref) @ res.transformation
     assert np.linalg.norm(err[:3, 3]) < 0.01
     assert np.rad2deg(np.arccos(np.clip((np.trace(err[:3, :3]) - 1) / 2, -1, 1))) < 0.1
+
+
+def test_a_search_settled_within_a_field_cell_stops_sooner_at_the_same_pose():
+    """stop_within_cell counts only improvements that move the search's best pose by more than a field cell: the
+    searches end sooner, and after the refinement the poses are the ones the longer searches find."""
+    fewer = 0
+    for k, (start, offset) in enumerate(OFFSETS_2D):
+        p0 = np.array(start)
+        src, tgt, truth = scan_pair_2d(p0, p0 + np.array(offset), seed=k)
+        a = hsmap.harmony_icp(src, tgt, rng=k, config=RegistrationConfig(stop_within_cell=True))
+        b = hsmap.harmony_icp(src, tgt, rng=k, config=RegistrationConfig(stop_within_cell=False))
+        assert a.evaluations <= b.evaluations
+        fewer += a.evaluations < b.evaluations
+        for res in (a, b):
+            t_err, r_err = errors(res.pose, truth)
+            assert t_err < 0.02 and r_err < 0.5, (t_err, r_err)
+    assert fewer >= 3

@@ -12,17 +12,17 @@ from hsmap.slam import Costs, SlamConfig, run_slam, write_slam_outputs
 FRAMES = 3000
 #: The counts of such a run (:meth:`Costs.as_dict`).
 REFERENCE = {
-    "registrations": 3180,
+    "registrations": 3183,
     "refinements": 4011,
-    "harmony_evaluations": 1651080,
-    "retries": 84,
-    "loop_searches": 92,
-    "far_searches": 7,
-    "optimizations": 18,
-    "optimization_rounds": 33,
-    "optimization_iterations": 188,
-    "map_rebuilds": 22,
-    "points_inserted": 423621,
+    "harmony_evaluations": 1058850,
+    "retries": 92,
+    "loop_searches": 88,
+    "far_searches": 6,
+    "optimizations": 17,
+    "optimization_rounds": 35,
+    "optimization_iterations": 225,
+    "map_rebuilds": 20,
+    "points_inserted": 355702,
 }
 BUDGET = budget(REFERENCE)
 

@@ -136,7 +136,7 @@ def _score_batch_field(new, f_new, pts, flat, shape, origin, inv_res, tau, weigh
 
 @nb.njit(cache=True, nogil=True)
 def hs_chunk_field(memory, fun, pick, consider, adjust_u, step, rand, par, bw, lo, hi, span, history, state,
-                   global_best, patience, convergence_tol, min_improvement,
+                   global_best, patience, convergence_tol, min_improvement, spread, anchor,
                    pts, flat, shape, origin, inv_res, tau, weight):  # pragma: no cover - JIT
     """hsmap.registration.harmony._run_chunk with the two-term field fitness compiled (same arithmetic, same order); each
     round's batch is scored in parallel (:func:`_score_batch_field`)."""
@@ -177,6 +177,14 @@ def hs_chunk_field(memory, fun, pick, consider, adjust_u, step, rand, par, bw, l
             memory[i] = all_x[keep[i]]
             fun[i] = all_f[keep[i]]
         improved = history[k] - fun[0] > min_improvement
+        if improved and spread[0] >= 0:
+            improved = False
+            for j in range(dim):
+                if abs(memory[0, j] - anchor[j]) > spread[j]:
+                    improved = True
+            if improved:
+                for j in range(dim):
+                    anchor[j] = memory[0, j]
         history[k + 1] = fun[0]
         stale = 0 if improved else stale + 1
         state[0] = k + 1

@@ -20,8 +20,10 @@ the classic rule: the new harmony replaces the worst one if it is better). Varia
   carry different units, e.g. metres and radians, we copy the same dimension, as most later work does.)
 
 Stopping rules (the first that holds ends the search): ``max_iterations``; the best and the worst harmony in
-memory have objective values within ``convergence_tol`` (the paper's rule); no improvement of the best value by
-more than ``min_improvement`` for ``patience`` iterations.
+memory have objective values within ``convergence_tol`` (the paper's rule); no improvement of the best value by more
+than ``min_improvement`` for ``patience`` iterations. Given a ``spread`` (a caller's argument, off by default), an
+improvement counts only where it moves the best harmony farther than ``spread`` in some variable from where the
+last counted one left it: a search whose best only creeps among poses the caller cannot tell apart has settled.
 
 Paper defaults: HMS 30, HMCR 0.7, PAR 0.3, BW 0.05 (of each variable's range), 500 iterations.
 """
@@ -57,6 +59,7 @@ class StopReason(enum.StrEnum):
 
     MAX_ITERATIONS = "max-iterations"
     CONVERGED = "converged"  # best and worst harmony equal within convergence_tol
+    SETTLED = "settled"  # the best moved less than `spread` for `patience` iterations
     NO_IMPROVEMENT = "no-improvement"  # best did not improve for `patience` iterations
 
 
@@ -210,6 +213,7 @@ def harmony_search(
     initial: ArrayLike | None = None,
     config: HarmonyConfig | None = None,
     rng: int | np.random.Generator | None = None,
+    spread: ArrayLike | None = None,
 ) -> HarmonyResult:
     """Minimise ``objective`` over a box with Harmony Search.
 
@@ -227,6 +231,9 @@ def harmony_search(
         Parameters; defaults to the paper's.
     rng : int or numpy.random.Generator, optional
         Source of every random choice (default: seed 0).
+    spread : array_like of shape (D,), optional
+        Per variable, the smallest move of the best harmony that counts as an improvement for ``patience`` (a move
+        farther than it in any variable counts). None: every lower best value counts.
 
     Returns
     -------
@@ -239,6 +246,13 @@ def harmony_search(
     span = hi - lo
     dim = b.shape[0]
     hms = cfg.memory_size
+    if spread is None:
+        tol_x = np.full(dim, -1.0)
+    else:
+        tol_x = np.asarray(spread, dtype=float).reshape(-1)
+        if tol_x.shape != (dim,) or not np.all(np.isfinite(tol_x) & (tol_x >= 0)):
+            raise ShapeError(f"spread must hold {dim} finite values >= 0 (one per variable), got "
+                             f"{quote(spread)}")
 
     def evaluate(X: NDArray[np.float64]) -> NDArray[np.float64]:
         f = np.asarray(objective(X), dtype=float).reshape(-1)
@@ -260,6 +274,7 @@ def harmony_search(
     fun = evaluate(memory)
     order = np.argsort(fun, kind="stable")
     memory, fun = np.ascontiguousarray(memory[order]), np.ascontiguousarray(fun[order])
+    anchor = memory[0].copy()  # the best harmony where the last counted improvement left it
     variant = Variant(cfg.variant)
     batch = cfg.batch_size
     runner = getattr(objective, "run_chunk", None)  # a compiled fast path (see hsmap.registration.fitness.FieldObjective)
@@ -288,13 +303,14 @@ def harmony_search(
             lo + gen.random((c, batch, dim)) * span,
         )
         args = (memory, fun, *draws, par, bw, lo, hi, span, history[it:], state,
-                variant is Variant.GLOBAL_BEST, patience, cfg.convergence_tol, cfg.min_improvement)
+                variant is Variant.GLOBAL_BEST, patience, cfg.convergence_tol, cfg.min_improvement, tol_x, anchor)
         if runner is not None:
             runner(*args)
         else:
             _run_chunk(evaluate, *args)
         it += int(state[0])
-    stop = {0: StopReason.MAX_ITERATIONS, 1: StopReason.CONVERGED, 2: StopReason.NO_IMPROVEMENT}[int(state[2])]
+    stop = {0: StopReason.MAX_ITERATIONS, 1: StopReason.CONVERGED,
+            2: StopReason.NO_IMPROVEMENT if spread is None else StopReason.SETTLED}[int(state[2])]
     evaluations = hms + it * batch
     history = history[: it + 1]
     return HarmonyResult(
@@ -310,12 +326,13 @@ def harmony_search(
 
 
 def _run_chunk(evaluate, memory, fun, pick, consider, adjust_u, step, rand, par, bw, lo, hi, span, history, state,
-               global_best, patience, convergence_tol, min_improvement) -> None:
+               global_best, patience, convergence_tol, min_improvement, spread, anchor) -> None:
     """Run up to ``len(pick)`` improvisation rounds in place (the reference for the compiled runners).
 
     ``memory`` (HMS, D) and ``fun`` (HMS,) are sorted best first and updated in place; ``history[k + 1]`` gets
     the best value after round k; ``state`` = [rounds done, rounds without improvement, stop code (0 running or
-    max-iterations, 1 converged, 2 no improvement)] is updated in place.
+    max-iterations, 1 converged, 2 no improvement)] is updated in place; ``anchor`` (D,): the best harmony where the
+    last improvement that moved it farther than ``spread`` (negative: any improvement) left it, updated in place.
     """
     hms, dim = memory.shape
     cols = np.arange(dim)
@@ -339,6 +356,10 @@ def _run_chunk(evaluate, memory, fun, pick, consider, adjust_u, step, rand, par,
         memory[:] = all_x[keep]
         fun[:] = all_f[keep]
         improved = history[k] - fun[0] > min_improvement
+        if improved and spread[0] >= 0:
+            improved = bool(np.any(np.abs(memory[0] - anchor) > spread))
+            if improved:
+                anchor[:] = memory[0]
         history[k + 1] = fun[0]
         stale = 0 if improved else stale + 1
         state[0] = k + 1

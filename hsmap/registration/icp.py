@@ -136,6 +136,11 @@ class RegistrationConfig:
         Metres. Scale of the Geman-McClure kernel of the final refinement (0: plain least squares).
     polish_iterations : int
         The final refinement's iterations at most (0: none).
+    stop_within_cell : bool
+        2D: count, for the Harmony Search's ``patience``, only the improvements that move its best pose by more
+        than one cell of the search's distance field (translation; rotation: the angle that moves the sample's
+        typical point by a cell): the fitness cannot tell poses within a cell apart, and the refinement polishes
+        the best. 3D searches, whose field cells are several times coarser, count every improvement.
     """
 
     harmony: HarmonyConfig = field(default_factory=_default_harmony)
@@ -162,6 +167,7 @@ class RegistrationConfig:
     polish_distance: float = 0.3
     polish_kernel: float = 0.1
     polish_iterations: int = 30
+    stop_within_cell: bool = True
 
     def __post_init__(self) -> None:
         for name in ("threshold", "search_threshold", "inlier_weight", "translation_range", "z_range", "yaw_range",
@@ -778,7 +784,12 @@ def harmony_icp(
             def objective(X: NDArray[np.float64], lookup=lookup) -> NDArray[np.float64]:
                 return score(X, sample, lookup, cfg.inlier_weight).value
 
-        hs = harmony_search(objective, box, initial=seeds, config=cfg.harmony, rng=gen)
+        spread = None
+        if cfg.stop_within_cell and dim == 2:
+            cell = lookup.resolution if isinstance(lookup, DistanceField) else max(0.02, tau / 10.0)
+            spread = np.full(dof, cell / radius)
+            spread[:dim] = cell
+        hs = harmony_search(objective, box, initial=seeds, config=cfg.harmony, rng=gen, spread=spread)
         iterations += hs.iterations
         evaluations += hs.evaluations
     assert hs is not None

@@ -31,6 +31,7 @@ Paper defaults: HMS 30, HMCR 0.7, PAR 0.3, BW 0.05 (of each variable's range), 5
 from __future__ import annotations
 
 import enum
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -243,16 +244,8 @@ def harmony_search(
     gen = as_rng(rng)
     b = _check_bounds(bounds)
     lo, hi = b[:, 0], b[:, 1]
-    span = hi - lo
-    dim = b.shape[0]
     hms = cfg.memory_size
-    if spread is None:
-        tol_x = np.full(dim, -1.0)
-    else:
-        tol_x = np.asarray(spread, dtype=float).reshape(-1)
-        if tol_x.shape != (dim,) or not np.all(np.isfinite(tol_x) & (tol_x >= 0)):
-            raise ShapeError(f"spread must hold {dim} finite values >= 0 (one per variable), got "
-                             f"{quote(spread)}")
+    tol_x = _spread_tolerance(spread, b.shape[0])
 
     def evaluate(X: NDArray[np.float64]) -> NDArray[np.float64]:
         f = np.asarray(objective(X), dtype=float).reshape(-1)
@@ -260,6 +253,78 @@ def harmony_search(
             raise ShapeError(f"objective returned {f.shape[0]} values for a batch of {X.shape[0]} harmonies")
         return np.where(np.isfinite(f), f, np.inf)
 
+    memory = _initial_memory(cfg, gen, lo, hi, initial)
+    fun = evaluate(memory)
+    order = np.argsort(fun, kind="stable")
+    memory, fun = np.ascontiguousarray(memory[order]), np.ascontiguousarray(fun[order])
+    # a compiled fast path (see hsmap.registration.fitness.FieldObjective), else rounds calling `evaluate`
+    runner = getattr(objective, "run_chunk", None) or functools.partial(_run_chunk, evaluate)
+    it, history, state = _improvise(runner, memory, fun, b, cfg, gen, tol_x)
+    stop = {0: StopReason.MAX_ITERATIONS, 1: StopReason.CONVERGED,
+            2: StopReason.NO_IMPROVEMENT if spread is None else StopReason.SETTLED}[int(state[2])]
+    evaluations = hms + it * cfg.batch_size
+    return HarmonyResult(
+        x=memory[0].copy(),
+        fun=float(fun[0]),
+        iterations=it,
+        evaluations=evaluations,
+        stop_reason=stop,
+        memory=memory,
+        memory_fun=fun,
+        history=np.asarray(history),
+    )
+
+
+def _improvise(runner: Callable, memory: NDArray[np.float64], fun: NDArray[np.float64], b: NDArray[np.float64],
+               cfg: HarmonyConfig, gen: np.random.Generator, tol_x: NDArray[np.float64]
+               ) -> tuple[int, NDArray[np.float64], NDArray[np.int64]]:
+    """The rounds of improvisation on ``memory`` and its values ``fun`` (both updated in place, sorted best
+    first), run in chunks by ``runner``: the rounds done, the best value after each round (first: before any) and
+    the runner's state (last chunk's rounds, rounds without improvement, stop code)."""
+    lo, hi = b[:, 0], b[:, 1]
+    span = hi - lo
+    hms, dim, batch = cfg.memory_size, b.shape[0], cfg.batch_size
+    variant = Variant(cfg.variant)
+    anchor = memory[0].copy()  # the best harmony where the last counted improvement left it
+    history = np.empty(cfg.max_iterations + 1)
+    history[0] = fun[0]
+    state = np.zeros(3, dtype=np.int64)  # rounds done in the last chunk, rounds without improvement, stop code
+    patience = cfg.patience if cfg.patience is not None else cfg.max_iterations + 1
+    it = 0
+    while it < cfg.max_iterations and state[2] == 0:
+        # Draw the random numbers of up to 32 rounds at once (fewer small calls); a run that stops early leaves
+        # some unused, which keeps the stream identical between the Python and the compiled chunk runners.
+        c = min(32, cfg.max_iterations - it)
+        par, bw = _round_rates(cfg, variant, np.arange(it, it + c))
+        draws = (
+            gen.integers(0, hms, size=(c, batch, dim)),
+            gen.random((c, batch, dim)) < cfg.hmcr,
+            gen.random((c, batch, dim)),
+            gen.uniform(-1.0, 1.0, (c, batch, dim)),
+            lo + gen.random((c, batch, dim)) * span,
+        )
+        runner(memory, fun, *draws, par, bw, lo, hi, span, history[it:], state, variant is Variant.GLOBAL_BEST,
+               patience, cfg.convergence_tol, cfg.min_improvement, tol_x, anchor)
+        it += int(state[0])
+    return it, history[: it + 1], state
+
+
+def _spread_tolerance(spread: ArrayLike | None, dim: int) -> NDArray[np.float64]:
+    """``spread`` checked (dim finite values >= 0), or -1 per variable where it is None (every improvement
+    counts)."""
+    if spread is None:
+        return np.full(dim, -1.0)
+    tol_x = np.asarray(spread, dtype=float).reshape(-1)
+    if tol_x.shape != (dim,) or not np.all(np.isfinite(tol_x) & (tol_x >= 0)):
+        raise ShapeError(f"spread must hold {dim} finite values >= 0 (one per variable), got {quote(spread)}")
+    return tol_x
+
+
+def _initial_memory(cfg: HarmonyConfig, gen: np.random.Generator, lo: NDArray[np.float64], hi: NDArray[np.float64],
+                    initial: ArrayLike | None) -> NDArray[np.float64]:
+    """The first harmony memory (memory_size, D): drawn in the box (``init``: Latin hypercube or uniform), its
+    first rows replaced by the finite ``initial`` guesses clipped to the box."""
+    hms, dim, span = cfg.memory_size, len(lo), hi - lo
     if cfg.init == "lhs":
         strata = np.argsort(gen.random((hms, dim)), axis=0)
         memory = lo + (strata + gen.random((hms, dim))) / hms * span
@@ -271,58 +336,18 @@ def harmony_search(
             raise ShapeError(f"initial guesses must have shape (K, {dim}), got {np.asarray(initial).shape}")
         init = init[np.all(np.isfinite(init), axis=1)][:hms]
         memory[: len(init)] = np.clip(init, lo, hi)
-    fun = evaluate(memory)
-    order = np.argsort(fun, kind="stable")
-    memory, fun = np.ascontiguousarray(memory[order]), np.ascontiguousarray(fun[order])
-    anchor = memory[0].copy()  # the best harmony where the last counted improvement left it
-    variant = Variant(cfg.variant)
-    batch = cfg.batch_size
-    runner = getattr(objective, "run_chunk", None)  # a compiled fast path (see hsmap.registration.fitness.FieldObjective)
-    history = np.empty(cfg.max_iterations + 1)
-    history[0] = fun[0]
-    state = np.zeros(3, dtype=np.int64)  # rounds done in the last chunk, rounds without improvement, stop code
-    log_bw_ratio = np.log(cfg.bw_min / cfg.bw_max)
-    patience = cfg.patience if cfg.patience is not None else cfg.max_iterations + 1
-    it = 0
-    while it < cfg.max_iterations and state[2] == 0:
-        # Draw the random numbers of up to 32 rounds at once (fewer small calls); a run that stops early leaves
-        # some unused, which keeps the stream identical between the Python and the compiled chunk runners.
-        c = min(32, cfg.max_iterations - it)
-        its = np.arange(it, it + c)
-        if variant is Variant.IHS:
-            frac = its / max(cfg.max_iterations - 1, 1)
-            par = cfg.par_min + (cfg.par_max - cfg.par_min) * frac
-            bw = cfg.bw_max * np.exp(log_bw_ratio * frac)
-        else:
-            par, bw = np.full(c, cfg.par), np.full(c, cfg.bandwidth)
-        draws = (
-            gen.integers(0, hms, size=(c, batch, dim)),
-            gen.random((c, batch, dim)) < cfg.hmcr,
-            gen.random((c, batch, dim)),
-            gen.uniform(-1.0, 1.0, (c, batch, dim)),
-            lo + gen.random((c, batch, dim)) * span,
-        )
-        args = (memory, fun, *draws, par, bw, lo, hi, span, history[it:], state,
-                variant is Variant.GLOBAL_BEST, patience, cfg.convergence_tol, cfg.min_improvement, tol_x, anchor)
-        if runner is not None:
-            runner(*args)
-        else:
-            _run_chunk(evaluate, *args)
-        it += int(state[0])
-    stop = {0: StopReason.MAX_ITERATIONS, 1: StopReason.CONVERGED,
-            2: StopReason.NO_IMPROVEMENT if spread is None else StopReason.SETTLED}[int(state[2])]
-    evaluations = hms + it * batch
-    history = history[: it + 1]
-    return HarmonyResult(
-        x=memory[0].copy(),
-        fun=float(fun[0]),
-        iterations=it,
-        evaluations=evaluations,
-        stop_reason=stop,
-        memory=memory,
-        memory_fun=fun,
-        history=np.asarray(history),
-    )
+    return memory
+
+
+def _round_rates(cfg: HarmonyConfig, variant: Variant, its: NDArray[np.int64]
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The pitch adjustment rate and bandwidth of rounds ``its``: rising and shrinking over the run (IHS), else
+    constant."""
+    if variant is Variant.IHS:
+        frac = its / max(cfg.max_iterations - 1, 1)
+        return (cfg.par_min + (cfg.par_max - cfg.par_min) * frac,
+                cfg.bw_max * np.exp(np.log(cfg.bw_min / cfg.bw_max) * frac))
+    return np.full(len(its), cfg.par), np.full(len(its), cfg.bandwidth)
 
 
 def _run_chunk(evaluate, memory, fun, pick, consider, adjust_u, step, rand, par, bw, lo, hi, span, history, state,

@@ -28,9 +28,10 @@ from ..trajectory import Trajectory
 from .config import SlamConfig
 from .costs import Costs
 from .frames import frame_points, grazing_where_sparse
-from .loopclosure import Keyframe, LoopCloser, keyframe_voxel_map
+from .loopclosure import LoopCloser
 from .odometry import OdometryModel
 from .posegraph import EdgeKind, PoseGraph, information_with_floor
+from .submaps import Keyframe, keyframe_voxel_map
 
 __all__ = ["KeyframeGraph", "pair_match"]
 

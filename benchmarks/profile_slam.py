@@ -51,7 +51,7 @@ STAGES = {
     "  path_distances (graph distances)": [("hsmap/slam/posegraph.py", "path_distances")],
     "  _close_loops (search + verify)": [("hsmap/slam/keyframes.py", "_close_loops")],
     "    attempt_far (far search, 2D)": [("hsmap/slam/loopclosure.py", "attempt_far")],
-    "      correlative_match_2d (exhaustive)": [("hsmap/slam/loopclosure.py", "correlative_match_2d")],
+    "      correlative_match_2d (exhaustive)": [("hsmap/registration/correlative.py", "correlative_match_2d")],
     "  optimize (graph)": [("hsmap/slam/keyframes.py", "optimize")],
     "on_frame (recording)": [("benchmarks/profile_slam.py", "on_frame")],
 }

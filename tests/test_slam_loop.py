@@ -279,7 +279,12 @@ def test_coarse_peaks_are_the_full_correlations_and_the_same_for_any_thread_coun
     from scipy import fft
 
     from hsmap._threads import using_threads
-    from hsmap.slam.loopclosure import _coarse_peaks, _CoarseField, _likelihood_field, correlative_match_2d
+    from hsmap.registration.correlative import (
+        _coarse_peaks,
+        _CoarseField,
+        _likelihood_field,
+        correlative_match_2d,
+    )
 
     src, tgt = _office_scan(np.array([3.0, 2.5, 1.0])), _office_scan(np.array([2.0, 2.0, 0.3]), 1)
     rc, centre, half, sep_c, peaks = 0.8, np.array([1.0, 0.5]), 6.0, 3, 8
@@ -315,7 +320,7 @@ def test_coarse_peaks_are_the_full_correlations_and_the_same_for_any_thread_coun
 
 
 def test_unique_cells_is_numpys_unique_rows():
-    from hsmap.slam.loopclosure import _unique_cells
+    from hsmap.registration.correlative import _unique_cells
 
     rng = np.random.default_rng(3)
     for lo, hi in ((-5, 5), (-300, -200), (0, 2000)):

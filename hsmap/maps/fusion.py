@@ -29,9 +29,9 @@ from scipy import ndimage as ndi
 
 from ..errors import ConfigError, EmptyInputError, InputError, ShapeError
 from ..geometry import matrix_to_pose, pose_to_matrix
+from ..registration.correlative import correlative_match_2d
 from ..registration.harmony import HarmonyConfig
 from ..registration.icp import RegistrationConfig, RegistrationResult, harmony_icp
-from ..slam.loopclosure import correlative_match_2d
 from .grid import UNKNOWN, GridGeometry, OccupancyGrid
 from .slicing import slice_grid, slice_points, slice_scan, slice_scans
 
@@ -442,7 +442,7 @@ def _correlative_candidate(src: NDArray[np.float64], dst: NDArray[np.float64], s
                            ) -> tuple[NDArray[np.float64], float, float]:
     """The pose (x, y, yaw) of ``src`` in ``dst``'s frame best explaining ``src`` by ``dst`` over every rotation
     and every translation that makes the two overlap; with its score and ambiguity
-    (:func:`hsmap.slam.loopclosure.correlative_match_2d`)."""
+    (:func:`hsmap.registration.correlative.correlative_match_2d`)."""
 
     centre = src.mean(axis=0)
     s = src - centre

@@ -28,9 +28,10 @@ from ..trajectory import Trajectory
 from .config import SlamConfig
 from .costs import Costs
 from .frames import frame_points, grazing_where_sparse
-from .loopclosure import Keyframe, LoopCloser, keyframe_voxel_map
+from .loopclosure import LoopCloser
 from .odometry import OdometryModel
 from .posegraph import EdgeKind, PoseGraph, information_with_floor
+from .submaps import Keyframe, keyframe_voxel_map
 
 __all__ = ["KeyframeGraph", "pair_match"]
 
@@ -141,32 +142,11 @@ class KeyframeGraph:
         graph's poses changed (the caller re-anchors its recent poses).
         """
         cfg = self.config
-        dense = scan if cfg.dof == 3 else frame_points(frame, cfg.dof, cfg.min_range, cfg.max_range,
-                                                       voxel=cfg.effective_map_voxel())
-        if cfg.dof == 3:
-            tree = cKDTree(dense)  # the normals' neighbours and the sampling check's nearest ones
-            normals = estimate_normals(dense, tree=tree)
-            if frame.scan2d is not None:
-                normals = grazing_where_sparse(dense, normals, frame, cfg.effective_map_voxel(), tree)
-            if cfg.loop_closure.same_side:
-                # facing the laser: a loop match then tells a wall's face from the face behind it
-                normals = orient_normals(dense, normals, frame.extrinsic2d[:2])
-        else:
-            normals = estimate_normals(dense)
+        dense, normals = keyframe_points(frame, scan, cfg)
         k = self.graph.add_node(pose)
         if k > 0:
-            z = relative(self.graph.poses[k - 1], pose)
-            info = information if information is not None else np.zeros((cfg.dof,) * 2)
-            wheel = None
-            if registration_information is not None and self.odometry.wheel_motion is not None:
-                wheel = self.odometry.wheel_edge(z, registration_information)
-            if wheel is not None:
-                # the wheels are a sensor of their own: the tracking edge keeps the registration's information
-                info = registration_information
-            self.graph.add_edge(k - 1, k, z, info, EdgeKind.ODOMETRY)
-            self._tracking_chain.append(z)
-            if wheel is not None:
-                self.graph.add_edge(k - 1, k, *wheel, EdgeKind.WHEEL)
+            self._tracking_chain.append(_tracking_edges(self.graph, self.odometry, pose, information,
+                                                        registration_information))
         self.odometry.restart_wheel(frame)
         self.keyframes.append(Keyframe(number, float(frame.stamp), dense, normals))
         T = pose_to_matrix(pose)
@@ -285,10 +265,7 @@ class KeyframeGraph:
         self._status = "failed"
         self._failure = message
         self.closer = None
-        chain = [self.graph.poses[0].copy()]
-        for z in self._tracking_chain:
-            chain.append(compose(chain[-1], z))
-        self.graph.poses = [p.copy() for p in chain]
+        self.graph.poses = [p.copy() for p in _chained(self.graph.poses[0].copy(), self._tracking_chain)]
         for e in self.graph.edges:
             if e.kind.matched:
                 e.active = False
@@ -305,23 +282,7 @@ class KeyframeGraph:
 
     def summary(self) -> dict:
         """Loop-closure counts for the metrics: status, closures, attempts, rejections, optimisations."""
-        closer = self.closer
-        loops = self.graph.loop_edges(active_only=True)
-        return {
-            "status": self._status,
-            "loops_closed": len(loops),
-            "pair_edges": sum(e.kind == EdgeKind.PAIR and e.active for e in self.graph.edges),
-            "wheel_edges": sum(e.kind == EdgeKind.WHEEL for e in self.graph.edges),
-            "wheel_edges_down_weighted": self.odometry.wheel_gated,
-            "attempts": 0 if closer is None else closer.attempts,
-            "rejected_by_checks": {} if closer is None else dict(closer.rejections),
-            "far_attempts": 0 if closer is None else closer.far_attempts,
-            "far_closures": 0 if closer is None else closer.far_accepted,
-            "rejected_by_graph": self._rejected,
-            "optimizations": self._optimizations,
-            "keyframes": len(self.keyframes),
-            "message": self._failure,
-        }
+        return _summary(self)
 
     # -------------------------------------------------------------------------------------------- maps
     def _tracking_keyframes(self) -> list[int]:
@@ -365,15 +326,7 @@ class KeyframeGraph:
             recentre = True
         pts, normals = self.map.crop_with_normals(centre, cfg.local_map_radius)
         if recentre:
-            half = cfg.local_map_radius + reg.search_threshold
-            lo = np.r_[centre[:2] - half, pts[:, 2].min() - 1.0] if self.dim == 3 else centre[:2] - half
-            hi = np.r_[centre[:2] + half, pts[:, 2].max() + 1.0] if self.dim == 3 else centre[:2] + half
-            res = reg.field_resolution or (max(0.02, reg.search_threshold / 10) if self.dim == 2
-                                           else reg.search_threshold / 3)
-            # 2D: nearest points for the refinement; 3D refines on exact correspondences
-            plane = self.dim == 2 and reg.refinement is Refinement.POINT_TO_PLANE
-            self._field = DistanceField(pts, res, reg.search_threshold, bounds=[lo, hi],
-                                        normals=normals if plane else None, recycle=self._field)
+            self._field = search_field(pts, normals, centre, cfg, recycle=self._field)
             self._field_centre = centre.copy()
         self.target = RegistrationTarget(pts, reg, normals=normals, fields={reg.search_threshold: self._field})
         self.target.prepare()
@@ -390,8 +343,92 @@ class KeyframeGraph:
 
     def tracked_trajectory(self, stamps: NDArray[np.float64]) -> Trajectory:
         """Every frame's pose from the tracking alone: the keyframes chained by their tracking edges."""
-        chain = [self.graph.poses[0]] if self.keyframes else []
-        for z in self._tracking_chain:
-            chain.append(compose(chain[-1], z))
+        chain = _chained(self.graph.poses[0], self._tracking_chain) if self.keyframes else []
         P = compose(np.asarray(chain)[np.asarray(self._anchor, dtype=int)], np.asarray(self._offset))
         return Trajectory(np.asarray(stamps), np.asarray(P).reshape(-1, self.config.dof))
+
+
+def keyframe_points(frame: Frame, scan: NDArray[np.float64], cfg: SlamConfig
+                    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """A keyframe's points and normals in its own frame: the ``scan`` in 2D (normals grazing where the scan is
+    sparse, turned to the laser for the loop closer's same-side check), the frame's dense points in 3D."""
+    dense = scan if cfg.dof == 3 else frame_points(frame, cfg.dof, cfg.min_range, cfg.max_range,
+                                                   voxel=cfg.effective_map_voxel())
+    if cfg.dof == 3:
+        tree = cKDTree(dense)  # the normals' neighbours and the sampling check's nearest ones
+        normals = estimate_normals(dense, tree=tree)
+        if frame.scan2d is not None:
+            normals = grazing_where_sparse(dense, normals, frame, cfg.effective_map_voxel(), tree)
+        if cfg.loop_closure.same_side:
+            # facing the laser: a loop match then tells a wall's face from the face behind it
+            normals = orient_normals(dense, normals, frame.extrinsic2d[:2])
+    else:
+        normals = estimate_normals(dense)
+    return dense, normals
+
+
+def search_field(pts: NDArray[np.float64], normals: NDArray[np.float64], centre: NDArray[np.float64],
+                 cfg: SlamConfig, *, recycle: DistanceField | None = None) -> DistanceField:
+    """The tracking's search field of the local map crop ``pts`` around ``centre``: ``local_map_radius`` plus the
+    search threshold each way (and the crop's heights and a metre in 3D), reusing ``recycle``'s memory."""
+    reg, dim = cfg.registration, cfg.dim
+    half = cfg.local_map_radius + reg.search_threshold
+    lo = np.r_[centre[:2] - half, pts[:, 2].min() - 1.0] if dim == 3 else centre[:2] - half
+    hi = np.r_[centre[:2] + half, pts[:, 2].max() + 1.0] if dim == 3 else centre[:2] + half
+    res = reg.field_resolution or (max(0.02, reg.search_threshold / 10) if dim == 2
+                                   else reg.search_threshold / 3)
+    # 2D: nearest points for the refinement; 3D refines on exact correspondences
+    plane = dim == 2 and reg.refinement is Refinement.POINT_TO_PLANE
+    return DistanceField(pts, res, reg.search_threshold, bounds=[lo, hi], normals=normals if plane else None,
+                         recycle=recycle)
+
+
+def _chained(first: NDArray[np.float64], steps: list[NDArray[np.float64]]) -> list[NDArray[np.float64]]:
+    """``first`` and the poses that composing ``steps`` one after the other reaches from it."""
+    chain = [first]
+    for z in steps:
+        chain.append(compose(chain[-1], z))
+    return chain
+
+
+def _summary(kg: KeyframeGraph) -> dict:
+    """A keyframe graph's loop-closure counts for the metrics: status, closures, attempts, rejections,
+    optimisations."""
+    closer = kg.closer
+    loops = kg.graph.loop_edges(active_only=True)
+    return {
+        "status": kg._status,
+        "loops_closed": len(loops),
+        "pair_edges": sum(e.kind == EdgeKind.PAIR and e.active for e in kg.graph.edges),
+        "wheel_edges": sum(e.kind == EdgeKind.WHEEL for e in kg.graph.edges),
+        "wheel_edges_down_weighted": kg.odometry.wheel_gated,
+        "attempts": 0 if closer is None else closer.attempts,
+        "rejected_by_checks": {} if closer is None else dict(closer.rejections),
+        "far_attempts": 0 if closer is None else closer.far_attempts,
+        "far_closures": 0 if closer is None else closer.far_accepted,
+        "rejected_by_graph": kg._rejected,
+        "optimizations": kg._optimizations,
+        "keyframes": len(kg.keyframes),
+        "message": kg._failure,
+    }
+
+
+def _tracking_edges(graph: PoseGraph, odometry: OdometryModel, pose: NDArray[np.float64],
+                    information: NDArray[np.float64] | None,
+                    registration_information: NDArray[np.float64] | None) -> NDArray[np.float64]:
+    """The edges from the graph's previous node to its newest one, at ``pose``: the tracking edge (the fused
+    pose's ``information``, or the registration's alone where a wheel edge carries the odometry) and the wheel
+    edge where the odometry gives one. Returns the tracking edge's measurement."""
+    k = len(graph) - 1
+    z = relative(graph.poses[k - 1], pose)
+    info = information if information is not None else np.zeros((graph.dof,) * 2)
+    wheel = None
+    if registration_information is not None and odometry.wheel_motion is not None:
+        wheel = odometry.wheel_edge(z, registration_information)
+    if wheel is not None:
+        # the wheels are a sensor of their own: the tracking edge keeps the registration's information
+        info = registration_information
+    graph.add_edge(k - 1, k, z, info, EdgeKind.ODOMETRY)
+    if wheel is not None:
+        graph.add_edge(k - 1, k, *wheel, EdgeKind.WHEEL)
+    return z

@@ -139,10 +139,7 @@ class PoseGraph:
         if solver not in SOLVERS:
             raise InputError(f"pose graph solver must be one of {', '.join(SOLVERS)}, got {solver!r}")
         self.solver = solver
-        self._isam = None  # incremental: gtsam.ISAM2, its nodes, its edges' factor slots, the gauge
-        self._isam_nodes = 0
-        self._isam_slot: list[int] = []  # per edge: its factor's slot in iSAM2, -1 where it is not in
-        self._isam_fixed = -1
+        self._incremental = _Incremental()  # incremental: iSAM2 kept between calls
         self.dof = dof
         self.dim = 2 if dof == 3 else 3
         self.loop_kernel = float(loop_kernel)
@@ -273,7 +270,7 @@ class PoseGraph:
         import gtsam
 
         if self.solver == "incremental":
-            return self._optimize_incremental(gtsam, max_iterations, prune_rounds, fixed)
+            return self._incremental.optimize(self, gtsam, max_iterations, prune_rounds, fixed)
         rejected: list[int] = []
         result = OptimizationResult("ok")
         rounds = iterations = 0
@@ -290,7 +287,7 @@ class PoseGraph:
                     warnings.simplefilter("ignore")
                     out = opt.optimize()
                 after = graph.error(out)
-                poses = self._from_gtsam(gtsam, out)
+                poses = _from_gtsam(gtsam, self.dof, out, self._n)
             except RuntimeError as exc:  # gtsam raises RuntimeError (IndeterminantLinearSystem, ...)
                 return OptimizationResult("failed", message=f"{type(exc).__name__}: {exc}".splitlines()[0],
                                           rounds=rounds + 1, iterations_total=iterations)
@@ -306,74 +303,6 @@ class PoseGraph:
             rejected.extend(off)
         result.rejected = rejected
         return result
-
-    def _optimize_incremental(self, gtsam, max_iterations: int, prune_rounds: int, fixed: int
-                              ) -> OptimizationResult:
-        """:meth:`optimize` by iSAM2: the nodes and edges added since the last call go in, switched-off edges out,
-        then iSAM2 steps (each relinearising what moved) until no pose moves by more than 1e-6 or
-        ``max_iterations`` steps; the gate's rounds as in the batch solver."""
-        if self._isam is not None and fixed != self._isam_fixed:
-            self._isam = None  # another gauge: start over
-        rejected: list[int] = []
-        rounds = iterations = 0
-        try:
-            if self._isam is None:
-                params = gtsam.ISAM2Params()
-                params.setRelinearizeThreshold(1e-3)
-                params.relinearizeSkip = 1
-                self._isam = gtsam.ISAM2(params)
-                self._isam_nodes, self._isam_slot, self._isam_fixed = 0, [], fixed
-            for _ in range(max(1, prune_rounds)):
-                graph, values, added = gtsam.NonlinearFactorGraph(), gtsam.Values(), []
-                if self._isam_nodes == 0:
-                    Prior = gtsam.PriorFactorPose2 if self.dof == 3 else gtsam.PriorFactorPose3
-                    graph.add(Prior(fixed, self._to_gtsam(gtsam, self._P[fixed]),
-                                    gtsam.noiseModel.Isotropic.Sigma(self.dof, 1e-6)))
-                    added.append(-1)
-                for k in range(self._isam_nodes, self._n):
-                    values.insert(k, self._to_gtsam(gtsam, self._P[k]))
-                m, seen = len(self.edges), len(self._isam_slot)
-                act = self._active()
-                for k in np.flatnonzero(act[seen:]) + seen:
-                    graph.add(self._factor(gtsam, int(k)))
-                    added.append(int(k))
-                self._isam_slot.extend([-1] * (m - seen))  # -1: not in iSAM2 (switched off before it went in)
-                slots = np.asarray(self._isam_slot[:seen], dtype=np.int64)
-                gone = np.flatnonzero((slots >= 0) & ~act[:seen])
-                remove = slots[gone].tolist()
-                for k in gone:
-                    self._isam_slot[k] = -1
-                out = self._isam.update(graph, values, remove)
-                for k, slot in zip(added, out.getNewFactorsIndices(), strict=True):
-                    if k >= 0:
-                        self._isam_slot[k] = int(slot)
-                self._isam_nodes = self._n
-                estimate = self._isam.calculateEstimate()
-                poses = self._from_gtsam(gtsam, estimate)
-                steps = 1
-                while steps < max_iterations:
-                    self._isam.update()
-                    estimate = self._isam.calculateEstimate()
-                    nxt = self._from_gtsam(gtsam, estimate)
-                    steps += 1
-                    moved = nxt - poses
-                    moved[:, self.dim:] = wrap_angle(moved[:, self.dim:])
-                    poses = nxt
-                    if np.abs(moved).max() < 1e-6:
-                        break
-                rounds, iterations = rounds + 1, iterations + steps
-                if not np.all(np.isfinite(poses)):
-                    return OptimizationResult("failed", message="the optimisation gave non-finite poses",
-                                              rounds=rounds, iterations_total=iterations)
-                off = self._take(poses, fixed)
-                if not off:
-                    break
-                rejected.extend(off)
-        except RuntimeError as exc:  # gtsam raises RuntimeError (IndeterminantLinearSystem, ...)
-            self._isam = None
-            return OptimizationResult("failed", message=f"{type(exc).__name__}: {exc}".splitlines()[0],
-                                      rounds=rounds + 1, iterations_total=iterations)
-        return OptimizationResult("ok", steps, rejected=rejected, rounds=rounds, iterations_total=iterations)
 
     def _take(self, poses: NDArray[np.float64], fixed: int) -> list[int]:
         """Take a solver's ``poses`` (n, dof) as the graph's, node ``fixed`` kept exactly (its prior lets the
@@ -432,38 +361,12 @@ class PoseGraph:
                                np.array([e.kind == EdgeKind.PRIOR]))[0]
 
     # ------------------------------------------------------------------------------------------ gtsam glue
-    def _to_gtsam(self, gtsam, pose: NDArray[np.float64]):
-        if self.dof == 3:
-            return gtsam.Pose2(float(pose[0]), float(pose[1]), float(pose[2]))
-        return gtsam.Pose3(gtsam.Rot3(euler_to_matrix(pose[3], pose[4], pose[5])), gtsam.Point3(*pose[:3]))
-
-    def _from_gtsam(self, gtsam, values) -> NDArray[np.float64]:
-        if self.dof == 3:
-            return gtsam.utilities.extractPose2(values)[:, [0, 1, 2]]
-        out = np.empty((self._n, 6))
-        for k in range(self._n):
-            p = values.atPose3(k)
-            out[k, :3] = np.asarray(p.translation())
-            out[k, 3:] = matrix_to_euler(np.asarray(p.rotation().matrix()))
-        return out
-
-    def _noise(self, gtsam, info: NDArray[np.float64], robust: bool):
-        if self.dof == 6:  # gtsam's Pose3 tangent is (rotation, translation)
-            perm = np.r_[3, 4, 5, 0, 1, 2]
-            info = info[np.ix_(perm, perm)]
-        w, V = np.linalg.eigh(info)
-        info = (V * np.maximum(w, 1e-9 * max(w.max(), 1e-9))) @ V.T  # positive definite
-        base = gtsam.noiseModel.Gaussian.Information(info)
-        if robust:
-            return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy.Create(self.loop_kernel), base)
-        return base
-
     def _factor(self, gtsam, k: int):
         f = self._factors[k]
         if f is None:
             e = self.edges[k]
-            noise = self._noise(gtsam, e.information, robust=e.kind.matched and e.robust)
-            z = self._to_gtsam(gtsam, e.measurement)
+            noise = _noise(gtsam, self.dof, e.information, e.kind.matched and e.robust, self.loop_kernel)
+            z = _to_gtsam(gtsam, self.dof, e.measurement)
             if e.kind == EdgeKind.PRIOR:
                 f = (gtsam.PriorFactorPose2 if self.dof == 3 else gtsam.PriorFactorPose3)(e.i, z, noise)
             else:
@@ -475,11 +378,122 @@ class PoseGraph:
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
         for k in range(self._n):
-            values.insert(k, self._to_gtsam(gtsam, self._P[k]))
+            values.insert(k, _to_gtsam(gtsam, self.dof, self._P[k]))
         Prior = gtsam.PriorFactorPose2 if self.dof == 3 else gtsam.PriorFactorPose3
         tight = gtsam.noiseModel.Isotropic.Sigma(self.dof, 1e-6)
-        graph.add(Prior(fixed, self._to_gtsam(gtsam, self._P[fixed]), tight))
+        graph.add(Prior(fixed, _to_gtsam(gtsam, self.dof, self._P[fixed]), tight))
         for k, e in enumerate(self.edges):
             if e.active:
                 graph.add(self._factor(gtsam, k))
         return graph, values
+
+
+class _Incremental:
+    """GTSAM's iSAM2 kept factorised between a pose graph's optimisations (Kaess et al. 2012): the solver, how many
+    of the graph's nodes are in it, each edge's factor slot (-1 where it is not in) and the gauge node."""
+
+    def __init__(self) -> None:
+        self.isam = None
+        self.nodes = 0
+        self.slot: list[int] = []
+        self.fixed = -1
+
+    def optimize(self, pg: PoseGraph, gtsam, max_iterations: int, prune_rounds: int, fixed: int
+                 ) -> OptimizationResult:
+        """:meth:`PoseGraph.optimize` of ``pg`` by iSAM2: the nodes and edges added since the last call go in,
+        switched-off edges out, then iSAM2 steps (each relinearising what moved) until no pose moves by more than
+        1e-6 or ``max_iterations`` steps; the gate's rounds as in the batch solver."""
+        if self.isam is not None and fixed != self.fixed:
+            self.isam = None  # another gauge: start over
+        rejected: list[int] = []
+        rounds = iterations = 0
+        try:
+            if self.isam is None:
+                params = gtsam.ISAM2Params()
+                params.setRelinearizeThreshold(1e-3)
+                params.relinearizeSkip = 1
+                self.isam = gtsam.ISAM2(params)
+                self.nodes, self.slot, self.fixed = 0, [], fixed
+            for _ in range(max(1, prune_rounds)):
+                graph, values, added = gtsam.NonlinearFactorGraph(), gtsam.Values(), []
+                if self.nodes == 0:
+                    Prior = gtsam.PriorFactorPose2 if pg.dof == 3 else gtsam.PriorFactorPose3
+                    graph.add(Prior(fixed, _to_gtsam(gtsam, pg.dof, pg._P[fixed]),
+                                    gtsam.noiseModel.Isotropic.Sigma(pg.dof, 1e-6)))
+                    added.append(-1)
+                for k in range(self.nodes, pg._n):
+                    values.insert(k, _to_gtsam(gtsam, pg.dof, pg._P[k]))
+                m, seen = len(pg.edges), len(self.slot)
+                act = pg._active()
+                for k in np.flatnonzero(act[seen:]) + seen:
+                    graph.add(pg._factor(gtsam, int(k)))
+                    added.append(int(k))
+                self.slot.extend([-1] * (m - seen))  # -1: not in iSAM2 (switched off before it went in)
+                slots = np.asarray(self.slot[:seen], dtype=np.int64)
+                gone = np.flatnonzero((slots >= 0) & ~act[:seen])
+                remove = slots[gone].tolist()
+                for k in gone:
+                    self.slot[k] = -1
+                out = self.isam.update(graph, values, remove)
+                for k, slot in zip(added, out.getNewFactorsIndices(), strict=True):
+                    if k >= 0:
+                        self.slot[k] = int(slot)
+                self.nodes = pg._n
+                estimate = self.isam.calculateEstimate()
+                poses = _from_gtsam(gtsam, pg.dof, estimate, pg._n)
+                steps = 1
+                while steps < max_iterations:
+                    self.isam.update()
+                    estimate = self.isam.calculateEstimate()
+                    nxt = _from_gtsam(gtsam, pg.dof, estimate, pg._n)
+                    steps += 1
+                    moved = nxt - poses
+                    moved[:, pg.dim:] = wrap_angle(moved[:, pg.dim:])
+                    poses = nxt
+                    if np.abs(moved).max() < 1e-6:
+                        break
+                rounds, iterations = rounds + 1, iterations + steps
+                if not np.all(np.isfinite(poses)):
+                    return OptimizationResult("failed", message="the optimisation gave non-finite poses",
+                                              rounds=rounds, iterations_total=iterations)
+                off = pg._take(poses, fixed)
+                if not off:
+                    break
+                rejected.extend(off)
+        except RuntimeError as exc:  # gtsam raises RuntimeError (IndeterminantLinearSystem, ...)
+            self.isam = None
+            return OptimizationResult("failed", message=f"{type(exc).__name__}: {exc}".splitlines()[0],
+                                      rounds=rounds + 1, iterations_total=iterations)
+        return OptimizationResult("ok", steps, rejected=rejected, rounds=rounds, iterations_total=iterations)
+
+
+def _to_gtsam(gtsam, dof: int, pose: NDArray[np.float64]):
+    """A pose vector as GTSAM's Pose2 (``dof`` 3) or Pose3 (``dof`` 6)."""
+    if dof == 3:
+        return gtsam.Pose2(float(pose[0]), float(pose[1]), float(pose[2]))
+    return gtsam.Pose3(gtsam.Rot3(euler_to_matrix(pose[3], pose[4], pose[5])), gtsam.Point3(*pose[:3]))
+
+
+def _from_gtsam(gtsam, dof: int, values, n: int) -> NDArray[np.float64]:
+    """The poses of nodes 0..n-1 in GTSAM's ``values``, as (n, dof) pose vectors."""
+    if dof == 3:
+        return gtsam.utilities.extractPose2(values)[:, [0, 1, 2]]
+    out = np.empty((n, 6))
+    for k in range(n):
+        p = values.atPose3(k)
+        out[k, :3] = np.asarray(p.translation())
+        out[k, 3:] = matrix_to_euler(np.asarray(p.rotation().matrix()))
+    return out
+
+
+def _noise(gtsam, dof: int, info: NDArray[np.float64], robust: bool, loop_kernel: float):
+    """GTSAM's noise model of an information matrix (made positive definite), Cauchy-robust if ``robust``."""
+    if dof == 6:  # gtsam's Pose3 tangent is (rotation, translation)
+        perm = np.r_[3, 4, 5, 0, 1, 2]
+        info = info[np.ix_(perm, perm)]
+    w, V = np.linalg.eigh(info)
+    info = (V * np.maximum(w, 1e-9 * max(w.max(), 1e-9))) @ V.T  # positive definite
+    base = gtsam.noiseModel.Gaussian.Information(info)
+    if robust:
+        return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy.Create(loop_kernel), base)
+    return base

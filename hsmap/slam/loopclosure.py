@@ -305,11 +305,7 @@ class LoopCloser:
         cfg = self.config
         p = np.asarray(path, dtype=float)
         t = np.minimum(cfg.window_translation + cfg.window_growth * p, cfg.max_window_translation)
-        return t, np.minimum(self._yaw_window(p), cfg.max_window_rotation)
-
-    def _yaw_window(self, path: NDArray[np.float64]) -> NDArray[np.float64]:
-        """The yaw half-width for places ``path`` metres apart in the graph, before any cap."""
-        return self.config.window_rotation + self.config.window_rotation_growth * path
+        return t, np.minimum(_yaw_window(self.config, p), cfg.max_window_rotation)
 
     # ------------------------------------------------------------------------------------------ matching
     def _submap_target(self, s: int, graph: PoseGraph, keyframes: list[Keyframe]) -> RegistrationTarget:
@@ -332,19 +328,6 @@ class LoopCloser:
             self._cache.popitem(last=False)
         return target
 
-    def _source(self, graph: PoseGraph, keyframes: list[Keyframe], newest: int, with_origins: bool = False
-                ) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
-        """The newest ``source_keyframes`` keyframes' points in keyframe ``newest``'s frame, and (``with_origins``)
-        each point's keyframe origin there (where the sensor stood, to a mounting offset), else None."""
-        first = max(0, newest - self.config.source_keyframes + 1)
-        parts, origins = [], []
-        for k in range(first, newest + 1):
-            rel = relative(graph.poses[newest], graph.poses[k])
-            parts.append(transform_points(pose_to_matrix(rel), keyframes[k].points))
-            if with_origins:
-                origins.append(np.broadcast_to(rel[: self.dim], parts[-1].shape))
-        return np.concatenate(parts), np.concatenate(origins) if with_origins else None
-
     def _reject(self, why: str) -> None:
         self.rejections[why] = self.rejections.get(why, 0) + 1
 
@@ -358,7 +341,8 @@ class LoopCloser:
         anchor = members.start
         target = self._submap_target(candidate.submap, graph, keyframes)
         sides = self.dof == 3 and cfg.same_side
-        source, origins = self._source(graph, keyframes, newest, with_origins=sides)
+        source, origins = _recent_source(graph, keyframes, newest, self.config.source_keyframes, self.dim,
+                                         with_origins=sides)
         predicted = relative(graph.poses[anchor], graph.poses[newest])
         wt, wr = (float(v) for v in self.window(candidate.path))
         if self.dof == 3:
@@ -463,14 +447,6 @@ class LoopCloser:
                            float(np.abs(wrap_angle(corr[self.dim:])).max()), res)
 
     # ------------------------------------------------------------------------------------------ far search
-    def _far_windows(self, path: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Half-widths (translation, yaw) of a far search: the translation's grows by ``far_window_growth`` up to
-        ``max_far_window_translation``, the yaw's as the regular window's but uncapped (up to 180 deg)."""
-        cfg = self.config
-        p = np.asarray(path, dtype=float)
-        t = np.minimum(cfg.window_translation + cfg.far_window_growth * p, cfg.max_far_window_translation)
-        return t, np.minimum(self._yaw_window(p), np.pi)
-
     def far_candidates(self, graph: PoseGraph, newest: int, path: NDArray[np.float64]) -> list[LoopCandidate]:
         """Submaps whose uncertainty relative to keyframe ``newest`` exceeds the regular window and whose
         keyframes lie within the far window's reach, nearest first."""
@@ -486,7 +462,7 @@ class LoopCloser:
         g = path[: n_sub * K].reshape(n_sub, K)
         g = np.where(np.isfinite(g), g, 1e9).min(axis=1)
         wide = cfg.window_translation + cfg.window_growth * g
-        ok = (wide > cfg.max_window_translation) & (d <= cfg.max_distance + self._far_windows(g)[0])
+        ok = (wide > cfg.max_window_translation) & (d <= cfg.max_distance + _far_windows(self.config, g)[0])
         out = [LoopCandidate(int(s_), float(d[s_]), float(g[s_])) for s_ in np.flatnonzero(ok)]
         out.sort(key=lambda c: c.distance)
         return out
@@ -517,7 +493,7 @@ class LoopCloser:
         vm = keyframe_voxel_map([P[k] for k in members], keyframes, members, self.dim, self.map_voxel,
                                 average=self.map_average)  # the old map, world frame
         source = self._far_source(graph, keyframes, newest, path)
-        wt, wr = self._far_windows(np.array([c.path for c in candidates]))
+        wt, wr = _far_windows(self.config, np.array([c.path for c in candidates]))
         found, _, ambiguity = correlative_match_2d(source, vm.points, P[newest], float(wt.max()), float(wr.max()),
                                                    cfg.far_resolution, cfg.far_angle_step)
         if ambiguity >= cfg.far_ambiguity:
@@ -531,40 +507,21 @@ class LoopCloser:
         # the old map's fields only where the source can land (the old map may span the whole building)
         target = RegistrationTarget(transform_points(to_anchor, vm.points), cfg.registration,
                                     normals=vm.normals @ to_anchor[: self.dim, : self.dim].T,
-                                    field_within=self._reach(source, centre, half))
+                                    field_within=_reach(source, centre, half, self.dim))
         res = harmony_icp(source, target, bounds=np.column_stack([centre - half, centre + half]),
                           initial_guesses=centre[None], config=cfg.registration, rng=rng)
         self.registrations, self.evaluations = self.registrations + 1, self.evaluations + res.evaluations
         return self._checked(res, anchor, newest, relative(P[anchor], P[newest]), centre, half, prefix="far_")
 
-    def _reach(self, source: NDArray[np.float64], centre: NDArray[np.float64], half: NDArray[np.float64]
-               ) -> NDArray[np.float64]:
-        """[lower, upper] corners of a box holding every point of ``source`` at every pose within ``centre +/-
-        half``, and a refinement's drift beyond it: the source's bounding box at ``centre``, grown by twice the
-        farthest a corner of the window moves a point."""
-        placed = transform_points(centre, source)
-        radius = float(np.sqrt((source**2).sum(axis=1).max()))
-        grow = 2 * (float(np.linalg.norm(half[: self.dim])) + radius * float(np.abs(half[self.dim:]).max()))
-        return np.array([placed.min(axis=0) - grow, placed.max(axis=0) + grow])
-
     def corroborate(self, closure: LoopClosure, graph: PoseGraph) -> list[LoopClosure]:
         """The far matches that ``closure`` and an earlier one now corroborate (both), or [] (kept pending)."""
         cfg = self.config
         self._far_pending = [c for c in self._far_pending if closure.j - c.j <= cfg.far_corroborate_within]
-        P = graph.poses
-        for prev in reversed(self._far_pending):
-            if prev.j == closure.j:
-                continue
-            # the newer keyframe in the older match's anchor frame: by the older match and tracking, and by the
-            # (locally consistent) old map and the newer match
-            a = np.asarray(compose(prev.measurement, relative(P[prev.j], P[closure.j])))
-            b = np.asarray(compose(relative(P[prev.i], P[closure.i]), closure.measurement))
-            d = relative(a, b)
-            if (np.linalg.norm(d[: self.dim]) <= cfg.far_agreement_translation
-                    and np.abs(wrap_angle(d[self.dim:])).max() <= cfg.far_agreement_rotation):
-                self._far_pending.remove(prev)
-                self.far_accepted += 2
-                return [prev, closure]
+        prev = _agreeing(self._far_pending, closure, graph.poses, cfg, self.dim)
+        if prev is not None:
+            self._far_pending.remove(prev)
+            self.far_accepted += 2
+            return [prev, closure]
         self._far_pending.append(closure)
         self._reject("far_uncorroborated")
         return []
@@ -572,3 +529,58 @@ class LoopCloser:
     def forget(self) -> None:
         """Drop cached submaps (their keyframes moved)."""
         self._cache.clear()
+
+
+def _yaw_window(cfg: LoopClosureConfig, path: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The yaw half-width for places ``path`` metres apart in the graph, before any cap."""
+    return cfg.window_rotation + cfg.window_rotation_growth * path
+
+
+def _far_windows(cfg: LoopClosureConfig, path: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Half-widths (translation, yaw) of a far search: the translation's grows by ``far_window_growth`` up to
+    ``max_far_window_translation``, the yaw's as the regular window's but uncapped (up to 180 deg)."""
+    p = np.asarray(path, dtype=float)
+    t = np.minimum(cfg.window_translation + cfg.far_window_growth * p, cfg.max_far_window_translation)
+    return t, np.minimum(_yaw_window(cfg, p), np.pi)
+
+
+def _reach(source: NDArray[np.float64], centre: NDArray[np.float64], half: NDArray[np.float64], dim: int
+           ) -> NDArray[np.float64]:
+    """[lower, upper] corners of a box holding every point of ``source`` at every pose within ``centre +/-
+    half``, and a refinement's drift beyond it: the source's bounding box at ``centre``, grown by twice the
+    farthest a corner of the window moves a point."""
+    placed = transform_points(centre, source)
+    radius = float(np.sqrt((source**2).sum(axis=1).max()))
+    grow = 2 * (float(np.linalg.norm(half[:dim])) + radius * float(np.abs(half[dim:]).max()))
+    return np.array([placed.min(axis=0) - grow, placed.max(axis=0) + grow])
+
+
+def _agreeing(pending: list[LoopClosure], closure: LoopClosure, P, cfg: LoopClosureConfig, dim: int
+              ) -> LoopClosure | None:
+    """The newest pending far match that ``closure`` agrees with (graph poses ``P``), or None: the newer
+    keyframe in the older match's anchor frame, by the older match and tracking and by the (locally consistent)
+    old map and the newer match, within ``far_agreement_translation`` / ``far_agreement_rotation``."""
+    for prev in reversed(pending):
+        if prev.j == closure.j:
+            continue
+        a = np.asarray(compose(prev.measurement, relative(P[prev.j], P[closure.j])))
+        b = np.asarray(compose(relative(P[prev.i], P[closure.i]), closure.measurement))
+        d = relative(a, b)
+        if (np.linalg.norm(d[:dim]) <= cfg.far_agreement_translation
+                and np.abs(wrap_angle(d[dim:])).max() <= cfg.far_agreement_rotation):
+            return prev
+    return None
+
+
+def _recent_source(graph: PoseGraph, keyframes: list[Keyframe], newest: int, count: int, dim: int,
+                   with_origins: bool = False) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
+    """The newest ``count`` keyframes' points in keyframe ``newest``'s frame, and (``with_origins``) each point's
+    keyframe origin there (where the sensor stood, to a mounting offset), else None."""
+    first = max(0, newest - count + 1)
+    parts, origins = [], []
+    for k in range(first, newest + 1):
+        rel = relative(graph.poses[newest], graph.poses[k])
+        parts.append(transform_points(pose_to_matrix(rel), keyframes[k].points))
+        if with_origins:
+            origins.append(np.broadcast_to(rel[:dim], parts[-1].shape))
+    return np.concatenate(parts), np.concatenate(origins) if with_origins else None

@@ -1030,3 +1030,43 @@ def test_a_hand_held_registration_that_passes_the_inlier_check_stands_against_a_
     assert box().settled(good, good, False) == (good, False)
     assert box(prior=True).settled(good, bad, False) == (bad, False)
     assert box(dof=3).settled(good, bad, False) == (bad, False)
+
+
+def _swinging_prediction(dof: int = 6, prior: bool = False) -> HsSlam:
+    """A tracker whose last poses swing 10 deg left and right in yaw on the spot (no odometry), predicting the
+    next frame."""
+    cfg = SlamConfig(dof=dof, use_odometry=False)
+    slam = HsSlam(cfg)
+    if prior:
+        slam.search.follows_motion = False
+    for i in range(8):
+        yaw = np.deg2rad(10.0) * (i % 2)
+        slam.poses.append(np.array([1.0, 2.0, 1.5, 0.0, 0.0, yaw]) if dof == 6 else np.array([1.0, 2.0, yaw]))
+        slam.stamps.append(float(i))
+    slam.prediction.start(Frame(stamp=8.0, index=8))
+    return slam
+
+
+def test_a_hand_held_prediction_is_as_uncertain_as_the_recent_motion(monkeypatch):
+    """A sensor carried by hand: the constant-velocity prediction's sigmas are at least the RMS change between
+    its recent steps, so a registration within that spread stands without a retry around the prediction; a
+    ground robot's prediction (3-DOF, or seeded by a 2D run) keeps the configured ``motion_sigma``."""
+    import hsmap.slam.verify as verify
+
+    slam = _swinging_prediction()
+    centre, sig = slam.prediction.predict(True)
+    step = relative(slam.poses[-2], slam.poses[-1])
+    model = np.array(slam.odometry.model_sigmas(step, slam.config.motion_sigma))
+    assert sig[1] >= np.deg2rad(19.0) > 1.5 * model[1]
+
+    def no_retry(*args, **kwargs):
+        raise AssertionError("retried around the prediction")
+
+    monkeypatch.setattr(verify, "harmony_icp", no_retry)
+    pose = compose(centre, np.array([0.0, 0.0, 0.0, 0.0, 0.0, np.deg2rad(40.0)]))
+    res = types.SimpleNamespace(pose=pose, information=None)
+    assert slam.verifier.verify(None, None, res, np.random.default_rng(0)) == (res, False, True)
+    for ground in (_swinging_prediction(dof=3), _swinging_prediction(prior=True)):
+        step = relative(ground.poses[-2], ground.poses[-1])
+        np.testing.assert_allclose(ground.prediction.predict(True)[1],
+                                   ground.odometry.model_sigmas(step, ground.config.motion_sigma))

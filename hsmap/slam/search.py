@@ -59,9 +59,13 @@ class SearchBox:
         return half if prior else np.maximum(half, self.motion_spread(poses))
 
     def motion_spread(self, poses: Sequence[NDArray[np.float64]]) -> NDArray[np.float64]:
-        """With :attr:`follows_motion`: per pose component, ``verify_sigmas`` times the RMS change between
-        consecutive frames' steps of that component over the last ``motion_window`` frames (the constant-velocity
-        prediction's error); zeros otherwise or with too few frames."""
+        """``verify_sigmas`` times :meth:`motion_change`: the box the constant-velocity prediction's error needs."""
+        return self.config.verify_sigmas * self.motion_change(poses)
+
+    def motion_change(self, poses: Sequence[NDArray[np.float64]]) -> NDArray[np.float64]:
+        """With :attr:`follows_motion`: per pose component, the RMS change between consecutive frames' steps of
+        that component over the last ``motion_window`` frames (the constant-velocity prediction's error); zeros
+        otherwise or with too few frames."""
         cfg = self.config
         n = min(len(poses), cfg.motion_window + 2)
         if not self.follows_motion or n < 3:
@@ -70,7 +74,7 @@ class SearchBox:
         steps[:, 3:] = wrap_angle(steps[:, 3:])
         change = np.diff(steps, axis=0)
         change[:, 3:] = wrap_angle(change[:, 3:])
-        return cfg.verify_sigmas * np.sqrt(np.mean(change ** 2, axis=0))
+        return np.sqrt(np.mean(change ** 2, axis=0))
 
     def inlier_reference(self) -> float | None:
         """The median inlier ratio of the confirmed ones among the last ``motion_window`` tracked frames (None with

@@ -1072,3 +1072,47 @@ def test_a_hand_held_prediction_is_as_uncertain_as_the_recent_motion(monkeypatch
         step = relative(ground.poses[-2], ground.poses[-1])
         np.testing.assert_allclose(ground.prediction.predict(True)[1],
                                    ground.odometry.model_sigmas(step, ground.config.motion_sigma))
+
+
+def test_a_wide_hand_held_box_is_searched_coarse_to_fine_in_yaw_sectors(monkeypatch):
+    """A hand-held registration that fails the inlier check is searched again in widened boxes, each cut into
+    yaw sectors no wider than the configured box's span that together cover it; the sector holding the seeds
+    starts from them, the others from the seeds turned to their middle, and the best-aligned result is kept. A
+    search that converges near its seeds in a wide box (as Harmony-ICP may) misses a turn such a sector finds."""
+    from hsmap.slam.costs import Costs
+    from hsmap.slam.search import SearchBox
+
+    cfg = SlamConfig(dof=6, use_odometry=False, global_search=False)
+    span = 2 * cfg.registration.yaw_range
+    turn = np.deg2rad(45.0)
+    searched = []
+
+    def search(self, scan, target, bounds, guesses, config, rng):
+        searched.append((bounds.copy(), guesses.copy()))
+        found = bounds[5, 1] - bounds[5, 0] <= span + 1e-9 and bounds[5, 0] <= turn <= bounds[5, 1]
+        pose = np.zeros(6)
+        pose[5] = turn if found else guesses[0, 5]
+        return types.SimpleNamespace(cost=0.1 if found else 1.0, inlier_ratio=0.8 if found else 0.4, pose=pose)
+
+    monkeypatch.setattr(SearchBox, "_search", search)
+    box = SearchBox(cfg, Costs())
+    for _ in range(5):
+        box.record(0.8, True)
+    guesses = np.zeros((2, 6))
+    guesses[1, 5] = np.deg2rad(2.0)
+    half = box.ranges([], False)
+    failed = types.SimpleNamespace(cost=1.0, inlier_ratio=0.4, pose=np.zeros(6))
+    res, repeated, confirmed = box.widened(None, None, failed, guesses, half, np.random.default_rng(0))
+    assert repeated and confirmed and res.pose[5] == turn
+    for bounds, seeds in searched:
+        assert bounds[5, 1] - bounds[5, 0] <= span + 1e-9
+        holds = (guesses[:, 5] >= bounds[5, 0]) & (guesses[:, 5] <= bounds[5, 1])
+        if holds.any():
+            np.testing.assert_array_equal(seeds, guesses[holds])
+        else:
+            np.testing.assert_allclose(seeds[:, 5], bounds[5].mean())
+    wide = SearchBox._yaw_split(np.column_stack([-np.ones(6), np.ones(6) + 1.0]), 0.7)
+    assert len(wide) == 5
+    for a, b in zip(wide[:-1], wide[1:], strict=True):
+        np.testing.assert_allclose(a[5, 1], b[5, 0])
+    np.testing.assert_allclose([wide[0][5, 0], wide[-1][5, 1]], [-1.0, 2.0])

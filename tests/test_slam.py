@@ -1048,8 +1048,8 @@ def _swinging_prediction(dof: int = 6, prior: bool = False) -> HsSlam:
 
 
 def test_a_hand_held_prediction_is_as_uncertain_as_the_recent_motion(monkeypatch):
-    """A sensor carried by hand: the constant-velocity prediction's sigmas are at least the RMS change between
-    its recent steps, so a registration within that spread that matches its scan stands without a retry around
+    """A sensor carried by hand: the constant-velocity prediction's rotation sigma is at least the RMS change
+    between its recent steps (its translation sigma as configured), so a registration within that spread that matches its scan stands without a retry around
     the prediction; a ground robot's prediction (3-DOF, or seeded by a 2D run) keeps the configured
     ``motion_sigma``."""
     import hsmap.slam.verify as verify
@@ -1059,6 +1059,7 @@ def test_a_hand_held_prediction_is_as_uncertain_as_the_recent_motion(monkeypatch
     step = relative(slam.poses[-2], slam.poses[-1])
     model = np.array(slam.odometry.model_sigmas(step, slam.config.motion_sigma))
     assert sig[1] >= np.deg2rad(19.0) > 1.5 * model[1]
+    assert sig[0] == pytest.approx(model[0])
 
     def no_retry(*args, **kwargs):
         raise AssertionError("retried around the prediction")

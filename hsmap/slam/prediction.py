@@ -35,7 +35,7 @@ class MotionPrediction:
 
     The previous pose moved by: (6-DOF, :attr:`use_prior`) the prior trajectory's motion (``prior_sigma``); else
     the wheel odometry's step (its learned bias taken out, ``odometry_sigma`` scaled by what was learned); else the
-    last motion repeated (``motion_sigma``; in the gate of a sensor carried by hand, :meth:`motion_sigma_rotation`). Call
+    last motion repeated (``motion_sigma``). Call
     :meth:`start` with each frame, :meth:`first_registration` and :meth:`kept_registration` with its
     registrations, and :meth:`advance` once it is tracked.
 
@@ -119,7 +119,7 @@ class MotionPrediction:
     def predict(self, gate: bool = False) -> Prediction:
         """The frame's predicted pose and the sigmas (translation, yaw) of its x/y and yaw, or None for the first
         two frames with neither a prior's pose nor an odometry step (``gate``: the odometry's sigmas never tighter
-        than configured, a hand-held constant-velocity prediction's rotation never tighter than :meth:`motion_sigma_rotation`)."""
+        than configured)."""
         return self._predict(gate, self.use_prior)
 
     def _predict(self, gate: bool, use_prior: bool) -> Prediction:
@@ -139,18 +139,16 @@ class MotionPrediction:
             return None
         pred = compose(prev, step)
         sig = np.array(self.odometry.model_sigmas(step, model))
-        if gate and model is cfg.motion_sigma and self.search.follows_motion:
-            sig[1] = max(sig[1], self.motion_sigma_rotation())
         pred = pred.copy()
         pred[self.dim:] = prev[self.dim:] + wrap_angle(pred[self.dim:] - prev[self.dim:])
         return pred, sig
 
-    def motion_sigma_rotation(self) -> float:
+    def motion_sigma_rotation(self) -> float | None:
         """The rotation sigma the recent motion gives the constant-velocity prediction of a sensor carried by hand
-        (:attr:`SearchBox.follows_motion`): the RMS change between consecutive steps
-        (:meth:`SearchBox.motion_change`) of the angle that changes most. Its translation keeps ``motion_sigma``:
-        a registration slides along directions the scene hardly constrains, and a walk changes its pace
-        little."""
+        (:attr:`SearchBox.follows_motion`, no odometry step): the RMS change between consecutive steps
+        (:meth:`SearchBox.motion_change`) of the angle that changes most; None otherwise."""
+        if not self.search.follows_motion or self.odometry.step(self.frame) is not None:
+            return None
         return float(self.search.motion_change(self.poses)[3:].max())
 
     def prior_contradicted(self, res: RegistrationResult) -> bool:

@@ -1032,48 +1032,6 @@ def test_a_hand_held_registration_that_passes_the_inlier_check_stands_against_a_
     assert box(dof=3).settled(good, bad, False) == (bad, False)
 
 
-def _swinging_prediction(dof: int = 6, prior: bool = False) -> HsSlam:
-    """A tracker whose last poses swing 10 deg left and right in yaw on the spot (no odometry), predicting the
-    next frame."""
-    cfg = SlamConfig(dof=dof, use_odometry=False)
-    slam = HsSlam(cfg)
-    if prior:
-        slam.search.follows_motion = False
-    for i in range(8):
-        yaw = np.deg2rad(10.0) * (i % 2)
-        slam.poses.append(np.array([1.0, 2.0, 1.5, 0.0, 0.0, yaw]) if dof == 6 else np.array([1.0, 2.0, yaw]))
-        slam.stamps.append(float(i))
-    slam.prediction.start(Frame(stamp=8.0, index=8))
-    return slam
-
-
-def test_a_hand_held_registration_within_the_recent_motion_stands_against_an_equal_retry(monkeypatch):
-    """A sensor carried by hand whose recent steps swing 10 deg left and right: a registration 40 deg from the
-    constant-velocity prediction (beyond the configured gate, within the recent motion's spread) is retried
-    around the prediction, and stands where the retry aligns the scan no better; a ground robot's retry (3-DOF,
-    or seeded by a 2D run) is kept as before. A clearly better retry wins."""
-    import hsmap.slam.verify as verify
-
-    def run(slam, retry_residual):
-        centre, _ = slam.prediction.predict(True)
-        turn = np.zeros(slam.config.dof)
-        turn[-1] = np.deg2rad(40.0)
-        pose = compose(centre, turn)
-        retry = types.SimpleNamespace(pose=centre.copy(), information=None, evaluations=1)
-        monkeypatch.setattr(verify, "harmony_icp", lambda *a, **k: retry)
-        monkeypatch.setattr(verify, "residuals", lambda scan, target, p, threshold: np.full(
-            100, 0.01 if np.allclose(p, pose) else retry_residual))
-        res = types.SimpleNamespace(pose=pose, information=None)
-        kept, retried, _ = slam.verifier.verify(None, None, res, np.random.default_rng(0))
-        assert retried
-        return kept is res
-
-    assert run(_swinging_prediction(), 0.01)
-    assert not run(_swinging_prediction(), 0.005)
-    assert not run(_swinging_prediction(dof=3), 0.01)
-    assert not run(_swinging_prediction(prior=True), 0.01)
-
-
 def test_a_wide_hand_held_box_is_searched_coarse_to_fine_in_yaw_sectors(monkeypatch):
     """A hand-held registration that fails the inlier check is searched again in widened boxes, each cut into
     yaw sectors no wider than the configured box's span that together cover it; the sector holding the seeds

@@ -35,9 +35,8 @@ class MotionPrediction:
 
     The previous pose moved by: (6-DOF, :attr:`use_prior`) the prior trajectory's motion (``prior_sigma``); else
     the wheel odometry's step (its learned bias taken out, ``odometry_sigma`` scaled by what was learned); else the
-    last motion repeated (``motion_sigma``). Call
-    :meth:`start` with each frame, :meth:`first_registration` and :meth:`kept_registration` with its
-    registrations, and :meth:`advance` once it is tracked.
+    last motion repeated (``motion_sigma``). Call :meth:`start` with each frame, :meth:`first_registration` and
+    :meth:`kept_registration` with its registrations, and :meth:`advance` once it is tracked.
 
     Parameters
     ----------
@@ -142,14 +141,6 @@ class MotionPrediction:
         pred = pred.copy()
         pred[self.dim:] = prev[self.dim:] + wrap_angle(pred[self.dim:] - prev[self.dim:])
         return pred, sig
-
-    def motion_sigma_rotation(self) -> float | None:
-        """The rotation sigma the recent motion gives the constant-velocity prediction of a sensor carried by hand
-        (:attr:`SearchBox.follows_motion`, no odometry step): the RMS change between consecutive steps
-        (:meth:`SearchBox.motion_change`) of the angle that changes most; None otherwise."""
-        if not self.search.follows_motion or self.odometry.step(self.frame) is not None:
-            return None
-        return float(self.search.motion_change(self.poses)[3:].max())
 
     def prior_contradicted(self, res: RegistrationResult) -> bool:
         """A run seeded by a prior: whether the frame's odometry step contradicts the prior's prediction and

@@ -59,13 +59,9 @@ class SearchBox:
         return half if prior else np.maximum(half, self.motion_spread(poses))
 
     def motion_spread(self, poses: Sequence[NDArray[np.float64]]) -> NDArray[np.float64]:
-        """``verify_sigmas`` times :meth:`motion_change`: the box the constant-velocity prediction's error needs."""
-        return self.config.verify_sigmas * self.motion_change(poses)
-
-    def motion_change(self, poses: Sequence[NDArray[np.float64]]) -> NDArray[np.float64]:
-        """With :attr:`follows_motion`: per pose component, the RMS change between consecutive frames' steps of
-        that component over the last ``motion_window`` frames (the constant-velocity prediction's error); zeros
-        otherwise or with too few frames."""
+        """With :attr:`follows_motion`: per pose component, ``verify_sigmas`` times the RMS change between
+        consecutive frames' steps of that component over the last ``motion_window`` frames (the constant-velocity
+        prediction's error); zeros otherwise or with too few frames."""
         cfg = self.config
         n = min(len(poses), cfg.motion_window + 2)
         if not self.follows_motion or n < 3:
@@ -74,7 +70,7 @@ class SearchBox:
         steps[:, 3:] = wrap_angle(steps[:, 3:])
         change = np.diff(steps, axis=0)
         change[:, 3:] = wrap_angle(change[:, 3:])
-        return np.sqrt(np.mean(change ** 2, axis=0))
+        return cfg.verify_sigmas * np.sqrt(np.mean(change ** 2, axis=0))
 
     def inlier_reference(self) -> float | None:
         """The median inlier ratio of the confirmed ones among the last ``motion_window`` tracked frames (None with
@@ -94,8 +90,8 @@ class SearchBox:
         """A registration that fails the inlier check (:meth:`passes`) searched again in boxes of ``half`` times
         each of ``widen_factors`` around ``guesses`` (each half-width at most the larger of ``half``'s and the box
         :func:`hsmap.registration.icp.harmony_icp` searches without a guess; each searched coarse to fine,
-        :meth:`_coarse_to_fine`), with a longer search, until one passes; where none does, with ``global_search``, the rest of the yaw circle (:meth:`_yaw_sectors`). Returns
-        the registration that aligns the scan best (point-to-plane cost), whether a search was repeated, and
+        :meth:`_coarse_to_fine`), with a longer search, until one passes; where none does, with ``global_search``,
+        the rest of the yaw circle (:meth:`_yaw_sectors`). Returns the registration that aligns the scan best (point-to-plane cost), whether a search was repeated, and
         whether the kept one passes the check or two searches agree on it."""
         cfg = self.config
         if not self.follows_motion or self.passes(res):

@@ -116,9 +116,8 @@ class Verifier:
         gate's sigmas (:meth:`MotionPrediction.predict` with ``gate``), or, for a registration that matches less
         than ``STRICT_MIN_MATCHED`` of its scan, of the learned ones. The retry searches the box of the
         prediction's uncertainty (within :meth:`MotionPrediction.tracking_box`) and the pose that aligns the scan
-        clearly better wins (a hand-held registration within the recent motion's spread stands unless the retry
-        is clearly better). A registration beyond the gate stands as it is where it sets the odometry step
-        aside (:meth:`MotionPrediction.set_aside`); it overrules the retry only where the prediction
+        clearly better wins. A registration beyond the gate stands as it is where it sets the odometry step aside
+        (:meth:`MotionPrediction.set_aside`); it overrules the retry only where the prediction
         :meth:`~MotionPrediction.consents` (a run seeded by a prior: where the wheels side with it).
 
         Returns the registration to keep, whether it was retried, and whether its pose is confirmed.
@@ -128,7 +127,6 @@ class Verifier:
             return res, False, True
         centre, sig = pred
         threshold = self.config.registration.threshold
-        in_motion = self._within_motion(relative(centre, res.pose), sig)
         stands, sig, r_first = self._stands(scan, target, res, centre, sig)
         if stands:
             return res, False, True
@@ -145,20 +143,9 @@ class Verifier:
                 and truncated_residual(r_first, threshold) < 0.5 * truncated_residual(r_alt, threshold))
                 ) and self.prediction.consents(res):
             return res, True, True
-        # a hand-held registration within the recent motion's own spread stands against a retry that is not
-        # clearly better: the constant-velocity prediction is no evidence against it
-        if (in_motion and at_least_as_good(r_first, r_alt, self.dim)
-                and not at_least_as_good(r_alt, r_first, self.dim, strict=True)):
-            return res, True, True
         # a registration that explains too little of its scan cannot veto the prediction either: the scan sees
         # space the map does not hold
         return alt, True, first_matched < STRICT_MIN_MATCHED or at_least_as_good(r_alt, r_first, self.dim)
-
-    def _within_motion(self, d: NDArray[np.float64], sig: NDArray[np.float64]) -> bool:
-        """Whether a hand-held pose ``d`` from the constant-velocity prediction lies within the gate ``sig`` with its
-        rotation sigma widened to the recent motion's (:meth:`MotionPrediction.motion_sigma_rotation`)."""
-        rotation = self.prediction.motion_sigma_rotation()
-        return rotation is not None and self._within(d, np.array([sig[0], max(sig[1], rotation)]))
 
     def _within(self, d: NDArray[np.float64], sig: NDArray[np.float64]) -> bool:
         """Whether a pose ``d`` from the prediction lies within ``verify_sigmas`` of the sigmas ``sig``."""

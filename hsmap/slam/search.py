@@ -91,8 +91,9 @@ class SearchBox:
         each of ``widen_factors`` around ``guesses`` (each half-width at most the larger of ``half``'s and the box
         :func:`hsmap.registration.icp.harmony_icp` searches without a guess; each searched coarse to fine,
         :meth:`_coarse_to_fine`), with a longer search, until one passes; where none does, with ``global_search``,
-        the rest of the yaw circle (:meth:`_yaw_sectors`). Returns the registration that aligns the scan best (point-to-plane cost), whether a search was repeated, and
-        whether the kept one passes the check or two searches agree on it."""
+        the rest of the yaw circle (:meth:`_yaw_sectors`). Returns the registration that aligns the scan best
+        (point-to-plane cost), whether a search was repeated, and whether the kept one passes the check or two
+        searches agree on it."""
         cfg = self.config
         if not self.follows_motion or self.passes(res):
             return res, False, True

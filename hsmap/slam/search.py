@@ -89,11 +89,10 @@ class SearchBox:
                 ) -> tuple[RegistrationResult, bool, bool]:
         """A registration that fails the inlier check (:meth:`passes`) searched again in boxes of ``half`` times
         each of ``widen_factors`` around ``guesses`` (each half-width at most the larger of ``half``'s and the box
-        :func:`hsmap.registration.icp.harmony_icp` searches without a guess; each searched coarse to fine,
-        :meth:`_coarse_to_fine`), with a longer search, until one passes; where none does, with ``global_search``,
-        the rest of the yaw circle (:meth:`_yaw_sectors`). Returns the registration that aligns the scan best
-        (point-to-plane cost), whether a search was repeated, and whether the kept one passes the check or two
-        searches agree on it."""
+        :func:`hsmap.registration.icp.harmony_icp` searches without a guess), with a longer search, until one
+        passes; where none does, with ``global_search``, the rest of the yaw circle (:meth:`_yaw_sectors`). Returns
+        the registration that aligns the scan best (point-to-plane cost), whether a search was repeated, and
+        whether the kept one passes the check or two searches agree on it."""
         cfg = self.config
         if not self.follows_motion or self.passes(res):
             return res, False, True
@@ -106,7 +105,7 @@ class SearchBox:
         for factor in cfg.widen_factors:
             h = np.minimum(half * factor, reach)
             bounds = np.column_stack([guesses.min(0) - h, guesses.max(0) + h])
-            tried.append(self._coarse_to_fine(scan, target, bounds, guesses, wide_cfg, rng))
+            tried.append(self._search(scan, target, bounds, guesses, wide_cfg, rng))
             if self.passes(tried[-1]):
                 break
         if cfg.global_search and not self.passes(tried[-1]):
@@ -128,39 +127,6 @@ class SearchBox:
                 and not self.passes(checked)):
             return searched, True
         return checked, verified
-
-    def _coarse_to_fine(self, scan: NDArray[np.float64], target: RegistrationTarget, bounds: NDArray[np.float64],
-                        guesses: NDArray[np.float64], config: RegistrationConfig, rng: np.random.Generator
-                        ) -> RegistrationResult:
-        """The box ``bounds`` (6, 2) searched in yaw sectors no wider than the configured box's yaw span
-        (:meth:`_yaw_split`), each from the ``guesses`` inside it or, where none is, from the guesses turned to its
-        middle: the registration that aligns the scan best (point-to-plane cost). A single search converges near
-        its seeds and can miss a turn the box holds."""
-        sectors = self._yaw_split(bounds, 2 * self.config.registration.yaw_range)
-        if len(sectors) == 1:
-            return self._search(scan, target, bounds, guesses, config, rng)
-        found = []
-        for box in sectors:
-            seeds = guesses[(guesses[:, 5] >= box[5, 0]) & (guesses[:, 5] <= box[5, 1])]
-            if not len(seeds):
-                seeds = guesses.copy()
-                seeds[:, 5] = box[5].mean()
-            found.append(self._search(scan, target, box, seeds, config, rng))
-        return min(found, key=lambda r: r.cost)
-
-    @staticmethod
-    def _yaw_split(bounds: NDArray[np.float64], width: float) -> list[NDArray[np.float64]]:
-        """The box ``bounds`` (6, 2) cut along yaw into the fewest equal sectors no wider than ``width``, each a box
-        of its own with ``bounds``' other half-widths."""
-        lo, hi = bounds[5]
-        n = max(1, int(np.ceil((hi - lo) / width - 1e-9))) if width > 0 else 1
-        edges = np.linspace(lo, hi, n + 1)
-        out = []
-        for a, b in zip(edges[:-1], edges[1:], strict=True):
-            box = bounds.copy()
-            box[5] = [a, b]
-            out.append(box)
-        return out
 
     def _search(self, scan: NDArray[np.float64], target: RegistrationTarget, bounds: NDArray[np.float64],
                 guesses: NDArray[np.float64], config: RegistrationConfig, rng: np.random.Generator

@@ -73,9 +73,6 @@ def default_bounds(centres: NDArray[np.float64], cfg: RegistrationConfig) -> NDA
     return np.column_stack([centres.min(axis=0) - half, centres.max(axis=0) + half])
 
 
-_default_bounds = default_bounds  # its private name, for the callers that import that
-
-
 def _check_bounds(bounds: ArrayLike, dof: int) -> NDArray[np.float64]:
     try:
         b = np.asarray(bounds, dtype=float)

@@ -56,7 +56,6 @@ from .rerun_recording import (  # noqa: E402, F401  (the recording and its layou
     WORLD,
     WORLD_MAP,
     Recording,
-    _colour_name,
     _FileFeed,
     _stream,
     default_blueprint,

@@ -25,16 +25,19 @@ endif
 
 .PHONY: setup system-libs reproduce test bench lint clean lock data
 
+# Bytecode is compiled once here (site-packages by uv, hsmap by compileall): with PYTHONDONTWRITEBYTECODE set,
+# every Python process (each notebook kernel, each command) would otherwise compile its imports from source.
 setup: system-libs $(STAMP)
+	@$(BIN)/python -m compileall -q -j 0 hsmap
 
 # open3d links against libusb-1.0, which a fresh Debian/Ubuntu machine lacks.
 system-libs:
 	@.ci/ensure-system-libs
 
-$(STAMP): requirements.lock pyproject.toml
+$(STAMP): requirements.lock pyproject.toml Makefile
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	@$(BIN)/python -m pip install --quiet --disable-pip-version-check uv==$(UV_VERSION)
-	$(BIN)/uv pip sync --quiet --python $(BIN)/python requirements.lock
+	$(BIN)/uv pip sync --quiet --compile-bytecode --python $(BIN)/python requirements.lock
 	$(BIN)/uv pip install --quiet --python $(BIN)/python --no-deps -e .
 	@$(BIN)/python tools/warm_kernels.py
 	@$(BIN)/python -c "import open3d, rerun, hsmap; print('hsmap', hsmap.__version__, 'ready in $(VENV)')"

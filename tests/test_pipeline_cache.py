@@ -26,9 +26,11 @@ from hsmap.pipeline.cache import EXCLUDED, MARKER, FolderCache, code_digest
 PACKAGE = Path(hsmap.__file__).resolve().parent
 
 
-def copy_package(dest: Path) -> Path:
-    """A copy of the installed package (sources only) at ``dest/hsmap``."""
-    shutil.copytree(PACKAGE, dest / "hsmap", ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+def copy_package(dest: Path, *, caches: bool = False) -> Path:
+    """A copy of the installed package at ``dest/hsmap``: its sources, and with ``caches`` its bytecode and compiled
+    kernels too (copied with their sources' times, so still valid: a run of the copy need not compile them)."""
+    ignore = None if caches else shutil.ignore_patterns("__pycache__", "*.pyc")
+    shutil.copytree(PACKAGE, dest / "hsmap", ignore=ignore)
     return dest / "hsmap"
 
 
@@ -247,7 +249,7 @@ print(json.dumps({"package": hsmap.__file__, "counts": counts, "dataset": ds_key
 
 @pytest.mark.slow
 def test_a_simulator_change_recomputes_the_dataset_the_slam_runs_and_the_maps(tmp_path):
-    root = copy_package(tmp_path / "copy")
+    root = copy_package(tmp_path / "copy", caches=True)
     scn = tmp_path / "tiny.yaml"
     scn.write_text(TINY_SCENARIO)
     env = {**os.environ, "PYTHONPATH": str(root.parent), "HSMAP_GENERATED": str(tmp_path / "generated"),

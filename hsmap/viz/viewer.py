@@ -102,7 +102,7 @@ class ViewerCheck:
 class HeadlessViewer:
     """A headless rerun viewer process, for one or more recordings (a context manager: quits on exit)."""
 
-    def __init__(self, *, size: tuple[int, int] | None = None, startup_timeout: float = 60.0):
+    def __init__(self, *, startup_timeout: float = 60.0):
         reason = viewer_unavailable()
         if reason is not None:
             raise HsmapError(f"the headless viewer cannot run here: {reason}")

@@ -1,11 +1,31 @@
-"""Numba kernels of the voxel maps: voxel centroids, insertion through a hash table, row cropping and insertion."""
+"""Numba kernels of the voxel maps: voxel centroids, insertion through a hash table, row cropping and insertion,
+the start of a 3D DDA ray walk."""
 
 from __future__ import annotations
 
 import numba as nb
 import numpy as np
 
-__all__ = ["voxel_centroids", "voxel_centroids_with", "voxel_accumulate", "voxel_rehash", "crop_rows", "insert_rows"]
+__all__ = ["voxel_centroids", "voxel_centroids_with", "voxel_accumulate", "voxel_rehash", "crop_rows", "insert_rows",
+           "dda_start"]
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def dda_start(ix, iy, iz, ox, oy, oz, dx, dy, dz):  # pragma: no cover - JIT
+    """The start of a 3D DDA (Amanatides-Woo) walk from (ox, oy, oz), in voxel units inside voxel (ix, iy, iz),
+    along (dx, dy, dz): the step of each axis (+-1), the ray parameter per voxel along each axis and the ray
+    parameter at the first voxel boundary of each axis (inf along an axis the ray does not move on)."""
+    big = np.inf
+    sx = 1 if dx > 0 else -1
+    sy = 1 if dy > 0 else -1
+    sz = 1 if dz > 0 else -1
+    tdx = abs(1.0 / dx) if dx != 0.0 else big
+    tdy = abs(1.0 / dy) if dy != 0.0 else big
+    tdz = abs(1.0 / dz) if dz != 0.0 else big
+    tmx = ((ix + (1 if dx > 0 else 0)) - ox) / dx if dx != 0.0 else big
+    tmy = ((iy + (1 if dy > 0 else 0)) - oy) / dy if dy != 0.0 else big
+    tmz = ((iz + (1 if dz > 0 else 0)) - oz) / dz if dz != 0.0 else big
+    return sx, sy, sz, tdx, tdy, tdz, tmx, tmy, tmz
 
 @nb.njit(cache=True, nogil=True)
 def _number_voxels(keys, skip, valid):  # pragma: no cover - JIT

@@ -28,6 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..errors import EmptyInputError, InputError, OutputError, ShapeError
 from ..limits import check_allocation
+from ._kernels import dda_start
 from .maps3d import FREE, MAX_CELLS, OCCUPIED, UNKNOWN, Map3D
 
 __all__ = [
@@ -99,7 +100,6 @@ def _carve_rays(state, origin, res, sensor, ends):  # pragma: no cover - JIT
     ox = (sensor[0] - origin[0]) / res
     oy = (sensor[1] - origin[1]) / res
     oz = (sensor[2] - origin[2]) / res
-    big = np.inf
     for i in range(ends.shape[0]):
         px = (ends[i, 0] - origin[0]) / res
         py = (ends[i, 1] - origin[1]) / res
@@ -107,15 +107,7 @@ def _carve_rays(state, origin, res, sensor, ends):  # pragma: no cover - JIT
         dx, dy, dz = px - ox, py - oy, pz - oz
         ix, iy, iz = int(np.floor(ox)), int(np.floor(oy)), int(np.floor(oz))
         ex, ey, ez = int(np.floor(px)), int(np.floor(py)), int(np.floor(pz))
-        sx = 1 if dx > 0 else -1
-        sy = 1 if dy > 0 else -1
-        sz = 1 if dz > 0 else -1
-        tdx = abs(1.0 / dx) if dx != 0.0 else big
-        tdy = abs(1.0 / dy) if dy != 0.0 else big
-        tdz = abs(1.0 / dz) if dz != 0.0 else big
-        tmx = ((ix + (1 if dx > 0 else 0)) - ox) / dx if dx != 0.0 else big
-        tmy = ((iy + (1 if dy > 0 else 0)) - oy) / dy if dy != 0.0 else big
-        tmz = ((iz + (1 if dz > 0 else 0)) - oz) / dz if dz != 0.0 else big
+        sx, sy, sz, tdx, tdy, tdz, tmx, tmy, tmz = dda_start(ix, iy, iz, ox, oy, oz, dx, dy, dz)
         steps = abs(ex - ix) + abs(ey - iy) + abs(ez - iz)
         for _ in range(steps + 1):
             if ix == ex and iy == ey and iz == ez:

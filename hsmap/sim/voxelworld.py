@@ -22,6 +22,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .._threads import start_threading_layer
 from ..errors import InputError, ShapeError
+from ..maps._kernels import dda_start
 from ..maps.maps3d import floor_height
 from .world import World
 
@@ -65,15 +66,7 @@ def _cast_kernel(state, origin, res, rays, out):  # pragma: no cover - compiled
         ix = min(max(int(np.floor(px)), 0), nx - 1)
         iy = min(max(int(np.floor(py)), 0), ny - 1)
         iz = min(max(int(np.floor(pz)), 0), nz - 1)
-        sx = 1 if dx > 0 else -1
-        sy = 1 if dy > 0 else -1
-        sz = 1 if dz > 0 else -1
-        tdx = abs(1.0 / dx) if dx != 0.0 else big
-        tdy = abs(1.0 / dy) if dy != 0.0 else big
-        tdz = abs(1.0 / dz) if dz != 0.0 else big
-        tmx = ((ix + (1 if dx > 0 else 0)) - ox) / dx if dx != 0.0 else big
-        tmy = ((iy + (1 if dy > 0 else 0)) - oy) / dy if dy != 0.0 else big
-        tmz = ((iz + (1 if dz > 0 else 0)) - oz) / dz if dz != 0.0 else big
+        sx, sy, sz, tdx, tdy, tdz, tmx, tmy, tmz = dda_start(ix, iy, iz, ox, oy, oz, dx, dy, dz)
         t = t0
         first = t0 == 0.0
         while True:

@@ -273,3 +273,15 @@ def test_the_first_real_sweeps_are_scored_within_centimetres_by_a_peer(balm, tmp
     assert s["poses"] == 5 and s["reference_sweeps"] == 177
     assert s["ate_rmse_m"] < 0.02 and s["lost_track_from_sweep"] is None
     assert r.timing()["cpu_per_sweep_mean_s"] > 0
+
+
+def test_repeated_runs_report_the_median_run_and_every_time(bench):
+    _, peers = bench
+    runs = [{"status": "ok", "wall_seconds": w, "cpu_seconds": w / 2, "relations": k} for k, w in
+            enumerate([9.0, 3.0, 5.0, 7.0])]
+    mid = peers._median_run(runs)
+    assert mid["relations"] == 2 and mid["wall_seconds"] == 5.0  # the lower middle of an even count
+    assert mid["runs_wall_seconds"] == [9.0, 3.0, 5.0, 7.0] and mid["wall_seconds_median"] == 6.0
+    assert peers._median_run(runs[:1]) == runs[0]
+    failed = {"status": "failed", "reason": "boom"}
+    assert peers._median_run([runs[0], failed]) == failed

@@ -71,3 +71,59 @@ def test_a_jump_against_a_poorly_constrained_match_is_not_set_aside():
 def test_steps_are_never_set_aside_on_consecutive_frames():
     wheels = [STEP] * 10 + [np.array([5.2, 0.0, 0.0]), np.array([2.2, 0.0, 0.0])] + [STEP] * 9
     assert _drive(wheels, [STEP] * 21) == [11]
+
+
+def test_window_medians_and_deviations_equal_numpys_as_rows_come_and_go():
+    from hsmap.slam.odometry import _Window
+
+    rng = np.random.default_rng(3)
+    for size in (1, 2, 7, 40):
+        window, rows = _Window(size), []
+        for _ in range(3 * size + 5):
+            row = tuple(float(v) for v in rng.normal(size=3) * rng.choice([1e-3, 1.0, 1e3]))
+            if rng.random() < 0.3:
+                row = (np.nan, np.nan, row[2])  # an unconstrained frame: x and y not learned
+            if rng.random() < 0.2:
+                row = (float(rng.integers(-2, 3)),) * 3  # ties
+            window.append(row)
+            rows.append(row)
+            held = np.array(rows[-size:])
+            assert len(window) == len(held)
+            for c in range(3):
+                col = held[np.isfinite(held[:, c]), c]
+                assert window.finite(c) == len(col)
+                if len(col):
+                    m = np.median(col)
+                    assert window.median(c) == m
+                    assert window.deviation(c) == np.median(np.abs(col - m))
+
+
+def test_constrains_xy_decides_as_the_eigenvalues_do_even_at_the_ratio():
+    from hsmap.registration.information import constrained_axes
+    from hsmap.slam.odometry import constrains_xy
+
+    rng = np.random.default_rng(4)
+    for t in range(3000):
+        a = rng.normal(size=(3, 3)) * rng.choice([1e-6, 1.0, 1e6])
+        info = a @ a.T
+        if t % 3 == 0:  # eigenvalues at the ratio to a few parts in 1e12
+            v = np.linalg.qr(rng.normal(size=(2, 2)))[0]
+            lam = rng.random() * 10
+            info[:2, :2] = v @ np.diag([lam, lam * 0.05 * (1 + rng.normal() * 1e-12)]) @ v.T
+        if t % 5 == 0:
+            info[:2, :2] = 0.0  # no information at all
+        assert constrains_xy(info, 0.05) == (constrained_axes(info[:2, :2], 0.05).shape[1] == 2)
+    assert not constrains_xy(np.full((3, 3), np.nan), 0.05)
+    assert not constrains_xy(None, 0.05)
+
+
+def test_model_sigmas_of_a_planar_step_use_the_norm_and_the_wrapped_turn():
+    from hsmap.geometry import wrap_angle
+
+    model = OdometryModel(SlamConfig(dof=3), learn=False, wheel_edges=False)
+    a, b, c, d, e = model.config.odometry_sigma
+    rng = np.random.default_rng(5)
+    for step in rng.normal(size=(2000, 3)) * rng.choice([1e-3, 1.0, 10.0], size=(2000, 1)):
+        dist = float(np.linalg.norm(step[:2]))
+        turn = float(np.abs(wrap_angle(step[2:])).max())
+        assert model.model_sigmas(step) == (a + b * dist, c + d * turn + e * dist)

@@ -68,22 +68,25 @@ def _distance(a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
     return float(np.hypot(d[0], d[1]) + abs(wrap_angle(d[2])))
 
 
-def _kth_apart(s: list[float], m: float, k: int) -> float:
-    """The ``k``-th smallest (from 0) of ``abs(v - m)`` over the sorted values ``s``: the distances below ``m`` and
-    those from it up are each sorted, and the k-th of the two runs together is found by bisection."""
+def _middle_apart(s: list[float], m: float) -> float:
+    """The median of ``abs(v - m)`` over the sorted values ``s`` (at least one), as ``np.median`` gives it: the
+    distances below ``m`` and those from it up are each sorted, and the middle of the two runs together is found
+    by bisection."""
+    n = len(s)
+    k = n // 2  # the k-th smallest (from 0), averaged with the (k - 1)-th for an even count
     p = bisect_left(s, m)  # s[p - 1 - i] - m for i = 0.. and s[p + j] - m for j = 0.. grow apart from m
-    n_below, n_above = p, len(s) - p
-    lo, hi = max(0, k + 1 - n_above), min(k + 1, n_below)
+    lo, hi = max(0, k + 1 - (n - p)), min(k + 1, p)
     while lo < hi:  # the fewest taken below m such that the next one below is no nearer than the last one above
         i = (lo + hi) // 2
         if abs(s[p - 1 - i] - m) < abs(s[p + k - i] - m):
             lo = i + 1
         else:
             hi = i
-    j = k + 1 - lo
-    below = abs(s[p - lo] - m) if lo > 0 else -math.inf
-    above = abs(s[p + j - 1] - m) if j > 0 else -math.inf
-    return max(below, above)
+    # the k + 1 nearest: lo below m (the last of them at s[p - lo]), k + 1 - lo from it up (the last at s[p + k - lo])
+    below = [abs(s[p - lo + t] - m) for t in range(min(lo, 2))]  # the farthest one or two of those below
+    above = [abs(s[p + k - lo - t] - m) for t in range(min(k + 1 - lo, 2))]  # and of those above
+    last = sorted(below + above)
+    return last[-1] if n % 2 else (last[-2] + last[-1]) / 2
 
 
 class _Window:
@@ -119,9 +122,7 @@ class _Window:
 
     def deviation(self, c: int) -> float:
         """The median absolute deviation of column ``c``'s finite values (at least one) from their median."""
-        s, m = self._sorted[c], self.median(c)
-        k = len(s) // 2
-        return _kth_apart(s, m, k) if len(s) % 2 else (_kth_apart(s, m, k - 1) + _kth_apart(s, m, k)) / 2
+        return _middle_apart(self._sorted[c], self.median(c))
 
 
 class OdometryModel:

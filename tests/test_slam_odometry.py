@@ -127,3 +127,21 @@ def test_model_sigmas_of_a_planar_step_use_the_norm_and_the_wrapped_turn():
         dist = float(np.linalg.norm(step[:2]))
         turn = float(np.abs(wrap_angle(step[2:])).max())
         assert model.model_sigmas(step) == (a + b * dist, c + d * turn + e * dist)
+
+
+def test_slip_weight_is_one_within_the_gate_and_gate_over_m2_beyond():
+    from hsmap.slam.odometry import CHI2_999, slip_weight
+
+    rng = np.random.default_rng(6)
+    inside = beyond = 0
+    for _ in range(3000):
+        a = rng.normal(size=(3, 3)) * rng.choice([1.0, 30.0, 1e3])
+        info_a = a @ a.T
+        info_b = np.diag(1.0 / rng.uniform(0.01, 0.3, 3) ** 2)
+        d = rng.normal(size=3) * rng.choice([0.01, 0.1, 1.0])
+        m2 = float(d @ (info_a @ np.linalg.solve(info_a + info_b + 1e-12 * np.eye(3), info_b)) @ d)
+        expected = CHI2_999[3] / m2 if m2 > CHI2_999[3] else 1.0
+        assert slip_weight(d, info_a, info_b) == expected
+        inside += expected == 1.0
+        beyond += expected < 1.0
+    assert inside > 100 and beyond > 100

@@ -57,8 +57,12 @@ def slip_weight(d: NDArray[np.float64], info_a: NDArray[np.float64], info_b: NDA
     uncertainty, ``gate / m2`` beyond the chi-square 99.9 % quantile, ``m2`` being d's squared Mahalanobis length
     under the information of their difference, I_a (I_a + I_b)^-1 I_b."""
     n = len(d)
-    m2 = float(d @ (info_a @ np.linalg.solve(info_a + info_b + _JITTER[n], info_b)) @ d)
     gate = CHI2_999[n]
+    # the information of the difference is at most I_b (both positive semi-definite): d within half the gate under
+    # I_b lies within the gate, without the solve
+    if float(d @ info_b @ d) <= 0.5 * gate:
+        return 1.0
+    m2 = float(d @ (info_a @ np.linalg.solve(info_a + info_b + _JITTER[n], info_b)) @ d)
     return gate / m2 if m2 > gate else 1.0
 
 

@@ -145,3 +145,46 @@ def test_slip_weight_is_one_within_the_gate_and_gate_over_m2_beyond():
         inside += expected == 1.0
         beyond += expected < 1.0
     assert inside > 100 and beyond > 100
+
+
+def test_the_learned_bias_and_scale_are_the_robust_statistics_of_the_recent_disagreements():
+    """The bias is the median of the last ``odometry_window`` one-frame disagreements (x and y of constrained frames
+    only), the scale the MAD of the lagged ones: recomputed from every frame's own numbers, they agree."""
+    from hsmap.geometry import relative, wrap_angle
+
+    cfg = SlamConfig(dof=3, odometry_window=30, odometry_lag=3)
+    model = OdometryModel(cfg, learn=True, wheel_edges=False)
+    rng = np.random.default_rng(7)
+    odom, pose = np.zeros(3), np.zeros(3)
+    model.advance(Frame(stamp=0.0, odometry=odom.copy(), index=0))
+    rows, hist, lagged, var = [], [], [], np.zeros(2)
+    for i in range(1, 150):
+        odom = compose(odom, np.array([0.2, 0.01, 0.05]) + rng.normal(0, 0.01, 3))
+        frame = Frame(stamp=0.1 * i, odometry=odom.copy(), index=i)
+        step = model.step(frame)
+        new = compose(pose, step + rng.normal(0, 0.02, 3))
+        info = CORRIDOR if rng.random() < 0.3 else CONSTRAINED
+        st, sr = model.model_sigmas(step)
+        off = relative(compose(pose, step), new)
+        ok = info is CONSTRAINED
+        rows.append((off[0] / st if ok else np.nan, off[1] / st if ok else np.nan, float(wrap_angle(off[2])) / sr))
+        model.learn_bias(frame, _result(new, info), pose)
+        r = np.array(rows[-cfg.odometry_window:])
+        enough = np.isfinite(r).sum(0) >= 3
+        want = [np.median(r[np.isfinite(r[:, c]), c]) if enough[c] else 0.0 for c in range(3)]
+        assert model.bias.tolist() == want
+        var = var + np.square([st, sr])
+        hist.append((new, ok, odom.copy(), var.copy()))
+        model.learn_scale(frame, _result(new, info))
+        if len(hist) > cfg.odometry_lag and ok and hist[-1 - cfg.odometry_lag][1]:
+            p0, _, o0, v0 = hist[-1 - cfg.odometry_lag]
+            e = relative(relative(o0, odom), relative(p0, new))
+            s = np.sqrt(var - v0)
+            lagged.append((e[0] / s[0], e[1] / s[0], float(wrap_angle(e[2])) / s[1]))
+        if len(lagged) >= 3:
+            q = np.array(lagged[-cfg.odometry_window:])
+            spread = 1.4826 * np.median(np.abs(q - np.median(q, axis=0)), axis=0)
+            assert model.scale.tolist() == np.clip([max(spread[0], spread[1]), spread[2]], 0.1, 5.0).tolist()
+        model.advance(frame)
+        pose = new
+    assert len(lagged) > cfg.odometry_window  # the window turned over

@@ -13,6 +13,7 @@ Conventions (used everywhere in hsmap):
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -30,9 +31,13 @@ __all__ = [
     "transform_points",
     "transform_points_batch",
     "compose",
+    "compose_2d",
     "invert",
     "invert_matrix",
     "relative",
+    "relative_2d",
+    "single_2d",
+    "wrap_angle_1",
     "compose_with_covariance_2d",
     "body_covariance_2d",
     "quaternion_to_matrix",
@@ -136,6 +141,12 @@ def transform_points_batch(T: ArrayLike, points: ArrayLike) -> NDArray[np.float6
     return np.einsum("bij,nj->bni", T[:, :d, :d], points) + T[:, None, :d, d]
 
 
+def single_2d(*poses: object) -> bool:
+    """Whether each of ``poses`` is one 2D pose array (3,): the poses :func:`compose` and :func:`relative` take
+    their float path for (:func:`compose_2d`, :func:`relative_2d`)."""
+    return all(isinstance(p, np.ndarray) and p.shape == (3,) for p in poses)
+
+
 def _one_se2(a: ArrayLike, b: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
     """``a`` and ``b`` as float arrays when both are one 2D pose (3,), else None (the matrix path)."""
     if isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.shape == (3,) and b.shape == (3,):
@@ -147,11 +158,16 @@ def compose(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
     """Composition a ⊕ b of pose vectors (..., 3|6): b expressed in a's frame, mapped to a's parent."""
     one = _one_se2(a, b)
     if one is not None:  # one 2D pose each (hot in the tracker): the same arithmetic, written out
-        (ax, ay, at), (bx, by, bt) = one[0].tolist(), one[1].tolist()
-        c, s = math.cos(at), math.sin(at)
-        cb, sb = math.cos(bt), math.sin(bt)
-        return np.array([c * bx - s * by + ax, s * bx + c * by + ay, math.atan2(s * cb + c * sb, c * cb - s * sb)])
+        return np.array(compose_2d(one[0].tolist(), one[1].tolist()))
     return matrix_to_pose(pose_to_matrix(a) @ pose_to_matrix(b))
+
+
+def compose_2d(a: Sequence[float], b: Sequence[float]) -> tuple[float, float, float]:
+    """:func:`compose` of one 2D pose each, as Python floats (x, y, yaw): the arithmetic of its array path."""
+    (ax, ay, at), (bx, by, bt) = a, b
+    c, s = math.cos(at), math.sin(at)
+    cb, sb = math.cos(bt), math.sin(bt)
+    return c * bx - s * by + ax, s * bx + c * by + ay, math.atan2(s * cb + c * sb, c * cb - s * sb)
 
 
 def invert_matrix(T: ArrayLike) -> NDArray[np.float64]:
@@ -175,12 +191,22 @@ def relative(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
     """Relative pose a⁻¹ ⊕ b of pose vectors: b expressed in the frame of a."""
     one = _one_se2(a, b)
     if one is not None:  # one 2D pose each (hot in the tracker): the same arithmetic, written out
-        (ax, ay, at), (bx, by, bt) = one[0].tolist(), one[1].tolist()
-        c, s = math.cos(at), math.sin(at)
-        cb, sb = math.cos(bt), math.sin(bt)
-        dx, dy = bx - ax, by - ay
-        return np.array([c * dx + s * dy, -s * dx + c * dy, math.atan2(c * sb - s * cb, c * cb + s * sb)])
+        return np.array(relative_2d(one[0].tolist(), one[1].tolist()))
     return matrix_to_pose(invert_matrix(pose_to_matrix(a)) @ pose_to_matrix(b))
+
+
+def relative_2d(a: Sequence[float], b: Sequence[float]) -> tuple[float, float, float]:
+    """:func:`relative` of one 2D pose each, as Python floats (x, y, yaw): the arithmetic of its array path."""
+    (ax, ay, at), (bx, by, bt) = a, b
+    c, s = math.cos(at), math.sin(at)
+    cb, sb = math.cos(bt), math.sin(bt)
+    dx, dy = bx - ax, by - ay
+    return c * dx + s * dy, -s * dx + c * dy, math.atan2(c * sb - s * cb, c * cb + s * sb)
+
+
+def wrap_angle_1(a: float) -> float:
+    """:func:`wrap_angle` of one Python float (the same arithmetic, without NumPy's per-call cost)."""
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def compose_with_covariance_2d(a: ArrayLike, cov_a: ArrayLike, b: ArrayLike, cov_b: ArrayLike

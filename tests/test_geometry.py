@@ -160,3 +160,21 @@ def test_one_pose_compose_and_relative_match_the_batched_matrices(rng):
     assert np.all(np.abs(one_c[:, 2]) <= np.pi) and np.all(np.abs(one_r[:, 2]) <= np.pi)
     ints = np.array([1, 2, 0])  # integer poses are read as floats
     np.testing.assert_allclose(g.relative(ints, ints), np.zeros(3), atol=1e-15)
+
+
+
+def test_the_float_paths_of_planar_compose_relative_and_wrap_agree_with_the_matrix_and_array_paths(rng):
+    poses = np.column_stack([rng.uniform(-50, 50, (500, 2)), rng.uniform(-10, 10, 500)])
+    for a, b in zip(poses[:-1], poses[1:], strict=True):
+        ab = g.compose_2d(a.tolist(), b.tolist())
+        np.testing.assert_allclose(ab[:2], (g.pose_to_matrix(a) @ g.pose_to_matrix(b))[:2, 2], atol=1e-9)
+        assert abs(g.wrap_angle(ab[2] - a[2] - b[2])) < 1e-12
+        back = g.relative_2d(a.tolist(), list(ab))
+        np.testing.assert_allclose(back[:2], b[:2], atol=1e-9)
+        assert abs(g.wrap_angle(back[2] - b[2])) < 1e-12
+        d = g.relative_2d(a.tolist(), b.tolist())
+        np.testing.assert_allclose(g.compose_2d(a.tolist(), d)[:2], b[:2], atol=1e-9)
+        assert g.wrap_angle_1(float(a[2])) == float(g.wrap_angle(a[2]))  # the same bits
+    for v in (np.pi, -np.pi, 0.0, -0.0, 3 * np.pi, -3 * np.pi, 1e-300, 7.5, -7.5):
+        assert g.wrap_angle_1(v) == float(g.wrap_angle(v))
+    assert g.single_2d(poses[0], poses[1]) and not g.single_2d(poses[0], poses[:2]) and not g.single_2d([0, 0, 0])

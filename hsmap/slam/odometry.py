@@ -3,7 +3,9 @@ scale learned from the registrations, and the motion accumulated between keyfram
 
 from __future__ import annotations
 
+import math
 import warnings
+from bisect import bisect_left, insort
 from collections import deque
 
 import numpy as np
@@ -11,7 +13,17 @@ from numpy.typing import NDArray
 
 from ..datasets.frames import Frame
 from ..errors import HsmapWarning
-from ..geometry import body_covariance_2d, compose, compose_with_covariance_2d, relative, wrap_angle
+from ..geometry import (
+    body_covariance_2d,
+    compose,
+    compose_2d,
+    compose_with_covariance_2d,
+    relative,
+    relative_2d,
+    single_2d,
+    wrap_angle,
+    wrap_angle_1,
+)
 from ..registration.icp import RegistrationResult
 from ..registration.information import constrained_axes
 from .config import SlamConfig
@@ -20,13 +32,24 @@ __all__ = ["OdometryModel", "constrains_xy", "slip_weight", "CHI2_999"]
 
 #: 99.9 % quantiles of chi-square with 3 and 6 degrees of freedom, to 3 decimals: the gate on a prediction
 CHI2_999 = {3: 16.266, 6: 22.458}
+#: 1e-12 on the diagonal of an (n, n) information sum, keeping its solve regular
+_JITTER = {n: 1e-12 * np.eye(n) for n in (3, 6)}
 
 
 def constrains_xy(info: NDArray[np.float64] | None, degenerate_ratio: float) -> bool:
     """Whether a registration's information (dof, dof) constrains its translation along both x and y (6-DOF: z
     may see walls only)."""
-    return (info is not None and bool(np.all(np.isfinite(info)))
-            and constrained_axes(info[:2, :2], degenerate_ratio).shape[1] == 2)
+    if info is None or not all(map(math.isfinite, np.asarray(info, dtype=float).ravel().tolist())):
+        return False
+    # the block's eigenvalues in closed form (eigh reads its lower triangle); eigh itself decides where they lie
+    # too near zero or the ratio for the closed form's rounding to tell
+    a, b, c = float(info[0, 0]), float(info[1, 0]), float(info[1, 1])
+    mid, r = 0.5 * (a + c), math.hypot(0.5 * (a - c), b)
+    hi, lo = mid + r, mid - r
+    tol = 1e-9 * (abs(a) + abs(b) + abs(c))
+    if hi > tol and abs(lo - degenerate_ratio * hi) > tol:
+        return lo > degenerate_ratio * hi
+    return constrained_axes(info[:2, :2], degenerate_ratio).shape[1] == 2
 
 
 def slip_weight(d: NDArray[np.float64], info_a: NDArray[np.float64], info_b: NDArray[np.float64]) -> float:
@@ -34,8 +57,12 @@ def slip_weight(d: NDArray[np.float64], info_a: NDArray[np.float64], info_b: NDA
     uncertainty, ``gate / m2`` beyond the chi-square 99.9 % quantile, ``m2`` being d's squared Mahalanobis length
     under the information of their difference, I_a (I_a + I_b)^-1 I_b."""
     n = len(d)
-    m2 = float(d @ (info_a @ np.linalg.solve(info_a + info_b + 1e-12 * np.eye(n), info_b)) @ d)
     gate = CHI2_999[n]
+    # the information of the difference is at most I_b (both positive semi-definite): d within half the gate under
+    # I_b lies within the gate, without the solve
+    if float(d @ info_b @ d) <= 0.5 * gate:
+        return 1.0
+    m2 = float(d @ (info_a @ np.linalg.solve(info_a + info_b + _JITTER[n], info_b)) @ d)
     return gate / m2 if m2 > gate else 1.0
 
 
@@ -45,24 +72,61 @@ def _distance(a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
     return float(np.hypot(d[0], d[1]) + abs(wrap_angle(d[2])))
 
 
+def _middle_apart(s: list[float], m: float) -> float:
+    """The median of ``abs(v - m)`` over the sorted values ``s`` (at least one), as ``np.median`` gives it: the
+    distances below ``m`` and those from it up are each sorted, and the middle of the two runs together is found
+    by bisection."""
+    n = len(s)
+    k = n // 2  # the k-th smallest (from 0), averaged with the (k - 1)-th for an even count
+    p = bisect_left(s, m)  # s[p - 1 - i] - m for i = 0.. and s[p + j] - m for j = 0.. grow apart from m
+    lo, hi = max(0, k + 1 - (n - p)), min(k + 1, p)
+    while lo < hi:  # the fewest taken below m such that the next one below is no nearer than the last one above
+        i = (lo + hi) // 2
+        if abs(s[p - 1 - i] - m) < abs(s[p + k - i] - m):
+            lo = i + 1
+        else:
+            hi = i
+    # the k + 1 nearest: lo below m (the last of them at s[p - lo]), k + 1 - lo from it up (the last at s[p + k - lo])
+    below = [abs(s[p - lo + t] - m) for t in range(min(lo, 2))]  # the farthest one or two of those below
+    above = [abs(s[p + k - lo - t] - m) for t in range(min(k + 1 - lo, 2))]  # and of those above
+    last = sorted(below + above)
+    return last[-1] if n % 2 else (last[-2] + last[-1]) / 2
+
+
 class _Window:
-    """The last ``size`` rows of three values, in a fixed array (their order is not kept: for medians)."""
+    """The last ``size`` rows of three values, each column's finite values also kept sorted: the medians and the
+    median absolute deviations of the window without sorting it again (the values of ``np.median``'s)."""
 
     def __init__(self, size: int) -> None:
-        self._rows = np.empty((size, 3))
-        self._n = self._next = 0
+        self._rows: deque[tuple[float, float, float]] = deque(maxlen=size)
+        self._sorted: tuple[list[float], ...] = ([], [], [])
 
     def __len__(self) -> int:
-        return self._n
+        return len(self._rows)
 
     def append(self, row: tuple[float, float, float]) -> None:
-        self._rows[self._next] = row
-        self._next = (self._next + 1) % len(self._rows)
-        self._n = min(self._n + 1, len(self._rows))
+        if len(self._rows) == self._rows.maxlen:
+            for col, v in zip(self._sorted, self._rows[0], strict=True):
+                if math.isfinite(v):
+                    del col[bisect_left(col, v)]
+        self._rows.append(row)
+        for col, v in zip(self._sorted, row, strict=True):
+            if math.isfinite(v):
+                insort(col, v)
 
-    def values(self) -> NDArray[np.float64]:
-        """The rows held, (n, 3) (a view)."""
-        return self._rows[: self._n]
+    def finite(self, c: int) -> int:
+        """How many of column ``c``'s values are finite."""
+        return len(self._sorted[c])
+
+    def median(self, c: int) -> float:
+        """The median of column ``c``'s finite values (at least one)."""
+        s = self._sorted[c]
+        k = len(s) // 2
+        return s[k] if len(s) % 2 else (s[k - 1] + s[k]) / 2
+
+    def deviation(self, c: int) -> float:
+        """The median absolute deviation of column ``c``'s finite values (at least one) from their median."""
+        return _middle_apart(self._sorted[c], self.median(c))
 
 
 class OdometryModel:
@@ -96,7 +160,8 @@ class OdometryModel:
         self.wheel_edges = wheel_edges
         self.prior = prior
         self.previous: NDArray[np.float64] | None = None  # the last frame's odometry reading
-        self._last_step: tuple | None = None  # (both readings' bytes, their increment) of the last step
+        # the last step: both readings' bytes, the two readings (objects) and their increment
+        self._last_step: tuple | None = None
         # the last frame's odometry step, where it was used (the wheels' own previous motion, for set_aside)
         self._wheel_step: NDArray[np.float64] | None = None
         self._spike: NDArray[np.float64] | None = None  # the reading of a frame whose step was set aside
@@ -109,7 +174,7 @@ class OdometryModel:
         # per frame, for the scale: the registration's pose, whether its translation was constrained, the raw
         # odometry, and the configured model's variances summed from the first frame (translation, rotation)
         self._history: deque[tuple] = deque(maxlen=config.odometry_lag + 1)
-        self._variance = np.zeros(2)
+        self._variance = (0.0, 0.0)
         # the motion since the newest keyframe and its covariance, in that keyframe's frame (None: a frame
         # without odometry came between)
         self.wheel_motion: NDArray[np.float64] | None = np.zeros(3)
@@ -122,16 +187,20 @@ class OdometryModel:
         After a frame whose step was set aside, the increment starts at whichever of two readings continues the
         wheels' steady motion (their last used step): the odometry as it would have read there (a spike that
         returns) or the reading it sent (a jump that stays)."""
-        odom = None if frame.odometry is None else np.asarray(frame.odometry, dtype=float)
-        if not (self.config.use_odometry and odom is not None and self.previous is not None):
+        if not (self.config.use_odometry and frame.odometry is not None and self.previous is not None):
             return None
         if self.outliers and self.outliers[-1] == frame.index:
             return None
         # a frame asks for its step several times (seeds, predictions, learning, wheel edges): the increment
-        # between the same two readings is computed once
+        # between the same two readings (the same objects, else the same bits) is computed once
+        last = self._last_step
+        if last is not None and last[1] is frame.odometry and last[2] is self.previous:
+            return last[3].copy()
+        odom = np.asarray(frame.odometry, dtype=float)
         key = np.asarray(self.previous, dtype=float).tobytes() + odom.tobytes()  # the readings, bit for bit
-        if self._last_step is not None and self._last_step[0] == key:
-            return self._last_step[1].copy()
+        if last is not None and last[0] == key:
+            self._last_step = (key, frame.odometry, self.previous, last[3])
+            return last[3].copy()
         delta = relative(self.previous, odom)  # (x, y, yaw) increment in the robot frame
         if self._spike is not None and self._wheel_step is not None:
             stays = relative(self._spike, odom)
@@ -139,7 +208,7 @@ class OdometryModel:
                 delta = stays
         if self.config.dof != 3:
             delta = np.array([delta[0], delta[1], 0.0, 0.0, 0.0, delta[2]])
-        self._last_step = (key, delta)
+        self._last_step = (key, frame.odometry, self.previous, delta)
         return delta.copy()
 
     def advance(self, frame: Frame, motion: NDArray[np.float64] | None = None) -> None:
@@ -214,7 +283,9 @@ class OdometryModel:
         """The sigma model (``SlamConfig.odometry_sigma``) scaled by what was learned (``gate``: never below the
         configured model)."""
         a, b, c, d, e = self.config.odometry_sigma
-        st, sr = np.maximum(self.scale, 1.0) if gate else self.scale
+        st, sr = self.scale.tolist()
+        if gate:
+            st, sr = max(st, 1.0), max(sr, 1.0)
         return a * st, b * st, c * sr, d * sr, e * sr
 
     def model_sigmas(self, step: NDArray[np.float64], model: tuple[float, ...] | None = None
@@ -222,8 +293,12 @@ class OdometryModel:
         """A sigma model's (translation, rotation) sigmas for one step: ``model`` (a, b, c, d, e as
         ``SlamConfig.odometry_sigma``), by default the configured odometry model."""
         a, b, c, d, e = self.config.odometry_sigma if model is None else model
-        dist = float(np.linalg.norm(step[: self.dim]))
-        turn = float(np.abs(wrap_angle(step[self.dim:])).max())
+        if self.dim == 2:  # np.linalg.norm's and wrap_angle's arithmetic on three floats
+            x, y, yaw = step.tolist() if isinstance(step, np.ndarray) else step
+            dist, turn = math.sqrt(x * x + y * y), abs(wrap_angle_1(yaw))
+        else:
+            dist = float(np.linalg.norm(step[: self.dim]))
+            turn = float(np.abs(wrap_angle(step[self.dim:])).max())
         return a + b * dist, c + d * turn + e * dist
 
     def corrected(self, step: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -231,8 +306,11 @@ class OdometryModel:
         if not self.bias.any():
             return step
         st, sr = self.model_sigmas(step)
+        bx, by, byaw = self.bias.tolist()
+        if self.config.dof == 3 and single_2d(step):
+            return np.array(compose_2d(step.tolist(), (bx * st, by * st, byaw * sr)))
         fix = np.zeros(self.config.dof)
-        fix[0], fix[1], fix[-1] = self.bias[0] * st, self.bias[1] * st, self.bias[2] * sr
+        fix[0], fix[1], fix[-1] = bx * st, by * st, byaw * sr
         return compose(step, fix)
 
     def learn_bias(self, frame: Frame, res: RegistrationResult, previous_pose: NDArray[np.float64]) -> None:
@@ -246,15 +324,19 @@ class OdometryModel:
         if step is None:
             return
         st0, sr0 = self.model_sigmas(step)
-        off = relative(compose(previous_pose, step), res.pose)  # the registration in the raw prediction's frame
+        # the registration in the raw prediction's frame
+        if self.config.dof == 3 and single_2d(previous_pose, step, res.pose):
+            off = relative_2d(compose_2d(previous_pose.tolist(), step.tolist()), res.pose.tolist())
+        else:
+            off = relative(compose(previous_pose, step), res.pose).tolist()
         constrained = constrains_xy(res.information, cfg.degenerate_ratio)
-        xy = (float(off[0]) / st0, float(off[1]) / st0) if constrained else (np.nan, np.nan)
-        self._disagreement.append((*xy, float(wrap_angle(off[-1])) / sr0))
-        r = self._disagreement.values()
-        finite = np.isfinite(r)
-        enough = finite.sum(axis=0) >= max(cfg.odometry_window // 10, 1)
-        if enough.any():
-            self.bias = np.array([np.median(r[finite[:, c], c]) if enough[c] else 0.0 for c in range(3)])
+        xy = (off[0] / st0, off[1] / st0) if constrained else (math.nan, math.nan)
+        window = self._disagreement
+        window.append((*xy, wrap_angle_1(off[-1]) / sr0))
+        need = max(cfg.odometry_window // 10, 1)
+        enough = [window.finite(c) >= need for c in range(3)]
+        if any(enough):
+            self.bias = np.array([window.median(c) if enough[c] else 0.0 for c in range(3)])
 
     def learn_scale(self, frame: Frame, res: RegistrationResult) -> None:
         """Learn the model's scale from how the registrations' and the odometry's motions disagree over
@@ -269,27 +351,31 @@ class OdometryModel:
         if step is None:
             self._history.clear()  # the first frame with odometry: nothing to compare with yet
         else:
-            self._variance = self._variance + np.square(self.model_sigmas(step))
+            st, sr = self.model_sigmas(step)
+            vt, vr = self._variance
+            self._variance = (vt + st * st, vr + sr * sr)
         constrained = constrains_xy(res.information, cfg.degenerate_ratio)
-        pose = res.pose if cfg.dof == 3 else res.pose[[0, 1, 5]]
-        odom = np.asarray(frame.odometry, dtype=float)
-        self._history.append((pose.copy(), constrained, odom, self._variance.copy()))
+        pose = (res.pose if cfg.dof == 3 else res.pose[[0, 1, 5]]).tolist()
+        odom = np.asarray(frame.odometry, dtype=float).tolist()
+        self._history.append((pose, constrained, odom, self._variance))
         if len(self._history) <= cfg.odometry_lag or not constrained:
             return
         p0, c0, o0, v0 = self._history[0]
         if not c0:
             return
-        dv = self._variance - v0
-        e = relative(relative(o0, odom), relative(p0, pose))  # the registrations' motion in the odometry's frame
-        st, sr = np.sqrt(dv)
-        z = (float(e[0]) / st, float(e[1]) / st, float(wrap_angle(e[2])) / sr)
-        if not np.all(np.isfinite(z)):
+        dvt, dvr = self._variance[0] - v0[0], self._variance[1] - v0[1]
+        if not (dvt > 0.0 and dvr > 0.0):  # no spread to normalise by
+            return
+        # the registrations' motion in the odometry's frame
+        e = relative_2d(relative_2d(o0, odom), relative_2d(p0, pose))
+        st, sr = math.sqrt(dvt), math.sqrt(dvr)
+        z = (e[0] / st, e[1] / st, wrap_angle_1(e[2]) / sr)
+        if not all(math.isfinite(v) for v in z):
             return
         self._lagged.append(z)
         if len(self._lagged) < max(cfg.odometry_window // 10, 1):
             return
-        r = self._lagged.values()
-        spread = 1.4826 * np.median(np.abs(r - np.median(r, axis=0)), axis=0)  # MAD as a Gaussian's sigma
+        spread = [1.4826 * self._lagged.deviation(c) for c in range(3)]  # MAD as a Gaussian's sigma
         lo, hi = cfg.odometry_scale_bounds
         self.scale = np.clip([max(spread[0], spread[1]), spread[2]], lo, hi)
 
@@ -304,7 +390,7 @@ class OdometryModel:
         # the sigma model as model_sigmas evaluates it, with hypot for the distance
         a, b, c, d, e = self.sigma()
         dist = float(np.hypot(step[0], step[1]))
-        st, sr = a + b * dist, c + d * abs(float(wrap_angle(step[2]))) + e * dist
+        st, sr = a + b * dist, c + d * abs(wrap_angle_1(float(step[2]))) + e * dist
         self.wheel_motion, self.wheel_covariance = compose_with_covariance_2d(
             self.wheel_motion, self.wheel_covariance, step, np.diag([st ** 2, st ** 2, sr ** 2]))
 

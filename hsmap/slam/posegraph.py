@@ -23,6 +23,7 @@ bindings are not maintained on PyPI.
 from __future__ import annotations
 
 import enum
+import functools
 import warnings
 from dataclasses import dataclass, field
 
@@ -102,16 +103,24 @@ def information_with_floor(information: ArrayLike, sigma_translation: float, sig
     independent measurement and is overconfident; the floor bounds it by the map's resolution.
     """
     info = np.asarray(information, dtype=float)
-    dof = info.shape[0]
-    dim = 2 if dof == 3 else 3
-    floor = np.r_[np.full(dim, sigma_translation**2), np.full(dof - dim, sigma_rotation**2)]
+    ss = _floor_scales(info.shape[0], float(sigma_translation), float(sigma_rotation))
     # (I^-1 + F)^-1 = F^-1/2 (F^-1/2 I^-1 F^-1/2 + 1)^-1 F^-1/2, computed from I without inverting it
-    s = 1.0 / np.sqrt(floor)
-    M = info / np.outer(s, s)  # F^1/2 I F^1/2
+    M = info / ss  # F^1/2 I F^1/2
     w, V = np.linalg.eigh(0.5 * (M + M.T))
     w = np.clip(w, 0.0, None)
     inner = (V * (w / (1.0 + w))) @ V.T  # (F^1/2 I F^1/2)(1 + F^1/2 I F^1/2)^-1 = (F^-1/2 I^-1 F^-1/2 + 1)^-1
-    return inner * np.outer(s, s)
+    return inner * ss
+
+
+@functools.lru_cache(maxsize=16)
+def _floor_scales(dof: int, sigma_translation: float, sigma_rotation: float) -> NDArray[np.float64]:
+    """``outer(s, s)`` of ``s = F^-1/2``, the floor's scales (:func:`information_with_floor`), read-only."""
+    dim = 2 if dof == 3 else 3
+    floor = np.r_[np.full(dim, sigma_translation**2), np.full(dof - dim, sigma_rotation**2)]
+    s = 1.0 / np.sqrt(floor)
+    out = np.outer(s, s)
+    out.flags.writeable = False
+    return out
 
 
 class PoseGraph:

@@ -8,7 +8,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..datasets.frames import Frame
-from ..geometry import compose, relative, wrap_angle
+from ..geometry import compose, compose_2d, relative, single_2d, wrap_angle, wrap_angle_1
 from ..registration.icp import RegistrationResult
 from ..trajectory import Trajectory
 from .config import SlamConfig
@@ -136,9 +136,12 @@ class MotionPrediction:
             step, model = relative(self.poses[-2], prev), cfg.motion_sigma
         if step is None:
             return None
-        pred = compose(prev, step)
         sig = np.array(self.odometry.model_sigmas(step, model))
-        pred = pred.copy()
+        if self.dim == 2 and single_2d(prev, step):  # compose's and wrap_angle's arithmetic on floats
+            x, y, yaw = compose_2d(prev.tolist(), step.tolist())
+            yaw0 = float(prev[2])
+            return np.array([x, y, yaw0 + wrap_angle_1(yaw - yaw0)]), sig
+        pred = compose(prev, step).copy()
         pred[self.dim:] = prev[self.dim:] + wrap_angle(pred[self.dim:] - prev[self.dim:])
         return pred, sig
 

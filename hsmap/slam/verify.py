@@ -3,17 +3,18 @@ where they disagree, the better-aligned kept, then fused with the prediction by 
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import numpy as np
 from numpy.typing import NDArray
 
-from ..geometry import compose, pose_to_matrix, relative, transform_points, wrap_angle
+from ..geometry import compose, pose_to_matrix, relative, transform_points, wrap_angle, wrap_angle_1
 from ..registration.icp import RegistrationResult, RegistrationTarget, harmony_icp
 from ..registration.information import drop_degenerate
 from .config import SlamConfig
 from .costs import Costs
-from .odometry import slip_weight
+from .odometry import _JITTER, slip_weight
 from .posegraph import information_with_floor
 from .prediction import MotionPrediction
 
@@ -150,7 +151,8 @@ class Verifier:
     def _within(self, d: NDArray[np.float64], sig: NDArray[np.float64]) -> bool:
         """Whether a pose ``d`` from the prediction lies within ``verify_sigmas`` of the sigmas ``sig``."""
         k = self.config.verify_sigmas
-        return bool(np.linalg.norm(d[:2]) <= k * sig[0] and abs(wrap_angle(d[-1])) <= k * sig[1])
+        x, y, yaw = float(d[0]), float(d[1]), float(d[-1])  # np.linalg.norm's and wrap_angle's arithmetic
+        return bool(math.sqrt(x * x + y * y) <= k * sig[0] and abs(wrap_angle_1(yaw)) <= k * sig[1])
 
     def _stands(self, scan: NDArray[np.float64], target: RegistrationTarget, res: RegistrationResult,
                 centre: NDArray[np.float64], sig: NDArray[np.float64]
@@ -232,15 +234,13 @@ class Verifier:
         if pred is None:
             return res.pose, info_reg, info_reg
         centre, sig = pred
-        info_pred = np.zeros(cfg.dof)
-        info_pred[: self.dim] = 1.0 / sig[0] ** 2
-        info_pred[self.dim:] = 1.0 / sig[1] ** 2
-        info_pred = np.diag(info_pred)
+        it, ir = 1.0 / sig[0] ** 2, 1.0 / sig[1] ** 2
+        info_pred = np.diag([it] * self.dim + [ir] * (cfg.dof - self.dim))
         d = relative(res.pose, centre)  # the prediction in the registration's frame
         d[self.dim:] = wrap_angle(d[self.dim:])
         w = slip_weight(d, info_reg, info_pred)
         if w < 1.0:
             info_pred = info_pred * w
         total = info_reg + info_pred
-        step = np.linalg.solve(total + 1e-12 * np.eye(cfg.dof), info_pred @ d)
+        step = np.linalg.solve(total + _JITTER[cfg.dof], info_pred @ d)
         return compose(res.pose, step), total, info_reg

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-__all__ = ["field_score", "hs_chunk_field", "splat_field_2d", "splat_field_3d", "PARALLEL_MIN_WORK"]
+__all__ = ["field_score", "hs_chunk_field", "hs_search_field", "splat_field_2d", "splat_field_3d", "PARALLEL_MIN_WORK"]
 
 _OPTS = dict(fastmath=True, cache=True, nogil=True)
 
@@ -135,6 +135,19 @@ def _score_batch_field(new, f_new, pts, flat, shape, origin, inv_res, tau, weigh
 
 
 @nb.njit(cache=True, nogil=True)
+def _score_new(new, f_new, pts, flat, shape, origin, inv_res, tau, weight):  # pragma: no cover - JIT
+    """f_new[b] = the two-term fitness of harmony b (non-finite: inf); a batch large enough is scored in parallel
+    (:func:`_score_batch_field`), which depends on the problem's size only."""
+    if new.shape[0] * pts.shape[0] >= PARALLEL_MIN_WORK:
+        _score_batch_field(new, f_new, pts, flat, shape, origin, inv_res, tau, weight)
+        return
+    for b in range(new.shape[0]):
+        m, r = _score_pose(new[b], pts, flat, shape, origin, inv_res, tau)
+        f = m / tau + weight * (1.0 - r)
+        f_new[b] = f if np.isfinite(f) else np.inf
+
+
+@nb.njit(cache=True, nogil=True)
 def hs_chunk_field(memory, fun, pick, consider, adjust_u, step, rand, par, bw, lo, hi, span, history, state,
                    global_best, patience, convergence_tol, min_improvement, spread, anchor,
                    pts, flat, shape, origin, inv_res, tau, weight):  # pragma: no cover - JIT
@@ -161,13 +174,7 @@ def hs_chunk_field(memory, fun, pick, consider, adjust_u, step, rand, par, bw, l
                 else:
                     v = rand[k, b, j]
                 new[b, j] = min(max(v, lo[j]), hi[j])
-        if batch * pts.shape[0] >= PARALLEL_MIN_WORK:
-            _score_batch_field(new, f_new, pts, flat, shape, origin, inv_res, tau, weight)
-        else:
-            for b in range(batch):
-                m, r = _score_pose(new[b], pts, flat, shape, origin, inv_res, tau)
-                f = m / tau + weight * (1.0 - r)
-                f_new[b] = f if np.isfinite(f) else np.inf
+        _score_new(new, f_new, pts, flat, shape, origin, inv_res, tau, weight)
         all_x[:hms] = memory
         all_x[hms:] = new
         all_f[:hms] = fun
@@ -195,6 +202,36 @@ def hs_chunk_field(memory, fun, pick, consider, adjust_u, step, rand, par, bw, l
         if stale >= patience:
             state[2] = 2
             return
+
+
+@nb.njit(cache=True, nogil=True)
+def hs_search_field(gen, memory, fun, batch, hmcr, par, bw, lo, hi, span, history, state, global_best, patience,
+                    max_iterations, convergence_tol, min_improvement, spread, anchor,
+                    pts, flat, shape, origin, inv_res, tau, weight):  # pragma: no cover - JIT
+    """A whole Harmony Search on the two-term field fitness in one call: the first ``memory`` scored into ``fun``
+    and sorted (stably), then hsmap.registration.harmony._improvise's rounds, each chunk's random numbers drawn
+    from the numpy Generator ``gen`` as numpy draws them (numba's Generator: the same stream), run by
+    :func:`hs_chunk_field`. ``par`` and ``bw``: every round's rates; returns the rounds run."""
+    hms, dim = memory.shape
+    _score_new(memory, fun, pts, flat, shape, origin, inv_res, tau, weight)
+    order = np.argsort(fun, kind="mergesort")
+    memory[:] = memory[order]
+    fun[:] = fun[order]
+    anchor[:] = memory[0]
+    history[0] = fun[0]
+    it = 0
+    while it < max_iterations and state[2] == 0:
+        c = min(32, max_iterations - it)
+        pick = gen.integers(0, hms, size=(c, batch, dim))
+        consider = gen.random((c, batch, dim)) < hmcr
+        adjust_u = gen.random((c, batch, dim))
+        step = gen.uniform(-1.0, 1.0, (c, batch, dim))
+        rand = lo + gen.random((c, batch, dim)) * span
+        hs_chunk_field(memory, fun, pick, consider, adjust_u, step, rand, par[it:it + c], bw[it:it + c], lo, hi,
+                       span, history[it:], state, global_best, patience, convergence_tol, min_improvement, spread,
+                       anchor, pts, flat, shape, origin, inv_res, tau, weight)
+        it += state[0]
+    return it
 
 
 @nb.njit(**_OPTS)

@@ -254,12 +254,18 @@ def harmony_search(
         return np.where(np.isfinite(f), f, np.inf)
 
     memory = _initial_memory(cfg, gen, lo, hi, initial)
-    fun = evaluate(memory)
-    order = np.argsort(fun, kind="stable")
-    memory, fun = np.ascontiguousarray(memory[order]), np.ascontiguousarray(fun[order])
-    # a compiled fast path (see hsmap.registration.fitness.FieldObjective), else rounds calling `evaluate`
-    runner = getattr(objective, "run_chunk", None) or functools.partial(_run_chunk, evaluate)
-    it, history, state = _improvise(runner, memory, fun, b, cfg, gen, tol_x)
+    whole = getattr(objective, "run_search", None)
+    if whole is not None:
+        # a compiled search (see hsmap.registration.fitness.FieldObjective): the same rounds, the same draws
+        fun = np.empty(hms)
+        it, history, state = _search_compiled(whole, memory, fun, b, cfg, gen, tol_x)
+    else:
+        fun = evaluate(memory)
+        order = np.argsort(fun, kind="stable")
+        memory, fun = np.ascontiguousarray(memory[order]), np.ascontiguousarray(fun[order])
+        # a compiled fast path for chunks of rounds, else rounds calling `evaluate`
+        runner = getattr(objective, "run_chunk", None) or functools.partial(_run_chunk, evaluate)
+        it, history, state = _improvise(runner, memory, fun, b, cfg, gen, tol_x)
     stop = {0: StopReason.MAX_ITERATIONS, 1: StopReason.CONVERGED,
             2: StopReason.NO_IMPROVEMENT if spread is None else StopReason.SETTLED}[int(state[2])]
     evaluations = hms + it * cfg.batch_size
@@ -307,6 +313,38 @@ def _improvise(runner: Callable, memory: NDArray[np.float64], fun: NDArray[np.fl
                patience, cfg.convergence_tol, cfg.min_improvement, tol_x, anchor)
         it += int(state[0])
     return it, history[: it + 1], state
+
+
+def _search_compiled(search: Callable, memory: NDArray[np.float64], fun: NDArray[np.float64], b: NDArray[np.float64],
+                     cfg: HarmonyConfig, gen: np.random.Generator, tol_x: NDArray[np.float64]
+                     ) -> tuple[int, NDArray[np.float64], NDArray[np.int64]]:
+    """:func:`_improvise`'s rounds, the first memory's scoring and sorting included, in one compiled call
+    ``search`` (:meth:`hsmap.registration.fitness.FieldObjective.run_search`): ``memory`` sorted in place, its
+    values written to ``fun``; the rounds done, the best value after each round (first: before any) and the
+    state (last chunk's rounds, rounds without improvement, stop code)."""
+    lo, hi = b[:, 0], b[:, 1]
+    history = np.empty(cfg.max_iterations + 1)
+    state = np.zeros(3, dtype=np.int64)
+    patience = cfg.patience if cfg.patience is not None else cfg.max_iterations + 1
+    par, bw = _all_rates(cfg.variant, cfg.max_iterations, cfg.par, cfg.bandwidth, cfg.par_min, cfg.par_max,
+                         cfg.bw_min, cfg.bw_max)
+    it = search(gen, memory, fun, cfg.batch_size, cfg.hmcr, par, bw, lo, hi, hi - lo, history, state,
+                cfg.variant == Variant.GLOBAL_BEST.value, patience, cfg.max_iterations, cfg.convergence_tol,
+                cfg.min_improvement, tol_x)
+    return it, history[: it + 1], state
+
+
+@functools.lru_cache(maxsize=64)
+def _all_rates(variant: str, max_iterations: int, par: float, bandwidth: float, par_min: float, par_max: float,
+               bw_min: float, bw_max: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Every round's pitch adjustment rate and bandwidth (:func:`_round_rates`), read-only (shared by the
+    searches of one configuration)."""
+    cfg = HarmonyConfig(variant=variant, max_iterations=max_iterations, par=par, bandwidth=bandwidth,
+                        par_min=par_min, par_max=par_max, bw_min=bw_min, bw_max=bw_max)
+    rates = _round_rates(cfg, Variant(variant), np.arange(max_iterations))
+    for r in rates:
+        r.flags.writeable = False
+    return rates
 
 
 def _spread_tolerance(spread: ArrayLike | None, dim: int) -> NDArray[np.float64]:

@@ -205,13 +205,13 @@ def hs_chunk_field(memory, fun, pick, consider, adjust_u, step, rand, par, bw, l
 
 
 @nb.njit(cache=True, nogil=True)
-def hs_search_field(gen, memory, fun, batch, hmcr, par, bw, lo, hi, span, history, state, global_best, patience,
-                    max_iterations, convergence_tol, min_improvement, spread, anchor,
+def hs_search_field(gen, memory, fun, draw_rounds, batch, hmcr, par, bw, lo, hi, span, history, state,
+                    global_best, patience, max_iterations, convergence_tol, min_improvement, spread, anchor,
                     pts, flat, shape, origin, inv_res, tau, weight):  # pragma: no cover - JIT
     """A whole Harmony Search on the two-term field fitness in one call: the first ``memory`` scored into ``fun``
-    and sorted (stably), then hsmap.registration.harmony._improvise's rounds, each chunk's random numbers drawn
-    from the numpy Generator ``gen`` as numpy draws them (numba's Generator: the same stream), run by
-    :func:`hs_chunk_field`. ``par`` and ``bw``: every round's rates; returns the rounds run."""
+    and sorted (stably), then hsmap.registration.harmony._improvise's rounds, the random numbers of
+    ``draw_rounds`` rounds at a time drawn from the numpy Generator ``gen`` as numpy draws them (numba's Generator:
+    the same stream), run by :func:`hs_chunk_field`. ``par`` and ``bw``: every round's rates; returns the rounds run."""
     hms, dim = memory.shape
     _score_new(memory, fun, pts, flat, shape, origin, inv_res, tau, weight)
     order = np.argsort(fun, kind="mergesort")
@@ -221,7 +221,7 @@ def hs_search_field(gen, memory, fun, batch, hmcr, par, bw, lo, hi, span, histor
     history[0] = fun[0]
     it = 0
     while it < max_iterations and state[2] == 0:
-        c = min(32, max_iterations - it)
+        c = min(draw_rounds, max_iterations - it)
         pick = gen.integers(0, hms, size=(c, batch, dim))
         consider = gen.random((c, batch, dim)) < hmcr
         adjust_u = gen.random((c, batch, dim))
@@ -760,3 +760,60 @@ def bounding_box(points):  # pragma: no cover - JIT
             if v > hi[k]:
                 hi[k] = v
     return lo, hi
+
+
+@nb.njit(cache=True, nogil=True)
+def polish_on_grid_2d(src, T, sp, order, start, origin, inv_cell, dims, rank, hint, bound, iterations, tol, kernel,
+                      q, nrm):  # pragma: no cover - JIT
+    """Point-to-line ICP in 2D with exact correspondences within ``bound`` from a neighbour grid (the sorted
+    points ``sp``, their rows ``order``, the cell starts ``start``: :func:`grid_build`; ``rank``: each row's place
+    in ``sp``), ``iterations`` at most, stopping when the step's largest entry is below ``tol``; each iteration's
+    search starts from the previous one's answers, the first from the rows ``hint`` (N,; out of range: none).
+    Returns the refined 3x3 transform."""
+    m = src.shape[0]
+    n = sp.shape[0]
+    T = T.copy()
+    moved = np.empty((m, 2))
+    dist = np.empty(m)
+    idx = np.empty(m, dtype=np.intp)
+    places = np.empty(m, dtype=np.int64)
+    for i in range(m):
+        h = hint[i]
+        places[i] = rank[h] if 0 <= h < n else -1
+    for _ in range(iterations):
+        for i in range(m):
+            moved[i, 0] = src[i, 0] * T[0, 0] + src[i, 1] * T[0, 1] + T[0, 2]
+            moved[i, 1] = src[i, 0] * T[1, 0] + src[i, 1] * T[1, 1] + T[1, 2]
+        grid_nearest(sp, order, start, origin, inv_cell, dims, moved, bound, places, dist, idx, 0, m)
+        dT, step, found = point_to_plane_step(moved, dist, idx, q, nrm, kernel)
+        if found < 4:
+            break
+        T = dT @ T
+        for i in range(m):
+            places[i] = rank[idx[i]] if idx[i] < n else -1
+        if step < tol:
+            break
+    return T
+
+
+@nb.njit(cache=True, nogil=True)
+def truncated_cost(moved, dist, idx, q, nrm, threshold, plane):  # pragma: no cover - JIT
+    """Mean over the points of min(residual, threshold) / threshold, a point without a correspondence (``dist``
+    not finite) costing 1: the residual the point-to-plane (point-to-line) distance |n . (p - q)| with ``plane``,
+    else the point distance."""
+    m, d = moved.shape
+    acc = 0.0
+    for i in range(m):
+        if not np.isfinite(dist[i]):
+            acc += threshold
+            continue
+        if plane:
+            j = idx[i]
+            r = 0.0
+            for k in range(d):
+                r += nrm[j, k] * (moved[i, k] - q[j, k])
+            r = abs(r)
+        else:
+            r = dist[i]
+        acc += min(r, threshold)
+    return acc / m / threshold

@@ -41,6 +41,11 @@ from numpy.typing import ArrayLike, NDArray
 from ..errors import ConfigError, InputError, ShapeError
 from ..limits import quote
 
+#: Rounds whose random numbers are drawn together (five arrays of rounds x batch x variables, in a fixed order),
+#: the compiled search (:func:`hsmap.registration._kernels.hs_search_field`) and the Python rounds alike: fewer
+#: small calls; a search that stops early leaves some drawn and unused.
+DRAW_ROUNDS = 32
+
 #: Most rows of a harmony memory (``memory_size``) or of one batch of new harmonies (``batch_size``).
 MAX_HARMONIES = 100_000
 
@@ -298,9 +303,8 @@ def _improvise(runner: Callable, memory: NDArray[np.float64], fun: NDArray[np.fl
     patience = cfg.patience if cfg.patience is not None else cfg.max_iterations + 1
     it = 0
     while it < cfg.max_iterations and state[2] == 0:
-        # Draw the random numbers of up to 32 rounds at once (fewer small calls); a run that stops early leaves
-        # some unused, which keeps the stream identical between the Python and the compiled chunk runners.
-        c = min(32, cfg.max_iterations - it)
+        # the random numbers of DRAW_ROUNDS rounds at once, in the order the compiled search draws them
+        c = min(DRAW_ROUNDS, cfg.max_iterations - it)
         par, bw = _round_rates(cfg, variant, np.arange(it, it + c))
         draws = (
             gen.integers(0, hms, size=(c, batch, dim)),
@@ -328,7 +332,7 @@ def _search_compiled(search: Callable, memory: NDArray[np.float64], fun: NDArray
     patience = cfg.patience if cfg.patience is not None else cfg.max_iterations + 1
     par, bw = _all_rates(cfg.variant, cfg.max_iterations, cfg.par, cfg.bandwidth, cfg.par_min, cfg.par_max,
                          cfg.bw_min, cfg.bw_max)
-    it = search(gen, memory, fun, cfg.batch_size, cfg.hmcr, par, bw, lo, hi, hi - lo, history, state,
+    it = search(gen, memory, fun, DRAW_ROUNDS, cfg.batch_size, cfg.hmcr, par, bw, lo, hi, hi - lo, history, state,
                 cfg.variant == Variant.GLOBAL_BEST.value, patience, cfg.max_iterations, cfg.convergence_tol,
                 cfg.min_improvement, tol_x)
     return it, history[: it + 1], state

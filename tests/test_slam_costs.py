@@ -12,17 +12,18 @@ from hsmap.slam import Costs, SlamConfig, run_slam, write_slam_outputs
 FRAMES = 3000
 #: The counts of such a run (:meth:`Costs.as_dict`).
 REFERENCE = {
-    "registrations": 3183,
-    "refinements": 4011,
-    "harmony_evaluations": 1058850,
-    "retries": 92,
-    "loop_searches": 88,
-    "far_searches": 6,
-    "optimizations": 17,
-    "optimization_rounds": 35,
-    "optimization_iterations": 225,
-    "map_rebuilds": 20,
-    "points_inserted": 355702,
+    "registrations": 3439,
+    "refinements": 4001,
+    "harmony_evaluations": 373614,
+    "retries": 96,
+    "full_searches": 260,
+    "loop_searches": 83,
+    "far_searches": 3,
+    "optimizations": 20,
+    "optimization_rounds": 37,
+    "optimization_iterations": 274,
+    "map_rebuilds": 24,
+    "points_inserted": 467445,
 }
 BUDGET = budget(REFERENCE)
 

@@ -817,3 +817,32 @@ def truncated_cost(moved, dist, idx, q, nrm, threshold, plane):  # pragma: no co
             r = dist[i]
         acc += min(r, threshold)
     return acc / m / threshold
+
+
+@nb.njit(cache=True, nogil=True)
+def plane_information_terms(moved, dist, idx, q, nrm, kernel, threshold):  # pragma: no cover - JIT
+    """From the correspondences (moved_i, q_idx[i], n_idx[i]) of the points with a finite ``dist``: J^T W J of
+    their point-to-plane residuals (:func:`point_to_plane_normal_equations`), how many there are, the sum of
+    min(|r_i|, threshold) over them, and the sums of w_i r_i^2 and of w_i (Geman-McClure weights of scale
+    ``kernel``; 1 where ``kernel <= 0``)."""
+    A, _, count = _plane_equations(moved, dist, idx, q, nrm, kernel)
+    m, d = moved.shape
+    k2 = kernel * kernel
+    cost = 0.0
+    wr2 = 0.0
+    wsum = 0.0
+    for i in range(m):
+        if not np.isfinite(dist[i]):
+            continue
+        j = idx[i]
+        r = 0.0
+        for k in range(d):
+            r += nrm[j, k] * (moved[i, k] - q[j, k])
+        cost += min(abs(r), threshold)
+        w = 1.0
+        if kernel > 0:
+            t = k2 + r * r
+            w = k2 * k2 / (t * t)
+        wr2 += w * r * r
+        wsum += w
+    return A, count, cost, wr2, wsum

@@ -41,11 +41,6 @@ from numpy.typing import ArrayLike, NDArray
 from ..errors import ConfigError, InputError, ShapeError
 from ..limits import quote
 
-#: Rounds whose random numbers are drawn together (five arrays of rounds x batch x variables, in a fixed order),
-#: the compiled search (:func:`hsmap.registration._kernels.hs_search_field`) and the Python rounds alike: fewer
-#: small calls; a search that stops early leaves some drawn and unused.
-DRAW_ROUNDS = 32
-
 #: Most rows of a harmony memory (``memory_size``) or of one batch of new harmonies (``batch_size``).
 MAX_HARMONIES = 100_000
 
@@ -116,6 +111,10 @@ class HarmonyConfig:
         How the memory rows not given as initial guesses are drawn: ``"uniform"`` (the classic) or ``"lhs"``
         (Latin hypercube: each variable's range split into HMS strata, one sample per stratum, for an even
         coverage of the box).
+    draw_rounds : int
+        Rounds whose random numbers are drawn at once (five arrays of rounds x batch x variables, in a fixed
+        order; the compiled search and the Python rounds alike): fewer, larger draws; a search that stops early
+        leaves some drawn and unused. It picks the random stream, so the searches too.
     """
 
     memory_size: int = 30
@@ -133,6 +132,7 @@ class HarmonyConfig:
     patience: int | None = None
     min_improvement: float = 1e-12
     init: str = "uniform"
+    draw_rounds: int = 32
 
     def __post_init__(self) -> None:
         try:
@@ -141,7 +141,7 @@ class HarmonyConfig:
             raise ConfigError(
                 f"harmony.variant must be one of {[v.value for v in Variant]}, got {self.variant!r}"
             ) from None
-        for name in ("memory_size", "max_iterations", "batch_size"):
+        for name in ("memory_size", "max_iterations", "batch_size", "draw_rounds"):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or v < 1:
                 raise ConfigError(f"harmony.{name} must be an integer >= 1, got {quote(v)}")
@@ -303,8 +303,8 @@ def _improvise(runner: Callable, memory: NDArray[np.float64], fun: NDArray[np.fl
     patience = cfg.patience if cfg.patience is not None else cfg.max_iterations + 1
     it = 0
     while it < cfg.max_iterations and state[2] == 0:
-        # the random numbers of DRAW_ROUNDS rounds at once, in the order the compiled search draws them
-        c = min(DRAW_ROUNDS, cfg.max_iterations - it)
+        # the random numbers of draw_rounds rounds at once, in the order the compiled search draws them
+        c = min(cfg.draw_rounds, cfg.max_iterations - it)
         par, bw = _round_rates(cfg, variant, np.arange(it, it + c))
         draws = (
             gen.integers(0, hms, size=(c, batch, dim)),
@@ -332,8 +332,8 @@ def _search_compiled(search: Callable, memory: NDArray[np.float64], fun: NDArray
     patience = cfg.patience if cfg.patience is not None else cfg.max_iterations + 1
     par, bw = _all_rates(cfg.variant, cfg.max_iterations, cfg.par, cfg.bandwidth, cfg.par_min, cfg.par_max,
                          cfg.bw_min, cfg.bw_max)
-    it = search(gen, memory, fun, DRAW_ROUNDS, cfg.batch_size, cfg.hmcr, par, bw, lo, hi, hi - lo, history, state,
-                cfg.variant == Variant.GLOBAL_BEST.value, patience, cfg.max_iterations, cfg.convergence_tol,
+    it = search(gen, memory, fun, cfg.draw_rounds, cfg.batch_size, cfg.hmcr, par, bw, lo, hi, hi - lo, history,
+                state, cfg.variant == Variant.GLOBAL_BEST.value, patience, cfg.max_iterations, cfg.convergence_tol,
                 cfg.min_improvement, tol_x)
     return it, history[: it + 1], state
 

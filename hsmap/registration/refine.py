@@ -163,19 +163,11 @@ def _information_and_cost(source, target, pose, threshold, robust_kernel=0.0, mi
     dim = source.shape[1]
     dof = dof_of_dim(dim)
     T, moved, d, idx = match if match is not None else _match(pose, source, target, threshold)
-    ok = np.isfinite(d)
-    n = int(ok.sum())
+    A, n, cost_sum, wr2, wsum = _kernels.plane_information_terms(moved, d, idx, target.points, target.normals,
+                                                                  float(robust_kernel), float(threshold))
     if n < 2 * dim:
         return np.zeros((dof, dof)), float("nan"), n, 1.0 - n / max(len(source), 1)
-    p, q, nq = moved[ok], target.points[idx[ok]], target.normals[idx[ok]]
-    A, _ = _kernels.point_to_plane_normal_equations(p, q, nq, robust_kernel)
-    r = np.einsum("ij,ij->i", nq, p - q)
-    cost = float((np.minimum(np.abs(r), threshold).sum() + threshold * (len(source) - n)) / (threshold * len(source)))
-    if robust_kernel > 0:
-        k2 = robust_kernel * robust_kernel
-        w = k2 * k2 / (k2 + r * r) ** 2
-    else:
-        w = np.ones_like(r)
-    sigma = max(float(np.sqrt((w * r * r).sum() / w.sum())), min_sigma)
+    cost = float((cost_sum + threshold * (len(source) - n)) / (threshold * len(source)))
+    sigma = max(float(np.sqrt(wr2 / wsum)), min_sigma)
     Ad = adjoint(T)
     return Ad.T @ (A / sigma**2) @ Ad, sigma, n, cost

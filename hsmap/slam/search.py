@@ -25,9 +25,10 @@ from .costs import Costs
 __all__ = ["SearchBox", "same_pose", "TIGHT_HARMONY"]
 
 #: The Harmony Search of a tight box (:meth:`SearchBox.tight`): memory size, harmonies per round, rounds without
-#: a cell-sized improvement before it stops. The box is a few field cells wide and the refinement's basin holds
-#: all of it: the search needs to find the right cell, not to explore.
-TIGHT_HARMONY = {"memory_size": 10, "batch_size": 8, "patience": 5}
+#: a cell-sized improvement before it stops, and rounds drawn at once (one more than that: a search that stops
+#: soon after its last improvement leaves few drawn and unused). The box is a few field cells wide and the
+#: refinement's basin holds all of it: the search needs to find the right cell, not to explore.
+TIGHT_HARMONY = {"memory_size": 10, "batch_size": 8, "patience": 5, "draw_rounds": 6}
 
 
 def same_pose(a: NDArray[np.float64], b: NDArray[np.float64]) -> bool:

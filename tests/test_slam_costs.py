@@ -12,18 +12,18 @@ from hsmap.slam import Costs, SlamConfig, run_slam, write_slam_outputs
 FRAMES = 3000
 #: The counts of such a run (:meth:`Costs.as_dict`).
 REFERENCE = {
-    "registrations": 3439,
-    "refinements": 4001,
-    "harmony_evaluations": 373614,
-    "retries": 96,
-    "full_searches": 260,
-    "loop_searches": 83,
-    "far_searches": 3,
-    "optimizations": 20,
-    "optimization_rounds": 37,
-    "optimization_iterations": 274,
-    "map_rebuilds": 24,
-    "points_inserted": 467445,
+    "registrations": 3470,
+    "refinements": 4011,
+    "harmony_evaluations": 394040,
+    "retries": 95,
+    "full_searches": 282,
+    "loop_searches": 90,
+    "far_searches": 7,
+    "optimizations": 16,
+    "optimization_rounds": 28,
+    "optimization_iterations": 193,
+    "map_rebuilds": 20,
+    "points_inserted": 376127,
 }
 BUDGET = budget(REFERENCE)
 

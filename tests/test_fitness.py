@@ -166,6 +166,25 @@ def test_compiled_harmony_rounds_match_the_python_loop(rng, dim, variant, spread
     assert (a.iterations, a.evaluations, a.stop_reason) == (b.iterations, b.evaluations, b.stop_reason)
 
 
+def test_the_compiled_search_leaves_the_generator_where_the_python_loop_does(rng):
+    """The whole search in one compiled call draws the same random numbers as the Python rounds: the caller's
+    Generator continues from the same state (the next registration of a run sees the same stream)."""
+    from hsmap.registration.fitness import FieldObjective
+    from hsmap.registration.harmony import HarmonyConfig, harmony_search
+
+    tgt = rng.uniform(0, 4, (600, 2))
+    src = tgt[rng.choice(600, 150, replace=False)] - 0.2
+    fast = FieldObjective(src, DistanceField(tgt, 0.05, 0.4), 1.0)
+    cfg = HarmonyConfig(batch_size=16, max_iterations=500, patience=15, convergence_tol=1e-6, init="lhs")
+    ga, gb = np.random.default_rng(11), np.random.default_rng(11)
+    a = harmony_search(fast, [[-0.5, 0.5]] * 3, initial=[[0.1, 0.0, 0.0]], config=cfg, rng=ga, spread=[0.03] * 3)
+    b = harmony_search(lambda X: fast(X), [[-0.5, 0.5]] * 3, initial=[[0.1, 0.0, 0.0]], config=cfg, rng=gb,
+                       spread=[0.03] * 3)
+    assert a.iterations == b.iterations and a.iterations < cfg.max_iterations
+    np.testing.assert_array_equal(a.memory, b.memory)
+    assert ga.random() == gb.random()
+
+
 @pytest.mark.parametrize("dim", [2, 3])
 def test_parallel_fitness_is_the_same_for_any_number_of_threads(rng, dim):
     """Harmony rounds large enough to be scored in parallel (batch x points above the kernel's threshold) give

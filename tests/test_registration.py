@@ -428,3 +428,58 @@ def test_a_search_settled_within_a_field_cell_stops_sooner_at_the_same_pose():
             t_err, r_err = errors(res.pose, truth)
             assert t_err < 0.02 and r_err < 0.5, (t_err, r_err)
     assert fewer >= 3
+
+
+def test_2d_exact_polish_on_the_grid_lands_where_the_python_iterations_do(monkeypatch):
+    """The 2D refinement's exact iterations run compiled on the target's neighbour grid; without the grid (the
+    KD-tree's answers, iteration by iteration in Python) the refinement lands on the same pose, and the compiled
+    truncated cost is the plain one."""
+    from hsmap.registration import refine
+
+    p0 = np.array([4.0, 3.0, 0.0])
+    src, tgt, truth = scan_pair_2d(p0, p0 + [0.1, -0.05, 0.05], seed=3)
+    target = RegistrationTarget(tgt)
+    target.lookup(0.5)  # a field keeping nearest points: the refinement's first stage
+    start = truth + [0.04, -0.03, 0.01]
+    src = np.asarray(src)
+    assert target.grid_for(0.1) is not None
+    fast = refine.refine_icp(src, target, start, max_distance=0.1, start_distance=0.5, robust_kernel=0.07)
+    monkeypatch.setattr(RegistrationTarget, "grid_for", lambda self, bound: None)
+    slow = refine.refine_icp(src, target, start, max_distance=0.1, start_distance=0.5, robust_kernel=0.07)
+    np.testing.assert_allclose(fast, slow, rtol=0, atol=1e-12)
+    assert np.abs(fast[:2] - truth[:2]).max() < 0.01
+    _, moved, d, idx = match = refine._match(fast, src, target, 0.1)
+    ok = np.isfinite(d)
+    r = d.copy()
+    r[ok] = np.abs(np.einsum("ij,ij->i", target.normals[idx[ok]], moved[ok] - target.points[idx[ok]]))
+    for plane, res in ((True, r), (False, d)):
+        plain = np.where(ok, np.minimum(res, 0.1), 0.1).mean() / 0.1
+        assert refine._cost_of(match, target, 0.1, plane) == pytest.approx(plain, rel=1e-12)
+
+
+@pytest.mark.parametrize("kernel", [0.0, 0.07])
+def test_information_and_cost_of_a_pose_are_the_point_to_line_sums(kernel):
+    """The information and cost at a pose (one compiled pass over the correspondences) are J^T W J of the
+    point-to-line residuals over the weighted residual variance, expressed in the source's frame, and the mean
+    truncated residual."""
+    from hsmap.registration import refine
+    from hsmap.registration.information import adjoint
+
+    p0 = np.array([4.0, 3.0, 0.0])
+    src, tgt, truth = scan_pair_2d(p0, p0 + [0.1, -0.05, 0.05], seed=5)
+    target, src = RegistrationTarget(tgt), np.asarray(src)
+    pose = truth + [0.01, -0.005, 0.002]
+    info, sigma, n, cost = refine._information_and_cost(src, target, pose, 0.1, kernel)
+    T, moved, d, idx = refine._match(pose, src, target, 0.1)
+    ok = np.isfinite(d)
+    p, q, nq = moved[ok], target.points[idx[ok]], target.normals[idx[ok]]
+    r = np.einsum("ij,ij->i", nq, p - q)
+    w = np.ones_like(r) if kernel == 0 else kernel**4 / (kernel**2 + r**2) ** 2
+    J = np.column_stack([nq, nq[:, 1] * p[:, 0] - nq[:, 0] * p[:, 1]])
+    want_sigma = max(np.sqrt((w * r * r).sum() / w.sum()), 1e-3)
+    Ad = adjoint(T)
+    want = Ad.T @ ((J.T * w) @ J / want_sigma**2) @ Ad
+    assert n == ok.sum() and sigma == pytest.approx(want_sigma, rel=1e-12)
+    np.testing.assert_allclose(info, want, rtol=1e-10)
+    assert cost == pytest.approx((np.minimum(np.abs(r), 0.1).sum() + 0.1 * (len(src) - n)) / (0.1 * len(src)),
+                                 rel=1e-12)

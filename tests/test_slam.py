@@ -1030,3 +1030,54 @@ def test_a_hand_held_registration_that_passes_the_inlier_check_stands_against_a_
     assert box().settled(good, good, False) == (good, False)
     assert box(prior=True).settled(good, bad, False) == (bad, False)
     assert box(dof=3).settled(good, bad, False) == (bad, False)
+
+
+def test_the_tight_box_follows_the_prediction_s_uncertainty():
+    """3-DOF: the tight box is the prediction +/- verify_sigmas gate sigmas (at least two scan voxels), where it is
+    narrower than the configured box in every component; none without a prediction, with an uncertain one, or in
+    6-DOF runs. A registration whose search ends at its edge, or short of the recent inliers, escapes it."""
+    from hsmap.slam.costs import Costs
+    from hsmap.slam.search import SearchBox
+
+    cfg = SlamConfig()
+    half = np.array([0.4, 0.4, np.deg2rad(20.0)])
+    box = SearchBox(cfg, Costs())
+    centre = np.array([1.0, 2.0, 0.5])
+    tight = box.tight((centre, np.array([0.02, np.deg2rad(1.0)])), half)
+    np.testing.assert_allclose(tight[:, 1] - centre, [0.06, 0.06, np.deg2rad(3.0)])
+    np.testing.assert_allclose(centre - tight[:, 0], tight[:, 1] - centre)
+    small = box.tight((centre, np.array([0.001, np.deg2rad(1.0)])), half)
+    np.testing.assert_allclose(small[:2, 1] - centre[:2], 2 * cfg.effective_scan_voxel())
+    assert box.tight((centre, np.array([0.2, np.deg2rad(1.0)])), half) is None  # 0.6 m > 0.4 m
+    assert box.tight((centre, np.array([0.02, np.deg2rad(10.0)])), half) is None
+    assert box.tight(None, half) is None
+    assert SearchBox(SlamConfig(dof=6), Costs()).tight((np.zeros(6), np.array([0.01, 0.01])), np.ones(6)) is None
+    scan = np.random.default_rng(0).uniform(-3, 3, (300, 2))
+    inside = types.SimpleNamespace(global_pose=centre + [0.02, -0.01, 0.01], inlier_ratio=0.9)
+    edge = types.SimpleNamespace(global_pose=centre + [0.055, 0.0, 0.0], inlier_ratio=0.9)
+    for _ in range(5):
+        box.record(0.9, True)
+    assert not box.escapes(inside, tight, scan)
+    assert box.escapes(edge, tight, scan)
+    assert box.escapes(types.SimpleNamespace(global_pose=inside.global_pose, inlier_ratio=0.5), tight, scan)
+
+
+def test_good_odometry_gets_the_tight_search_and_a_slip_the_full_one():
+    """Precise odometry: most frames are registered by the small search in the tight box of the prediction; the
+    step that slips 30 cm leaves that box and is searched again in the full one, and the run stays on the route."""
+    frames = make_noisy_odometry_frames(np.deg2rad(0.05))
+    for f in frames[90:]:
+        f.odometry = compose([0.3, 0.0, 0.0], f.odometry)
+    slam = HsSlam(SlamConfig(loop_closure={"enabled": False}), rng=1)
+    escaped = []
+    for f in frames:
+        before = slam.costs.full_searches
+        slam.process(f)
+        escaped.append(slam.costs.full_searches > before)
+    slam.finish()
+    costs = slam.costs.as_dict()
+    assert escaped[90]
+    assert 1 <= costs["full_searches"] < 0.2 * len(frames)
+    assert costs["harmony_evaluations"] < 200 * costs["registrations"]  # the full search alone: 300 or more
+    err = relative_errors(slam.trajectory.poses, ROUTE[: len(frames)])
+    assert np.abs(err[:, :2]).max() < 0.03, np.abs(err[:, :2]).max(0)

@@ -12,17 +12,18 @@ from hsmap.slam import Costs, SlamConfig, run_slam, write_slam_outputs
 FRAMES = 3000
 #: The counts of such a run (:meth:`Costs.as_dict`).
 REFERENCE = {
-    "registrations": 3183,
+    "registrations": 3470,
     "refinements": 4011,
-    "harmony_evaluations": 1058850,
-    "retries": 92,
-    "loop_searches": 88,
-    "far_searches": 6,
-    "optimizations": 17,
-    "optimization_rounds": 35,
-    "optimization_iterations": 225,
+    "harmony_evaluations": 394040,
+    "retries": 95,
+    "full_searches": 282,
+    "loop_searches": 90,
+    "far_searches": 7,
+    "optimizations": 16,
+    "optimization_rounds": 28,
+    "optimization_iterations": 193,
     "map_rebuilds": 20,
-    "points_inserted": 355702,
+    "points_inserted": 376127,
 }
 BUDGET = budget(REFERENCE)
 

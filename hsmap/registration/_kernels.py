@@ -11,7 +11,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-__all__ = ["field_score", "hs_chunk_field", "splat_field_2d", "splat_field_3d", "PARALLEL_MIN_WORK"]
+__all__ = ["field_score", "hs_chunk_field", "hs_search_field", "splat_field_2d", "splat_field_3d", "PARALLEL_MIN_WORK"]
 
 _OPTS = dict(fastmath=True, cache=True, nogil=True)
 
@@ -135,6 +135,19 @@ def _score_batch_field(new, f_new, pts, flat, shape, origin, inv_res, tau, weigh
 
 
 @nb.njit(cache=True, nogil=True)
+def _score_new(new, f_new, pts, flat, shape, origin, inv_res, tau, weight):  # pragma: no cover - JIT
+    """f_new[b] = the two-term fitness of harmony b (non-finite: inf); a batch large enough is scored in parallel
+    (:func:`_score_batch_field`), which depends on the problem's size only."""
+    if new.shape[0] * pts.shape[0] >= PARALLEL_MIN_WORK:
+        _score_batch_field(new, f_new, pts, flat, shape, origin, inv_res, tau, weight)
+        return
+    for b in range(new.shape[0]):
+        m, r = _score_pose(new[b], pts, flat, shape, origin, inv_res, tau)
+        f = m / tau + weight * (1.0 - r)
+        f_new[b] = f if np.isfinite(f) else np.inf
+
+
+@nb.njit(cache=True, nogil=True)
 def hs_chunk_field(memory, fun, pick, consider, adjust_u, step, rand, par, bw, lo, hi, span, history, state,
                    global_best, patience, convergence_tol, min_improvement, spread, anchor,
                    pts, flat, shape, origin, inv_res, tau, weight):  # pragma: no cover - JIT
@@ -161,13 +174,7 @@ def hs_chunk_field(memory, fun, pick, consider, adjust_u, step, rand, par, bw, l
                 else:
                     v = rand[k, b, j]
                 new[b, j] = min(max(v, lo[j]), hi[j])
-        if batch * pts.shape[0] >= PARALLEL_MIN_WORK:
-            _score_batch_field(new, f_new, pts, flat, shape, origin, inv_res, tau, weight)
-        else:
-            for b in range(batch):
-                m, r = _score_pose(new[b], pts, flat, shape, origin, inv_res, tau)
-                f = m / tau + weight * (1.0 - r)
-                f_new[b] = f if np.isfinite(f) else np.inf
+        _score_new(new, f_new, pts, flat, shape, origin, inv_res, tau, weight)
         all_x[:hms] = memory
         all_x[hms:] = new
         all_f[:hms] = fun
@@ -195,6 +202,36 @@ def hs_chunk_field(memory, fun, pick, consider, adjust_u, step, rand, par, bw, l
         if stale >= patience:
             state[2] = 2
             return
+
+
+@nb.njit(cache=True, nogil=True)
+def hs_search_field(gen, memory, fun, draw_rounds, batch, hmcr, par, bw, lo, hi, span, history, state,
+                    global_best, patience, max_iterations, convergence_tol, min_improvement, spread, anchor,
+                    pts, flat, shape, origin, inv_res, tau, weight):  # pragma: no cover - JIT
+    """A whole Harmony Search on the two-term field fitness in one call: the first ``memory`` scored into ``fun``
+    and sorted (stably), then hsmap.registration.harmony._improvise's rounds, the random numbers of
+    ``draw_rounds`` rounds at a time drawn from the numpy Generator ``gen`` as numpy draws them (numba's Generator:
+    the same stream), run by :func:`hs_chunk_field`. ``par`` and ``bw``: every round's rates; returns the rounds run."""
+    hms, dim = memory.shape
+    _score_new(memory, fun, pts, flat, shape, origin, inv_res, tau, weight)
+    order = np.argsort(fun, kind="mergesort")
+    memory[:] = memory[order]
+    fun[:] = fun[order]
+    anchor[:] = memory[0]
+    history[0] = fun[0]
+    it = 0
+    while it < max_iterations and state[2] == 0:
+        c = min(draw_rounds, max_iterations - it)
+        pick = gen.integers(0, hms, size=(c, batch, dim))
+        consider = gen.random((c, batch, dim)) < hmcr
+        adjust_u = gen.random((c, batch, dim))
+        step = gen.uniform(-1.0, 1.0, (c, batch, dim))
+        rand = lo + gen.random((c, batch, dim)) * span
+        hs_chunk_field(memory, fun, pick, consider, adjust_u, step, rand, par[it:it + c], bw[it:it + c], lo, hi,
+                       span, history[it:], state, global_best, patience, convergence_tol, min_improvement, spread,
+                       anchor, pts, flat, shape, origin, inv_res, tau, weight)
+        it += state[0]
+    return it
 
 
 @nb.njit(**_OPTS)
@@ -723,3 +760,89 @@ def bounding_box(points):  # pragma: no cover - JIT
             if v > hi[k]:
                 hi[k] = v
     return lo, hi
+
+
+@nb.njit(cache=True, nogil=True)
+def polish_on_grid_2d(src, T, sp, order, start, origin, inv_cell, dims, rank, hint, bound, iterations, tol, kernel,
+                      q, nrm):  # pragma: no cover - JIT
+    """Point-to-line ICP in 2D with exact correspondences within ``bound`` from a neighbour grid (the sorted
+    points ``sp``, their rows ``order``, the cell starts ``start``: :func:`grid_build`; ``rank``: each row's place
+    in ``sp``), ``iterations`` at most, stopping when the step's largest entry is below ``tol``; each iteration's
+    search starts from the previous one's answers, the first from the rows ``hint`` (N,; out of range: none).
+    Returns the refined 3x3 transform."""
+    m = src.shape[0]
+    n = sp.shape[0]
+    T = T.copy()
+    moved = np.empty((m, 2))
+    dist = np.empty(m)
+    idx = np.empty(m, dtype=np.intp)
+    places = np.empty(m, dtype=np.int64)
+    for i in range(m):
+        h = hint[i]
+        places[i] = rank[h] if 0 <= h < n else -1
+    for _ in range(iterations):
+        for i in range(m):
+            moved[i, 0] = src[i, 0] * T[0, 0] + src[i, 1] * T[0, 1] + T[0, 2]
+            moved[i, 1] = src[i, 0] * T[1, 0] + src[i, 1] * T[1, 1] + T[1, 2]
+        grid_nearest(sp, order, start, origin, inv_cell, dims, moved, bound, places, dist, idx, 0, m)
+        dT, step, found = point_to_plane_step(moved, dist, idx, q, nrm, kernel)
+        if found < 4:
+            break
+        T = dT @ T
+        for i in range(m):
+            places[i] = rank[idx[i]] if idx[i] < n else -1
+        if step < tol:
+            break
+    return T
+
+
+@nb.njit(cache=True, nogil=True)
+def truncated_cost(moved, dist, idx, q, nrm, threshold, plane):  # pragma: no cover - JIT
+    """Mean over the points of min(residual, threshold) / threshold, a point without a correspondence (``dist``
+    not finite) costing 1: the residual the point-to-plane (point-to-line) distance |n . (p - q)| with ``plane``,
+    else the point distance."""
+    m, d = moved.shape
+    acc = 0.0
+    for i in range(m):
+        if not np.isfinite(dist[i]):
+            acc += threshold
+            continue
+        if plane:
+            j = idx[i]
+            r = 0.0
+            for k in range(d):
+                r += nrm[j, k] * (moved[i, k] - q[j, k])
+            r = abs(r)
+        else:
+            r = dist[i]
+        acc += min(r, threshold)
+    return acc / m / threshold
+
+
+@nb.njit(cache=True, nogil=True)
+def plane_information_terms(moved, dist, idx, q, nrm, kernel, threshold):  # pragma: no cover - JIT
+    """From the correspondences (moved_i, q_idx[i], n_idx[i]) of the points with a finite ``dist``: J^T W J of
+    their point-to-plane residuals (:func:`point_to_plane_normal_equations`), how many there are, the sum of
+    min(|r_i|, threshold) over them, and the sums of w_i r_i^2 and of w_i (Geman-McClure weights of scale
+    ``kernel``; 1 where ``kernel <= 0``)."""
+    A, _, count = _plane_equations(moved, dist, idx, q, nrm, kernel)
+    m, d = moved.shape
+    k2 = kernel * kernel
+    cost = 0.0
+    wr2 = 0.0
+    wsum = 0.0
+    for i in range(m):
+        if not np.isfinite(dist[i]):
+            continue
+        j = idx[i]
+        r = 0.0
+        for k in range(d):
+            r += nrm[j, k] * (moved[i, k] - q[j, k])
+        cost += min(abs(r), threshold)
+        w = 1.0
+        if kernel > 0:
+            t = k2 + r * r
+            w = k2 * k2 / (t * t)
+        wr2 += w * r * r
+        wsum += w
+    return A, count, cost, wr2, wsum

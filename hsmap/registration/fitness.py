@@ -309,12 +309,22 @@ class FieldObjective:
         return score(poses, self.source, self.field, self.inlier_weight).value
 
     def run_chunk(self, *args) -> None:
-
         from . import _kernels  # numba: compiled on first use
         start_threading_layer()
         f = self.field
         _kernels.hs_chunk_field(*args, self.source, f._flat, f._pshape, f.origin, 1.0 / f.resolution,
                                 f.truncation, self.inlier_weight)
+
+    def run_search(self, gen: np.random.Generator, memory: NDArray[np.float64], fun: NDArray[np.float64], *args
+                   ) -> int:
+        """A whole search (:func:`hsmap.registration._kernels.hs_search_field`) from the first ``memory``, which
+        ends sorted, its values in ``fun``. Returns the rounds run."""
+        from . import _kernels  # numba: compiled on first use
+        start_threading_layer()
+        f = self.field
+        return int(_kernels.hs_search_field(gen, memory, fun, *args, np.empty(memory.shape[1]), self.source,
+                                            f._flat, f._pshape, f.origin, 1.0 / f.resolution, f.truncation,
+                                            self.inlier_weight))
 
 
 @dataclass

@@ -111,6 +111,10 @@ class HarmonyConfig:
         How the memory rows not given as initial guesses are drawn: ``"uniform"`` (the classic) or ``"lhs"``
         (Latin hypercube: each variable's range split into HMS strata, one sample per stratum, for an even
         coverage of the box).
+    draw_rounds : int
+        Rounds whose random numbers are drawn at once (five arrays of rounds x batch x variables, in a fixed
+        order; the compiled search and the Python rounds alike): fewer, larger draws; a search that stops early
+        leaves some drawn and unused. It picks the random stream, so the searches too.
     """
 
     memory_size: int = 30
@@ -128,6 +132,7 @@ class HarmonyConfig:
     patience: int | None = None
     min_improvement: float = 1e-12
     init: str = "uniform"
+    draw_rounds: int = 32
 
     def __post_init__(self) -> None:
         try:
@@ -136,7 +141,7 @@ class HarmonyConfig:
             raise ConfigError(
                 f"harmony.variant must be one of {[v.value for v in Variant]}, got {self.variant!r}"
             ) from None
-        for name in ("memory_size", "max_iterations", "batch_size"):
+        for name in ("memory_size", "max_iterations", "batch_size", "draw_rounds"):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or v < 1:
                 raise ConfigError(f"harmony.{name} must be an integer >= 1, got {quote(v)}")
@@ -254,12 +259,18 @@ def harmony_search(
         return np.where(np.isfinite(f), f, np.inf)
 
     memory = _initial_memory(cfg, gen, lo, hi, initial)
-    fun = evaluate(memory)
-    order = np.argsort(fun, kind="stable")
-    memory, fun = np.ascontiguousarray(memory[order]), np.ascontiguousarray(fun[order])
-    # a compiled fast path (see hsmap.registration.fitness.FieldObjective), else rounds calling `evaluate`
-    runner = getattr(objective, "run_chunk", None) or functools.partial(_run_chunk, evaluate)
-    it, history, state = _improvise(runner, memory, fun, b, cfg, gen, tol_x)
+    whole = getattr(objective, "run_search", None)
+    if whole is not None:
+        # a compiled search (see hsmap.registration.fitness.FieldObjective): the same rounds, the same draws
+        fun = np.empty(hms)
+        it, history, state = _search_compiled(whole, memory, fun, b, cfg, gen, tol_x)
+    else:
+        fun = evaluate(memory)
+        order = np.argsort(fun, kind="stable")
+        memory, fun = np.ascontiguousarray(memory[order]), np.ascontiguousarray(fun[order])
+        # a compiled fast path for chunks of rounds, else rounds calling `evaluate`
+        runner = getattr(objective, "run_chunk", None) or functools.partial(_run_chunk, evaluate)
+        it, history, state = _improvise(runner, memory, fun, b, cfg, gen, tol_x)
     stop = {0: StopReason.MAX_ITERATIONS, 1: StopReason.CONVERGED,
             2: StopReason.NO_IMPROVEMENT if spread is None else StopReason.SETTLED}[int(state[2])]
     evaluations = hms + it * cfg.batch_size
@@ -292,9 +303,8 @@ def _improvise(runner: Callable, memory: NDArray[np.float64], fun: NDArray[np.fl
     patience = cfg.patience if cfg.patience is not None else cfg.max_iterations + 1
     it = 0
     while it < cfg.max_iterations and state[2] == 0:
-        # Draw the random numbers of up to 32 rounds at once (fewer small calls); a run that stops early leaves
-        # some unused, which keeps the stream identical between the Python and the compiled chunk runners.
-        c = min(32, cfg.max_iterations - it)
+        # the random numbers of draw_rounds rounds at once, in the order the compiled search draws them
+        c = min(cfg.draw_rounds, cfg.max_iterations - it)
         par, bw = _round_rates(cfg, variant, np.arange(it, it + c))
         draws = (
             gen.integers(0, hms, size=(c, batch, dim)),
@@ -307,6 +317,38 @@ def _improvise(runner: Callable, memory: NDArray[np.float64], fun: NDArray[np.fl
                patience, cfg.convergence_tol, cfg.min_improvement, tol_x, anchor)
         it += int(state[0])
     return it, history[: it + 1], state
+
+
+def _search_compiled(search: Callable, memory: NDArray[np.float64], fun: NDArray[np.float64], b: NDArray[np.float64],
+                     cfg: HarmonyConfig, gen: np.random.Generator, tol_x: NDArray[np.float64]
+                     ) -> tuple[int, NDArray[np.float64], NDArray[np.int64]]:
+    """:func:`_improvise`'s rounds, the first memory's scoring and sorting included, in one compiled call
+    ``search`` (:meth:`hsmap.registration.fitness.FieldObjective.run_search`): ``memory`` sorted in place, its
+    values written to ``fun``; the rounds done, the best value after each round (first: before any) and the
+    state (last chunk's rounds, rounds without improvement, stop code)."""
+    lo, hi = b[:, 0], b[:, 1]
+    history = np.empty(cfg.max_iterations + 1)
+    state = np.zeros(3, dtype=np.int64)
+    patience = cfg.patience if cfg.patience is not None else cfg.max_iterations + 1
+    par, bw = _all_rates(cfg.variant, cfg.max_iterations, cfg.par, cfg.bandwidth, cfg.par_min, cfg.par_max,
+                         cfg.bw_min, cfg.bw_max)
+    it = search(gen, memory, fun, cfg.draw_rounds, cfg.batch_size, cfg.hmcr, par, bw, lo, hi, hi - lo, history,
+                state, cfg.variant == Variant.GLOBAL_BEST.value, patience, cfg.max_iterations, cfg.convergence_tol,
+                cfg.min_improvement, tol_x)
+    return it, history[: it + 1], state
+
+
+@functools.lru_cache(maxsize=64)
+def _all_rates(variant: str, max_iterations: int, par: float, bandwidth: float, par_min: float, par_max: float,
+               bw_min: float, bw_max: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Every round's pitch adjustment rate and bandwidth (:func:`_round_rates`), read-only (shared by the
+    searches of one configuration)."""
+    cfg = HarmonyConfig(variant=variant, max_iterations=max_iterations, par=par, bandwidth=bandwidth,
+                        par_min=par_min, par_max=par_max, bw_min=bw_min, bw_max=bw_max)
+    rates = _round_rates(cfg, Variant(variant), np.arange(max_iterations))
+    for r in rates:
+        r.flags.writeable = False
+    return rates
 
 
 def _spread_tolerance(spread: ArrayLike | None, dim: int) -> NDArray[np.float64]:

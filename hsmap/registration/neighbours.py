@@ -142,11 +142,29 @@ class NeighbourGrid:
         h = np.asarray(hint)
         if h.shape != (n,) or not np.issubdtype(h.dtype, np.integer):
             raise ShapeError(f"hint must be ({n},) whole numbers (rows of the grid's points), got {h.dtype} {h.shape}")
+        rank = self.rank()
+        ok = (h >= 0) & (h < len(self.points))
+        return np.where(ok, rank[np.where(ok, h, 0)], -1)
+
+    def rank(self) -> NDArray[np.int64]:
+        """Each row's place in the grid's sorted points (M,), built on first use."""
         if self._rank is None:
             self._rank = np.empty(len(self.points), dtype=np.int64)
             self._rank[self._order] = np.arange(len(self.points))
-        ok = (h >= 0) & (h < len(self.points))
-        return np.where(ok, self._rank[np.where(ok, h, 0)], -1)
+        return self._rank
+
+    def polish_2d(self, source: NDArray[np.float64], T: NDArray[np.float64], bound: float, iterations: int,
+                  tolerance: float, kernel: float, normals: NDArray[np.float64], hint: NDArray[np.intp] | None
+                  ) -> NDArray[np.float64]:
+        """Point-to-line ICP of the 2D ``source`` from the 3x3 transform ``T`` on this grid's points and their
+        ``normals``, exact correspondences within ``bound`` (:func:`hsmap.registration._kernels.polish_on_grid_2d`):
+        the refined transform. ``hint`` (N,): rows near the moved points (None: none)."""
+        from . import _kernels  # numba: compiled on first use
+
+        h = np.full(len(source), -1, dtype=np.intp) if hint is None else hint
+        return _kernels.polish_on_grid_2d(source, T, self._sorted, self._order, self._start, self.origin, self._inv,
+                                          self.dims, self.rank(), h, float(bound), int(iterations), float(tolerance),
+                                          float(kernel), self.points, normals)
 
 
 #: KD-tree queries of at least this many points are split between the compute threads

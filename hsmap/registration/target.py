@@ -166,6 +166,11 @@ class RegistrationTarget:
             return grid.query(points, bound, hint)
         return tree_query(self.tree, points, distance_upper_bound=bound)
 
+    def grid_for(self, bound: float) -> NeighbourGrid | None:
+        """The neighbour grid that answers :meth:`nearest` within ``bound``, or None where the KD-tree does."""
+        grid = self.prepare()
+        return grid if grid is not False and bound <= 2.0 * grid.cell else None
+
     @property
     def tree(self) -> cKDTree:
         if self._tree is None:

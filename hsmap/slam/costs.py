@@ -22,6 +22,10 @@ class Costs:
         Candidate poses the registrations' Harmony Searches scored.
     retries : int
         Tracking registrations retried around the motion prediction (counted in ``registrations`` too).
+    full_searches : int
+        Tracking registrations searched in the full box after a search in the tight box of the prediction's
+        uncertainty that its result escaped (:meth:`hsmap.slam.search.SearchBox.escapes`; both counted in
+        ``registrations``).
     loop_searches : int
         Near loop-closure searches (one registration each).
     far_searches : int
@@ -42,6 +46,7 @@ class Costs:
     refinements: int = 0
     harmony_evaluations: int = 0
     retries: int = 0
+    full_searches: int = 0
     loop_searches: int = 0
     far_searches: int = 0
     optimizations: int = 0

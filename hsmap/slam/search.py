@@ -1,5 +1,7 @@
 """Where the tracker searches for a frame (:class:`SearchBox`): the box around the seeds, which in 6-DOF runs
-without a prior follows the recent motion, and the wider searches of a registration that fails the inlier check."""
+without a prior follows the recent motion, and the wider searches of a registration that fails the inlier check;
+in 3-DOF runs, a small search in the box of the prediction's uncertainty where that box is the smaller
+(:meth:`SearchBox.tight`)."""
 
 from __future__ import annotations
 
@@ -20,7 +22,13 @@ from ..registration.icp import (
 from .config import SlamConfig
 from .costs import Costs
 
-__all__ = ["SearchBox", "same_pose"]
+__all__ = ["SearchBox", "same_pose", "TIGHT_HARMONY"]
+
+#: The Harmony Search of a tight box (:meth:`SearchBox.tight`): memory size, harmonies per round, rounds without
+#: a cell-sized improvement before it stops, and rounds drawn at once (one more than that: a search that stops
+#: soon after its last improvement leaves few drawn and unused). The box is a few field cells wide and the
+#: refinement's basin holds all of it: the search needs to find the right cell, not to explore.
+TIGHT_HARMONY = {"memory_size": 10, "batch_size": 8, "patience": 5, "draw_rounds": 6}
 
 
 def same_pose(a: NDArray[np.float64], b: NDArray[np.float64]) -> bool:
@@ -43,6 +51,44 @@ class SearchBox:
         self.costs = costs
         self.follows_motion = config.dof == 6 and not prior
         self._recent: list[tuple[float, bool]] = []  # the last frames' inlier ratios and whether confirmed
+        self._tight_config: tuple[RegistrationConfig, RegistrationConfig] | None = None
+
+    def tight(self, prediction: tuple[NDArray[np.float64], NDArray[np.float64]] | None, half: NDArray[np.float64]
+              ) -> NDArray[np.float64] | None:
+        """3-DOF runs: the box (3, 2) around the predicted pose of ``prediction`` (pose, (translation, yaw) gate
+        sigmas: :meth:`MotionPrediction.predict` with ``gate``) that the verifier accepts without a retry,
+        ``verify_sigmas`` sigmas wide (at least two scan voxels in translation), where it is narrower than the
+        configured half-widths ``half`` in every component; else (no prediction, an uncertain one, 6-DOF runs) None:
+        the full search."""
+        cfg = self.config
+        if cfg.dof != 3 or prediction is None:
+            return None
+        centre, sig = prediction
+        h = np.array([sig[0], sig[0], sig[1]]) * cfg.verify_sigmas
+        h[:2] = np.maximum(h[:2], 2 * cfg.effective_scan_voxel())
+        if np.any(h >= half):
+            return None
+        return np.column_stack([centre - h, centre + h])
+
+    def tight_config(self) -> RegistrationConfig:
+        """The tracking's registration settings with the small Harmony Search of a tight box
+        (:data:`TIGHT_HARMONY`)."""
+        reg = self.config.registration
+        if self._tight_config is None or self._tight_config[0] is not reg:
+            self._tight_config = (reg, replace(reg, harmony=replace(reg.harmony, **TIGHT_HARMONY)))
+        return self._tight_config[1]
+
+    def escapes(self, res: RegistrationResult, box: NDArray[np.float64], scan: NDArray[np.float64]) -> bool:
+        """Whether a tight box's registration ``res`` of ``scan`` calls for the full search: its search's best lies
+        within a search-field cell of the box's edge (in yaw: the angle that moves the scan's typical point, at its
+        RMS distance from its centroid, by a cell), where the alignment may lie beyond the box (the odometry
+        slipped more than its sigmas say), or it fails the inlier check (:meth:`passes`)."""
+        reg = self.config.registration
+        cell = reg.field_resolution or max(0.02, reg.search_threshold / 10.0)
+        radius = float(np.sqrt(((scan - scan.mean(0)) ** 2).sum(1).mean())) + 1e-9
+        margin = np.array([cell, cell, cell / radius])
+        g = res.global_pose
+        return bool(np.any(g <= box[:, 0] + margin) or np.any(g >= box[:, 1] - margin)) or not self.passes(res)
 
     def record(self, inlier_ratio: float, verified: bool) -> None:
         """Remember a tracked frame's inlier ratio and whether it was confirmed."""

@@ -201,10 +201,12 @@ class HsSlam:
         it), and whether it was retried and whether its pose is confirmed."""
         target = self.keyframe_graph.ensure_target(self.poses[-1])
         guesses, half = self.prediction.seeds()
-        bounds = np.column_stack([guesses.min(0) - half, guesses.max(0) + half])
-        res = harmony_icp(scan, target, bounds=bounds, initial_guesses=guesses, config=self.config.registration,
-                          rng=self.rng)
-        self.costs.registration(res.evaluations)
+        res = self._tight_search(scan, target, guesses, half)
+        if res is None:
+            bounds = np.column_stack([guesses.min(0) - half, guesses.max(0) + half])
+            res = harmony_icp(scan, target, bounds=bounds, initial_guesses=guesses,
+                              config=self.config.registration, rng=self.rng)
+            self.costs.registration(res.evaluations)
         res, widened, matched = self.search.widened(scan, target, res, guesses, half, self.rng)
         self.prediction.first_registration(res)
         searched = res
@@ -215,6 +217,25 @@ class HsSlam:
             res, scan = self.deskewing.refined(scan, times, target, res)
         self.prediction.kept_registration(res)
         return res, scan, checked
+
+    def _tight_search(self, scan: NDArray[np.float64], target, guesses: NDArray[np.float64],
+                      half: NDArray[np.float64]) -> RegistrationResult | None:
+        """The frame's registration in the tight box of the prediction's uncertainty (:meth:`SearchBox.tight`), with
+        a small search, seeded by the prediction and the seeds inside the box; None where there is no tight box
+        or the registration escapes it (:meth:`SearchBox.escapes`): then the full search decides."""
+        pred = None if self.prediction.prior is not None else self.prediction.predict(True)
+        box = self.search.tight(pred, half)
+        if box is None:
+            return None
+        inside = guesses[np.all((guesses >= box[:, 0]) & (guesses <= box[:, 1]), axis=1)]
+        seeds = np.vstack([pred[0][None], inside])
+        res = harmony_icp(scan, target, bounds=box, initial_guesses=seeds, config=self.search.tight_config(),
+                          rng=self.rng)
+        self.costs.registration(res.evaluations)
+        if self.search.escapes(res, box, scan):
+            self.costs.add(full_searches=1)
+            return None
+        return res
 
     def _reanchor_recent(self) -> None:
         """Move the recent tracked poses (the seeds' history) with their keyframes."""

@@ -1096,3 +1096,35 @@ def test_a_hand_held_prediction_seeds_the_walk_at_the_held_orientation():
 
     assert np.any(np.all(np.isclose(seeds(), walk), axis=1))
     assert not np.any(np.all(np.isclose(seeds(prior=True), walk), axis=1))
+
+
+def test_a_hand_held_search_stops_where_two_searches_agree_short_of_a_lost_frame():
+    """A registration a little below the recent inlier ratios is searched again until two searches agree (a
+    scene that changed) and never over the yaw circle; one far below them (lost) goes on through every widened
+    box and the yaw circle."""
+    from hsmap.slam.costs import Costs
+    from hsmap.slam.search import SearchBox
+
+    calls = []
+
+    class Box(SearchBox):
+        def _search(self, scan, target, bounds, guesses, config, rng):
+            calls.append(bounds)
+            return types.SimpleNamespace(pose=np.zeros(6), inlier_ratio=ratio)
+
+        def best(self, scan, target, candidates):
+            return candidates[0]
+
+    box = Box(SlamConfig(dof=6), Costs())
+    for r in (0.80, 0.81, 0.79, 0.80, 0.805):
+        box.record(r, True)
+    guesses, half = np.zeros((2, 6)), np.full(6, 0.1)
+    ratio = 0.74  # below the recent spread, above min_inlier_share of the median
+    first = types.SimpleNamespace(pose=np.zeros(6), inlier_ratio=ratio)
+    _, widened, confirmed = box.widened(None, None, first, guesses, half, np.random.default_rng(0))
+    assert widened and confirmed and len(calls) == 1
+    calls.clear()
+    ratio = 0.5
+    first = types.SimpleNamespace(pose=np.zeros(6), inlier_ratio=ratio)
+    box.widened(None, None, first, guesses, half, np.random.default_rng(0))
+    assert len(calls) > len(SlamConfig().widen_factors)

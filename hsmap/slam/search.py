@@ -104,6 +104,12 @@ class SearchBox:
             floor = max(floor, ref - self.config.verify_sigmas * spread)
         return floor
 
+    def lost(self, res: RegistrationResult) -> bool:
+        """Whether a registration matches less than ``min_inlier_share`` of the recent confirmed frames' median
+        inlier ratio: far enough below it that the search may have lost the frame's yaw altogether."""
+        ref = self.inlier_reference()
+        return ref is not None and res.inlier_ratio < self.config.min_inlier_share * ref
+
     def passes(self, res: RegistrationResult) -> bool:
         """Whether a registration reaches the recent confirmed frames' inlier ratio (:meth:`inlier_floor`)."""
         floor = self.inlier_floor()
@@ -115,9 +121,10 @@ class SearchBox:
         """A registration that fails the inlier check (:meth:`passes`) searched again in boxes of ``half`` times
         each of ``widen_factors`` around ``guesses`` (each half-width at most the larger of ``half``'s and the box
         :func:`hsmap.registration.icp.harmony_icp` searches without a guess), with a longer search, until one
-        passes; where none does, with ``global_search``, the rest of the yaw circle (:meth:`_yaw_sectors`). Returns
-        the registration that aligns the scan best (:func:`alignment_score`), whether a search was repeated, and
-        whether the kept one passes the check or two searches agree on it."""
+        passes, or, for one not :meth:`lost`, until two searches agree (:func:`same_pose`: a scene that changed);
+        where every search is lost, with ``global_search``, the rest of the yaw circle (:meth:`_yaw_sectors`).
+        Returns the registration that aligns the scan best (:func:`alignment_score`), whether a search was
+        repeated, and whether the kept one passes the check or two searches agree on it."""
         cfg = self.config
         if not self.follows_motion or self.passes(res):
             return res, False, True
@@ -131,9 +138,10 @@ class SearchBox:
             h = np.minimum(half * factor, reach)
             bounds = np.column_stack([guesses.min(0) - h, guesses.max(0) + h])
             tried.append(self._search(scan, target, bounds, guesses, wide_cfg, rng))
-            if self.passes(tried[-1]):
+            last = tried[-1]
+            if self.passes(last) or (not self.lost(last) and any(same_pose(last.pose, r.pose) for r in tried[:-1])):
                 break
-        if cfg.global_search and not self.passes(tried[-1]):
+        if cfg.global_search and all(self.lost(r) for r in tried):
             for box in self._yaw_sectors(bounds):
                 centre = guesses.copy()
                 centre[:, 5] = box[5].mean()

@@ -1011,25 +1011,123 @@ def test_the_yaw_sectors_cover_the_circle_beyond_the_box():
     assert SearchBox._yaw_sectors(box) == []
 
 
-def test_a_hand_held_registration_that_passes_the_inlier_check_stands_against_a_failing_retry():
-    """A sensor carried by hand: a registration that matches the recent frames' inlier ratio is kept (confirmed)
-    where the retry around the motion prediction fails that check; a retry that passes it, and every retry of a
-    ground robot (3-DOF, or seeded by a 2D run), stand as the motion check left them."""
+def _search_box(ratios=(0.8,) * 5, **kw):
+    """A SearchBox that has seen confirmed frames of the inlier ``ratios``."""
     from hsmap.slam.costs import Costs
     from hsmap.slam.search import SearchBox
 
-    def box(**kw):
-        b = SearchBox(SlamConfig(dof=kw.pop("dof", 6)), Costs(), **kw)
-        for _ in range(5):
-            b.record(0.8, True)
-        return b
+    b = SearchBox(SlamConfig(dof=kw.pop("dof", 6)), Costs(), **kw)
+    for r in ratios:
+        b.record(r, True)
+    return b
 
-    good, bad, fine = (types.SimpleNamespace(inlier_ratio=r) for r in (0.8, 0.4, 0.78))
-    assert box().settled(good, bad, False) == (good, True)
-    assert box().settled(good, fine, False) == (fine, False)
-    assert box().settled(good, good, False) == (good, False)
-    assert box(prior=True).settled(good, bad, False) == (bad, False)
-    assert box(dof=3).settled(good, bad, False) == (bad, False)
+
+def _room_target(pose):
+    """A room's cloud as a registration target and the cloud seen from ``pose`` (its sensor frame)."""
+    from hsmap.registration.icp import RegistrationTarget
+
+    rng = np.random.default_rng(3)
+    room = room_cloud_3d(6000, viewpoint=pose[:3], noise=0.005, rng=rng)
+    target = RegistrationTarget(room, SlamConfig(dof=6).registration)
+    return target, sensor_cloud(room_cloud_3d(3000, viewpoint=pose[:3], noise=0.005, rng=rng), pose)
+
+
+def test_a_hand_held_frame_keeps_the_candidate_that_aligns_its_scan_best():
+    """A sensor carried by hand: between the box's registration and the motion check's retry around the
+    prediction, both passing the inlier check, the frame keeps the one that aligns its scan best with the target,
+    whichever came first, and confirms it; a ground robot (3-DOF, or seeded by a 2D run) keeps what the motion
+    check left."""
+    truth = np.array([2.5, 2.0, 1.5, 0.02, -0.01, 0.3])
+    target, scan = _room_target(truth)
+    off = compose(truth, np.array([0.05, -0.08, 0.0, 0.0, 0.0, np.deg2rad(3.0)]))
+    good, bad = (types.SimpleNamespace(pose=p, inlier_ratio=0.8) for p in (truth, off))
+    assert _search_box().settled(scan, target, good, bad, False) == (good, True)
+    assert _search_box().settled(scan, target, bad, good, False) == (good, True)
+    assert _search_box().settled(scan, target, good, good, False) == (good, False)
+    assert _search_box(prior=True).settled(scan, target, good, bad, False) == (bad, False)
+    assert _search_box(dof=3).settled(scan, target, good, bad, False) == (bad, False)
+
+
+def test_a_hand_held_candidate_that_fails_the_inlier_check_is_not_confirmed_for_scoring_best():
+    """The candidate that aligns the scan best is confirmed only where it passes the inlier check, the motion
+    check confirmed it, or the two candidates agree."""
+    truth = np.array([2.5, 2.0, 1.5, 0.0, 0.0, 0.1])
+    target, scan = _room_target(truth)
+    off = compose(truth, np.array([0.3, 0.0, 0.0, 0.0, 0.0, np.deg2rad(8.0)]))
+    weak, worse = (types.SimpleNamespace(pose=p, inlier_ratio=0.5) for p in (truth, off))
+    assert _search_box().settled(scan, target, weak, worse, True) == (weak, False)
+    assert _search_box().settled(scan, target, worse, weak, True) == (weak, True)
+
+
+def test_a_hand_held_inlier_drop_beyond_the_recent_spread_fails_the_check():
+    """A sensor carried by hand: where the recent frames' inlier ratios hardly vary, a registration well below
+    them fails the check even above ``min_inlier_share`` of their median; where they vary widely, or for a ground
+    robot, ``min_inlier_share`` alone decides."""
+    tight = (0.80, 0.81, 0.79, 0.80, 0.805, 0.795)
+    loose = (0.80, 0.95, 0.65, 0.90, 0.70, 0.85)
+    drop = types.SimpleNamespace(inlier_ratio=0.72)  # 0.9 of the median
+    assert not _search_box(tight).passes(drop)
+    assert _search_box(tight).passes(types.SimpleNamespace(inlier_ratio=0.79))
+    assert _search_box(loose).passes(drop)
+    assert _search_box(tight, prior=True).passes(drop)
+    assert _search_box(tight, dof=3).passes(drop)
+    assert not _search_box(loose).passes(types.SimpleNamespace(inlier_ratio=0.6))
+
+
+def test_a_hand_held_prediction_seeds_the_walk_at_the_held_orientation():
+    """A sensor carried by hand: besides the last step repeated, the seeds hold the previous orientation and
+    repeat the last step's translation in the world (the carrier walks on while the hand turns); a ground robot's
+    seeds do not."""
+    from hsmap.slam.odometry import OdometryModel
+    from hsmap.slam.prediction import MotionPrediction
+
+    a = np.array([0.0, 0.0, 1.5, 0.0, 0.0, 0.0])
+    b = np.array([0.6, 0.1, 1.45, np.deg2rad(-10.0), 0.0, np.deg2rad(-40.0)])
+    walk = np.array([1.2, 0.2, 1.4, b[3], b[4], b[5]])
+
+    def seeds(**kw):
+        cfg = SlamConfig(dof=6, use_odometry=False)
+        pred = MotionPrediction(cfg, OdometryModel(cfg, learn=False, wheel_edges=False, prior=False),
+                                _search_box(**kw))
+        pred.poses.extend([a, b])
+        pred.stamps.extend([0.0, 0.5])
+        pred.start(Frame(stamp=1.0, index=2, extrinsic3d=np.zeros(6), cloud3d=np.zeros((10, 3))))
+        return pred.seeds()[0]
+
+    assert np.any(np.all(np.isclose(seeds(), walk), axis=1))
+    assert not np.any(np.all(np.isclose(seeds(prior=True), walk), axis=1))
+
+
+def test_a_hand_held_search_stops_where_two_searches_agree_short_of_a_lost_frame():
+    """A registration a little below the recent inlier ratios is searched again until two searches agree (a
+    scene that changed) and never over the yaw circle; one far below them (lost) goes on through every widened
+    box and the yaw circle."""
+    from hsmap.slam.costs import Costs
+    from hsmap.slam.search import SearchBox
+
+    calls = []
+
+    class Box(SearchBox):
+        def _search(self, scan, target, bounds, guesses, config, rng):
+            calls.append(bounds)
+            return types.SimpleNamespace(pose=np.zeros(6), inlier_ratio=ratio)
+
+        def best(self, scan, target, candidates):
+            return candidates[0]
+
+    box = Box(SlamConfig(dof=6), Costs())
+    for r in (0.80, 0.81, 0.79, 0.80, 0.805):
+        box.record(r, True)
+    guesses, half = np.zeros((2, 6)), np.full(6, 0.1)
+    ratio = 0.74  # below the recent spread, above min_inlier_share of the median
+    first = types.SimpleNamespace(pose=np.zeros(6), inlier_ratio=ratio)
+    _, widened, confirmed = box.widened(None, None, first, guesses, half, np.random.default_rng(0))
+    assert widened and confirmed and len(calls) == 1
+    calls.clear()
+    ratio = 0.5
+    first = types.SimpleNamespace(pose=np.zeros(6), inlier_ratio=ratio)
+    box.widened(None, None, first, guesses, half, np.random.default_rng(0))
+    assert len(calls) > len(SlamConfig().widen_factors)
 
 
 def test_the_tight_box_follows_the_prediction_s_uncertainty():

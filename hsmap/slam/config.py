@@ -145,15 +145,17 @@ class SlamConfig:
         constant-velocity prediction) where that exceeds the configured ranges (a sensor carried by hand).
     min_inlier_share : float
         6-DOF runs without a prior: a registration whose inlier ratio is below this share of the median of the
-        recent confirmed frames' is searched again in wider boxes (``widen_factors``); the one that aligns the
-        scan best is kept, and is not a keyframe unless it passes this check or two searches agree on it.
+        recent confirmed frames', or below that median by more than ``verify_sigmas`` times their spread, is
+        searched again in wider boxes (``widen_factors``); of every candidate of the frame, the one that aligns
+        the scan best is kept, and is not a keyframe unless it passes this check or two searches agree on it.
     widen_factors : tuple of floats
         The search box's half-widths are multiplied by these in turn (1: the same box searched again, longer;
-        each search is refined) for a registration that fails the inlier check, until one passes.
+        each search is refined) for a registration that fails the inlier check, until one passes (or, above
+        ``min_inlier_share`` of the median, two searches agree).
     global_search : bool
-        6-DOF runs without a prior: a registration that fails the inlier check in every widened box is searched
-        over the rest of the yaw circle (:meth:`hsmap.slam.search.SearchBox.widened`), in sectors as wide as the
-        widest box, before it is given up (a turn faster than the motion predicts).
+        6-DOF runs without a prior: a registration below ``min_inlier_share`` of the median in every widened box
+        is searched over the rest of the yaw circle (:meth:`hsmap.slam.search.SearchBox.widened`), in sectors as
+        wide as the widest box, before it is given up (a turn faster than the motion predicts).
     loop_closure : LoopClosureConfig
         Loop-closure candidates, matching and verification.
     graph : KeyframeGraphConfig

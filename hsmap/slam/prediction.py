@@ -95,11 +95,18 @@ class MotionPrediction:
 
     def seeds(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Initial guesses (K, dof) for the frame and the half-widths (dof,) of the box around them: the previous
-        pose, the last motion repeated, the odometry's prediction, the recent poses' mean, a prior's pose."""
+        pose, the last motion repeated (with :attr:`SearchBox.follows_motion`, also its translation alone, in the
+        world, at the previous orientation), the odometry's prediction, the recent poses' mean, a prior's pose."""
         prev = self.poses[-1]
         seeds = [prev]
         if len(self.poses) >= 2:
             seeds.append(compose(prev, relative(self.poses[-2], prev)))
+            if self.search.follows_motion:
+                # a sensor carried by hand: the carrier walks on while the hand turns it at will, so the last
+                # step's translation in the world with the orientation held is a motion of its own
+                walk = prev.copy()
+                walk[: self.dim] += prev[: self.dim] - self.poses[-2][: self.dim]
+                seeds.append(walk)
         step = self.odometry.step(self.frame)
         if step is not None:
             seeds.append(compose(prev, step))

@@ -1,6 +1,7 @@
 """Where the tracker searches for a frame (:class:`SearchBox`): the box around the seeds, which in 6-DOF runs
-without a prior follows the recent motion, and the wider searches of a registration that fails the inlier check;
-in 3-DOF runs, a small search in the box of the prediction's uncertainty where that box is the smaller
+without a prior follows the recent motion, the wider searches of a registration that fails the inlier check, and
+the one score on which every candidate registration of a frame is compared (:func:`alignment_score`); in 3-DOF
+runs, a small search in the box of the prediction's uncertainty where that box is the smaller
 (:meth:`SearchBox.tight`)."""
 
 from __future__ import annotations
@@ -19,10 +20,11 @@ from ..registration.icp import (
     default_bounds,
     harmony_icp,
 )
+from ..registration.refine import alignment_cost
 from .config import SlamConfig
 from .costs import Costs
 
-__all__ = ["SearchBox", "same_pose", "TIGHT_HARMONY"]
+__all__ = ["SearchBox", "alignment_score", "same_pose", "TIGHT_HARMONY"]
 
 #: The Harmony Search of a tight box (:meth:`SearchBox.tight`): memory size, harmonies per round, rounds without
 #: a cell-sized improvement before it stops, and rounds drawn at once (one more than that: a search that stops
@@ -37,13 +39,22 @@ def same_pose(a: NDArray[np.float64], b: NDArray[np.float64]) -> bool:
     return bool(np.linalg.norm(d[:3]) <= 0.05 and np.abs(wrap_angle(d[3:])).max() <= np.deg2rad(1.0))
 
 
+def alignment_score(scan: NDArray[np.float64], target: RegistrationTarget, res: RegistrationResult,
+                    threshold: float) -> float:
+    """How well the registration ``res`` aligns the whole ``scan`` with ``target``: the mean point-to-plane residual
+    truncated at ``threshold``, an unmatched point counting as ``threshold``, as a fraction of it (lower is better).
+    Candidates of one frame compare on it alike: the same points against the same target, whatever subset each
+    search scored and refined."""
+    return alignment_cost(scan, target, res.pose, threshold)
+
+
 class SearchBox:
     """The half-widths of the search box and the inlier check of a registration.
 
     The box is the configured one (``registration.*_range``; with a prior, ``prior_*_range``). In 6-DOF runs
     without a prior (:attr:`follows_motion`) it is at least :meth:`motion_spread` wide, and a registration whose
-    inlier ratio falls below ``min_inlier_share`` of the recent confirmed frames' median is searched again
-    (:meth:`widened`).
+    inlier ratio falls below the recent confirmed frames' (:meth:`inlier_floor`) is searched again
+    (:meth:`widened`); the frame keeps the candidate that aligns its scan best (:func:`alignment_score`).
     """
 
     def __init__(self, config: SlamConfig, costs: Costs, prior: bool = False) -> None:
@@ -124,11 +135,31 @@ class SearchBox:
         recent = [r for r, ok in self._recent if ok]
         return float(np.median(recent)) if len(recent) >= 3 else None
 
-    def passes(self, res: RegistrationResult) -> bool:
-        """Whether a registration matches at least ``min_inlier_share`` of the recent confirmed frames' inlier
-        ratio."""
+    def inlier_floor(self) -> float | None:
+        """The inlier ratio a registration must reach to pass the check (None with fewer than three recent confirmed
+        frames): ``min_inlier_share`` of their median, and, with :attr:`follows_motion`, no further below it than
+        ``verify_sigmas`` times their spread (1.4826 times the median absolute deviation), whichever is higher.
+        Where the recent ratios hardly vary, a drop they never showed is suspect however small a share it is."""
         ref = self.inlier_reference()
-        return ref is None or res.inlier_ratio >= self.config.min_inlier_share * ref
+        if ref is None:
+            return None
+        floor = self.config.min_inlier_share * ref
+        if self.follows_motion:
+            recent = np.array([r for r, ok in self._recent if ok])
+            spread = 1.4826 * float(np.median(np.abs(recent - ref)))
+            floor = max(floor, ref - self.config.verify_sigmas * spread)
+        return floor
+
+    def lost(self, res: RegistrationResult) -> bool:
+        """Whether a registration matches less than ``min_inlier_share`` of the recent confirmed frames' median
+        inlier ratio: far enough below it that the search may have lost the frame's yaw altogether."""
+        ref = self.inlier_reference()
+        return ref is not None and res.inlier_ratio < self.config.min_inlier_share * ref
+
+    def passes(self, res: RegistrationResult) -> bool:
+        """Whether a registration reaches the recent confirmed frames' inlier ratio (:meth:`inlier_floor`)."""
+        floor = self.inlier_floor()
+        return floor is None or res.inlier_ratio >= floor
 
     def widened(self, scan: NDArray[np.float64], target: RegistrationTarget, res: RegistrationResult,
                 guesses: NDArray[np.float64], half: NDArray[np.float64], rng: np.random.Generator
@@ -136,9 +167,10 @@ class SearchBox:
         """A registration that fails the inlier check (:meth:`passes`) searched again in boxes of ``half`` times
         each of ``widen_factors`` around ``guesses`` (each half-width at most the larger of ``half``'s and the box
         :func:`hsmap.registration.icp.harmony_icp` searches without a guess), with a longer search, until one
-        passes; where none does, with ``global_search``, the rest of the yaw circle (:meth:`_yaw_sectors`). Returns
-        the registration that aligns the scan best (point-to-plane cost), whether a search was repeated, and
-        whether the kept one passes the check or two searches agree on it."""
+        passes, or, for one not :meth:`lost`, until two searches agree (:func:`same_pose`: a scene that changed);
+        where every search is lost, with ``global_search``, the rest of the yaw circle (:meth:`_yaw_sectors`).
+        Returns the registration that aligns the scan best (:func:`alignment_score`), whether a search was
+        repeated, and whether the kept one passes the check or two searches agree on it."""
         cfg = self.config
         if not self.follows_motion or self.passes(res):
             return res, False, True
@@ -152,27 +184,38 @@ class SearchBox:
             h = np.minimum(half * factor, reach)
             bounds = np.column_stack([guesses.min(0) - h, guesses.max(0) + h])
             tried.append(self._search(scan, target, bounds, guesses, wide_cfg, rng))
-            if self.passes(tried[-1]):
+            last = tried[-1]
+            if self.passes(last) or (not self.lost(last) and any(same_pose(last.pose, r.pose) for r in tried[:-1])):
                 break
-        if cfg.global_search and not self.passes(tried[-1]):
+        if cfg.global_search and all(self.lost(r) for r in tried):
             for box in self._yaw_sectors(bounds):
                 centre = guesses.copy()
                 centre[:, 5] = box[5].mean()
                 tried.append(self._search(scan, target, box, centre, wide_cfg, rng))
-        best = min(tried, key=lambda r: r.cost)
+        best = self.best(scan, target, tried)
         agree = sum(same_pose(best.pose, r.pose) for r in tried) >= 2
         return best, True, self.passes(best) or agree
 
-    def settled(self, searched: RegistrationResult, checked: RegistrationResult, verified: bool
-                ) -> tuple[RegistrationResult, bool]:
+    def best(self, scan: NDArray[np.float64], target: RegistrationTarget, candidates: Sequence[RegistrationResult]
+             ) -> RegistrationResult:
+        """The candidate registration of ``scan`` that aligns it best with ``target`` (:func:`alignment_score`;
+        the earlier on a tie)."""
+        threshold = self.config.registration.threshold
+        scores = [alignment_score(scan, target, r, threshold) for r in candidates]
+        return candidates[int(np.argmin(scores))]
+
+    def settled(self, scan: NDArray[np.float64], target: RegistrationTarget, searched: RegistrationResult,
+                checked: RegistrationResult, verified: bool) -> tuple[RegistrationResult, bool]:
         """Between the box's registration ``searched`` and the one the motion check kept, ``checked`` (confirmed
-        or not: ``verified``): with :attr:`follows_motion`, a registration that passes the inlier check stands
-        against a retry around the prediction that fails it (the prediction of a sensor carried by hand is
-        weaker evidence than the recent frames' inliers); else ``checked`` as it is."""
-        if (self.follows_motion and checked is not searched and self.passes(searched)
-                and not self.passes(checked)):
-            return searched, True
-        return checked, verified
+        or not: ``verified``): with :attr:`follows_motion`, the one that aligns ``scan`` best with ``target``
+        (:meth:`best`; the prediction of a sensor carried by hand is no evidence for a pose), confirmed where it
+        passes the inlier check, where the two agree (:func:`same_pose`), or, being ``checked``, where the motion
+        check confirmed it; else ``checked`` as it is."""
+        if not self.follows_motion or checked is searched:
+            return checked, verified
+        kept = self.best(scan, target, [searched, checked])
+        agree = same_pose(searched.pose, checked.pose)
+        return kept, self.passes(kept) or agree or (kept is checked and verified)
 
     def _search(self, scan: NDArray[np.float64], target: RegistrationTarget, bounds: NDArray[np.float64],
                 guesses: NDArray[np.float64], config: RegistrationConfig, rng: np.random.Generator

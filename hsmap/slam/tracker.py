@@ -211,7 +211,7 @@ class HsSlam:
         self.prediction.first_registration(res)
         searched = res
         res, retried, verified = self.verifier.verify(scan, target, res, self.rng)
-        res, verified = self.search.settled(searched, res, verified)
+        res, verified = self.search.settled(scan, target, searched, res, verified)
         checked = (retried or widened, verified and (matched or self.search.passes(res)))
         if times is not None:
             res, scan = self.deskewing.refined(scan, times, target, res)

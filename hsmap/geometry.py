@@ -149,7 +149,7 @@ def single_2d(*poses: object) -> bool:
 
 def _one_se2(a: ArrayLike, b: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
     """``a`` and ``b`` as float arrays when both are one 2D pose (3,), else None (the matrix path)."""
-    if isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.shape == (3,) and b.shape == (3,):
+    if single_2d(a, b):
         return a.astype(float, copy=False), b.astype(float, copy=False)
     return None
 

@@ -1,6 +1,6 @@
 """Where the tracker searches for a frame (:class:`SearchBox`): the box around the seeds, which in 6-DOF runs
 without a prior follows the recent motion, the wider searches of a registration that fails the inlier check, and
-the one score on which every candidate registration of a frame is compared (:func:`alignment_score`); in 3-DOF
+the one score on which every candidate registration of a frame is compared (:meth:`SearchBox.best`); in 3-DOF
 runs, a small search in the box of the prediction's uncertainty where that box is the smaller
 (:meth:`SearchBox.tight`)."""
 
@@ -24,7 +24,7 @@ from ..registration.refine import alignment_cost
 from .config import SlamConfig
 from .costs import Costs
 
-__all__ = ["SearchBox", "alignment_score", "same_pose", "TIGHT_HARMONY"]
+__all__ = ["SearchBox", "same_pose", "TIGHT_HARMONY"]
 
 #: The Harmony Search of a tight box (:meth:`SearchBox.tight`): memory size, harmonies per round, rounds without
 #: a cell-sized improvement before it stops, and rounds drawn at once (one more than that: a search that stops
@@ -39,22 +39,13 @@ def same_pose(a: NDArray[np.float64], b: NDArray[np.float64]) -> bool:
     return bool(np.linalg.norm(d[:3]) <= 0.05 and np.abs(wrap_angle(d[3:])).max() <= np.deg2rad(1.0))
 
 
-def alignment_score(scan: NDArray[np.float64], target: RegistrationTarget, res: RegistrationResult,
-                    threshold: float) -> float:
-    """How well the registration ``res`` aligns the whole ``scan`` with ``target``: the mean point-to-plane residual
-    truncated at ``threshold``, an unmatched point counting as ``threshold``, as a fraction of it (lower is better).
-    Candidates of one frame compare on it alike: the same points against the same target, whatever subset each
-    search scored and refined."""
-    return alignment_cost(scan, target, res.pose, threshold)
-
-
 class SearchBox:
     """The half-widths of the search box and the inlier check of a registration.
 
     The box is the configured one (``registration.*_range``; with a prior, ``prior_*_range``). In 6-DOF runs
     without a prior (:attr:`follows_motion`) it is at least :meth:`motion_spread` wide, and a registration whose
     inlier ratio falls below the recent confirmed frames' (:meth:`inlier_floor`) is searched again
-    (:meth:`widened`); the frame keeps the candidate that aligns its scan best (:func:`alignment_score`).
+    (:meth:`widened`); the frame keeps the candidate that aligns its scan best (:meth:`best`).
     """
 
     def __init__(self, config: SlamConfig, costs: Costs, prior: bool = False) -> None:
@@ -169,7 +160,7 @@ class SearchBox:
         :func:`hsmap.registration.icp.harmony_icp` searches without a guess), with a longer search, until one
         passes, or, for one not :meth:`lost`, until two searches agree (:func:`same_pose`: a scene that changed);
         where every search is lost, with ``global_search``, the rest of the yaw circle (:meth:`_yaw_sectors`).
-        Returns the registration that aligns the scan best (:func:`alignment_score`), whether a search was
+        Returns the registration that aligns the scan best (:meth:`best`), whether a search was
         repeated, and whether the kept one passes the check or two searches agree on it."""
         cfg = self.config
         if not self.follows_motion or self.passes(res):
@@ -198,10 +189,12 @@ class SearchBox:
 
     def best(self, scan: NDArray[np.float64], target: RegistrationTarget, candidates: Sequence[RegistrationResult]
              ) -> RegistrationResult:
-        """The candidate registration of ``scan`` that aligns it best with ``target`` (:func:`alignment_score`;
-        the earlier on a tie)."""
+        """The candidate registration of ``scan`` that aligns it best with ``target``: the lowest mean point-to-plane
+        residual of the whole scan, truncated at the registration's threshold
+        (:func:`hsmap.registration.refine.alignment_cost`), the earlier on a tie. Candidates compare on it alike:
+        the same points against the same target, whatever subset each search scored and refined."""
         threshold = self.config.registration.threshold
-        scores = [alignment_score(scan, target, r, threshold) for r in candidates]
+        scores = [alignment_cost(scan, target, r.pose, threshold) for r in candidates]
         return candidates[int(np.argmin(scores))]
 
     def settled(self, scan: NDArray[np.float64], target: RegistrationTarget, searched: RegistrationResult,

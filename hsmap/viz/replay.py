@@ -49,7 +49,7 @@ class SlamRecorder:
         hv.log_legend(self.rec, _live_legend(dof))
         self._map = hv.PointMapLogger(self.rec, block=10, voxel=0.05 if dof == 3 else 0.15)
         # the frames are logged in blocks, as columns: a few calls per block instead of a few per frame
-        self._frames = hv.FrameLogger(self.rec, block=64, cloud_voxel=0.25)
+        self._frames = hv.FrameLogger(self.rec, block=256, cloud_voxel=0.25)
         self._keyscans: list[Frame] = []  # 3-DOF: the keyframes' scans, for the grid at their final poses
 
     def on_frame(self, frame: Frame, result: Any, slam: Any = None) -> None:

@@ -67,6 +67,7 @@ STAGES = {
     "KeyframeGraph.attach": ("hsmap.slam.keyframes", "KeyframeGraph", "attach"),
     "KeyframeGraph.is_keyframe": ("hsmap.slam.keyframes", "KeyframeGraph", "is_keyframe"),
     "SlamRecorder.on_frame (recording, --recording)": ("hsmap.viz.replay", "SlamRecorder", "on_frame"),
+    "SlamRecorder.finish (final path and grids)": ("hsmap.viz.replay", "SlamRecorder", "finish"),
 }
 
 

@@ -538,3 +538,14 @@ def test_a_block_of_scans_gives_each_scans_own_finite_points():
     each = [s.points() for s in scans]
     assert counts.tolist() == [len(p) for p in each] and counts[-1] == 0
     assert np.array_equal(pts[:, :2], np.concatenate(each)) and not pts[:, 2].any()
+
+
+def test_the_slam_recorder_does_not_import_matplotlib():
+    """``hsmap slam``'s recording needs rerun only: importing the recorder leaves matplotlib unloaded (a second of
+    start-up a run)."""
+    import subprocess
+    import sys
+
+    code = "import sys, hsmap.viz.replay, hsmap.slam; print('matplotlib' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"

@@ -17,7 +17,6 @@ from ..maps.grid import grid_from_scans, grids_from_scan_prefixes
 from ..maps.mapping import first_per_voxel
 from ..slam import SlamConfig, frame_points
 from ..trajectory import Trajectory, nearest_index
-from . import map_figures
 from . import rerun as hv
 from .rerun import series_legend
 
@@ -355,7 +354,9 @@ def record_map(path: Path, run2, run3, grids, fusion, seg, graph, doors, pts2, p
                                   opacity=0.6)
         hv.log_room_labels(rec, seg.labels, g.geometry)
         if graph.number_of_nodes():
-            hv.log_room_graph(rec, map_figures.graph_for_plot(graph), geometry=g.geometry, z=2.9)
+            from .map_figures import graph_for_plot  # matplotlib: not for a SLAM run's recording
+
+            hv.log_room_graph(rec, graph_for_plot(graph), geometry=g.geometry, z=2.9)
         m3 = np.asarray(run3.map_points, dtype=float)
         low = m3[:, 2] <= 2.4 if len(m3) else np.zeros(0, bool)
         hv.log_points(rec, "world/map/points3d", m3[low], color_by_height=True, z_range=(0.0, 2.8),

@@ -9,6 +9,7 @@ the same frames (the machine is shared: compare counts, and the ratios of runs m
 (:class:`hsmap.registration.icp.RegistrationConfig`) is set to VALUE, for a change's effect on time, work and error.
 
     .venv/bin/python benchmarks/slam_breakdown.py --input intel --max-frames 3000 --seed 1
+    .venv/bin/python benchmarks/slam_breakdown.py --input intel --max-frames 3000 --clock cpu --recording --threads 2
     .venv/bin/python benchmarks/slam_breakdown.py --input fr079 --max-frames 3000 --seed 1 \
         --compare stop_within_cell=False --no-instrument
 """
@@ -19,6 +20,7 @@ import argparse
 import functools
 import os
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -57,11 +59,20 @@ STAGES = {
     "FrameMotions.record (smoothing's scan matches inline)": ("hsmap.slam.motions", "FrameMotions", "record"),
     "scan_motions (smoothing's scan matches)": ("hsmap.slam.motions", None, "scan_motions"),
     "smoothing (after the frames)": ("hsmap.slam.tracker", None, "smooth_with_odometry"),
+    "MotionPrediction.first_registration": ("hsmap.slam.prediction", "MotionPrediction", "first_registration"),
+    "MotionPrediction.kept_registration": ("hsmap.slam.prediction", "MotionPrediction", "kept_registration"),
+    "SearchBox.escapes": ("hsmap.slam.search", "SearchBox", "escapes"),
+    "SearchBox.widened": ("hsmap.slam.search", "SearchBox", "widened"),
+    "SearchBox.settled": ("hsmap.slam.search", "SearchBox", "settled"),
+    "KeyframeGraph.attach": ("hsmap.slam.keyframes", "KeyframeGraph", "attach"),
+    "KeyframeGraph.is_keyframe": ("hsmap.slam.keyframes", "KeyframeGraph", "is_keyframe"),
+    "SlamRecorder.on_frame (recording, --recording)": ("hsmap.viz.replay", "SlamRecorder", "on_frame"),
+    "SlamRecorder.finish (final path and grids)": ("hsmap.viz.replay", "SlamRecorder", "finish"),
 }
 
 
-def _instrument(clock: dict) -> list:
-    """Wrap each stage's function with a clock; returns the undo list."""
+def _instrument(clock: dict, now=time.perf_counter) -> list:
+    """Wrap each stage's function with the clock ``now``; returns the undo list."""
     import importlib
 
     undo = []
@@ -74,12 +85,12 @@ def _instrument(clock: dict) -> list:
         clock[name] = [0.0, 0]
 
         def timed(*a, __orig=orig, __name=name, **k):
-            t0 = time.perf_counter()
+            t0 = now()
             try:
                 return __orig(*a, **k)
             finally:
                 c = clock[__name]
-                c[0] += time.perf_counter() - t0
+                c[0] += now() - t0
                 c[1] += 1
 
         functools.update_wrapper(timed, orig)
@@ -88,34 +99,51 @@ def _instrument(clock: dict) -> list:
     return undo
 
 
-def run_once(frames, rel, seed: int, threads: int, instrument: bool, change: dict | None = None) -> dict:
+def run_once(frames, rel, seed: int, threads: int, instrument: bool, change: dict | None = None, *,
+             clock_name: str = "wall", recording: Path | None = None) -> dict:
     import numpy as np
     from slam import _relations  # benchmarks/slam.py
 
+    from hsmap._helper_process import helper_cpu_seconds
     from hsmap.slam import SlamConfig, run_slam
 
     clock: dict = {}
-    undo = _instrument(clock) if instrument else []
+    now = time.thread_time if clock_name == "cpu" else time.perf_counter
+    undo = _instrument(clock, now) if instrument else []
     try:
-        t0 = time.perf_counter()
+        t0, c0, h0 = time.perf_counter(), time.process_time(), helper_cpu_seconds()
         cfg = SlamConfig(dof=3)
         for k, v in (change or {}).items():
             setattr(cfg.registration, k, v)
-        res = run_slam(frames, cfg, rng=seed, progress=False, threads=threads)
-        wall = time.perf_counter() - t0
+        recorder = None
+        if recording is not None:
+            from hsmap.viz.replay import SlamRecorder
+
+            recorder = SlamRecorder(recording, cfg)
+        res = run_slam(frames, cfg, rng=seed, progress=False, threads=threads,
+                       on_frame=None if recorder is None else recorder.on_frame)
+        if recorder is not None:
+            recorder.finish(res)
+            recorder.close()
+        wall, cpu, helper = time.perf_counter() - t0, time.process_time() - c0, helper_cpu_seconds() - h0
     finally:
         for holder, fn, orig in undo:
             setattr(holder, fn, orig)
     secs = np.array([f.seconds for f in res.frames])
+    whole = cpu if clock_name == "cpu" else wall
     return {
         "seed": seed,
         "registration_change": change or {},
+        "recording": recording is not None,
+        "clock": clock_name,
         "wall_seconds": wall,
+        "cpu_seconds": cpu,
+        "helper_cpu_seconds": helper,
         "frame_ms_median": 1e3 * float(np.median(secs)),
         "frame_ms_mean": 1e3 * float(np.mean(secs)),
         "costs": res.costs,
         "relations": _relations(res.trajectory, rel, True),
-        "stages": {k: {"seconds": v[0], "calls": v[1], "share": v[0] / wall} for k, v in clock.items()},
+        "stages": {k: {"seconds": v[0], "calls": v[1], "share": v[0] / whole} for k, v in clock.items()},
     }
 
 
@@ -126,6 +154,10 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, nargs="+", default=[1])
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--no-instrument", action="store_true", help="time the run alone")
+    ap.add_argument("--clock", choices=["wall", "cpu"], default="wall",
+                    help="cpu: each stage's CPU time on the main thread, shares of the process's CPU time (a "
+                         "loaded machine's wall times say little)")
+    ap.add_argument("--recording", action="store_true", help="record the run as hsmap slam does (slam.rrd)")
     ap.add_argument("--compare", default=None, metavar="FIELD=VALUE",
                     help="also run with this RegistrationConfig field changed (a Python literal), alternated")
     ap.add_argument("--out", default=None)
@@ -155,15 +187,19 @@ def main(argv=None) -> int:
     runs = []
     for seed in args.seed:
         for change in variants:
-            r = run_once(frames, rel, seed, args.threads, not args.no_instrument, change)
+            with tempfile.TemporaryDirectory() as tmp:
+                r = run_once(frames, rel, seed, args.threads, not args.no_instrument, change, clock_name=args.clock,
+                             recording=Path(tmp) / "slam.rrd" if args.recording else None)
             runs.append(r)
             t = r["relations"]["all"]["translation_m"]["mean"]
             print(f"{args.input} seed {seed} {change or 'default'}: {n} frames, {r['wall_seconds']:.1f} s wall, "
+                  f"{r['cpu_seconds']:.1f} s CPU (+ {r['helper_cpu_seconds']:.1f} s helper), "
                   f"{r['frame_ms_median']:.2f} ms/frame median, relations {t:.4f} m")
             for k, v in r["stages"].items():
                 print(f"  {k:48s} {v['seconds']:8.2f} s {100 * v['share']:5.1f} % {v['calls']:7d} calls")
             print("  costs:", r["costs"], flush=True)
     out = {"benchmark": "slam_breakdown", "input": args.input, "frames": n, "threads": args.threads,
+           "clock": args.clock, "recording": args.recording,
            "runs": runs, "machine": host}
     finish(out, Path(args.out or ROOT / "reports/benchmarks" / f"slam_breakdown_{args.input}.json"))
     return 0

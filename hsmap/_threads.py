@@ -93,10 +93,13 @@ _started = False
 def using_threads(threads: int | None = None) -> Iterator[int]:
     """Run the block with ``threads`` compute threads (see :func:`compute_threads`); an inner block without an
     explicit count keeps the outer block's. Yields the count."""
+    outer = getattr(_local, "threads", None)
+    if threads is None and outer is not None:  # numba runs on the outer block's count already (only these set it)
+        yield outer
+        return
     import numba
 
-    outer = getattr(_local, "threads", None)
-    n = outer if (threads is None and outer is not None) else compute_threads(threads)
+    n = compute_threads(threads)
     before = _get_num_threads()
     _local.threads = n
     numba.set_num_threads(n)

@@ -251,7 +251,11 @@ def test_thread_count_from_the_environment(monkeypatch):
     with using_threads() as n:
         assert n == 1 and numba.get_num_threads() == 1
         with using_threads() as inner:  # an inner block keeps the outer count
-            assert inner == 1
+            assert inner == 1 and numba.get_num_threads() == 1
+            with using_threads(most) as explicit, using_threads() as innermost:
+                assert explicit == innermost == most and numba.get_num_threads() == most
+            assert numba.get_num_threads() == 1
+        assert numba.get_num_threads() == 1
     assert numba.get_num_threads() == before
     for bad in ("0", "two"):
         monkeypatch.setenv("HSMAP_THREADS", bad)

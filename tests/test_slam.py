@@ -1179,3 +1179,17 @@ def test_good_odometry_gets_the_tight_search_and_a_slip_the_full_one():
     assert costs["harmony_evaluations"] < 200 * costs["registrations"]  # the full search alone: 300 or more
     err = relative_errors(slam.trajectory.poses, ROUTE[: len(frames)])
     assert np.abs(err[:, :2]).max() < 0.03, np.abs(err[:, :2]).max(0)
+
+
+def test_the_inlier_check_follows_every_frame_recorded_after_it_was_asked():
+    """The recent frames' inlier reference and floor, asked for several times a frame, change with each frame
+    recorded: a drop that fails against high ratios passes once the recent ratios have fallen."""
+    box = _search_box((0.8,) * 5, dof=3)
+    drop = types.SimpleNamespace(inlier_ratio=0.5)
+    assert not box.passes(drop) and box.inlier_reference() == pytest.approx(0.8)
+    for _ in range(10):
+        box.record(0.55, True)
+    assert box.passes(drop) and box.inlier_reference() == pytest.approx(0.55)
+    for _ in range(10):
+        box.record(0.9, False)  # unconfirmed frames leave no reference
+    assert box.inlier_reference() is None and box.inlier_floor() is None and box.passes(drop)

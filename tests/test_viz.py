@@ -520,3 +520,32 @@ def test_voronoi_panel_says_why_fewer_doors_than_lines():
     assert _final_title(3, 2, 2) == "(h) segmentation: 3 rooms, 2 doors"
     assert _final_title(3, 2, 3) == ("(h) segmentation: 3 rooms, 2 doors (3 lines drawn:\n"
                                      "a line is a door only between two final rooms, one per passage)")
+
+
+def test_a_block_of_scans_gives_each_scans_own_finite_points():
+    """The frame logger's 2D scan points, computed for a block at once, are each scan's own valid returns in order
+    (NaN, short and long readings dropped, scans of different sizes and range limits)."""
+    from hsmap.viz.rerun_loggers import _scan_points
+
+    rng = np.random.default_rng(4)
+    scans = []
+    for m, lo, hi in ((361, 0.1, 10.0), (180, 0.5, 4.0), (90, 0.0, np.inf), (50, 0.2, 1.0)):
+        r = rng.uniform(0.0, 12.0, m)
+        r[rng.random(m) < 0.1] = np.nan
+        scans.append(LaserScan2D(r, np.linspace(-2.0, 2.0, m), lo, hi))
+    scans[-1].ranges[:] = 5.0  # nothing within its limits
+    pts, counts = _scan_points(scans)
+    each = [s.points() for s in scans]
+    assert counts.tolist() == [len(p) for p in each] and counts[-1] == 0
+    assert np.array_equal(pts[:, :2], np.concatenate(each)) and not pts[:, 2].any()
+
+
+def test_the_slam_recorder_does_not_import_matplotlib():
+    """``hsmap slam``'s recording needs rerun only: importing the recorder leaves matplotlib unloaded (a second of
+    start-up a run)."""
+    import subprocess
+    import sys
+
+    code = "import sys, hsmap.viz.replay, hsmap.slam; print('matplotlib' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"

@@ -53,6 +53,7 @@ class SearchBox:
         self.costs = costs
         self.follows_motion = config.dof == 6 and not prior
         self._recent: list[tuple[float, bool]] = []  # the last frames' inlier ratios and whether confirmed
+        self._inliers: tuple[float | None, float | None] | None = None  # (reference, floor) of _recent, once asked
         self._tight_config: tuple[RegistrationConfig, RegistrationConfig] | None = None
 
     def tight(self, prediction: tuple[NDArray[np.float64], NDArray[np.float64]] | None, half: NDArray[np.float64]
@@ -95,6 +96,7 @@ class SearchBox:
     def record(self, inlier_ratio: float, verified: bool) -> None:
         """Remember a tracked frame's inlier ratio and whether it was confirmed."""
         self._recent = [*self._recent, (float(inlier_ratio), bool(verified))][-self.config.motion_window:]
+        self._inliers = None
 
     def ranges(self, poses: Sequence[NDArray[np.float64]], prior: bool) -> NDArray[np.float64]:
         """The box's half-widths (dof,) for the frame after ``poses``."""
@@ -123,23 +125,31 @@ class SearchBox:
     def inlier_reference(self) -> float | None:
         """The median inlier ratio of the confirmed ones among the last ``motion_window`` tracked frames (None with
         fewer than three)."""
-        recent = [r for r, ok in self._recent if ok]
-        return float(np.median(recent)) if len(recent) >= 3 else None
+        return self._inlier_levels()[0]
 
     def inlier_floor(self) -> float | None:
         """The inlier ratio a registration must reach to pass the check (None with fewer than three recent confirmed
         frames): ``min_inlier_share`` of their median, and, with :attr:`follows_motion`, no further below it than
         ``verify_sigmas`` times their spread (1.4826 times the median absolute deviation), whichever is higher.
         Where the recent ratios hardly vary, a drop they never showed is suspect however small a share it is."""
-        ref = self.inlier_reference()
-        if ref is None:
-            return None
+        return self._inlier_levels()[1]
+
+    def _inlier_levels(self) -> tuple[float | None, float | None]:
+        """:meth:`inlier_reference` and :meth:`inlier_floor`, computed once per :meth:`record` (a frame asks for
+        them several times)."""
+        if self._inliers is not None:
+            return self._inliers
+        recent = [r for r, ok in self._recent if ok]
+        if len(recent) < 3:
+            self._inliers = (None, None)
+            return self._inliers
+        ref = float(np.median(recent))
         floor = self.config.min_inlier_share * ref
         if self.follows_motion:
-            recent = np.array([r for r, ok in self._recent if ok])
-            spread = 1.4826 * float(np.median(np.abs(recent - ref)))
+            spread = 1.4826 * float(np.median(np.abs(np.array(recent) - ref)))
             floor = max(floor, ref - self.config.verify_sigmas * spread)
-        return floor
+        self._inliers = (ref, floor)
+        return self._inliers
 
     def lost(self, res: RegistrationResult) -> bool:
         """Whether a registration matches less than ``min_inlier_share`` of the recent confirmed frames' median

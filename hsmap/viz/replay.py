@@ -17,7 +17,6 @@ from ..maps.grid import grid_from_scans, grids_from_scan_prefixes
 from ..maps.mapping import first_per_voxel
 from ..slam import SlamConfig, frame_points
 from ..trajectory import Trajectory, nearest_index
-from . import map_figures
 from . import rerun as hv
 from .rerun import series_legend
 
@@ -49,7 +48,7 @@ class SlamRecorder:
         hv.log_legend(self.rec, _live_legend(dof))
         self._map = hv.PointMapLogger(self.rec, block=10, voxel=0.05 if dof == 3 else 0.15)
         # the frames are logged in blocks, as columns: a few calls per block instead of a few per frame
-        self._frames = hv.FrameLogger(self.rec, block=64, cloud_voxel=0.25)
+        self._frames = hv.FrameLogger(self.rec, block=256, cloud_voxel=0.25)
         self._keyscans: list[Frame] = []  # 3-DOF: the keyframes' scans, for the grid at their final poses
 
     def on_frame(self, frame: Frame, result: Any, slam: Any = None) -> None:
@@ -355,7 +354,9 @@ def record_map(path: Path, run2, run3, grids, fusion, seg, graph, doors, pts2, p
                                   opacity=0.6)
         hv.log_room_labels(rec, seg.labels, g.geometry)
         if graph.number_of_nodes():
-            hv.log_room_graph(rec, map_figures.graph_for_plot(graph), geometry=g.geometry, z=2.9)
+            from .map_figures import graph_for_plot  # matplotlib: not for a SLAM run's recording
+
+            hv.log_room_graph(rec, graph_for_plot(graph), geometry=g.geometry, z=2.9)
         m3 = np.asarray(run3.map_points, dtype=float)
         low = m3[:, 2] <= 2.4 if len(m3) else np.zeros(0, bool)
         hv.log_points(rec, "world/map/points3d", m3[low], color_by_height=True, z_range=(0.0, 2.8),

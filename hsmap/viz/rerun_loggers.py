@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 from typing import Any
 
@@ -71,13 +72,16 @@ class FrameLogger:
                            lidar2d_height=self.lidar2d_height)
             if isinstance(self.rec, Recording):
                 self.rec.rig_logged = True
-        scan = None if frame.scan2d is None else _points(frame.scan2d.points(), (2, 3), "points")
         cloud = None
         if frame.cloud3d is not None:
             cloud = _points(frame.cloud3d, (2, 3), "points")
             if self.cloud_voxel is not None:
                 cloud = first_per_voxel(cloud, self.cloud_voxel)
-        self._rows.append((int(index), stamp, _pose6(pose).copy(), scan, cloud))
+        p = np.array(pose, dtype=float)  # a copy: the caller's array may change before the block is sent
+        if p.shape not in ((3,), (6,)) or not all(map(math.isfinite, p.tolist())):
+            _pose6(p)  # raises, naming what is wrong
+        # the 2D scan's points are computed for the whole block at once (:func:`_scan_points`)
+        self._rows.append((int(index), stamp, p, frame.scan2d, cloud))
         if len(self._rows) >= self.block:
             self.flush()
 
@@ -103,17 +107,22 @@ class FrameLogger:
             return [rr.TimeColumn("scan", sequence=idx), when]
 
         everyone = list(range(len(rows)))
-        t, q = _translation_quaternion(np.stack([r[2] for r in rows]))
+        poses = [r[2] for r in rows]
+        same = len({p.shape for p in poses}) == 1  # (x, y, yaw) or 6-DOF poses, converted in one call
+        t, q = _translation_quaternion(np.stack(poses) if same else np.stack([_pose6(p) for p in poses]))
         s.send_columns(ROBOT, indexes=times(everyone), columns=rr.Transform3D.columns(translation=t, quaternion=q),
                        strict=True)
         for k, entity in ((3, f"{LIDAR2D}/scan"), (4, f"{LIDAR3D}/cloud")):
             sel = [i for i in everyone if rows[i][k] is not None]
             if not sel:
                 continue
-            pts = [rows[i][k] for i in sel]
-            pts = [np.column_stack([p, np.zeros(len(p))]) if p.shape[1] == 2 else p for p in pts]
-            lengths = np.array([len(p) for p in pts])
-            allp = np.concatenate(pts) if len(pts) else np.empty((0, 3))
+            if k == 3:
+                allp, lengths = _scan_points([rows[i][k] for i in sel])
+            else:
+                pts = [rows[i][k] for i in sel]
+                pts = [np.column_stack([p, np.zeros(len(p))]) if p.shape[1] == 2 else p for p in pts]
+                lengths = np.array([len(p) for p in pts])
+                allp = np.concatenate(pts)
             if k == 3:  # log_scan2d's colour and radius
                 cols = rr.Points3D.columns(positions=allp).partition(lengths)
                 style = rr.Points3D.columns(colors=np.tile(np.array([230, 90, 30], dtype=np.uint8), (len(sel), 1)),
@@ -123,6 +132,22 @@ class FrameLogger:
                                            ).partition(lengths)
                 style = rr.Points3D.columns(radii=np.full(len(sel), 0.02, dtype=np.float32))
             s.send_columns(entity, indexes=times(sel), columns=[*cols, *style], strict=True)
+
+
+def _scan_points(scans: list) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """The finite points of 2D scans (:meth:`hsmap.datasets.LaserScan2D.points`, at z = 0) computed in one pass:
+    all their points (N, 3), scan after scan, and each scan's count."""
+    r = np.concatenate([np.asarray(s.ranges, dtype=float).reshape(-1) for s in scans])
+    a = np.concatenate([np.asarray(s.angles, dtype=float).reshape(-1) for s in scans])
+    sizes = [np.asarray(s.ranges).size for s in scans]
+    which = np.repeat(np.arange(len(scans)), sizes)
+    lo = np.repeat([float(s.range_min) for s in scans], sizes)
+    hi = np.repeat([float(s.range_max) for s in scans], sizes)
+    ok = np.isfinite(r) & (r >= lo) & (r < hi)
+    r, a, which = r[ok], a[ok], which[ok]
+    pts = np.column_stack([r * np.cos(a), r * np.sin(a), np.zeros(len(r))])
+    finite = np.all(np.isfinite(pts), axis=1)
+    return pts[finite], np.bincount(which[finite], minlength=len(scans))
 
 
 class PointMapLogger:

@@ -247,3 +247,22 @@ def test_incremental_solver_drops_an_edge_switched_off_outside_it():
 def test_unknown_solver_is_refused():
     with pytest.raises(InputError, match="solver must be one of batch, incremental"):
         PoseGraph(3, solver="gauss")
+
+
+def test_chi2_quantile_matches_scipy_stats():
+    from scipy.stats import chi2
+
+    from hsmap.slam.posegraph import chi2_quantile
+
+    for p in (0.9, 0.95, 0.99, 0.999):
+        for dof in range(1, 7):
+            assert chi2_quantile(p, dof) == chi2.ppf(p, dof)
+
+
+def test_slam_and_pipeline_do_not_import_scipy_stats():
+    import subprocess
+    import sys
+
+    code = "import sys, hsmap.slam, hsmap.pipeline, hsmap.cli; print('scipy.stats' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"

@@ -31,13 +31,19 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import sparse
 from scipy.sparse import csgraph
-from scipy.stats import chi2
+from scipy.special import gammaincinv
 
 from ..errors import HsmapError, InputError, ShapeError
 from ..geometry import euler_to_matrix, matrix_to_euler, relative, wrap_angle
 
 __all__ = ["EdgeKind", "Edge", "PoseGraph", "OptimizationResult", "OptimizationError", "information_with_floor",
-           "SOLVERS"]
+           "SOLVERS", "chi2_quantile"]
+
+def chi2_quantile(probability: float, dof: int) -> float:
+    """The ``probability`` quantile of chi-square with ``dof`` degrees of freedom (scipy.stats' ``chi2.ppf``,
+    without importing scipy.stats)."""
+    return float(2.0 * gammaincinv(dof / 2.0, probability))
+
 
 #: The ways :meth:`PoseGraph.optimize` solves the graph.
 SOLVERS = ("batch", "incremental")
@@ -152,7 +158,7 @@ class PoseGraph:
         self.dof = dof
         self.dim = 2 if dof == 3 else 3
         self.loop_kernel = float(loop_kernel)
-        self.gate = float(chi2.ppf(gate_probability, dof))
+        self.gate = chi2_quantile(gate_probability, dof)
         self._P = np.zeros((64, dof))
         self._n = 0
         self.edges: list[Edge] = []

@@ -35,11 +35,11 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from numpy.typing import ArrayLike, NDArray
-from scipy.stats import chi2
 
 from ..errors import ShapeError
 from ..geometry import compose, invert, pose_to_matrix, relative, wrap_angle
 from ..registration.information import adjoint
+from .posegraph import chi2_quantile
 
 __all__ = ["SmoothingResult", "three_cornered_hat", "identify_noise", "vote", "smooth_with_odometry"]
 
@@ -184,7 +184,7 @@ def vote(slam: NDArray[np.float64], odometry: NDArray[np.float64], scan: NDArray
     furthest off: odometry messages that lag the scans and catch up lie there).
     ``scan_agrees``: the scan match agrees with the SLAM motion.
     """
-    gate = chi2.ppf(0.999, 3)
+    gate = chi2_quantile(0.999, 3)
     m_so = _mahalanobis2(odometry, slam, 2 * white + odometry_var)
     m_oi = _mahalanobis2(odometry, scan, odometry_var + scan_var)
     m_si = _mahalanobis2(slam, scan, 2 * white + scan_var)
@@ -219,7 +219,7 @@ def _chain(P: NDArray[np.float64], odo: NDArray[np.float64], Os: NDArray[np.floa
     k1 = np.flatnonzero(np.isfinite(odo[1:]).all(1) & np.isfinite(Os[1:]).all(1) & (Os[1:] > 0).all(1)) + 1
     z_odo = odo[k1]  # each step's motion, k1 its later frame
     w_odo = 1.0 / Os[k1]
-    gate_pose = chi2.ppf(0.999, int(free.sum()))
+    gate_pose = chi2_quantile(0.999, int(free.sum()))
     slipped, scan_agrees = vote(relative(P[k1 - 1], P[k1]), z_odo, M[k1], white, Os[k1] ** 2, v_scan)
     a_odo = np.where(slipped, 0.0, 1.0)  # a slipped step cuts the chain
     # a pose that the scan match into it or out of it confirms is never overruled by the odometry

@@ -2,7 +2,8 @@
 
 1. ``intel``, ``fr079``, ``fr-clinic`` (the ``.orig.bag`` files of $HSMAP_DATASETS/slam2d, read by hsmap's
    reader; fr079 with the CARMEN log's laser offset, as ``benchmarks/slam.py``): hsmap's HS-SLAM 2D (the command
-   line's default configuration, loop closure on, ``--seed``), then
+   line's default configuration, loop closure on, ``--seed``, recording a ``slam.rrd`` as the command does unless
+   ``--no-recording``), then
    - ``yag-slam`` (PyPI; OpenKarto's scan matcher and a sparse pose graph), in this process: its ``GraphSlam``
      with its default matcher configurations, every scan given to it (it has no minimum travel of its own);
    - MRPT ``icp-slam`` (stock ``icp-slam_demo_classic.ini``) and ``rbpf-slam`` with both of its stock
@@ -21,7 +22,7 @@ A peer that is not installed or fails is reported with ``status`` and ``reason``
 reading the input. Writes reports/benchmarks/peers.json (atomically).
 
     .venv/bin/python benchmarks/peers.py [--only intel fr079 fr-clinic 3d] [--peers hs_slam yag_slam icp_slam
-        rbpf_slam_grid rbpf_slam_icp] [--max-frames N] [--timeout S] [--seed 1] [--repeat N]
+        rbpf_slam_grid rbpf_slam_icp] [--max-frames N] [--timeout S] [--seed 1] [--repeat N] [--no-recording]
 """
 
 from __future__ import annotations
@@ -98,11 +99,24 @@ def _timed(entry: dict, duration: float, wall: float, cpu: float) -> dict:
     return {"status": "ok", "wall_seconds": wall, "cpu_seconds": cpu, "real_time_factor": duration / wall, **entry}
 
 
-def run_hs_slam(frames, seed: int) -> tuple[object, float, float]:
+def run_hs_slam(frames, seed: int, record: bool = True) -> tuple[object, float, float]:
+    """HS-SLAM 2D on ``frames`` as ``hsmap slam`` runs it: recording into a scratch ``slam.rrd`` unless ``record`` is
+    false. Wall and CPU (this process's and the helper process's) include the recording's finish."""
+    from hsmap._helper_process import cpu_seconds
     from hsmap.slam import SlamConfig, run_slam
+    from hsmap.viz.replay import SlamRecorder
 
-    res = run_slam(frames, SlamConfig(dof=3), rng=seed, progress=False)
-    return res.trajectory, res.seconds, res.cpu_seconds
+    cfg = SlamConfig(dof=3)
+    with tempfile.TemporaryDirectory(prefix="hsmap-peers-rrd-") as tmp:
+        t0, c0 = time.perf_counter(), cpu_seconds()
+        recorder = SlamRecorder(Path(tmp) / "slam.rrd", cfg) if record else None
+        res = run_slam(frames, cfg, rng=seed, progress=False,
+                       on_frame=None if recorder is None else recorder.on_frame)
+        if recorder is not None:
+            recorder.finish(res)
+            recorder.close()
+        wall, cpu = time.perf_counter() - t0, cpu_seconds() - c0
+    return res.trajectory, wall, cpu
 
 
 def run_yag_slam(frames) -> tuple[object, float, float, dict]:
@@ -230,7 +244,7 @@ def _median_run(runs: list[dict]) -> dict:
 
 
 def bench_log(name: str, datasets: Path, peers: list[str], max_frames: int | None, seed: int,
-              timeout: float, repeat: int = 1) -> dict:
+              timeout: float, repeat: int = 1, record: bool = True) -> dict:
     from slam import FREIBURG  # benchmarks/slam.py
 
     from hsmap.datasets.open import open_dataset
@@ -249,8 +263,8 @@ def bench_log(name: str, datasets: Path, peers: list[str], max_frames: int | Non
     def one(peer: str) -> dict:
         load = load_average()
         if peer == "hs_slam":
-            traj, wall, cpu = run_hs_slam(frames, seed)
-            info = {"seed": seed, "version": hsmap.__version__}
+            traj, wall, cpu = run_hs_slam(frames, seed, record)
+            info = {"seed": seed, "version": hsmap.__version__, "recording": record}
         elif peer == "yag_slam":
             traj, wall, cpu, info = run_yag_slam(frames)
         else:
@@ -260,7 +274,7 @@ def bench_log(name: str, datasets: Path, peers: list[str], max_frames: int | Non
                       duration, wall, cpu)
 
     if "hs_slam" in peers:  # warm-up, not measured: compiled kernels read from numba's cache, thread pools
-        run_hs_slam(frames[:30], seed)
+        run_hs_slam(frames[:30], seed, record)
     runs: dict[str, list[dict]] = {peer: [] for peer in peers}
     for _ in range(repeat):  # alternated: every peer once per round, so load changes hit them alike
         for peer in peers:
@@ -390,6 +404,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--repeat", type=int, default=1,
                     help="2D: run the peers this many times, alternated; each peer's entry is its median run")
+    ap.add_argument("--no-recording", action="store_true",
+                    help="HS-SLAM without its rerun recording (hsmap slam --no-recording)")
     ap.add_argument("--timeout", type=float, default=1800.0, help="seconds an MRPT app may run")
     ap.add_argument("--dataset3d", default=None, help="3d: this simulator folder instead of the study's")
     ap.add_argument("--out", default=str(ROOT / "reports/benchmarks/peers.json"))
@@ -404,7 +420,7 @@ def main(argv=None) -> int:
             out["3d_slam_office"] = bench_3d(args.max_frames, args.dataset3d)
         elif (datasets / "slam2d").is_dir():
             out[name] = bench_log(name, datasets, args.peers, args.max_frames, args.seed, args.timeout,
-                                  args.repeat)
+                                  args.repeat, not args.no_recording)
         else:
             out[name] = {"skipped": f"no Freiburg data at {datasets}/slam2d"}
         if name != args.only[-1]:  # what has run so far, should a later part not finish

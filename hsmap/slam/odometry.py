@@ -28,12 +28,12 @@ from ..registration.icp import RegistrationResult
 from ..registration.information import constrained_axes
 from .config import SlamConfig
 
-__all__ = ["OdometryModel", "constrains_xy", "slip_weight", "CHI2_999"]
+__all__ = ["OdometryModel", "constrains_xy", "slip_weight", "CHI2_999", "INFO_JITTER"]
 
 #: 99.9 % quantiles of chi-square with 3 and 6 degrees of freedom, to 3 decimals: the gate on a prediction
 CHI2_999 = {3: 16.266, 6: 22.458}
 #: 1e-12 on the diagonal of an (n, n) information sum, keeping its solve regular
-_JITTER = {n: 1e-12 * np.eye(n) for n in (3, 6)}
+INFO_JITTER = {n: 1e-12 * np.eye(n) for n in (3, 6)}
 
 
 def constrains_xy(info: NDArray[np.float64] | None, degenerate_ratio: float) -> bool:
@@ -62,7 +62,7 @@ def slip_weight(d: NDArray[np.float64], info_a: NDArray[np.float64], info_b: NDA
     # I_b lies within the gate, without the solve
     if float(d @ info_b @ d) <= 0.5 * gate:
         return 1.0
-    m2 = float(d @ (info_a @ np.linalg.solve(info_a + info_b + _JITTER[n], info_b)) @ d)
+    m2 = float(d @ (info_a @ np.linalg.solve(info_a + info_b + INFO_JITTER[n], info_b)) @ d)
     return gate / m2 if m2 > gate else 1.0
 
 

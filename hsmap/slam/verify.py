@@ -14,7 +14,7 @@ from ..registration.icp import RegistrationResult, RegistrationTarget, harmony_i
 from ..registration.information import drop_degenerate
 from .config import SlamConfig
 from .costs import Costs
-from .odometry import _JITTER, slip_weight
+from .odometry import INFO_JITTER, slip_weight
 from .posegraph import information_with_floor
 from .prediction import MotionPrediction
 
@@ -242,5 +242,5 @@ class Verifier:
         if w < 1.0:
             info_pred = info_pred * w
         total = info_reg + info_pred
-        step = np.linalg.solve(total + _JITTER[cfg.dof], info_pred @ d)
+        step = np.linalg.solve(total + INFO_JITTER[cfg.dof], info_pred @ d)
         return compose(res.pose, step), total, info_reg

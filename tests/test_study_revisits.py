@@ -81,3 +81,22 @@ def test_direct_registrations_side_with_the_trajectory_that_does_not_drift():
 def test_register_revisits_names_pairs_beyond_the_trajectory():
     with pytest.raises(InputError, match="expected 0..2"):
         register_revisits(lambda k: np.zeros((10, 3)), np.array([[0, 5]]), [np.tile(np.eye(4), (3, 1, 1))])
+
+
+def test_the_corrected_reference_takes_the_drift_out():
+    from hsmap.study.real_sweeps import score_track
+    from hsmap.study.revisits import corrected_reference
+
+    truth = _walk()
+    drifted = truth.copy()
+    drifted[:, 0] += 0.01 * np.arange(len(truth))
+    drifted[:, 5] += np.deg2rad(0.02) * np.arange(len(truth))
+    stamps = np.arange(len(truth), dtype=float)
+    pairs = revisit_pairs(truth, min_gap=8, max_distance=6.0, every=2)
+    revisits = register_revisits(_load(7, truth), pairs, [drifted])
+    fixed = corrected_reference(Trajectory(stamps, drifted), revisits)
+    true = Trajectory(stamps, truth)
+    before = score_track(Trajectory(stamps, drifted), true).summary["ate_rmse_m"]
+    after = score_track(fixed, true).summary["ate_rmse_m"]
+    assert before > 0.03
+    assert after < 0.25 * before, (before, after)

@@ -10,7 +10,9 @@ out of the agreement.
 
 - :func:`revisit_pairs`: the pairs, from one trajectory's positions;
 - :func:`register_revisits`: their direct registrations (:class:`Revisits`);
-- :func:`revisit_agreement`: how far a trajectory's relative poses lie from them.
+- :func:`revisit_agreement`: how far a trajectory's relative poses lie from them;
+- :func:`corrected_reference`: a reference with its drift between the revisits taken out (a pose graph of its
+  sweep-to-sweep motions and the registrations).
 """
 
 from __future__ import annotations
@@ -22,10 +24,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import InputError
-from ..geometry import pose_to_matrix
+from ..geometry import matrix_to_pose, pose_to_matrix
 from ..trajectory import Trajectory
 
-__all__ = ["revisit_pairs", "register_revisits", "revisit_agreement", "Revisits", "as_matrices"]
+__all__ = ["revisit_pairs", "register_revisits", "revisit_agreement", "corrected_reference", "Revisits",
+           "as_matrices", "STEP_SIGMA", "REVISIT_SIGMA"]
+
+#: (m, rad): the sigmas of a reference's sweep-to-sweep motion in :func:`corrected_reference` (a lidar-inertial
+#: estimate's steps line adjacent sweeps up to millimetres; its error is the drift they add up to)
+STEP_SIGMA = (0.005, float(np.deg2rad(0.05)))
+#: (m, rad): the sigmas of a settled revisit registration (settled: within 1 cm from every start)
+REVISIT_SIGMA = (0.01, float(np.deg2rad(0.1)))
 
 
 def as_matrices(trajectory: Trajectory | NDArray[np.float64]) -> NDArray[np.float64]:
@@ -152,3 +161,31 @@ def revisit_agreement(trajectory: Trajectory | NDArray[np.float64], revisits: Re
     out.update(translation_mean_m=float(t.mean()), translation_median_m=float(np.median(t)),
                translation_max_m=float(t.max()), rotation_mean_deg=float(r.mean()), rotation_max_deg=float(r.max()))
     return out
+
+
+def corrected_reference(reference: Trajectory, revisits: Revisits, *, step_sigma: tuple[float, float] = STEP_SIGMA,
+                        revisit_sigma: tuple[float, float] = REVISIT_SIGMA) -> Trajectory:
+    """``reference`` with its drift between the settled revisit pairs taken out: a pose graph of its
+    sweep-to-sweep motions (sigmas ``step_sigma``) and the revisits' direct registrations (``revisit_sigma``),
+    optimised from the reference with its first sweep held. An independent check of a reference, not a survey:
+    it is as good as the registrations and their sigmas."""
+    from ..slam.posegraph import EdgeKind, PoseGraph
+
+    M = as_matrices(reference)
+    traj = reference.as_6dof()
+
+    def info(sig: tuple[float, float]) -> NDArray[np.float64]:
+        return np.diag([1.0 / sig[0] ** 2] * 3 + [1.0 / sig[1] ** 2] * 3)
+
+    graph = PoseGraph(6)
+    for p in traj.poses:
+        graph.add_node(p)
+    steps = matrix_to_pose(np.linalg.inv(M[:-1]) @ M[1:]).reshape(-1, 6)
+    for k, z in enumerate(steps):
+        graph.add_edge(k, k + 1, z, info(step_sigma), EdgeKind.ODOMETRY)
+    for (i, j), rel in zip(revisits.pairs[revisits.settled], revisits.relative[revisits.settled], strict=True):
+        graph.add_edge(int(i), int(j), matrix_to_pose(rel[None])[0], info(revisit_sigma), EdgeKind.LOOP)
+    out = graph.optimize(fixed=0)
+    if out.status != "ok":
+        raise InputError(f"the corrected reference's pose graph failed: {out.message}")
+    return Trajectory(traj.stamps.copy(), np.asarray(graph.poses).copy())

@@ -98,6 +98,7 @@ class NeighbourGrid:
         self._inv = 1.0 / self.cell
         self._sorted, self._order, self._start = _kernels.grid_build(pts, origin, self._inv, dims)
         self._rank: NDArray[np.int64] | None = None  # each row's place in the sorted points, for hints
+        self._sorted_values: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
         self._kernel = _kernels.grid_nearest
 
     def __len__(self) -> int:
@@ -165,6 +166,28 @@ class NeighbourGrid:
         return _kernels.polish_on_grid_2d(source, T, self._sorted, self._order, self._start, self.origin, self._inv,
                                           self.dims, self.rank(), h, float(bound), int(iterations), float(tolerance),
                                           float(kernel), self.points, normals)
+
+    def icp_3d(self, source: NDArray[np.float64], T: NDArray[np.float64], schedule: NDArray[np.float64],
+               per_stage: int, tolerance: float, kernel: float, normals: NDArray[np.float64],
+               hint: NDArray[np.intp] | None) -> NDArray[np.float64]:
+        """Trimmed point-to-plane ICP of the 3D ``source`` from the 4x4 transform ``T`` on this grid's points and
+        their ``normals``, exact correspondences within each distance of ``schedule`` in turn, ``per_stage``
+        iterations at most each (:func:`hsmap.registration._kernels.icp_on_grid_3d`): the refined transform.
+        ``hint`` (N,): rows near the moved points (None: none)."""
+        from . import _kernels  # numba: compiled on first use
+
+        places = self._hint_places(hint, len(source))
+        return _kernels.icp_on_grid_3d(source, T, self._sorted, self._order, self._start, self.origin, self._inv,
+                                       self.dims, places, np.asarray(schedule, dtype=float), int(per_stage),
+                                       float(tolerance), float(kernel), self.sorted_like(normals),
+                                       _kernels.CERTIFY_MARGIN)
+
+    def sorted_like(self, values: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Per-row ``values`` (M, k) in the order of the grid's sorted points (the last array asked for is kept)."""
+        kept = self._sorted_values
+        if kept is None or kept[0] is not values:
+            kept = self._sorted_values = (values, np.ascontiguousarray(values[self._order], dtype=np.float64))
+        return kept[1]
 
 
 #: KD-tree queries of at least this many points are split between the compute threads

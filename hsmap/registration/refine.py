@@ -75,6 +75,11 @@ def refine_icp(
         if grid is not None:  # the exact iterations compiled whole
             T = grid.polish_2d(src, T, schedule[0], per_stage, tolerance, robust_kernel, normals, hint)
             return matrix_to_pose(T)
+    grid = target.grid_for(max(schedule)) if normals is not None and dim == 3 else None
+    if grid is not None:  # the exact iterations compiled whole
+        src = np.ascontiguousarray(source, dtype=float)
+        return matrix_to_pose(grid.icp_3d(src, T, np.asarray(schedule), per_stage, tolerance, robust_kernel,
+                                          normals, hint))
     idx = hint  # the previous iteration's correspondences: the next search starts from them
     for dist in schedule:
         for _ in range(per_stage):

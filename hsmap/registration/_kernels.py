@@ -662,6 +662,38 @@ def _cell_range(x, bound, origin, inv_cell, size):  # pragma: no cover - JIT
     return a, b
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _own_cell(sp, start, origin, inv_cell, dims, x, y, z):  # pragma: no cover - JIT
+    """The nearest of the points in the grid cell that holds (x, y(, z)) (2D: x, z): (squared distance, place;
+    -1: none there or outside the grid)."""
+    d = sp.shape[1]
+    last = d - 1
+    cx = np.floor((x - origin[0]) * inv_cell)
+    cz = np.floor((z - origin[last]) * inv_cell)
+    if not (cx >= 0.0 and cx < dims[0] and cz >= 0.0 and cz < dims[last]):  # also false for NaN
+        return np.inf, -1
+    row = int(cx)
+    if d == 3:
+        cy = np.floor((y - origin[1]) * inv_cell)
+        if not (cy >= 0.0 and cy < dims[1]):
+            return np.inf, -1
+        row = row * dims[1] + int(cy)
+    c = row * dims[last] + int(cz)
+    best = np.inf
+    bj = -1
+    for j in range(start[c], start[c + 1]):
+        e0 = sp[j, 0] - x
+        e1 = sp[j, 1] - y
+        s = e0 * e0 + e1 * e1
+        if d == 3:
+            e2 = sp[j, 2] - z
+            s += e2 * e2
+        if s < best:
+            best = s
+            bj = j
+    return best, bj
+
+
 @nb.njit(cache=True, nogil=True)
 def grid_nearest(sp, order, start, origin, inv_cell, dims, q, bound, hint, out_d, out_i, lo, hi):  # pragma: no cover
     """Nearest of the sorted points ``sp`` (2D or 3D) to q[lo:hi] closer than ``bound``: distance (inf if none)
@@ -670,7 +702,8 @@ def grid_nearest(sp, order, start, origin, inv_cell, dims, q, bound, hint, out_d
     The cells within the bound are visited as runs along the last axis, one run per cell of the axes before it
     (in 2D, the first axis only: the middle loop is then one pass with a stride of 1). ``hint[i]`` (a row of
     ``sp``, -1: none) is a point near q[i]: when closer than the bound, only the cells within its distance are
-    visited, which holds every point at least as near, so the answer is the same."""
+    visited, which holds every point at least as near, so the answer is the same. Without one, the nearest point
+    in q[i]'s own cell serves as the hint."""
     n, d = sp.shape
     last = d - 1
     b2 = bound * bound
@@ -689,6 +722,12 @@ def grid_nearest(sp, order, start, origin, inv_cell, dims, q, bound, hint, out_d
             if d == 3:
                 e2 = sp[h, 2] - z
                 s += e2 * e2
+            if s < b2:
+                best = s
+                bj = h
+                reach = np.sqrt(s)
+        if bj < 0:  # no hint: the nearest point in the query's own cell is one
+            s, h = _own_cell(sp, start, origin, inv_cell, dims, x, y, z)
             if s < b2:
                 best = s
                 bj = h
@@ -903,6 +942,12 @@ def _nearest_3d(sp, order, start, origin, inv_cell, dims, x, y, z, bound, h, mar
         s = e0 * e0 + e1 * e1
         e2 = sp[h, 2] - z
         s += e2 * e2
+        if s < b2:
+            best = s
+            bj = h
+            reach = np.sqrt(s)
+    if bj < 0:  # no hint: the nearest point in the query's own cell is one
+        s, h = _own_cell(sp, start, origin, inv_cell, dims, x, y, z)
         if s < b2:
             best = s
             bj = h

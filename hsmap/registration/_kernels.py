@@ -1002,6 +1002,7 @@ def icp_on_grid_3d(src, T, sp, order, start, origin, inv_cell, dims, places, sch
     g = np.zeros(6)
     ref = np.empty((m, 3))  # where each point's last search was made ...
     clear = np.full(m, -1.0)  # ... and how far from there no grid point but its nearest lies (< 0: no search yet)
+    near = np.zeros((m, 6))  # ... and its nearest point and normal (read in the source's order)
     for s in range(schedule.shape[0]):
         bound = schedule[s]
         for _ in range(per_stage):
@@ -1029,10 +1030,10 @@ def icp_on_grid_3d(src, T, sp, order, start, origin, inv_cell, dims, places, sch
                     dz = pz - ref[i, 2]
                     lim = clear[i] - np.sqrt(dx * dx + dy * dy + dz * dz) - 1e-9
                     if c >= 0:
-                        e0 = sp[c, 0] - px
-                        e1 = sp[c, 1] - py
+                        e0 = near[i, 0] - px
+                        e1 = near[i, 1] - py
                         s2 = e0 * e0 + e1 * e1
-                        e2 = sp[c, 2] - pz
+                        e2 = near[i, 2] - pz
                         s2 += e2 * e2
                         searched = not (lim > 0.0 and s2 < lim * lim)
                     else:
@@ -1042,14 +1043,18 @@ def icp_on_grid_3d(src, T, sp, order, start, origin, inv_cell, dims, places, sch
                     places[i] = c
                     ref[i, 0], ref[i, 1], ref[i, 2] = px, py, pz
                     clear[i] = np.sqrt(free2)
+                    if c >= 0:
+                        for k in range(3):
+                            near[i, k] = sp[c, k]
+                            near[i, 3 + k] = sn[c, k]
                 if c < 0 or not s2 < bound * bound:
                     continue
                 count += 1
-                n0, n1, n2 = sn[c, 0], sn[c, 1], sn[c, 2]
+                n0, n1, n2 = near[i, 3], near[i, 4], near[i, 5]
                 r = 0.0
-                r += n0 * (px - sp[c, 0])
-                r += n1 * (py - sp[c, 1])
-                r += n2 * (pz - sp[c, 2])
+                r += n0 * (px - near[i, 0])
+                r += n1 * (py - near[i, 1])
+                r += n2 * (pz - near[i, 2])
                 j3 = py * n2 - pz * n1
                 j4 = pz * n0 - px * n2
                 j5 = px * n1 - py * n0

@@ -913,17 +913,6 @@ def _fma(typingctx, a, b, c):  # pragma: no cover - JIT
     return sig, codegen
 
 
-@nb.njit(cache=True, nogil=True)
-def transform_3d(src, T, out):  # pragma: no cover - JIT
-    """``out`` = points (N, 3) moved by the 4x4 transform ``T``, rounded as numpy's ``src @ R.T + t``
-    (:func:`hsmap.geometry.transform_points`) rounds them with OpenBLAS: per coordinate, the three products summed
-    by fused multiply-adds in axis order, then the translation added."""
-    for i in range(src.shape[0]):
-        x, y, z = src[i, 0], src[i, 1], src[i, 2]
-        for r in range(3):
-            out[i, r] = _fma(z, T[r, 2], _fma(y, T[r, 1], x * T[r, 0])) + T[r, 3]
-
-
 @nb.njit(cache=True, nogil=True, inline="always")
 def _nearest_3d(sp, order, start, origin, inv_cell, dims, x, y, z, bound, h, margin):  # pragma: no cover - JIT
     """:func:`grid_nearest` of one 3D point (x, y, z) with hint place ``h``: (squared distance, place in ``sp``;
@@ -994,8 +983,10 @@ def icp_on_grid_3d(src, T, sp, order, start, origin, inv_cell, dims, places, sch
     ``schedule`` holds the trimming distances, ``per_stage`` iterations at most each; a stage ends when the step's
     largest entry is below ``tol`` or fewer than 6 correspondences are found. Each search starts from the previous
     one's answers, the first from ``places`` (N,; places in ``sp``, -1: none), which is updated. Each iteration
-    moves the points as :func:`transform_3d`, finds their nearest grid points as :func:`grid_nearest` and takes
-    :func:`point_to_plane_step`'s step, with the same arithmetic. Returns the refined 4x4 transform."""
+    moves the points as numpy's ``src @ R.T + t`` (:func:`hsmap.geometry.transform_points`) rounds them with
+    OpenBLAS (per coordinate, the three products summed by fused multiply-adds in axis order, then the translation
+    added), finds their nearest grid points as :func:`grid_nearest` and takes :func:`point_to_plane_step`'s step,
+    with the same arithmetic. Returns the refined 4x4 transform."""
     m = src.shape[0]
     T = T.copy()
     A = np.zeros((6, 6))

@@ -136,3 +136,40 @@ def test_a_hint_must_name_rows():
     grid = NeighbourGrid(np.eye(3), 0.5)
     with pytest.raises(ShapeError, match=r"hint must be \(2,\) whole numbers"):
         grid.query(np.zeros((2, 3)), 1.0, hint=np.zeros(2))
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_a_tracked_query_answers_as_the_tree_while_its_points_move(dim):
+    """Points moved a little (and now and then far) between queries, with shrinking bounds: the tracked query,
+    which searches a point again only when another point could have become its nearest, answers each time as
+    the tree searched afresh; and it does search again less than every point every time."""
+    from hsmap.registration.neighbours import TrackedQuery
+
+    rng = np.random.default_rng(dim + 10)
+    pts = rng.uniform(-4, 4, (4000, dim))
+    pts[:, -1] = np.round(pts[:, -1] * 2) / 2  # planes (lines) half a metre apart
+    tree = cKDTree(pts)
+    tracked = TrackedQuery(tree, 0.02)
+    searched = []
+    original = tracked.tree
+    q = np.concatenate([pts[:1500] + rng.normal(0, 0.05, (1500, dim)), rng.uniform(-6, 6, (300, dim))])
+    for step, bound in enumerate([0.3, 0.3, 0.2, 0.2, 0.1, 0.1, 0.1, 0.25]):
+        q = q + rng.normal(0, 0.3 if step == 5 else 0.002, q.shape)
+        tracked.tree = _Counting(original, searched)
+        with using_threads(1):
+            d, i = tracked(q, bound)
+        d0, i0 = tree.query(q, distance_upper_bound=bound)
+        np.testing.assert_array_equal(d, d0)
+        np.testing.assert_array_equal(i, i0)
+    assert searched[0] == len(q) and min(searched) < len(q) // 2
+
+
+class _Counting:
+    """A KD-tree that counts the points each query asks about."""
+
+    def __init__(self, tree, counts):
+        self.tree, self.counts = tree, counts
+
+    def query(self, x, **kw):
+        self.counts.append(len(x))
+        return self.tree.query(x, **kw)

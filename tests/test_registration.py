@@ -457,6 +457,56 @@ def test_2d_exact_polish_on_the_grid_lands_where_the_python_iterations_do(monkey
         assert refine._cost_of(match, target, 0.1, plane) == pytest.approx(plain, rel=1e-12)
 
 
+@pytest.mark.parametrize("kernel", [0.0, 0.1])
+def test_3d_exact_iterations_on_the_grid_land_where_the_python_iterations_do(monkeypatch, kernel):
+    """The 3D refinement's exact iterations run compiled on the target's neighbour grid, searching again only
+    where a point may have a new nearest neighbour; the iterations in Python (the KD-tree's answers, every point
+    searched every time) land on the same pose, from a start with a hint and from one without."""
+    from hsmap.geometry import pose_to_matrix
+    from hsmap.registration import refine
+    from hsmap.registration.neighbours import NeighbourGrid
+
+    tgt = room_cloud_3d(20000, noise=0.003, rng=7)
+    truth = np.array([0.12, -0.08, 0.03, 0.015, -0.01, 0.2])
+    src = transform_points(np.linalg.inv(pose_to_matrix(truth)), room_cloud_3d(6000, noise=0.003, rng=8))
+    start = truth + np.array([0.05, -0.04, 0.02, np.deg2rad(0.8), np.deg2rad(-0.6), np.deg2rad(2.0)])
+    target = RegistrationTarget(tgt)
+    assert target.grid_for(0.3) is not None
+    hint = refine._match(start, src, target, 0.1)[3]
+    kw = dict(max_distance=0.1, start_distance=0.3, robust_kernel=kernel)
+    compiled = []
+    icp_3d = NeighbourGrid.icp_3d
+    monkeypatch.setattr(NeighbourGrid, "icp_3d", lambda *a: compiled.append(1) or icp_3d(*a))
+    fast = [refine.refine_icp(src, target, start, **kw), refine.refine_icp(src, target, start, hint=hint, **kw)]
+    assert len(compiled) == 2
+    monkeypatch.setattr(RegistrationTarget, "grid_for", lambda self, bound: None)
+    slow = refine.refine_icp(src, target, start, **kw)
+    for pose in fast:
+        np.testing.assert_allclose(pose, slow, rtol=0, atol=1e-12)
+    d = relative(truth, fast[0])
+    assert np.linalg.norm(d[:3]) < 0.005 and np.rad2deg(np.abs(wrap_angle(d[3:]))).max() < 0.1
+
+
+def test_how_far_the_3d_iterations_search_changes_no_pose(monkeypatch):
+    """The compiled 3D iterations search a margin beyond each nearest point to know when a point cannot have a
+    new nearest neighbour; with no margin every point is searched every iteration, and the pose is the same, bit
+    for bit."""
+    from hsmap.geometry import pose_to_matrix
+    from hsmap.registration import _kernels, refine
+
+    tgt = room_cloud_3d(20000, noise=0.003, rng=9)
+    truth = np.array([-0.1, 0.06, -0.02, -0.01, 0.02, -0.3])
+    src = transform_points(np.linalg.inv(pose_to_matrix(truth)), room_cloud_3d(5000, noise=0.003, rng=10))
+    target = RegistrationTarget(tgt)
+    kw = dict(max_distance=0.1, start_distance=0.3, robust_kernel=0.1)
+    poses = []
+    for margin in (0.0, 0.005, 0.02, 0.1):
+        monkeypatch.setattr(_kernels, "CERTIFY_MARGIN", margin)
+        poses.append(refine.refine_icp(src, target, truth + [0.06, 0.03, -0.02, 0.01, 0.01, 0.03], **kw))
+    for pose in poses[1:]:
+        np.testing.assert_array_equal(pose, poses[0])
+
+
 @pytest.mark.parametrize("kernel", [0.0, 0.07])
 def test_information_and_cost_of_a_pose_are_the_point_to_line_sums(kernel):
     """The information and cost at a pose (one compiled pass over the correspondences) are J^T W J of the

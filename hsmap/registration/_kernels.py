@@ -10,6 +10,9 @@ from __future__ import annotations
 
 import numba as nb
 import numpy as np
+from llvmlite import ir
+from numba import types
+from numba.extending import intrinsic
 
 __all__ = ["field_score", "hs_chunk_field", "hs_search_field", "splat_field_2d", "splat_field_3d", "PARALLEL_MIN_WORK"]
 
@@ -363,12 +366,22 @@ def point_to_plane_step(p, dist, idx, q, n, kernel):  # pragma: no cover - JIT
     Solves the normal equations of :func:`point_to_plane_normal_equations` (a 1e-9 ridge keeps them regular) and
     turns the increment (translation, rotation) into a rigid transform (Rodrigues' formula in 3D).
     """
-    d = p.shape[1]
     A, g, count = _plane_equations(p, dist, idx, q, n, kernel)
+    return _plane_step(A, g, count, p.shape[1])
+
+
+@nb.njit(cache=True, nogil=True)
+def _plane_step(A, g, count, d):  # pragma: no cover - JIT
+    """:func:`point_to_plane_step` from the upper triangle and diagonal of the normal equations (``A``, ``g``; A is
+    completed in place) of ``count`` correspondences."""
+    k = A.shape[0]
+    for a in range(k):
+        for b in range(a):
+            A[a, b] = A[b, a]
     dT = np.eye(d + 1)
     if count < 2 * d:
         return dT, 0.0, count
-    for a in range(A.shape[0]):
+    for a in range(k):
         A[a, a] += 1e-9
     delta = -np.linalg.solve(A, g)
     if d == 2:
@@ -649,6 +662,38 @@ def _cell_range(x, bound, origin, inv_cell, size):  # pragma: no cover - JIT
     return a, b
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _own_cell(sp, start, origin, inv_cell, dims, x, y, z):  # pragma: no cover - JIT
+    """The nearest of the points in the grid cell that holds (x, y(, z)) (2D: x, z): (squared distance, place;
+    -1: none there or outside the grid)."""
+    d = sp.shape[1]
+    last = d - 1
+    cx = np.floor((x - origin[0]) * inv_cell)
+    cz = np.floor((z - origin[last]) * inv_cell)
+    if not (cx >= 0.0 and cx < dims[0] and cz >= 0.0 and cz < dims[last]):  # also false for NaN
+        return np.inf, -1
+    row = int(cx)
+    if d == 3:
+        cy = np.floor((y - origin[1]) * inv_cell)
+        if not (cy >= 0.0 and cy < dims[1]):
+            return np.inf, -1
+        row = row * dims[1] + int(cy)
+    c = row * dims[last] + int(cz)
+    best = np.inf
+    bj = -1
+    for j in range(start[c], start[c + 1]):
+        e0 = sp[j, 0] - x
+        e1 = sp[j, 1] - y
+        s = e0 * e0 + e1 * e1
+        if d == 3:
+            e2 = sp[j, 2] - z
+            s += e2 * e2
+        if s < best:
+            best = s
+            bj = j
+    return best, bj
+
+
 @nb.njit(cache=True, nogil=True)
 def grid_nearest(sp, order, start, origin, inv_cell, dims, q, bound, hint, out_d, out_i, lo, hi):  # pragma: no cover
     """Nearest of the sorted points ``sp`` (2D or 3D) to q[lo:hi] closer than ``bound``: distance (inf if none)
@@ -657,7 +702,8 @@ def grid_nearest(sp, order, start, origin, inv_cell, dims, q, bound, hint, out_d
     The cells within the bound are visited as runs along the last axis, one run per cell of the axes before it
     (in 2D, the first axis only: the middle loop is then one pass with a stride of 1). ``hint[i]`` (a row of
     ``sp``, -1: none) is a point near q[i]: when closer than the bound, only the cells within its distance are
-    visited, which holds every point at least as near, so the answer is the same."""
+    visited, which holds every point at least as near, so the answer is the same. Without one, the nearest point
+    in q[i]'s own cell serves as the hint."""
     n, d = sp.shape
     last = d - 1
     b2 = bound * bound
@@ -676,6 +722,12 @@ def grid_nearest(sp, order, start, origin, inv_cell, dims, q, bound, hint, out_d
             if d == 3:
                 e2 = sp[h, 2] - z
                 s += e2 * e2
+            if s < b2:
+                best = s
+                bj = h
+                reach = np.sqrt(s)
+        if bj < 0:  # no hint: the nearest point in the query's own cell is one
+            s, h = _own_cell(sp, start, origin, inv_cell, dims, x, y, z)
             if s < b2:
                 best = s
                 bj = h
@@ -846,3 +898,205 @@ def plane_information_terms(moved, dist, idx, q, nrm, kernel, threshold):  # pra
         wr2 += w * r * r
         wsum += w
     return A, count, cost, wr2, wsum
+
+
+@intrinsic
+def _fma(typingctx, a, b, c):  # pragma: no cover - JIT
+    """a * b + c rounded once (LLVM's fma intrinsic), for float64."""
+    sig = types.float64(types.float64, types.float64, types.float64)
+
+    def codegen(context, builder, signature, args):
+        d = ir.DoubleType()
+        fn = builder.module.declare_intrinsic("llvm.fma", [d], ir.FunctionType(d, [d, d, d]))
+        return builder.call(fn, args)
+
+    return sig, codegen
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _nearest_3d(sp, order, start, origin, inv_cell, dims, x, y, z, bound, h, margin):  # pragma: no cover - JIT
+    """:func:`grid_nearest` of one 3D point (x, y, z) with hint place ``h``: (squared distance, place in ``sp``;
+    -1: none within ``bound``), and a squared distance within which no other grid point lies.
+
+    The cells searched reach ``margin`` beyond those :func:`grid_nearest` searches (which changes no answer): the
+    nearest of the other points in them, or the reach where none is, bounds how far the point can move before
+    another grid point could be its nearest."""
+    b2 = bound * bound
+    best = b2
+    bj = -1
+    reach = bound
+    if h >= 0:
+        e0 = sp[h, 0] - x
+        e1 = sp[h, 1] - y
+        s = e0 * e0 + e1 * e1
+        e2 = sp[h, 2] - z
+        s += e2 * e2
+        if s < b2:
+            best = s
+            bj = h
+            reach = np.sqrt(s)
+    if bj < 0:  # no hint: the nearest point in the query's own cell is one
+        s, h = _own_cell(sp, start, origin, inv_cell, dims, x, y, z)
+        if s < b2:
+            best = s
+            bj = h
+            reach = np.sqrt(s)
+    reach += margin
+    second = np.inf
+    x0, x1 = _cell_range(x, reach, origin[0], inv_cell, dims[0])
+    y0, y1 = _cell_range(y, reach, origin[1], inv_cell, dims[1])
+    z0, z1 = _cell_range(z, reach, origin[2], inv_cell, dims[2])
+    if z1 >= z0:
+        for cx in range(x0, x1 + 1):
+            for cy in range(y0, y1 + 1):
+                base = (cx * dims[1] + cy) * dims[2]
+                for j in range(start[base + z0], start[base + z1 + 1]):
+                    if j == bj:
+                        continue
+                    e0 = sp[j, 0] - x
+                    e1 = sp[j, 1] - y
+                    s = e0 * e0 + e1 * e1
+                    e2 = sp[j, 2] - z
+                    s += e2 * e2
+                    if s < best or (s == best and bj >= 0 and order[j] < order[bj]):
+                        if bj >= 0 and best < second:
+                            second = best
+                        best = s
+                        bj = j
+                    elif s < second:
+                        second = s
+    return best, bj, min(second, reach * reach)
+
+
+#: How far beyond the nearest point (or the trimming distance, where none is within it) the exact 3D ICP's
+#: searches look (metres): the farther, the longer a search and the more iterations its answer holds for.
+CERTIFY_MARGIN = 0.02
+
+
+@nb.njit(cache=True, nogil=True)
+def icp_on_grid_3d(src, T, sp, order, start, origin, inv_cell, dims, places, schedule, per_stage, tol, kernel,
+                   sn, margin):  # pragma: no cover - JIT
+    """Trimmed point-to-plane ICP in 3D with exact correspondences from a neighbour grid (the sorted points ``sp``,
+    their rows ``order``, the cell starts ``start``: :func:`grid_build`; ``sn``: the target normals in the order
+    of ``sp``).
+
+    ``schedule`` holds the trimming distances, ``per_stage`` iterations at most each; a stage ends when the step's
+    largest entry is below ``tol`` or fewer than 6 correspondences are found. Each search starts from the previous
+    one's answers, the first from ``places`` (N,; places in ``sp``, -1: none), which is updated. Each iteration
+    moves the points as numpy's ``src @ R.T + t`` (:func:`hsmap.geometry.transform_points`) rounds them with
+    OpenBLAS (per coordinate, the three products summed by fused multiply-adds in axis order, then the translation
+    added), finds their nearest grid points as :func:`grid_nearest` and takes :func:`point_to_plane_step`'s step,
+    with the same arithmetic. Returns the refined 4x4 transform."""
+    m = src.shape[0]
+    T = T.copy()
+    A = np.zeros((6, 6))
+    g = np.zeros(6)
+    ref = np.empty((m, 3))  # where each point's last search was made ...
+    clear = np.full(m, -1.0)  # ... and how far from there no grid point but its nearest lies (< 0: no search yet)
+    near = np.zeros((m, 6))  # ... and its nearest point and normal (read in the source's order)
+    for s in range(schedule.shape[0]):
+        bound = schedule[s]
+        for _ in range(per_stage):
+            a00 = a01 = a02 = a03 = a04 = a05 = 0.0
+            a11 = a12 = a13 = a14 = a15 = 0.0
+            a22 = a23 = a24 = a25 = 0.0
+            a33 = a34 = a35 = 0.0
+            a44 = a45 = 0.0
+            a55 = 0.0
+            g0 = g1 = g2 = g3 = g4 = g5 = 0.0
+            count = 0
+            for i in range(m):
+                sx, sy, sz = src[i, 0], src[i, 1], src[i, 2]
+                px = _fma(sz, T[0, 2], _fma(sy, T[0, 1], sx * T[0, 0])) + T[0, 3]
+                py = _fma(sz, T[1, 2], _fma(sy, T[1, 1], sx * T[1, 0])) + T[1, 3]
+                pz = _fma(sz, T[2, 2], _fma(sy, T[2, 1], sx * T[2, 0])) + T[2, 3]
+                c = places[i]
+                s2 = 0.0
+                searched = True
+                if clear[i] >= 0.0:
+                    # no grid point but c is within clear[i] of ref[i]: c stays the nearest while the point has
+                    # moved less than that minus its distance to c (a nanometre spares the rounding)
+                    dx = px - ref[i, 0]
+                    dy = py - ref[i, 1]
+                    dz = pz - ref[i, 2]
+                    lim = clear[i] - np.sqrt(dx * dx + dy * dy + dz * dz) - 1e-9
+                    if c >= 0:
+                        e0 = near[i, 0] - px
+                        e1 = near[i, 1] - py
+                        s2 = e0 * e0 + e1 * e1
+                        e2 = near[i, 2] - pz
+                        s2 += e2 * e2
+                        searched = not (lim > 0.0 and s2 < lim * lim)
+                    else:
+                        searched = not (lim >= bound)
+                if searched:
+                    s2, c, free2 = _nearest_3d(sp, order, start, origin, inv_cell, dims, px, py, pz, bound, c, margin)
+                    places[i] = c
+                    ref[i, 0], ref[i, 1], ref[i, 2] = px, py, pz
+                    clear[i] = np.sqrt(free2)
+                    if c >= 0:
+                        for k in range(3):
+                            near[i, k] = sp[c, k]
+                            near[i, 3 + k] = sn[c, k]
+                if c < 0 or not s2 < bound * bound:
+                    continue
+                count += 1
+                n0, n1, n2 = near[i, 3], near[i, 4], near[i, 5]
+                r = 0.0
+                r += n0 * (px - near[i, 0])
+                r += n1 * (py - near[i, 1])
+                r += n2 * (pz - near[i, 2])
+                j3 = py * n2 - pz * n1
+                j4 = pz * n0 - px * n2
+                j5 = px * n1 - py * n0
+                w = 1.0
+                if kernel > 0:
+                    t = kernel * kernel + r * r
+                    w = kernel * kernel * kernel * kernel / (t * t)
+                w0 = w * n0
+                w1 = w * n1
+                w2 = w * n2
+                w3 = w * j3
+                w4 = w * j4
+                w5 = w * j5
+                g0 += w0 * r
+                g1 += w1 * r
+                g2 += w2 * r
+                g3 += w3 * r
+                g4 += w4 * r
+                g5 += w5 * r
+                a00 += w0 * n0
+                a01 += w0 * n1
+                a02 += w0 * n2
+                a03 += w0 * j3
+                a04 += w0 * j4
+                a05 += w0 * j5
+                a11 += w1 * n1
+                a12 += w1 * n2
+                a13 += w1 * j3
+                a14 += w1 * j4
+                a15 += w1 * j5
+                a22 += w2 * n2
+                a23 += w2 * j3
+                a24 += w2 * j4
+                a25 += w2 * j5
+                a33 += w3 * j3
+                a34 += w3 * j4
+                a35 += w3 * j5
+                a44 += w4 * j4
+                a45 += w4 * j5
+                a55 += w5 * j5
+            A[0, 0], A[0, 1], A[0, 2], A[0, 3], A[0, 4], A[0, 5] = a00, a01, a02, a03, a04, a05
+            A[1, 1], A[1, 2], A[1, 3], A[1, 4], A[1, 5] = a11, a12, a13, a14, a15
+            A[2, 2], A[2, 3], A[2, 4], A[2, 5] = a22, a23, a24, a25
+            A[3, 3], A[3, 4], A[3, 5] = a33, a34, a35
+            A[4, 4], A[4, 5] = a44, a45
+            A[5, 5] = a55
+            g[0], g[1], g[2], g[3], g[4], g[5] = g0, g1, g2, g3, g4, g5
+            dT, step, found = _plane_step(A, g, count, 3)
+            if found < 6:
+                break
+            T = dT @ T
+            if step < tol:
+                break
+    return T

@@ -30,7 +30,6 @@ from .harmony import HarmonyResult, as_rng, harmony_search
 from .information import adjoint, constrained_axes, drop_degenerate
 from .normals import estimate_normals, orient_normals
 from .refine import (
-    _alignment_cost,
     _cost_of,
     _information_and_cost,
     _match,
@@ -133,8 +132,9 @@ def _polish(source: NDArray[np.float64], target: RegistrationTarget, pose: NDArr
         return None
     cand = refine_icp(src, fine, pose, max_distance=cfg.polish_distance, iterations=cfg.polish_iterations,
                       robust_kernel=cfg.polish_kernel)
-    before = _alignment_cost(pose, src, fine, cfg.threshold, plane=True)
-    after = _alignment_cost(cand, src, fine, cfg.threshold, plane=True)
+    at_pose = _match(pose, src, fine, cfg.threshold)
+    before = _cost_of(at_pose, fine, cfg.threshold, True)
+    after = _cost_of(_match(cand, src, fine, cfg.threshold, at_pose[3]), fine, cfg.threshold, True)
     return cand if after < before else None
 
 

@@ -24,7 +24,7 @@ from scipy.spatial import cKDTree
 from .._threads import current_threads, helper_pool
 from ..errors import InputError, ShapeError
 
-__all__ = ["NeighbourGrid", "grid_fits", "tree_query", "MAX_CELLS", "MAX_CELLS_PER_POINT"]
+__all__ = ["NeighbourGrid", "TrackedQuery", "grid_fits", "tree_query", "MAX_CELLS", "MAX_CELLS_PER_POINT"]
 
 #: At most this many cells in a grid (4 bytes each: 128 MB)...
 MAX_CELLS = 1 << 25
@@ -98,6 +98,7 @@ class NeighbourGrid:
         self._inv = 1.0 / self.cell
         self._sorted, self._order, self._start = _kernels.grid_build(pts, origin, self._inv, dims)
         self._rank: NDArray[np.int64] | None = None  # each row's place in the sorted points, for hints
+        self._sorted_values: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
         self._kernel = _kernels.grid_nearest
 
     def __len__(self) -> int:
@@ -166,6 +167,28 @@ class NeighbourGrid:
                                           self.dims, self.rank(), h, float(bound), int(iterations), float(tolerance),
                                           float(kernel), self.points, normals)
 
+    def icp_3d(self, source: NDArray[np.float64], T: NDArray[np.float64], schedule: NDArray[np.float64],
+               per_stage: int, tolerance: float, kernel: float, normals: NDArray[np.float64],
+               hint: NDArray[np.intp] | None) -> NDArray[np.float64]:
+        """Trimmed point-to-plane ICP of the 3D ``source`` from the 4x4 transform ``T`` on this grid's points and
+        their ``normals``, exact correspondences within each distance of ``schedule`` in turn, ``per_stage``
+        iterations at most each (:func:`hsmap.registration._kernels.icp_on_grid_3d`): the refined transform.
+        ``hint`` (N,): rows near the moved points (None: none)."""
+        from . import _kernels  # numba: compiled on first use
+
+        places = self._hint_places(hint, len(source))
+        return _kernels.icp_on_grid_3d(source, T, self._sorted, self._order, self._start, self.origin, self._inv,
+                                       self.dims, places, np.asarray(schedule, dtype=float), int(per_stage),
+                                       float(tolerance), float(kernel), self.sorted_like(normals),
+                                       _kernels.CERTIFY_MARGIN)
+
+    def sorted_like(self, values: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Per-row ``values`` (M, k) in the order of the grid's sorted points (the last array asked for is kept)."""
+        kept = self._sorted_values
+        if kept is None or kept[0] is not values:
+            kept = self._sorted_values = (values, np.ascontiguousarray(values[self._order], dtype=np.float64))
+        return kept[1]
+
 
 #: KD-tree queries of at least this many points are split between the compute threads
 #: (:func:`hsmap._threads.current_threads`); each point's answer is its own, so the result does not depend on the
@@ -190,3 +213,56 @@ def tree_query(tree: cKDTree, points: NDArray[np.float64], *, k: int = 1,
     answers = [tree.query(parts[0], k=k, distance_upper_bound=distance_upper_bound)]
     answers += [f.result() for f in futures]
     return np.concatenate([d for d, _ in answers]), np.concatenate([i for _, i in answers])
+
+
+class TrackedQuery:
+    """Nearest neighbours within a bound, from a KD-tree, of points that move a little between queries (an ICP's
+    source points, iteration by iteration): ``tree_query(tree, moved, distance_upper_bound=bound)``'s answer,
+    bit for bit, but for exact ties.
+
+    Each point's search looks ``margin`` metres beyond the bound (its two nearest points); a later query searches
+    the point again only when it may have moved so far that another point could be its nearest, and otherwise
+    takes the nearest it knows, its distance summed as the tree sums it.
+    """
+
+    def __init__(self, tree: cKDTree, margin: float) -> None:
+        self.tree = tree
+        self.points = np.asarray(tree.data, dtype=np.float64)
+        self.margin = float(margin)
+        self._ref: NDArray[np.float64] | None = None  # where each point was last searched ...
+        self._row: NDArray[np.intp] | None = None  # ... its nearest row there (len(points): none within reach)
+        self._clear: NDArray[np.float64] | None = None  # ... and how far from there no other row lies
+
+    def __call__(self, moved: NDArray[np.float64], bound: float) -> tuple[NDArray[np.float64], NDArray[np.intp]]:
+        """Distance to the nearest point closer than ``bound`` and its row, per moved point (N, d); ``inf`` and
+        ``len(points)`` where none is. ``moved`` holds the same points as at the previous call, in the same order."""
+        n = len(self.points)
+        if self._ref is None or len(self._ref) != len(moved):
+            again = np.arange(len(moved))
+            self._ref = np.empty_like(moved)
+            self._row = np.full(len(moved), n, dtype=np.intp)
+            self._clear = np.zeros(len(moved))
+        else:
+            lim = self._clear - np.sqrt(((moved - self._ref) ** 2).sum(1)) - 1e-9  # a nanometre spares the rounding
+            known = self._row < n
+            s2 = self._squared(moved, self._row)
+            keep = np.where(known, (lim > 0) & (s2 < lim * lim), lim >= bound)
+            again = np.flatnonzero(~keep)
+        if len(again):
+            reach = bound + self.margin
+            d, i = tree_query(self.tree, moved[again], k=2, distance_upper_bound=reach)
+            self._ref[again] = moved[again]
+            self._row[again] = np.where(np.isfinite(d[:, 0]), i[:, 0], n)
+            self._clear[again] = np.where(np.isfinite(d[:, 1]), d[:, 1], reach)
+        s2 = self._squared(moved, self._row)
+        found = (self._row < n) & (s2 < bound * bound)
+        return np.where(found, np.sqrt(s2), np.inf), np.where(found, self._row, n)
+
+    def _squared(self, moved: NDArray[np.float64], rows: NDArray[np.intp]) -> NDArray[np.float64]:
+        """Squared distances of the moved points to the rows (any where a row is len(points)), summed over the
+        axes in order as the tree sums them."""
+        e = moved - self.points[np.minimum(rows, len(self.points) - 1)]
+        s2 = e[:, 0] * e[:, 0] + e[:, 1] * e[:, 1]
+        for k in range(2, e.shape[1]):
+            s2 += e[:, k] * e[:, k]
+        return s2

@@ -10,6 +10,7 @@ from ..errors import InputError
 from ..geometry import dof_of_dim, matrix_to_pose, pose_to_matrix, transform_points
 from .config import Refinement
 from .information import adjoint
+from .neighbours import TrackedQuery
 from .target import RegistrationTarget
 
 
@@ -75,11 +76,18 @@ def refine_icp(
         if grid is not None:  # the exact iterations compiled whole
             T = grid.polish_2d(src, T, schedule[0], per_stage, tolerance, robust_kernel, normals, hint)
             return matrix_to_pose(T)
+    grid = target.grid_for(max(schedule)) if normals is not None and dim == 3 else None
+    if grid is not None:  # the exact iterations compiled whole
+        src = np.ascontiguousarray(source, dtype=float)
+        return matrix_to_pose(grid.icp_3d(src, T, np.asarray(schedule), per_stage, tolerance, robust_kernel,
+                                          normals, hint))
     idx = hint  # the previous iteration's correspondences: the next search starts from them
+    # where the KD-tree answers, a point is searched again only once it may have a new nearest neighbour
+    tracked = TrackedQuery(target.tree, _kernels.CERTIFY_MARGIN) if target.grid_for(max(schedule)) is None else None
     for dist in schedule:
         for _ in range(per_stage):
             moved = transform_points(T, source)
-            d, idx = target.nearest(moved, dist, idx)
+            d, idx = tracked(moved, dist) if tracked is not None else target.nearest(moved, dist, idx)
             if normals is not None:
                 dT, step, found = _kernels.point_to_plane_step(moved, d, idx, target.points, normals, robust_kernel)
                 if found < 2 * dim:

@@ -403,6 +403,10 @@ class PoseGraph:
         return graph, values
 
 
+#: iSAM2 relinearises a variable whose linear step exceeds this (its tangent's largest entry).
+_RELINEARIZE = 1e-3
+
+
 class _Incremental:
     """GTSAM's iSAM2 kept factorised between a pose graph's optimisations (Kaess et al. 2012): the solver, how many
     of the graph's nodes are in it, each edge's factor slot (-1 where it is not in) and the gauge node."""
@@ -416,8 +420,9 @@ class _Incremental:
     def optimize(self, pg: PoseGraph, gtsam, max_iterations: int, prune_rounds: int, fixed: int
                  ) -> OptimizationResult:
         """:meth:`PoseGraph.optimize` of ``pg`` by iSAM2: the nodes and edges added since the last call go in,
-        switched-off edges out, then iSAM2 steps (each relinearising what moved) until no pose moves by more than
-        1e-6 or ``max_iterations`` steps; the gate's rounds as in the batch solver."""
+        switched-off edges out, then iSAM2 steps (each relinearising what moved) until no variable's step would be
+        relinearised, no pose moves by more than 1e-6, or ``max_iterations`` steps; the gate's rounds as in the
+        batch solver."""
         if self.isam is not None and fixed != self.fixed:
             self.isam = None  # another gauge: start over
         rejected: list[int] = []
@@ -425,7 +430,7 @@ class _Incremental:
         try:
             if self.isam is None:
                 params = gtsam.ISAM2Params()
-                params.setRelinearizeThreshold(1e-3)
+                params.setRelinearizeThreshold(_RELINEARIZE)
                 params.relinearizeSkip = 1
                 self.isam = gtsam.ISAM2(params)
                 self.nodes, self.slot, self.fixed = 0, [], fixed
@@ -458,6 +463,9 @@ class _Incremental:
                 poses = _from_gtsam(gtsam, pg.dof, estimate, pg._n)
                 steps = 1
                 while steps < max_iterations:
+                    delta = self.isam.getDelta().vector()
+                    if not len(delta) or np.abs(delta).max() < _RELINEARIZE:
+                        break  # an update would relinearise nothing: the estimate stays as it is
                     self.isam.update()
                     estimate = self.isam.calculateEstimate()
                     nxt = _from_gtsam(gtsam, pg.dof, estimate, pg._n)

@@ -78,7 +78,7 @@ def run_once(frames, seed: int, size: int, threads: int) -> dict:
         from hsmap._threads import using_threads
 
         with using_threads(threads):
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             slam = HsSlam(SlamConfig(dof=3), rng=seed)
             for i, f in enumerate(frames):
                 block[0] = i // size
@@ -86,7 +86,7 @@ def run_once(frames, seed: int, size: int, threads: int) -> dict:
                     costs[i // size - 1] = slam.costs.as_dict()
                 slam.process(f)
             slam.finish()
-            wall = time.perf_counter() - t0
+            wall, cpu = time.perf_counter() - t0, time.process_time() - c0
             costs[block[0]] = slam.costs.as_dict()
     finally:
         for holder, fn, orig in undo:
@@ -102,7 +102,7 @@ def run_once(frames, seed: int, size: int, threads: int) -> dict:
                "counts": {k: c[k] - prev[k] for k in COUNTED}}
         prev = c
         rows.append(row)
-    return {"seed": seed, "wall_seconds": wall, "keyframes": len(slam.keyframes), "blocks": rows,
+    return {"seed": seed, "wall_seconds": wall, "cpu_seconds": cpu, "keyframes": len(slam.keyframes), "blocks": rows,
             "costs": slam.costs.as_dict(), "loop_closure": slam.keyframe_graph.summary(),
             "trajectory": slam.trajectory}
 
@@ -137,7 +137,7 @@ def main(argv=None) -> int:
         r["relations"] = _relations(r.pop("trajectory"), rel, True)
         runs.append(r)
         t = r["relations"]["all"]["translation_m"]["mean"]
-        print(f"{args.input} seed {seed}: {n} frames, {r['keyframes']} keyframes, {r['wall_seconds']:.1f} s wall, "
+        print(f"{args.input} seed {seed}: {n} frames, {r['keyframes']} keyframes, {r['wall_seconds']:.1f} s wall, {r['cpu_seconds']:.1f} s CPU, "
               f"relations {t:.4f} m")
         print("  frames       " + " ".join(f"{k[:9]:>9s}" for k in PARTS))
         for row in r["blocks"]:

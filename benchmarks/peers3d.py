@@ -22,7 +22,8 @@ with its helper process). Reading the sweeps is not counted. A peer that is not 
 ``status`` and ``reason``, never dropped. Writes reports/benchmarks/peers3d.json (atomically, after each run).
 
     .venv/bin/python benchmarks/peers3d.py [--seeds 0,1,2] [--max-sweeps N] [--only hs_slam_6dof kiss_icp genz_icp
-        small_gicp] [--dataset DIR] [--scratch DIR]
+        small_gicp] [--settings defaults ouster] [--dataset DIR]
+        [--scratch DIR]
 """
 
 from __future__ import annotations
@@ -143,6 +144,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", default="0,1,2", help="HS-SLAM seeds, comma-separated (0: the command line's default)")
     ap.add_argument("--max-sweeps", type=int, default=None, help="the first N sweeps only (smoke runs)")
     ap.add_argument("--only", nargs="+", choices=METHODS, default=list(METHODS))
+    ap.add_argument("--settings", nargs="+", default=None,
+                    help="the peers' settings to run (defaults, ouster; default: every setting of each peer)")
     ap.add_argument("--scratch", default=None, help="the sweep folder to make (default: a temporary one)")
     ap.add_argument("--out", default=str(ROOT / "reports/benchmarks/peers3d.json"))
     args = ap.parse_args(argv)
@@ -156,6 +159,9 @@ def main(argv=None) -> int:
     )
 
     seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
+    known = sorted({s for v in SETTINGS.values() for s in v})
+    if args.settings is not None and set(args.settings) - set(known):
+        ap.error(f"--settings: expected some of {known}, got {args.settings}")
     src = Path(args.dataset) if args.dataset else balm_folder()
     out: dict = {"benchmark": "peers3d", "machine": machine(), "hsmap_version": hsmap.__version__,
                  "command": " ".join([sys.executable, *sys.argv]), "runs": {}}
@@ -177,7 +183,9 @@ def main(argv=None) -> int:
         for name in args.only:
             runs: dict = {}
             out["runs"][name] = runs
-            todo = [(f"seed{s}", s) for s in seeds] if name == "hs_slam_6dof" else [(s, s) for s in SETTINGS[name]]
+            todo = [(f"seed{s}", s) for s in seeds] if name == "hs_slam_6dof" else [(s, s) for s in SETTINGS[name]
+                                                                          if args.settings is None
+                                                                          or s in args.settings]
             for label, what in todo:
                 load = load_average()
                 if name == "hs_slam_6dof":

@@ -243,6 +243,42 @@ def test_a_scheduler_that_is_not_an_address_is_one_line():
         _client(None, "not a url")
 
 
+def _flaky_cluster(monkeypatch, failures: int) -> list:
+    """dask.distributed's LocalCluster and Client replaced: the cluster's first ``failures`` starts fail as
+    distributed's own event-loop check does on a busy machine (an AssertionError). Returns the list of starts."""
+    import dask.distributed
+
+    starts = []
+
+    class Cluster:
+        def __init__(self, **kwargs):
+            starts.append(kwargs)
+            if len(starts) <= failures:
+                raise AssertionError
+
+    monkeypatch.setattr(dask.distributed, "LocalCluster", Cluster)
+    monkeypatch.setattr(dask.distributed, "Client", lambda cluster: ("client", cluster))
+    return starts
+
+
+def test_a_local_cluster_whose_event_loop_starts_late_is_started_again(monkeypatch):
+    from hsmap.study.distributed import LOCAL_CLUSTER_TRIES, _client
+
+    starts = _flaky_cluster(monkeypatch, LOCAL_CLUSTER_TRIES - 1)
+    client, cluster = _client(1, None)
+    assert client == ("client", cluster) and len(starts) == LOCAL_CLUSTER_TRIES
+
+
+def test_a_local_cluster_that_never_starts_is_one_line(monkeypatch):
+    from hsmap.errors import ConfigError
+    from hsmap.study.distributed import LOCAL_CLUSTER_TRIES, _client
+
+    starts = _flaky_cluster(monkeypatch, LOCAL_CLUSTER_TRIES)
+    with pytest.raises(ConfigError, match=r"^could not start a local Dask cluster: .* give --scheduler an address$"):
+        _client(1, None)
+    assert len(starts) == LOCAL_CLUSTER_TRIES
+
+
 def test_the_local_cluster_and_its_dashboard_listen_on_loopback_only():
     """The local cluster's scheduler, workers and dashboard (which has no authentication) listen on the loopback
     address only."""

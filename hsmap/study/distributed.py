@@ -61,6 +61,10 @@ def _one_line(exc: BaseException) -> str:
     return " ".join(f"{type(exc).__name__}: {exc}".split())
 
 
+#: Starts of a local cluster tried before giving up (see :func:`_client`).
+LOCAL_CLUSTER_TRIES = 3
+
+
 def _client(workers: int | None, scheduler: str | None):
     try:
         import dask
@@ -84,9 +88,19 @@ def _client(workers: int | None, scheduler: str | None):
     environ = {k: v for k, v in dask.config.get("distributed.nanny.pre-spawn-environ", {}).items()
                if k != "MALLOC_TRIM_THRESHOLD_"}
     # the scheduler, its workers and its dashboard (which has no authentication) listen on loopback only
-    with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}):
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
-                               dashboard_address="127.0.0.1:0", silence_logs=40)
+    for attempt in range(LOCAL_CLUSTER_TRIES):
+        try:
+            with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}):
+                cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                       dashboard_address="127.0.0.1:0", silence_logs=40)
+            break
+        except AssertionError:
+            # distributed waits a fixed 10 s for its event-loop thread to start and asserts that it did: on a
+            # busy machine it may not have, and a new cluster is started
+            if attempt == LOCAL_CLUSTER_TRIES - 1:
+                raise ConfigError(f"could not start a local Dask cluster: its event loop did not start within "
+                                  f"10 s, {LOCAL_CLUSTER_TRIES} times (a busy machine?); run again, or give "
+                                  f"--scheduler an address") from None
     return Client(cluster), cluster
 
 

@@ -245,18 +245,13 @@ def _median_run(runs: list[dict]) -> dict:
 
 def bench_log(name: str, datasets: Path, peers: list[str], max_frames: int | None, seed: int,
               timeout: float, repeat: int = 1, record: bool = True) -> dict:
-    from slam import FREIBURG  # benchmarks/slam.py
-
-    from hsmap.datasets.open import open_dataset
-    from hsmap.datasets.relations import read_relations
+    from slam import FREIBURG, freiburg_frames  # benchmarks/slam.py
 
     spec = FREIBURG[name]
-    ds = open_dataset(datasets / "slam2d" / spec["bag"], extrinsic2d=spec["extrinsic2d"])
-    frames = [f for _, f in zip(range(max_frames or len(ds)), ds.frames(clouds=False), strict=False)]
-    rel = read_relations(datasets / "slam2d" / spec["relations"])
+    frames, rel, total = freiburg_frames(name, datasets, max_frames)
     stamps = np.array([f.stamp for f in frames])
     duration = float(stamps.max() - stamps.min())
-    partial = max_frames is not None and max_frames < len(ds)
+    partial = max_frames is not None and max_frames < total
     out: dict = {"frames": len(frames), "log_duration_s": duration, "max_frames": max_frames,
                  "published": {k: v for k, v in spec.items() if k.endswith(("_m", "_deg"))}}
 

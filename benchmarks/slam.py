@@ -67,6 +67,15 @@ def _stats(e: np.ndarray) -> dict:
     return {"mean": float(e.mean()), "sd": float(e.std(ddof=1)) if e.size > 1 else 0.0, "n": int(e.size)}
 
 
+def freiburg_frames(name: str, datasets: str | Path, max_frames: int | None = None) -> tuple[list, object, int]:
+    """The first ``max_frames`` frames (every one: None) of the Freiburg log ``name`` (its scans only), its
+    relations, and the log's number of frames."""
+    spec = FREIBURG[name]
+    ds = open_dataset(Path(datasets) / "slam2d" / spec["bag"], extrinsic2d=spec["extrinsic2d"])
+    frames = [f for _, f in zip(range(max_frames or len(ds)), ds.frames(clouds=False), strict=False)]
+    return frames, read_relations(Path(datasets) / "slam2d" / spec["relations"]), len(ds)
+
+
 def freiburg_run(name: str, datasets: str, seed: int, max_frames: int | None, loop_closure: bool,
                  threads: int | None = None) -> dict:
     """One seed on one log, in its own process (see main), on ``threads`` compute threads (None: every core)."""

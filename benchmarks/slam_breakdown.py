@@ -170,18 +170,13 @@ def main(argv=None) -> int:
         variants = [{key: ast.literal_eval(value)}, {}]
 
     from _report import finish, machine  # benchmarks/_report.py
-    from slam import FREIBURG  # benchmarks/slam.py
+    from slam import freiburg_frames  # benchmarks/slam.py
 
-    from hsmap.datasets.open import open_dataset
-    from hsmap.datasets.relations import read_relations
     from hsmap.slam import SlamConfig, run_slam
     from hsmap.study.paths import datasets_dir
 
-    spec = FREIBURG[args.input]
-    ds = open_dataset(datasets_dir() / "slam2d" / spec["bag"], extrinsic2d=spec["extrinsic2d"])
-    n = min(len(ds), args.max_frames or len(ds))
-    frames = [f for _, f in zip(range(n), ds.frames(clouds=False), strict=False)]
-    rel = read_relations(datasets_dir() / "slam2d" / spec["relations"])
+    frames, rel, _ = freiburg_frames(args.input, datasets_dir(), args.max_frames)
+    n = len(frames)
     run_slam(frames[:5], SlamConfig(dof=3), rng=1, progress=False)  # compile the kernels first
     host = machine()
     runs = []

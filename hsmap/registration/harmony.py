@@ -203,6 +203,8 @@ def _check_bounds(bounds: ArrayLike, name: str = "bounds") -> NDArray[np.float64
         raise ShapeError(f"{name} must be a numeric array of shape (D, 2) [lower, upper]") from None
     if b.ndim != 2 or b.shape[1] != 2 or b.shape[0] < 1:
         raise ShapeError(f"{name} must have shape (D, 2) of [lower, upper] per variable, got {b.shape}")
+    if bool((b[:, 0] <= b[:, 1]).all()) and bool(np.isfinite(b).all()):  # one test for a valid box
+        return b
     if not np.all(np.isfinite(b)):
         raise InputError(f"{name} must be finite, got {b.tolist()}")
     bad = np.flatnonzero(b[:, 1] < b[:, 0])
@@ -376,8 +378,11 @@ def _initial_memory(cfg: HarmonyConfig, gen: np.random.Generator, lo: NDArray[np
         init = np.atleast_2d(np.asarray(initial, dtype=float))
         if init.ndim != 2 or init.shape[1] != dim:
             raise ShapeError(f"initial guesses must have shape (K, {dim}), got {np.asarray(initial).shape}")
-        init = init[np.all(np.isfinite(init), axis=1)][:hms]
-        memory[: len(init)] = np.clip(init, lo, hi)
+        if not np.isfinite(init).all():
+            init = init[np.all(np.isfinite(init), axis=1)]
+        init = init[:hms]
+        # np.clip's arithmetic (lo <= hi), without its dispatch
+        memory[: len(init)] = np.minimum(np.maximum(init, lo), hi)
     return memory
 
 

@@ -776,11 +776,14 @@ def hint_places(hint, rank):  # pragma: no cover - JIT
 @nb.njit(cache=True, nogil=True)
 def spans_rank(pts, rank):  # pragma: no cover - JIT
     """Whether points (N, d), N >= 1, span ``rank`` dimensions: the scatter's (:func:`centred_scatter`) eigenvalue
-    ``d - rank`` (ascending) above 1e-18 of the largest; with no spread (or a coordinate not finite), rank 0 only."""
+    ``d - rank`` (ascending) above 1e-18 of the largest; with no spread (or a coordinate not finite), rank 0 only
+    (which any point spans)."""
     d = pts.shape[1]
+    if rank == 0:
+        return True
     scale, S = centred_scatter(pts)
     if not scale > 0 or not scale < np.inf:
-        return rank == 0
+        return False
     ev = np.linalg.eigvalsh(S)
     return ev[d - rank] > 1e-18 * ev[d - 1]
 

@@ -377,7 +377,7 @@ class OdometryModel:
             return
         spread = [1.4826 * self._lagged.deviation(c) for c in range(3)]  # MAD as a Gaussian's sigma
         lo, hi = cfg.odometry_scale_bounds
-        self.scale = np.clip([max(spread[0], spread[1]), spread[2]], lo, hi)
+        self.scale = np.array([min(max(max(spread[0], spread[1]), lo), hi), min(max(spread[2], lo), hi)])
 
     def accumulate_wheel(self, frame: Frame) -> None:
         """Add the frame's step (bias out) to the wheel motion since the newest keyframe, its covariance

@@ -6,6 +6,7 @@ runs, a small search in the box of the prediction's uncertainty where that box i
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import replace
 
@@ -67,11 +68,14 @@ class SearchBox:
         if cfg.dof != 3 or prediction is None:
             return None
         centre, sig = prediction
-        h = np.array([sig[0], sig[0], sig[1]]) * cfg.verify_sigmas
-        h[:2] = np.maximum(h[:2], 2 * cfg.effective_scan_voxel())
-        if np.any(h >= half):
+        # the half-widths (translation, yaw) and the box on floats: the arithmetic of the arrays
+        t = max(float(sig[0]) * cfg.verify_sigmas, 2 * cfg.effective_scan_voxel())
+        r = float(sig[1]) * cfg.verify_sigmas
+        h0, h1, h2 = half.tolist()
+        if t >= h0 or t >= h1 or r >= h2:
             return None
-        return np.column_stack([centre - h, centre + h])
+        x, y, yaw = centre.tolist()
+        return np.array([[x - t, x + t], [y - t, y + t], [yaw - r, yaw + r]])
 
     def tight_config(self) -> RegistrationConfig:
         """The tracking's registration settings with the small Harmony Search of a tight box
@@ -88,10 +92,12 @@ class SearchBox:
         slipped more than its sigmas say), or it fails the inlier check (:meth:`passes`)."""
         reg = self.config.registration
         cell = reg.field_resolution or max(0.02, reg.search_threshold / 10.0)
-        radius = float(np.sqrt(((scan - scan.mean(0)) ** 2).sum(1).mean())) + 1e-9
-        margin = np.array([cell, cell, cell / radius])
-        g = res.global_pose
-        return bool(np.any(g <= box[:, 0] + margin) or np.any(g >= box[:, 1] - margin)) or not self.passes(res)
+        n = len(scan)  # the means as numpy's mean computes them (a sum, then a division)
+        radius = math.sqrt(((scan - scan.sum(0) / n) ** 2).sum(1).sum() / n) + 1e-9
+        margin = (cell, cell, cell / radius)
+        edge = any(g <= lo + m or g >= hi - m for g, (lo, hi), m in zip(res.global_pose.tolist(), box.tolist(),
+                                                                        margin, strict=True))
+        return edge or not self.passes(res)
 
     def record(self, inlier_ratio: float, verified: bool) -> None:
         """Remember a tracked frame's inlier ratio and whether it was confirmed."""

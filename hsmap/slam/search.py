@@ -34,6 +34,14 @@ __all__ = ["SearchBox", "same_pose", "TIGHT_HARMONY"]
 TIGHT_HARMONY = {"memory_size": 10, "batch_size": 8, "patience": 5, "draw_rounds": 6}
 
 
+def _median(values: list[float]) -> float:
+    """The median of finite floats (at least one), as ``np.median`` gives it: the middle value, or the mean of
+    the two middle ones (their sum halved)."""
+    s = sorted(values)
+    k = len(s) // 2
+    return s[k] if len(s) % 2 else (s[k - 1] + s[k]) / 2
+
+
 def same_pose(a: NDArray[np.float64], b: NDArray[np.float64]) -> bool:
     """Whether two 6-DOF poses lie within 5 cm and 1 deg of each other."""
     d = relative(a, b)
@@ -149,10 +157,10 @@ class SearchBox:
         if len(recent) < 3:
             self._inliers = (None, None)
             return self._inliers
-        ref = float(np.median(recent))
+        ref = _median(recent)
         floor = self.config.min_inlier_share * ref
         if self.follows_motion:
-            spread = 1.4826 * float(np.median(np.abs(np.array(recent) - ref)))
+            spread = 1.4826 * _median([abs(r - ref) for r in recent])
             floor = max(floor, ref - self.config.verify_sigmas * spread)
         self._inliers = (ref, floor)
         return self._inliers

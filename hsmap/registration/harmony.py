@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import enum
 import functools
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -203,7 +204,7 @@ def _check_bounds(bounds: ArrayLike, name: str = "bounds") -> NDArray[np.float64
         raise ShapeError(f"{name} must be a numeric array of shape (D, 2) [lower, upper]") from None
     if b.ndim != 2 or b.shape[1] != 2 or b.shape[0] < 1:
         raise ShapeError(f"{name} must have shape (D, 2) of [lower, upper] per variable, got {b.shape}")
-    if bool((b[:, 0] <= b[:, 1]).all()) and bool(np.isfinite(b).all()):  # one test for a valid box
+    if all(math.isfinite(lo) and lo <= hi < math.inf for lo, hi in b.tolist()):  # a valid box, on floats
         return b
     if not np.all(np.isfinite(b)):
         raise InputError(f"{name} must be finite, got {b.tolist()}")
@@ -359,6 +360,8 @@ def _spread_tolerance(spread: ArrayLike | None, dim: int) -> NDArray[np.float64]
     if spread is None:
         return np.full(dim, -1.0)
     tol_x = np.asarray(spread, dtype=float).reshape(-1)
+    if tol_x.shape == (dim,) and all(0.0 <= v < math.inf for v in tol_x.tolist()):  # valid, on floats
+        return tol_x
     if tol_x.shape != (dim,) or not np.all(np.isfinite(tol_x) & (tol_x >= 0)):
         raise ShapeError(f"spread must hold {dim} finite values >= 0 (one per variable), got {quote(spread)}")
     return tol_x

@@ -80,7 +80,7 @@ def _check_bounds(bounds: ArrayLike, dof: int) -> NDArray[np.float64]:
         raise ShapeError(f"bounds must be a numeric array of shape ({dof}, 2)") from None
     if b.shape != (dof, 2):
         raise ShapeError(f"bounds must have shape ({dof}, 2) [lower, upper] for a {dof}-DOF pose, got {b.shape}")
-    if bool((b[:, 0] <= b[:, 1]).all()) and bool((np.abs(b) < 1e300).all()):  # a valid box, widths finite
+    if all(-1e300 < lo <= hi < 1e300 for lo, hi in b.tolist()):  # a valid box, its widths finite, on floats
         return b
     if not np.all(np.isfinite(b)):
         raise InputError(f"bounds must be finite, got {b.tolist()}")

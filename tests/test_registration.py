@@ -533,3 +533,34 @@ def test_information_and_cost_of_a_pose_are_the_point_to_line_sums(kernel):
     np.testing.assert_allclose(info, want, rtol=1e-10)
     assert cost == pytest.approx((np.minimum(np.abs(r), 0.1).sum() + 0.1 * (len(src) - n)) / (0.1 * len(src)),
                                  rel=1e-12)
+
+
+def _spans_reference(points, rank):
+    """spans_its_space's rule in numpy: the centred scatter's eigenvalue d - rank above 1e-18 of the largest."""
+    d = points.shape[1]
+    if len(points) < rank + 1:
+        return False
+    if rank == 0:
+        return True
+    c = points - points.mean(0)
+    scale = np.abs(c).max()
+    if not scale > 0 or not np.isfinite(scale):
+        return rank == 0
+    ev = np.linalg.eigvalsh((c / scale).T @ (c / scale))
+    return bool(ev[d - rank] > 1e-18 * ev[-1])
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_spans_its_space_follows_the_scatter_eigenvalue_rule(dim):
+    """Random clouds, clouds on a line or a plane, coinciding points and one point: spans_its_space answers as
+    the numpy rule does for every rank."""
+    from hsmap.registration.icp import spans_its_space
+    rng = np.random.default_rng(7)
+    clouds = [rng.normal(size=(n, dim)) * rng.uniform(0.01, 100) for n in (1, 2, 5, 40)]
+    line = np.outer(rng.normal(size=30), rng.normal(size=dim)) + rng.normal(size=dim)
+    clouds += [line, np.ones((6, dim)), np.zeros((1, dim))]
+    if dim == 3:
+        clouds.append(np.column_stack([rng.normal(size=(20, 2)), np.full(20, 2.5)]))
+    for cloud in clouds:
+        for rank in range(dim + 1):
+            assert spans_its_space(cloud, rank) == _spans_reference(cloud, rank), (cloud.shape, rank)

@@ -1193,3 +1193,14 @@ def test_the_inlier_check_follows_every_frame_recorded_after_it_was_asked():
     for _ in range(10):
         box.record(0.9, False)  # unconfirmed frames leave no reference
     assert box.inlier_reference() is None and box.inlier_floor() is None and box.passes(drop)
+
+
+def test_the_inlier_levels_take_numpy_s_median():
+    """The search box's median of recent inlier ratios is np.median's, bit for bit, for odd and even counts."""
+    from hsmap.slam.search import _median
+
+    rng = np.random.default_rng(5)
+    for n in range(1, 25):
+        for _ in range(20):
+            values = rng.uniform(0.0, 1.0, n).tolist()
+            assert _median(values) == float(np.median(values))

@@ -762,6 +762,33 @@ def grid_nearest(sp, order, start, origin, inv_cell, dims, q, bound, hint, out_d
 
 
 @nb.njit(cache=True, nogil=True)
+def hint_places(hint, rank):  # pragma: no cover - JIT
+    """The places in a grid's sorted points (``rank``: each row's) of the hinted rows ``hint`` (N,), -1 where a
+    hint is not a row."""
+    m = rank.shape[0]
+    out = np.empty(hint.shape[0], dtype=np.int64)
+    for i in range(hint.shape[0]):
+        h = hint[i]
+        out[i] = rank[h] if 0 <= h < m else -1
+    return out
+
+
+@nb.njit(cache=True, nogil=True)
+def spans_rank(pts, rank):  # pragma: no cover - JIT
+    """Whether points (N, d), N >= 1, span ``rank`` dimensions: the scatter's (:func:`centred_scatter`) eigenvalue
+    ``d - rank`` (ascending) above 1e-18 of the largest; with no spread (or a coordinate not finite), rank 0 only
+    (which any point spans)."""
+    d = pts.shape[1]
+    if rank == 0:
+        return True
+    scale, S = centred_scatter(pts)
+    if not scale > 0 or not scale < np.inf:
+        return False
+    ev = np.linalg.eigvalsh(S)
+    return ev[d - rank] > 1e-18 * ev[d - 1]
+
+
+@nb.njit(cache=True, nogil=True)
 def centred_scatter(pts):  # pragma: no cover - JIT
     """The spread of points (N, d), N >= 1, about their mean: (scale, S) with scale the largest absolute centred
     coordinate and S (d, d) the sum of the outer products of the centred points divided by it; scale is NaN where

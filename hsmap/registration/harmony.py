@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import enum
 import functools
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -203,6 +204,8 @@ def _check_bounds(bounds: ArrayLike, name: str = "bounds") -> NDArray[np.float64
         raise ShapeError(f"{name} must be a numeric array of shape (D, 2) [lower, upper]") from None
     if b.ndim != 2 or b.shape[1] != 2 or b.shape[0] < 1:
         raise ShapeError(f"{name} must have shape (D, 2) of [lower, upper] per variable, got {b.shape}")
+    if all(math.isfinite(lo) and lo <= hi < math.inf for lo, hi in b.tolist()):  # a valid box, on floats
+        return b
     if not np.all(np.isfinite(b)):
         raise InputError(f"{name} must be finite, got {b.tolist()}")
     bad = np.flatnonzero(b[:, 1] < b[:, 0])
@@ -357,6 +360,8 @@ def _spread_tolerance(spread: ArrayLike | None, dim: int) -> NDArray[np.float64]
     if spread is None:
         return np.full(dim, -1.0)
     tol_x = np.asarray(spread, dtype=float).reshape(-1)
+    if tol_x.shape == (dim,) and all(0.0 <= v < math.inf for v in tol_x.tolist()):  # valid, on floats
+        return tol_x
     if tol_x.shape != (dim,) or not np.all(np.isfinite(tol_x) & (tol_x >= 0)):
         raise ShapeError(f"spread must hold {dim} finite values >= 0 (one per variable), got {quote(spread)}")
     return tol_x
@@ -376,8 +381,11 @@ def _initial_memory(cfg: HarmonyConfig, gen: np.random.Generator, lo: NDArray[np
         init = np.atleast_2d(np.asarray(initial, dtype=float))
         if init.ndim != 2 or init.shape[1] != dim:
             raise ShapeError(f"initial guesses must have shape (K, {dim}), got {np.asarray(initial).shape}")
-        init = init[np.all(np.isfinite(init), axis=1)][:hms]
-        memory[: len(init)] = np.clip(init, lo, hi)
+        if not np.isfinite(init).all():
+            init = init[np.all(np.isfinite(init), axis=1)]
+        init = init[:hms]
+        # np.clip's arithmetic (lo <= hi), without its dispatch
+        memory[: len(init)] = np.minimum(np.maximum(init, lo), hi)
     return memory
 
 

@@ -14,6 +14,7 @@ reported fitness and inlier ratio.
 
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
@@ -79,6 +80,8 @@ def _check_bounds(bounds: ArrayLike, dof: int) -> NDArray[np.float64]:
         raise ShapeError(f"bounds must be a numeric array of shape ({dof}, 2)") from None
     if b.shape != (dof, 2):
         raise ShapeError(f"bounds must have shape ({dof}, 2) [lower, upper] for a {dof}-DOF pose, got {b.shape}")
+    if all(-1e300 < lo <= hi < 1e300 for lo, hi in b.tolist()):  # a valid box, its widths finite, on floats
+        return b
     if not np.all(np.isfinite(b)):
         raise InputError(f"bounds must be finite, got {b.tolist()}")
     bad = np.flatnonzero(b[:, 1] < b[:, 0])
@@ -228,7 +231,8 @@ def _search_sample(src: NDArray[np.float64], cfg: RegistrationConfig, gen: np.ra
         sample = _subsample(src, voxel, cfg.max_points, gen)
     except InputError as exc:
         raise type(exc)(f"source: {exc}") from None
-    return sample, float(np.sqrt(((sample - sample.mean(0)) ** 2).sum(1).mean())) + 1e-9
+    n = len(sample)
+    return sample, math.sqrt(((sample - sample.sum(0) / n) ** 2).sum(1).sum() / n) + 1e-9
 
 
 def _prepared(source: ArrayLike, target: ArrayLike | RegistrationTarget, cfg: RegistrationConfig
@@ -344,7 +348,9 @@ def _scores(src: NDArray[np.float64], full: NDArray[np.float64], tgt: Registrati
     else:
         d = np.minimum(tgt.nearest(transform_points(pose_to_matrix(pose), src), cfg.threshold)[0], cfg.threshold)
     inl = d < cfg.threshold * (1 - 1e-6)
-    inlier_ratio = float(inl.mean())
-    fitness = float(d.mean() / cfg.threshold + cfg.inlier_weight * (1.0 - inlier_ratio))
-    rmse = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else float("nan")
+    # the means as numpy's mean computes them (the sum, then a division), without its dispatch
+    n_in = int(np.count_nonzero(inl))
+    inlier_ratio = n_in / len(d)
+    fitness = float(d.sum() / len(d) / cfg.threshold + cfg.inlier_weight * (1.0 - inlier_ratio))
+    rmse = math.sqrt((d[inl] ** 2).sum() / n_in) if n_in else float("nan")
     return fitness, inlier_ratio, rmse

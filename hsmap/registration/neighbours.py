@@ -17,6 +17,8 @@ the points' bounding box, so the grid is for local maps and scans, not for a who
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
@@ -117,7 +119,7 @@ class NeighbourGrid:
         if q.ndim != 2 or q.shape[1] != self.dim:
             raise ShapeError(f"query points must have shape (N, {self.dim}), got {q.shape}")
         bound = float(distance_upper_bound)
-        if not (bound > 0 and np.isfinite(bound)):
+        if not (bound > 0 and math.isfinite(bound)):
             raise InputError(f"distance_upper_bound must be a finite distance > 0 m, got {distance_upper_bound}")
         n = len(q)
         d = np.empty(n)
@@ -143,9 +145,9 @@ class NeighbourGrid:
         h = np.asarray(hint)
         if h.shape != (n,) or not np.issubdtype(h.dtype, np.integer):
             raise ShapeError(f"hint must be ({n},) whole numbers (rows of the grid's points), got {h.dtype} {h.shape}")
-        rank = self.rank()
-        ok = (h >= 0) & (h < len(self.points))
-        return np.where(ok, rank[np.where(ok, h, 0)], -1)
+        from . import _kernels  # numba: compiled on first use
+
+        return _kernels.hint_places(h, self.rank())
 
     def rank(self) -> NDArray[np.int64]:
         """Each row's place in the grid's sorted points (M,), built on first use."""

@@ -27,6 +27,8 @@ def _clean_cloud(points: ArrayLike, name: str, dim: int | None = None) -> tuple[
                          f"both must be 2D (N, 2) or both 3D (N, 3)")
     if arr.shape[0] == 0:
         raise EmptyInputError(f"{name} is empty: expected at least one point")
+    if np.isfinite(arr).all():
+        return arr, 0
     ok = np.all(np.isfinite(arr), axis=1)
     dropped = int((~ok).sum())
     if dropped:
@@ -60,11 +62,7 @@ def spans_its_space(points: NDArray[np.float64], rank: int | None = None) -> boo
     rank = d if rank is None else rank
     if len(pts) < rank + 1:
         return False
-    scale, scatter = _kernels.centred_scatter(pts)
-    if not scale > 0 or not np.isfinite(scale):
-        return rank == 0
-    ev = np.linalg.eigvalsh(scatter)  # ascending; spreads squared
-    return bool(ev[d - rank] > 1e-18 * ev[-1])
+    return bool(_kernels.spans_rank(pts, rank))
 
 
 class RegistrationTarget:

@@ -168,6 +168,7 @@ class OdometryModel:
         self.outliers: list[int] = []
         self.scale = np.ones(2)
         self.bias = np.zeros(3)
+        self._corrected: tuple | None = None  # the last step corrected: (the bias, the step's bytes, the result)
         # the one-frame disagreements with the registrations (bias) and the lagged ones (scale), in model sigmas
         self._disagreement = _Window(config.odometry_window)
         self._lagged = _Window(config.odometry_window)
@@ -305,13 +306,22 @@ class OdometryModel:
         """The step with the learned bias taken out (in the model's sigmas: it grows with distance and turn)."""
         if not self.bias.any():
             return step
+        # a frame corrects its step several times (predictions, the wheel motion): the step, bit for bit, under
+        # the same bias (replaced when learned, never changed in place) is corrected once
+        key = np.asarray(step, dtype=float).tobytes()
+        kept = self._corrected
+        if kept is not None and kept[0] is self.bias and kept[1] == key:
+            return kept[2].copy()
         st, sr = self.model_sigmas(step)
         bx, by, byaw = self.bias.tolist()
         if self.config.dof == 3 and single_2d(step):
-            return np.array(compose_2d(step.tolist(), (bx * st, by * st, byaw * sr)))
-        fix = np.zeros(self.config.dof)
-        fix[0], fix[1], fix[-1] = bx * st, by * st, byaw * sr
-        return compose(step, fix)
+            out = np.array(compose_2d(step.tolist(), (bx * st, by * st, byaw * sr)))
+        else:
+            fix = np.zeros(self.config.dof)
+            fix[0], fix[1], fix[-1] = bx * st, by * st, byaw * sr
+            out = compose(step, fix)
+        self._corrected = (self.bias, key, out)
+        return out.copy()
 
     def learn_bias(self, frame: Frame, res: RegistrationResult, previous_pose: NDArray[np.float64]) -> None:
         """Record how far the frame's first registration lies from the raw odometry's prediction (from
@@ -377,7 +387,7 @@ class OdometryModel:
             return
         spread = [1.4826 * self._lagged.deviation(c) for c in range(3)]  # MAD as a Gaussian's sigma
         lo, hi = cfg.odometry_scale_bounds
-        self.scale = np.clip([max(spread[0], spread[1]), spread[2]], lo, hi)
+        self.scale = np.array([min(max(max(spread[0], spread[1]), lo), hi), min(max(spread[2], lo), hi)])
 
     def accumulate_wheel(self, frame: Frame) -> None:
         """Add the frame's step (bias out) to the wheel motion since the newest keyframe, its covariance

@@ -6,6 +6,7 @@ runs, a small search in the box of the prediction's uncertainty where that box i
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import replace
 
@@ -31,6 +32,14 @@ __all__ = ["SearchBox", "same_pose", "TIGHT_HARMONY"]
 #: soon after its last improvement leaves few drawn and unused). The box is a few field cells wide and the
 #: refinement's basin holds all of it: the search needs to find the right cell, not to explore.
 TIGHT_HARMONY = {"memory_size": 10, "batch_size": 8, "patience": 5, "draw_rounds": 6}
+
+
+def _median(values: list[float]) -> float:
+    """The median of finite floats (at least one), as ``np.median`` gives it: the middle value, or the mean of
+    the two middle ones (their sum halved)."""
+    s = sorted(values)
+    k = len(s) // 2
+    return s[k] if len(s) % 2 else (s[k - 1] + s[k]) / 2
 
 
 def same_pose(a: NDArray[np.float64], b: NDArray[np.float64]) -> bool:
@@ -67,11 +76,14 @@ class SearchBox:
         if cfg.dof != 3 or prediction is None:
             return None
         centre, sig = prediction
-        h = np.array([sig[0], sig[0], sig[1]]) * cfg.verify_sigmas
-        h[:2] = np.maximum(h[:2], 2 * cfg.effective_scan_voxel())
-        if np.any(h >= half):
+        # the half-widths (translation, yaw) and the box on floats: the arithmetic of the arrays
+        t = max(float(sig[0]) * cfg.verify_sigmas, 2 * cfg.effective_scan_voxel())
+        r = float(sig[1]) * cfg.verify_sigmas
+        h0, h1, h2 = half.tolist()
+        if t >= h0 or t >= h1 or r >= h2:
             return None
-        return np.column_stack([centre - h, centre + h])
+        x, y, yaw = centre.tolist()
+        return np.array([[x - t, x + t], [y - t, y + t], [yaw - r, yaw + r]])
 
     def tight_config(self) -> RegistrationConfig:
         """The tracking's registration settings with the small Harmony Search of a tight box
@@ -88,10 +100,12 @@ class SearchBox:
         slipped more than its sigmas say), or it fails the inlier check (:meth:`passes`)."""
         reg = self.config.registration
         cell = reg.field_resolution or max(0.02, reg.search_threshold / 10.0)
-        radius = float(np.sqrt(((scan - scan.mean(0)) ** 2).sum(1).mean())) + 1e-9
-        margin = np.array([cell, cell, cell / radius])
-        g = res.global_pose
-        return bool(np.any(g <= box[:, 0] + margin) or np.any(g >= box[:, 1] - margin)) or not self.passes(res)
+        n = len(scan)  # the means as numpy's mean computes them (a sum, then a division)
+        radius = math.sqrt(((scan - scan.sum(0) / n) ** 2).sum(1).sum() / n) + 1e-9
+        margin = (cell, cell, cell / radius)
+        edge = any(g <= lo + m or g >= hi - m for g, (lo, hi), m in zip(res.global_pose.tolist(), box.tolist(),
+                                                                        margin, strict=True))
+        return edge or not self.passes(res)
 
     def record(self, inlier_ratio: float, verified: bool) -> None:
         """Remember a tracked frame's inlier ratio and whether it was confirmed."""
@@ -143,10 +157,10 @@ class SearchBox:
         if len(recent) < 3:
             self._inliers = (None, None)
             return self._inliers
-        ref = float(np.median(recent))
+        ref = _median(recent)
         floor = self.config.min_inlier_share * ref
         if self.follows_motion:
-            spread = 1.4826 * float(np.median(np.abs(np.array(recent) - ref)))
+            spread = 1.4826 * _median([abs(r - ref) for r in recent])
             floor = max(floor, ref - self.config.verify_sigmas * spread)
         self._inliers = (ref, floor)
         return self._inliers

@@ -118,3 +118,17 @@ def test_a_6dof_run_loads_its_compiled_kernels_before_its_clock_starts():
             "print(sorted(k.__name__ for k in kernels if not k.signatures))\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, check=True)
     assert out.stdout.strip() == "[]"
+
+
+def test_loading_the_kernels_never_fails_a_run_whose_ranges_the_warm_up_does_not_suit(monkeypatch):
+    """A configuration whose ranges leave the warm-up's synthetic sweeps no points leaves the loading to the run:
+    neither an error nor a warning comes of the warm-up."""
+    import warnings
+
+    from hsmap.slam import run as run_module
+
+    monkeypatch.setattr(run_module, "_kernels_loaded", False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        run_module.load_kernels(SlamConfig(dof=6, max_range=1.0))
+    assert run_module._kernels_loaded

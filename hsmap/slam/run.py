@@ -18,7 +18,7 @@ from .._helper_process import cpu_seconds, peak_memory_mb
 from .._threads import threads_limited
 from ..config import dump_config, to_dict
 from ..datasets.frames import Dataset, Frame
-from ..errors import EmptyInputError, HsmapWarning, InputError, UnusableFrameError
+from ..errors import EmptyInputError, HsmapError, HsmapWarning, InputError, UnusableFrameError
 from ..io import write_json, write_ply_points
 from ..maps.mapping import VoxelMap
 from ..progress import bar as progress_bar
@@ -224,6 +224,7 @@ def run_slam(
 #: The warm-up's sweeps (:func:`load_kernels`): a sensor moving along x in a box room, points on its walls,
 #: floor and ceiling and on a pillar, so that every direction is constrained.
 _WARM_SWEEPS = 3
+_kernels_loaded = False  # whether load_kernels ran in this process
 
 
 def load_kernels(config: SlamConfig) -> None:
@@ -231,8 +232,13 @@ def load_kernels(config: SlamConfig) -> None:
     on first use) now, not in the run's first frames: a throwaway tracker registers a few small synthetic sweeps.
 
     Loading code is start-up, like importing a library: :func:`run_slam` calls this before it starts its clock,
-    so that its CPU time is the frames' work. The throwaway tracker has its own random stream; nothing of it is
-    kept."""
+    so that its CPU time is the frames' work. Loaded code stays loaded: this runs once per process. The throwaway
+    tracker has its own random stream and its warnings are not shown; nothing of it is kept, and a configuration
+    its sweeps do not suit leaves the loading to the run."""
+    global _kernels_loaded
+    if _kernels_loaded:
+        return
+    _kernels_loaded = True
     gen = np.random.default_rng(0)
     faces = []
     for axis, (lo, hi) in enumerate(((-6.0, 6.0), (-4.0, 4.0), (-1.5, 1.5))):
@@ -244,10 +250,15 @@ def load_kernels(config: SlamConfig) -> None:
     pillar[:300, 0] = 1.5
     pillar[300:, 1] = 1.0
     world = np.vstack([*faces, pillar])
-    tracker = HsSlam(config, rng=0)
-    for k in range(_WARM_SWEEPS):
-        sensor = np.array([0.1 * k, 0.0, 0.0])
-        tracker.process(Frame(stamp=0.5 * k, cloud3d=world - sensor, index=k))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # about the synthetic sweeps: none concerns the user's
+        try:
+            tracker = HsSlam(config, rng=0)
+            for k in range(_WARM_SWEEPS):
+                sensor = np.array([0.1 * k, 0.0, 0.0])
+                tracker.process(Frame(stamp=0.5 * k, cloud3d=world - sensor, index=k))
+        except HsmapError:
+            pass  # a configuration the synthetic sweeps do not suit (ranges, voxels): the run loads what it uses
 
 
 def _finished(slam: HsSlam, dataset: Dataset | Iterable[Frame], source: str, skipped: list[dict], n_read: int,

@@ -100,4 +100,4 @@ def test_hs_slam_on_sweeps_does_not_count_reading_them(rng, monkeypatch):
     monkeypatch.setattr(real_sweeps, "open_sweeps", lambda folder: SlowReader())
     r = real_sweeps.run_hs_slam("unused", seed=1)
     assert len(r.trajectory) == 3
-    assert r.cpu_seconds < spin / 2
+    assert r.cpu_seconds < spin  # counting the reading would give more than spin

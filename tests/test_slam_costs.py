@@ -99,3 +99,36 @@ def test_graph_optimisation_reports_its_rounds_and_iterations(solver):
     assert out.status == "ok"
     assert 1 <= out.rounds <= 3
     assert out.iterations_total >= out.iterations >= 1
+
+
+def test_a_6dof_run_loads_its_compiled_kernels_before_its_clock_starts():
+    """``load_kernels`` (which ``run_slam`` calls before it reads the clock) leaves the 6-DOF tracking's kernels
+    loaded in a fresh process: the run's CPU time is then the frames' work, not numba's start-up."""
+    import subprocess
+    import sys
+
+    code = ("from hsmap.slam import SlamConfig\n"
+            "from hsmap.slam.run import load_kernels\n"
+            "from hsmap.registration import _kernels as K\n"
+            "from hsmap.maps import _kernels as M\n"
+            "kernels = (K.hs_search_field, K.icp_on_grid_3d, K.grid_nearest, K.grid_build, K.splat_field_3d,\n"
+            "           M.voxel_centroids, M.voxel_accumulate)\n"
+            "assert not any(k.signatures for k in kernels)\n"
+            "load_kernels(SlamConfig(dof=6))\n"
+            "print(sorted(k.__name__ for k in kernels if not k.signatures))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, check=True)
+    assert out.stdout.strip() == "[]"
+
+
+def test_loading_the_kernels_never_fails_a_run_whose_ranges_the_warm_up_does_not_suit(monkeypatch):
+    """A configuration whose ranges leave the warm-up's synthetic sweeps no points leaves the loading to the run:
+    neither an error nor a warning comes of the warm-up."""
+    import warnings
+
+    from hsmap.slam import run as run_module
+
+    monkeypatch.setattr(run_module, "_kernels_loaded", False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        run_module.load_kernels(SlamConfig(dof=6, max_range=1.0))
+    assert run_module._kernels_loaded

@@ -73,3 +73,31 @@ def test_the_floor_is_the_one_under_the_walk_and_the_slice_is_one_room(rng):
 
     with pytest.raises(InputError, match="one pose a sweep"):
         slice_rooms(_sweeps(world, traj)[:3], traj, (1.2, 1.4))
+
+
+def test_hs_slam_on_sweeps_does_not_count_reading_them(rng, monkeypatch):
+    """``run_hs_slam`` reads the sweeps before its clock starts, as the peers' runs do: a reader that spends
+    seconds of CPU time adds none of them to the run's."""
+    import time
+
+    from hsmap.datasets.frames import Frame
+    from hsmap.study import real_sweeps
+
+    world = _hall(rng, step=0.1)
+    traj = _walk(3)
+    spin = 3.0
+
+    class SlowReader:
+        odometry = None
+
+        def frames(self, clouds=True):
+            for k, cloud in enumerate(_sweeps(world, traj)):
+                c0 = time.process_time()
+                while time.process_time() - c0 < spin / 3:
+                    pass
+                yield Frame(stamp=float(traj.stamps[k]), cloud3d=cloud, index=k)
+
+    monkeypatch.setattr(real_sweeps, "open_sweeps", lambda folder: SlowReader())
+    r = real_sweeps.run_hs_slam("unused", seed=1)
+    assert len(r.trajectory) == 3
+    assert r.cpu_seconds < spin  # counting the reading would give more than spin

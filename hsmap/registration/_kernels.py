@@ -694,6 +694,29 @@ def _own_cell(sp, start, origin, inv_cell, dims, x, y, z):  # pragma: no cover -
     return best, bj
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _search_start(sp, start, origin, inv_cell, dims, x, y, z, bound, h):  # pragma: no cover - JIT
+    """Where a search for the nearest of the sorted points ``sp`` to (x, y(, z)) within ``bound`` starts: the hint
+    place ``h`` (-1: none) where it lies within the bound, else the nearest point in the query's own cell, else
+    nothing: (squared distance, place, reach), (bound squared, -1, bound) for nothing. Only the cells within the
+    reach can hold a point as near."""
+    d = sp.shape[1]
+    b2 = bound * bound
+    if h >= 0:
+        e0 = sp[h, 0] - x
+        e1 = sp[h, 1] - y
+        s = e0 * e0 + e1 * e1  # as the searches sum it
+        if d == 3:
+            e2 = sp[h, 2] - z
+            s += e2 * e2
+        if s < b2:
+            return s, h, np.sqrt(s)
+    s, h = _own_cell(sp, start, origin, inv_cell, dims, x, y, z)
+    if s < b2:
+        return s, h, np.sqrt(s)
+    return b2, -1, bound
+
+
 @nb.njit(cache=True, nogil=True)
 def grid_nearest(sp, order, start, origin, inv_cell, dims, q, bound, hint, out_d, out_i, lo, hi):  # pragma: no cover
     """Nearest of the sorted points ``sp`` (2D or 3D) to q[lo:hi] closer than ``bound``: distance (inf if none)
@@ -706,32 +729,11 @@ def grid_nearest(sp, order, start, origin, inv_cell, dims, q, bound, hint, out_d
     in q[i]'s own cell serves as the hint."""
     n, d = sp.shape
     last = d - 1
-    b2 = bound * bound
     for i in range(lo, hi):
         x = q[i, 0]
         y = q[i, 1]
         z = q[i, last]
-        best = b2
-        bj = -1
-        reach = bound
-        h = hint[i]
-        if h >= 0:
-            e0 = sp[h, 0] - x
-            e1 = sp[h, 1] - y
-            s = e0 * e0 + e1 * e1  # as the search below sums it
-            if d == 3:
-                e2 = sp[h, 2] - z
-                s += e2 * e2
-            if s < b2:
-                best = s
-                bj = h
-                reach = np.sqrt(s)
-        if bj < 0:  # no hint: the nearest point in the query's own cell is one
-            s, h = _own_cell(sp, start, origin, inv_cell, dims, x, y, z)
-            if s < b2:
-                best = s
-                bj = h
-                reach = np.sqrt(s)
+        best, bj, reach = _search_start(sp, start, origin, inv_cell, dims, x, y, z, bound, hint[i])
         x0, x1 = _cell_range(x, reach, origin[0], inv_cell, dims[0])
         if d == 3:
             y0, y1 = _cell_range(y, reach, origin[1], inv_cell, dims[1])
@@ -948,26 +950,7 @@ def _nearest_3d(sp, order, start, origin, inv_cell, dims, x, y, z, bound, h, mar
     The cells searched reach ``margin`` beyond those :func:`grid_nearest` searches (which changes no answer): the
     nearest of the other points in them, or the reach where none is, bounds how far the point can move before
     another grid point could be its nearest."""
-    b2 = bound * bound
-    best = b2
-    bj = -1
-    reach = bound
-    if h >= 0:
-        e0 = sp[h, 0] - x
-        e1 = sp[h, 1] - y
-        s = e0 * e0 + e1 * e1
-        e2 = sp[h, 2] - z
-        s += e2 * e2
-        if s < b2:
-            best = s
-            bj = h
-            reach = np.sqrt(s)
-    if bj < 0:  # no hint: the nearest point in the query's own cell is one
-        s, h = _own_cell(sp, start, origin, inv_cell, dims, x, y, z)
-        if s < b2:
-            best = s
-            bj = h
-            reach = np.sqrt(s)
+    best, bj, reach = _search_start(sp, start, origin, inv_cell, dims, x, y, z, bound, h)
     reach += margin
     second = np.inf
     x0, x1 = _cell_range(x, reach, origin[0], inv_cell, dims[0])

@@ -18,7 +18,7 @@ from .._helper_process import cpu_seconds, peak_memory_mb
 from .._threads import threads_limited
 from ..config import dump_config, to_dict
 from ..datasets.frames import Dataset, Frame
-from ..errors import EmptyInputError, HsmapWarning, InputError, UnusableFrameError
+from ..errors import EmptyInputError, HsmapError, HsmapWarning, InputError, UnusableFrameError
 from ..io import write_json, write_ply_points
 from ..maps.mapping import VoxelMap
 from ..progress import bar as progress_bar
@@ -26,7 +26,7 @@ from ..trajectory import Trajectory, write_tum
 from .config import SlamConfig
 from .tracker import FrameResult, HsSlam
 
-__all__ = ["SlamResult", "run_slam", "write_slam_outputs", "prior_coverage"]
+__all__ = ["SlamResult", "run_slam", "write_slam_outputs", "prior_coverage", "load_kernels"]
 
 
 @dataclass
@@ -209,6 +209,8 @@ def run_slam(
     total = len(dataset) if isinstance(dataset, Dataset) else None
     if max_frames is not None:
         total = min(total, max_frames) if total is not None else max_frames
+    if dof == 6:
+        load_kernels(slam.config)
     t0, c0 = time.perf_counter(), cpu_seconds()  # the helper process's CPU too
     bar = progress_bar(total, unit="scan" if dof == 3 else "cloud", desc=f"HS-SLAM {dof}-DOF", progress=progress)
     source = str(getattr(dataset, "path", "") or getattr(dataset, "name", "") or "the input")
@@ -217,6 +219,46 @@ def run_slam(
     finally:
         bar.close()
     return _finished(slam, dataset, source, skipped, n_read, prior_info, (t0, c0))
+
+
+#: The warm-up's sweeps (:func:`load_kernels`): a sensor moving along x in a box room, points on its walls,
+#: floor and ceiling and on a pillar, so that every direction is constrained.
+_WARM_SWEEPS = 3
+_kernels_loaded = False  # whether load_kernels ran in this process
+
+
+def load_kernels(config: SlamConfig) -> None:
+    """Load the compiled kernels a 6-DOF run with ``config`` uses (numba's on-disk caches, and its typing context
+    on first use) now, not in the run's first frames: a throwaway tracker registers a few small synthetic sweeps.
+
+    Loading code is start-up, like importing a library: :func:`run_slam` calls this before it starts its clock,
+    so that its CPU time is the frames' work. Loaded code stays loaded: this runs once per process. The throwaway
+    tracker has its own random stream and its warnings are not shown; nothing of it is kept, and a configuration
+    its sweeps do not suit leaves the loading to the run."""
+    global _kernels_loaded
+    if _kernels_loaded:
+        return
+    _kernels_loaded = True
+    gen = np.random.default_rng(0)
+    faces = []
+    for axis, (lo, hi) in enumerate(((-6.0, 6.0), (-4.0, 4.0), (-1.5, 1.5))):
+        for side in (lo, hi):
+            f = gen.uniform([-6.0, -4.0, -1.5], [6.0, 4.0, 1.5], (1500, 3))
+            f[:, axis] = side
+            faces.append(f)
+    pillar = gen.uniform([1.5, 1.0, -1.5], [2.0, 1.5, 1.5], (600, 3))
+    pillar[:300, 0] = 1.5
+    pillar[300:, 1] = 1.0
+    world = np.vstack([*faces, pillar])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # about the synthetic sweeps: none concerns the user's
+        try:
+            tracker = HsSlam(config, rng=0)
+            for k in range(_WARM_SWEEPS):
+                sensor = np.array([0.1 * k, 0.0, 0.0])
+                tracker.process(Frame(stamp=0.5 * k, cloud3d=world - sensor, index=k))
+        except HsmapError:
+            pass  # a configuration the synthetic sweeps do not suit (ranges, voxels): the run loads what it uses
 
 
 def _finished(slam: HsSlam, dataset: Dataset | Iterable[Frame], source: str, skipped: list[dict], n_read: int,

@@ -695,20 +695,26 @@ def _own_cell(sp, start, origin, inv_cell, dims, x, y, z):  # pragma: no cover -
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
+def _dist2(sp, j, x, y, z):  # pragma: no cover - JIT
+    """Squared distance of row ``j`` of ``sp`` (2D or 3D) to (x, y(, z)), summed in the order cKDTree sums in."""
+    e0 = sp[j, 0] - x
+    e1 = sp[j, 1] - y
+    s = e0 * e0 + e1 * e1
+    if sp.shape[1] == 3:
+        e2 = sp[j, 2] - z
+        s += e2 * e2
+    return s
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
 def _search_start(sp, start, origin, inv_cell, dims, x, y, z, bound, h):  # pragma: no cover - JIT
     """Where a search for the nearest of the sorted points ``sp`` to (x, y(, z)) within ``bound`` starts: the hint
     place ``h`` (-1: none) where it lies within the bound, else the nearest point in the query's own cell, else
     nothing: (squared distance, place, reach), (bound squared, -1, bound) for nothing. Only the cells within the
     reach can hold a point as near."""
-    d = sp.shape[1]
     b2 = bound * bound
     if h >= 0:
-        e0 = sp[h, 0] - x
-        e1 = sp[h, 1] - y
-        s = e0 * e0 + e1 * e1  # as the searches sum it
-        if d == 3:
-            e2 = sp[h, 2] - z
-            s += e2 * e2
+        s = _dist2(sp, h, x, y, z)
         if s < b2:
             return s, h, np.sqrt(s)
     s, h = _own_cell(sp, start, origin, inv_cell, dims, x, y, z)
@@ -746,12 +752,7 @@ def grid_nearest(sp, order, start, origin, inv_cell, dims, q, bound, hint, out_d
                 for cy in range(y0, y1 + 1):
                     base = (cx * stride + cy) * dims[last]
                     for j in range(start[base + z0], start[base + z1 + 1]):
-                        e0 = sp[j, 0] - x
-                        e1 = sp[j, 1] - y
-                        s = e0 * e0 + e1 * e1  # the order cKDTree sums in
-                        if d == 3:
-                            e2 = sp[j, 2] - z
-                            s += e2 * e2
+                        s = _dist2(sp, j, x, y, z)
                         if s < best or (s == best and bj >= 0 and order[j] < order[bj]):
                             best = s
                             bj = j
